@@ -1,0 +1,34 @@
+"""Exceptions deformgl raises on purpose.
+
+Every error a user can cause is a :class:`DeformglError`; the CLI prints its message on one line
+and exits non-zero. Messages name the file and the key, vertex or node that is wrong.
+"""
+
+from __future__ import annotations
+
+
+class DeformglError(Exception):
+    """Base class: an error with a message meant for the user, printed without a traceback."""
+
+
+class InputError(DeformglError):
+    """Bad input: a mesh, scene or node file that cannot be used as given."""
+
+
+class SceneError(InputError):
+    """A scene file key that is unknown, of the wrong type, or has an impossible value.
+
+    The message has the form ``"<file>: <key.path>: <what is wrong>"``.
+    """
+
+
+class GLError(DeformglError):
+    """The OpenGL context could not be created or lacks a required capability."""
+
+
+class ShaderError(DeformglError):
+    """A shader file could not be preprocessed or compiled, or a uniform name is wrong."""
+
+
+class SimulationError(DeformglError):
+    """The simulation produced non-finite values or was asked for something it cannot do."""
