@@ -1,0 +1,108 @@
+"""``deformgl bench``: speed as ratios against a baseline measured in the same process.
+
+Timings include a ``ctx.finish()`` so the GPU work is really done; each figure is the median
+of several repeats. Every report names the machine and the renderer.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from .context import context_info
+from .fragment_sim import FragmentSimulation
+from .grid import NodeGrid
+from .model import SpringModel
+from .reference import ReferenceVerlet
+
+#: The benchmark volumes: about 4k, 20k and 131k nodes, full blocks.
+SIM_GRIDS = ((16, 16, 16), (27, 27, 27), (64, 64, 32))
+
+
+def machine_line(ctx: moderngl.Context) -> str:
+    """One line naming the CPU, core count and GL renderer."""
+    info = context_info(ctx)
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    return f"machine: {cpu}, {os.cpu_count()} cores; renderer: {info.renderer}; GL {info.version}"
+
+
+def timed(fn: Callable[[], None], repeats: int = 5) -> float:
+    """Median wall time of ``fn`` in seconds."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def block_model(shape: tuple[int, int, int], spacing: float = 0.01) -> SpringModel:
+    """A full block of nodes, top layer fixed, moderate damping: the benchmark scene."""
+    grid = NodeGrid(np.zeros(3), spacing, np.ones(shape, bool))
+    n = grid.count
+    return SpringModel(grid=grid, mass=np.full(n, 1e-3), fixed=grid.ijk[:, 1] == shape[1] - 1,
+                       pull_groups=np.zeros(n, np.uint8), k_structural=10.0, k_shear=10.0,
+                       damping=1e-3, gravity=np.array([0.0, -9.81, 0.0]))
+
+
+@dataclass
+class SimRow:
+    """One grid of ``bench sim``."""
+
+    nodes: int
+    variant_ms: dict[str, float]
+    numpy_ms: float
+
+
+def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, variants=None) -> list[SimRow]:
+    """Fragment-pass Verlet step against the float64 NumPy reference on the same grids."""
+    variants = variants or {"quad": dict(draw="quad"), "quad+branch": dict(draw="quad", branch=True),
+                            "points": dict(draw="points")}
+    rows = []
+    for shape in grids:
+        model = block_model(shape)
+        dt = 0.2 / model.max_angular_frequency()
+        per_variant = {}
+        for name, kw in variants.items():
+            sim = FragmentSimulation(ctx, model, dt, **kw)
+            sim.step(3)
+            ctx.finish()
+
+            def run(sim: FragmentSimulation = sim) -> None:
+                sim.step(steps)
+                ctx.finish()
+
+            per_variant[name] = timed(run) / steps * 1e3
+            sim.release()
+        ref = ReferenceVerlet(model, dt)
+        ref_steps = max(1, min(steps, int(2e5 // model.grid.count)))
+        numpy_ms = timed(lambda: ref.step(ref_steps), repeats=3) / ref_steps * 1e3
+        rows.append(SimRow(model.grid.count, per_variant, numpy_ms))
+    return rows
+
+
+def format_sim(rows: list[SimRow], machine: str) -> str:
+    """The ``bench sim`` table."""
+    names = list(rows[0].variant_ms)
+    head = f"{'nodes':>8} | " + " | ".join(f"{n + ' ms/step':>20} {'Mnode/s':>8}" for n in names)
+    head += f" | {'numpy ms/step':>13} | {'speed-up vs numpy':>17}"
+    lines = [machine, "fragment pass, position Verlet, 18 neighbours (eq. 1-3); baseline: float64 "
+             "NumPy reference in this process", head, "-" * len(head)]
+    for r in rows:
+        cells = " | ".join(f"{ms:>20.3f} {r.nodes / ms / 1e3:>8.1f}" for ms in r.variant_ms.values())
+        best = min(r.variant_ms.values())
+        lines.append(f"{r.nodes:>8} | {cells} | {r.numpy_ms:>13.2f} | {r.numpy_ms / best:>16.1f}x")
+    return "\n".join(lines)

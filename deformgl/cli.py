@@ -1,0 +1,111 @@
+"""The ``deformgl`` command: render scenes to PNG, print GL information, run benchmarks."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .errors import DeformglError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="deformgl",
+        description="GPU mass-spring soft bodies on a coarse grid, rendered headless to PNG "
+                    "through OpenGL on EGL (Mesa llvmpipe without a GPU).")
+    p.add_argument("--device", type=int, default=None,
+                   help="EGL device index (default: $DEFORMGL_DEVICE, else EGL's default)")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    r = sub.add_parser("render", help="simulate a scene and write a PNG",
+                       description="Simulate a scene file (TOML) on the GPU and render it to PNG. "
+                                   "The PNG is written to a temporary file and renamed, so a failed "
+                                   "run never leaves a partial image.")
+    r.add_argument("scene", type=Path, help="scene file (.toml), e.g. scenes/dragon.toml")
+    r.add_argument("-o", "--output", type=Path, default=None,
+                   help="output PNG (default: the scene's output.path)")
+    r.add_argument("--steps", type=int, default=None, help="override physics.steps")
+    r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
+    r.add_argument("--mesh", type=Path, default=None,
+                   help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    sub.add_parser("info", help="print the GL renderer, version and limits",
+                   description="Create the headless context and print renderer, GL version, max "
+                               "texture size, vertex texture units and whether RGBA32F render "
+                               "targets work.")
+
+    b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
+                       description="Benchmarks. Figures are ratios against a baseline measured in "
+                                   "the same run, with the machine and renderer named.")
+    b.add_argument("what", choices=["sim"], help="sim: fragment-pass step vs the NumPy reference")
+    b.add_argument("--steps", type=int, default=40, help="steps per timing (default 40)")
+    return p
+
+
+def _render(args: argparse.Namespace) -> int:
+    from .context import create_context
+    from .pipeline import render_to_png
+    from .scene import load_scene, parse_size
+
+    scene = load_scene(args.scene)
+    size = None
+    if args.size is not None:
+        try:
+            size = parse_size(args.size)
+        except ValueError as exc:
+            raise DeformglError(f"--size: {exc}") from None
+    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size)
+    out = args.output or scene.output.path
+    if out.suffix.lower() != ".png":
+        raise DeformglError(f"{out}: the output must be a .png file")
+    if not out.parent.is_dir():
+        raise DeformglError(f"{out}: the output folder {out.parent} does not exist")
+    ctx = create_context(args.device)
+    try:
+        render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty())
+    finally:
+        ctx.release()
+    print(f"wrote {out}")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    from .context import context_info, create_context
+
+    ctx = create_context(args.device)
+    try:
+        print("\n".join(context_info(ctx).lines()))
+    finally:
+        ctx.release()
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from .bench import bench_sim, format_sim, machine_line
+    from .context import create_context
+
+    ctx = create_context(args.device)
+    try:
+        print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
+    finally:
+        ctx.release()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        return {"render": _render, "info": _info, "bench": _bench}[args.command](args)
+    except DeformglError as exc:
+        print(f"deformgl: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("deformgl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""The node grid: which nodes exist, their 18 implicit neighbours, and the texture atlas layout.
+
+Mosegaard & Sørensen 2005, section 3.1: particles on a regular 3D grid, each connected to the
+18 nearest neighbours that exist: 6 at distance h (set D1) and 12 at distance h*sqrt(2) (set D2).
+
+All model data here is immutable: a :class:`NodeGrid` is built once from a voxelization and never
+changes; per-node arrays are in node order (C order of ``np.nonzero(occupied)``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+#: The 18 neighbour offsets: first the 6 at distance 1 (D1), then the 12 at sqrt(2) (D2).
+#: Bit j of a node's neighbour mask is set when the neighbour at NEIGHBOUR_OFFSETS[j] exists.
+#: ``shaders/lib/neighbours.glsl`` lists the same offsets in the same order.
+NEIGHBOUR_OFFSETS = np.array(
+    [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1),
+     (1, 1, 0), (1, -1, 0), (-1, 1, 0), (-1, -1, 0),
+     (1, 0, 1), (1, 0, -1), (-1, 0, 1), (-1, 0, -1),
+     (0, 1, 1), (0, 1, -1), (0, -1, 1), (0, -1, -1)], dtype=np.int64)
+N_STRUCTURAL = 6
+N_NEIGHBOURS = 18
+#: Rest length of each neighbour's spring, in grid spacings (eq. 2: 1 and sqrt(2)).
+REST_LENGTH_UNITS = np.linalg.norm(NEIGHBOUR_OFFSETS, axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class NodeGrid:
+    """A regular grid of nodes, some of which exist.
+
+    Attributes:
+        origin: (3,) float64, world position of grid index (0, 0, 0).
+        spacing: grid spacing h in world units.
+        occupied: (nx, ny, nz) bool, True where a node exists.
+    """
+
+    origin: np.ndarray
+    spacing: float
+    occupied: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.origin.setflags(write=False)
+        self.occupied.setflags(write=False)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """Grid dimensions (nx, ny, nz), including empty positions."""
+        return tuple(int(n) for n in self.occupied.shape)  # type: ignore[return-value]
+
+    @cached_property
+    def ijk(self) -> np.ndarray:
+        """(N, 3) int64 grid index of each existing node, in node order."""
+        return np.argwhere(self.occupied)
+
+    @property
+    def count(self) -> int:
+        """Number of existing nodes N."""
+        return int(self.ijk.shape[0])
+
+    @cached_property
+    def index(self) -> np.ndarray:
+        """(nx, ny, nz) int64 node number at each grid position, -1 where no node exists."""
+        idx = np.full(self.shape, -1, dtype=np.int64)
+        idx[self.occupied] = np.arange(self.count)
+        return idx
+
+    @cached_property
+    def rest_positions(self) -> np.ndarray:
+        """(N, 3) float64 world positions of the nodes at rest."""
+        return self.origin + self.spacing * self.ijk.astype(np.float64)
+
+    @cached_property
+    def neighbours(self) -> np.ndarray:
+        """(N, 18) int64 node number of each neighbour in NEIGHBOUR_OFFSETS order, -1 if absent."""
+        padded = np.pad(self.index, 1, constant_values=-1)
+        base = self.ijk + 1
+        out = np.empty((self.count, N_NEIGHBOURS), dtype=np.int64)
+        for j, off in enumerate(NEIGHBOUR_OFFSETS):
+            q = base + off
+            out[:, j] = padded[q[:, 0], q[:, 1], q[:, 2]]
+        return out
+
+    @cached_property
+    def neighbour_mask(self) -> np.ndarray:
+        """(N,) uint32: bit j set when neighbour j exists (18 bits, exact in a float32)."""
+        bits = (self.neighbours >= 0).astype(np.uint32) << np.arange(N_NEIGHBOURS, dtype=np.uint32)
+        return np.bitwise_or.reduce(bits, axis=1).astype(np.uint32)
+
+    @cached_property
+    def springs(self) -> np.ndarray:
+        """(S, 2) int64 node pairs (a < b), each spring once; structural springs first."""
+        pairs = []
+        for j in range(N_NEIGHBOURS):
+            nb = self.neighbours[:, j]
+            a = np.nonzero(nb > np.arange(self.count))[0]
+            pairs.append(np.stack([a, nb[a]], axis=1))
+        return np.concatenate(pairs, axis=0)
+
+    def bbox_fraction(self, points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Points expressed as fractions of the box [lo, hi] (0 at lo, 1 at hi; flat axes give 0)."""
+        extent = np.where(hi - lo > 0, hi - lo, 1.0)
+        return (points - lo) / extent
+
+
+@dataclass(frozen=True)
+class AtlasLayout:
+    """How the 3D grid lies in a 2D texture: padded z-slices as tiles in rows.
+
+    The grid is padded by one empty node on every side, so every neighbour fetch of an existing
+    node lands inside the texture and no branch is needed to stay in range. Padded slice k (grid
+    z index k-1) is the tile at column ``k % tiles_x`` and row ``k // tiles_x``; inside a tile,
+    texel (x, y) is padded grid position (x, y). Texture size is (width, height) =
+    (tiles_x * (nx+2), tiles_y * (ny+2)).
+    """
+
+    nx: int
+    ny: int
+    nz: int
+    tiles_x: int
+    tiles_y: int
+
+    @classmethod
+    def for_grid(cls, shape: tuple[int, int, int], max_size: int) -> "AtlasLayout":
+        """Choose the tile arrangement: as square as possible, within ``max_size`` texels.
+
+        Raises:
+            ValueError: the grid does not fit in a ``max_size`` x ``max_size`` texture.
+        """
+        nx, ny, nz = shape
+        px, py, pz = nx + 2, ny + 2, nz + 2
+        best = None
+        for tiles_x in range(1, pz + 1):
+            tiles_y = -(-pz // tiles_x)
+            w, h = tiles_x * px, tiles_y * py
+            if w > max_size or h > max_size:
+                continue
+            score = (max(w, h), w * h)
+            if best is None or score < best[0]:
+                best = (score, tiles_x, tiles_y)
+        if best is None:
+            raise ValueError(
+                f"a {nx}x{ny}x{nz} node grid needs more than {max_size}x{max_size} texels "
+                f"(the GL texture limit)")
+        return cls(nx, ny, nz, best[1], best[2])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Texture (width, height) in texels."""
+        return self.tiles_x * (self.nx + 2), self.tiles_y * (self.ny + 2)
+
+    def texel(self, ijk: np.ndarray) -> np.ndarray:
+        """(N, 2) int64 texel (x, y) of grid indices ``ijk`` (N, 3) (unpadded, may be -1 or n)."""
+        p = np.asarray(ijk) + 1
+        tile_x, tile_y = p[:, 2] % self.tiles_x, p[:, 2] // self.tiles_x
+        return np.stack([tile_x * (self.nx + 2) + p[:, 0], tile_y * (self.ny + 2) + p[:, 1]], axis=1)
+
+    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
+        w, h = self.size
+        img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
+        t = self.texel(ijk)
+        img[t[:, 1], t[:, 0]] = values
+        return img
+
+    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
+        """Read per-node values (N, C) back out of a (height, width, C) texture image."""
+        t = self.texel(ijk)
+        return image[t[:, 1], t[:, 0]]

@@ -1,0 +1,158 @@
+"""From a scene to a PNG: load the mesh, build the grid and model, simulate, render, write.
+
+Positions are recentred on the mesh's bounding-box centre before anything reaches float32 GPU
+memory, so a mesh far from the origin keeps its precision; the offset is kept in
+:attr:`SceneModel.centre`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import moderngl
+import numpy as np
+import trimesh
+
+from .camera import View, frame_box
+from .errors import SimulationError
+from .fragment_sim import FragmentSimulation
+from .grid import NodeGrid
+from .imagediff import write_png_atomic
+from .meshio import load_mesh
+from .model import MAX_PULLS, SpringModel
+from .progress import Progress
+from .render import GridSurfacePass, Lighting, RenderTarget
+from .scene import Physics, Scene
+from .voxelize import voxelize
+
+
+@dataclass(frozen=True, eq=False)
+class SceneModel:
+    """Everything a scene builds on the CPU, once: recentred mesh, grid, spring model.
+
+    Attributes:
+        mesh: the detailed mesh, recentred.
+        centre: (3,) the world offset removed from every position.
+        grid: node grid (recentred coordinates).
+        model: the spring model.
+        bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
+    """
+
+    mesh: trimesh.Trimesh
+    centre: np.ndarray
+    grid: NodeGrid
+    model: SpringModel
+    bbox: np.ndarray
+
+
+def build_spring_model(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringModel:
+    """Per-node attributes from the scene's physics: mass, fixed regions, pull groups."""
+    frac = grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
+    fixed = np.zeros(grid.count, bool)
+    for region in physics.fixed:
+        fixed |= region.contains(frac)
+    groups = np.zeros(grid.count, np.uint8)
+    for g, pull in enumerate(physics.pull):
+        groups |= (pull.region.contains(frac).astype(np.uint8) << g)
+    return SpringModel(grid=grid, mass=np.full(grid.count, physics.mass), fixed=fixed,
+                       pull_groups=groups, k_structural=physics.stiffness, k_shear=physics.stiffness,
+                       damping=physics.damping, gravity=np.asarray(physics.gravity, dtype=np.float64),
+                       n_pulls=len(physics.pull))
+
+
+def pull_schedule(physics: Physics):
+    """Callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group."""
+    pulls = physics.pull
+
+    def forces(t: float) -> np.ndarray:
+        out = np.zeros((MAX_PULLS, 3))
+        for g, pull in enumerate(pulls):
+            out[g] = pull.force_at(t)
+        return out
+
+    return forces
+
+
+def build_scene_model(scene: Scene) -> SceneModel:
+    """Load and recentre the mesh, voxelize it into the node grid, build the spring model."""
+    mesh = load_mesh(scene.mesh.path)
+    lo, hi = mesh.bounds
+    centre = (lo + hi) / 2.0
+    mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, process=False)
+    vox = voxelize(mesh, nodes_along_longest=scene.grid.nodes_along_longest,
+                   spacing=scene.grid.spacing, source=str(scene.mesh.path))
+    grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
+                    occupied=np.asarray(vox.occupied, dtype=bool))
+    bbox = np.array(mesh.bounds, dtype=np.float64)
+    return SceneModel(mesh=mesh, centre=centre, grid=grid,
+                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+
+
+def scene_view(scene: Scene, bbox: np.ndarray) -> View:
+    """The scene's camera framing the rest bounding box."""
+    cam = scene.render.camera
+    w, h = scene.render.size
+    return frame_box(bbox[0], bbox[1], projection=cam.projection, azimuth=cam.azimuth,
+                     elevation=cam.elevation, fov=cam.fov, distance=cam.distance,
+                     target=np.asarray(cam.target), aspect=w / h)
+
+
+def scene_lighting(scene: Scene) -> Lighting:
+    """Light and material uniforms of a scene."""
+    r = scene.render
+    return Lighting(direction=tuple(r.light.direction), colour=tuple(r.light.colour),
+                    ambient=r.light.ambient, material=tuple(r.material.colour),
+                    specular=r.material.specular, shininess=r.material.shininess)
+
+
+def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25) -> None:
+    """Run ``steps`` steps on the GPU in chunks, showing progress; no read-back."""
+    ctx: moderngl.Context = sim.ctx
+    with Progress(steps, "steps", enabled=progress) as bar:
+        done = 0
+        while done < steps:
+            n = min(chunk, steps - done)
+            sim.step(n)
+            ctx.finish()
+            done += n
+            bar.update(done)
+
+
+def check_finite(sim: FragmentSimulation, source: Path) -> None:
+    """Read the final state once; a non-finite node stops the run with its number and grid index."""
+    pos = sim.read_state()
+    bad = ~np.isfinite(pos[:, :3]).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        ijk = tuple(int(v) for v in sim.model.grid.ijk[i])
+        raise SimulationError(
+            f"{source}: simulation diverged: node {i} (grid {ijk}) is non-finite after step "
+            f"{sim.steps_done} ({int(bad.sum())} nodes bad); reduce physics.dt or stiffness "
+            f"(highest angular frequency w = {sim.model.max_angular_frequency():.4g} rad/s, "
+            f"Verlet needs dt < 2/w = {2.0 / sim.model.max_angular_frequency():.4g} s)")
+
+
+def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False) -> np.ndarray:
+    """Simulate a scene and render it: (height, width, 3) uint8 image."""
+    built = build_scene_model(scene)
+    sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
+    target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
+    surface = GridSurfacePass(ctx, built.grid, sim.textures.layout, overlay=scene.render.show_grid)
+    try:
+        simulate(sim, scene.physics.steps, progress=progress)
+        check_finite(sim, scene.source)
+        target.begin(tuple(scene.render.background))
+        surface.draw(sim.position_texture, scene_view(scene, built.bbox), scene_lighting(scene))
+        return target.read_rgb()
+    finally:
+        surface.release()
+        target.release()
+        sim.release()
+
+
+def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False) -> np.ndarray:
+    """Render a scene and write the PNG atomically (temporary file, then rename)."""
+    image = render_scene(ctx, scene, progress=progress)
+    write_png_atomic(out, image)
+    return image

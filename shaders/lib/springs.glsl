@@ -1,0 +1,64 @@
+// Spring forces and approximate normals over the 18 implicit neighbours
+// (Mosegaard & Sorensen 2005, section 3.1).
+//
+// eq. 1: g_i = sum_j 1/2 k_ij (l_ij - |p_i - p_j|) (p_i - p_j)/|p_i - p_j|, with deformgl's
+// k = k_ij / 2 in N/m. Grouping the 6 springs of rest length h (D1) and the 12 of h*sqrt(2) (D2),
+// each group with one stiffness, gives eq. 2:
+//   g_i = k1 (h S1 - P1) + k2 (sqrt(2) h S2 - P2),
+//   S = sum of unit vectors (p_i - p_j)/|p_i - p_j|, P = sum of (p_i - p_j).
+// S1 + S2 is the unnormalised approximate normal of eq. 3.
+// Neighbour j exists when bit j of the node's mask is set; offsets in the order of
+// deformgl/grid.py NEIGHBOUR_OFFSETS. Without NEIGHBOUR_BRANCH the sum is branchless: an absent
+// neighbour (an empty, padded texel holding a finite position) is weighted by 0.
+
+uniform float u_spacing;        // h
+uniform float u_k_structural;   // k1, N/m
+uniform float u_k_shear;        // k2, N/m
+
+struct SpringSum {
+    vec3 force;     // g_i (eq. 1/2)
+    vec3 unit_sum;  // S1 + S2 (eq. 3 before normalisation)
+};
+
+#ifdef NEIGHBOUR_BRANCH
+#define NB_ACCUM(S, P, J, DX, DY, DZ) \
+    if ((mask & (1u << J)) != 0u) { \
+        vec3 d = p - texelFetch(positions, origin[DZ + 1] + local + ivec2(DX, DY), 0).xyz; \
+        float len = length(d); \
+        S += d / max(len, 1e-30); P += d; }
+#else
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { \
+        float w = float((mask >> J) & 1u); \
+        vec3 d = p - texelFetch(positions, origin[DZ + 1] + local + ivec2(DX, DY), 0).xyz; \
+        float len = length(d); \
+        S += (w / max(len, 1e-30)) * d; P += w * d; }
+#endif
+
+SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
+    int pz = atlas_slice(texel);
+    ivec2 local = texel - atlas_tile_origin(pz);
+    ivec2 origin[3] = ivec2[3](atlas_tile_origin(pz - 1), atlas_tile_origin(pz), atlas_tile_origin(pz + 1));
+    vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
+    NB_ACCUM(s1, p1, 0, 1, 0, 0)
+    NB_ACCUM(s1, p1, 1, -1, 0, 0)
+    NB_ACCUM(s1, p1, 2, 0, 1, 0)
+    NB_ACCUM(s1, p1, 3, 0, -1, 0)
+    NB_ACCUM(s1, p1, 4, 0, 0, 1)
+    NB_ACCUM(s1, p1, 5, 0, 0, -1)
+    NB_ACCUM(s2, p2, 6, 1, 1, 0)
+    NB_ACCUM(s2, p2, 7, 1, -1, 0)
+    NB_ACCUM(s2, p2, 8, -1, 1, 0)
+    NB_ACCUM(s2, p2, 9, -1, -1, 0)
+    NB_ACCUM(s2, p2, 10, 1, 0, 1)
+    NB_ACCUM(s2, p2, 11, 1, 0, -1)
+    NB_ACCUM(s2, p2, 12, -1, 0, 1)
+    NB_ACCUM(s2, p2, 13, -1, 0, -1)
+    NB_ACCUM(s2, p2, 14, 0, 1, 1)
+    NB_ACCUM(s2, p2, 15, 0, 1, -1)
+    NB_ACCUM(s2, p2, 16, 0, -1, 1)
+    NB_ACCUM(s2, p2, 17, 0, -1, -1)
+    SpringSum r;
+    r.force = u_k_structural * (u_spacing * s1 - p1) + u_k_shear * (1.41421356 * u_spacing * s2 - p2);
+    r.unit_sum = s1 + s2;
+    return r;
+}

@@ -1,0 +1,18 @@
+#version 330 core
+// One-to-one mapping (Mosegaard & Sorensen 2005, section 3.2): every surface vertex is a node;
+// its position and packed eq. 3 normal are fetched from the state texture (vertex texture fetch).
+#include "lib/octahedral.glsl"
+
+in ivec2 in_texel;              // the node's texel in the atlas
+uniform sampler2D u_position;   // RGBA32F: xyz position, w packed normal
+uniform mat4 u_view_projection;
+
+out vec3 v_world;
+out vec3 v_normal;              // zero where the node has no defined normal
+
+void main() {
+    vec4 node = texelFetch(u_position, in_texel, 0);
+    v_world = node.xyz;
+    v_normal = unpack_normal(node.w);
+    gl_Position = u_view_projection * vec4(node.xyz, 1.0);
+}

@@ -1,0 +1,65 @@
+"""Shared fixtures: one headless GL context per session, golden-image checks.
+
+GL tests use the ``ctx`` fixture. Without a working EGL context they are skipped locally, but
+with ``DEFORMGL_REQUIRE_GL=1`` (set by ``.ci/run``) a missing context fails the session, and
+so does any skipped test: CI must never pass with its GL tests skipped.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REQUIRE_GL = os.environ.get("DEFORMGL_REQUIRE_GL") == "1"
+TESTS = Path(__file__).parent
+GOLDEN_DIR = TESTS / "golden"
+OUTPUT_DIR = TESTS / "output"
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--update-goldens", action="store_true", default=False,
+                     help="write the current renders as the new golden images (then look at them)")
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if not REQUIRE_GL:
+        return
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    skipped = len(reporter.stats.get("skipped", [])) if reporter else 0
+    if skipped:
+        if reporter:
+            reporter.write_line(f"DEFORMGL_REQUIRE_GL=1: {skipped} test(s) were skipped; failing",
+                                red=True)
+        session.exitstatus = 1
+
+
+@pytest.fixture(scope="session")
+def ctx():
+    from deformgl.context import create_context
+    from deformgl.errors import GLError
+
+    try:
+        context = create_context()
+    except GLError as exc:
+        if REQUIRE_GL:
+            pytest.fail(f"no GL context and DEFORMGL_REQUIRE_GL=1: {exc}")
+        pytest.skip(f"no GL context: {exc}")
+    yield context
+    context.release()
+
+
+@pytest.fixture
+def golden(request: pytest.FixtureRequest):
+    """``golden(image, "name")`` compares a uint8 render with ``tests/golden/name.png``."""
+    from deformgl.imagediff import check_golden
+
+    update = request.config.getoption("--update-goldens")
+
+    def check(image: np.ndarray, name: str, **tolerances):
+        return check_golden(image, GOLDEN_DIR / f"{name}.png", update=update, out_dir=OUTPUT_DIR,
+                            **tolerances)
+
+    return check
