@@ -69,8 +69,8 @@ class SimRow:
 
 def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, variants=None) -> list[SimRow]:
     """Fragment-pass Verlet step against the float64 NumPy reference on the same grids."""
-    variants = variants or {"quad": dict(draw="quad"), "quad+branch": dict(draw="quad", branch=True),
-                            "points": dict(draw="points")}
+    variants = variants or {"rects": dict(draw="rects"), "rects+branch": dict(draw="rects", branch=True),
+                            "quad": dict(draw="quad"), "points": dict(draw="points")}
     rows = []
     for shape in grids:
         model = block_model(shape)

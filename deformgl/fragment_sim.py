@@ -25,6 +25,18 @@ from .program import Program
 from .reference import spring_sums
 
 PullSchedule = Callable[[float], np.ndarray]
+DRAW_MODES = ("rects", "points", "quad")
+
+
+def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
+    """(6 * tiles, 2) triangle corners, in texels, of the rectangle around each tile's nodes."""
+    texels = layout.texel(ijk)
+    corners = []
+    for k in np.unique(ijk[:, 2]):
+        t = texels[ijk[:, 2] == k]
+        (x0, y0), (x1, y1) = t.min(axis=0), t.max(axis=0) + 1
+        corners += [(x0, y0), (x1, y0), (x1, y1), (x0, y0), (x1, y1), (x0, y1)]
+    return np.array(corners, dtype=np.float64)
 
 
 class NodeTextures:
@@ -76,19 +88,22 @@ class VerletPass:
         ctx: GL context.
         model: spring model (decides the compiled variant: pulls, stiffness groups).
         textures: the textures it reads and writes.
-        draw: ``"points"`` draws one point per existing node (only existing nodes cost work);
-            ``"quad"`` covers the whole atlas and skips empty texels with a test.
+        draw: ``"rects"`` (default) draws, per z-slice tile, the rectangle around its existing
+            nodes and skips empty texels inside it with a test; ``"points"`` draws one point per
+            existing node (no test, but llvmpipe pays per primitive); ``"quad"`` covers the
+            whole atlas, padding included. ``deformgl bench sim`` measures all three.
         branch: test each neighbour's mask bit with a branch instead of weighting by it.
     """
 
     def __init__(self, ctx: moderngl.Context, model: SpringModel, textures: NodeTextures, *,
-                 draw: str = "points", branch: bool = False) -> None:
-        if draw not in ("points", "quad"):
-            raise ValueError(f"draw must be 'points' or 'quad', got {draw!r}")
+                 draw: str = "rects", branch: bool = False) -> None:
+        if draw not in DRAW_MODES:
+            raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
         self.ctx = ctx
         self.draw = draw
         self.n_pulls = model.n_pulls
-        vert = "sim/node_points.vert" if draw == "points" else "sim/fullscreen.vert"
+        vert = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert",
+                "quad": "sim/fullscreen.vert"}[draw]
         self.program = Program(ctx, vert, "sim/verlet.frag", defines={
             "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": model.n_pulls})
         layout = textures.layout
@@ -103,6 +118,13 @@ class VerletPass:
             self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")])
             self.vertices = len(texels)
             self.mode = moderngl.POINTS
+        elif draw == "rects":
+            self.program.set(u_target_size=textures.size)
+            corners = tile_rectangles(layout, model.grid.ijk)
+            self.vbo = ctx.buffer(corners.astype("f4").tobytes())
+            self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")])
+            self.vertices = len(corners)
+            self.mode = moderngl.TRIANGLES
         else:
             self.vbo = None
             self.vao = ctx.vertex_array(self.program.gl, [])
@@ -117,7 +139,9 @@ class VerletPass:
             self.program.set(u_dt=dt)
             self._dt = dt
         if self.n_pulls:
-            self.program.set(u_pull_force=[tuple(map(float, f)) for f in pull[: self.n_pulls]])
+            forces = [tuple(map(float, f)) for f in pull[: self.n_pulls]]
+            # moderngl takes a length-1 uniform array as a plain value
+            self.program.set(u_pull_force=forces if self.n_pulls > 1 else forces[0])
         textures.state[current].use(0)
         textures.state[previous].use(1)
         textures.node.use(2)

@@ -45,7 +45,7 @@ def pulls(grid):
     return (grid.ijk[:, 0] == 0) * 1 + (grid.ijk[:, 2] == grid.shape[2] - 1) * 2
 
 
-VARIANTS = [dict(draw="quad"), dict(draw="quad", branch=True), dict(draw="points")]
+VARIANTS = [dict(draw="rects"), dict(draw="rects", branch=True), dict(draw="points"), dict(draw="quad")]
 
 
 def rel_error(gpu, ref):

@@ -6,7 +6,7 @@
 
 const float OCT_LEVELS = 4095.0;
 const float NO_NORMAL = -1.0;
-const float MIN_SUM_LENGTH = 1e-3;
+const float MIN_SUM_LENGTH = 0.5;  // shorter sums have no reliable direction (normals.py)
 
 vec2 oct_sign_not_zero(vec2 v) {
     return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);

@@ -9,10 +9,12 @@ uniform mat4 u_view_projection;
 
 out vec3 v_world;
 out vec3 v_normal;              // zero where the node has no defined normal
+out float v_has_normal;         // 1 where it has one, 0 where not
 
 void main() {
     vec4 node = texelFetch(u_position, in_texel, 0);
     v_world = node.xyz;
     v_normal = unpack_normal(node.w);
+    v_has_normal = node.w >= 0.0 ? 1.0 : 0.0;
     gl_Position = u_view_projection * vec4(node.xyz, 1.0);
 }

@@ -1,17 +1,19 @@
 #version 330 core
-// Per-pixel Blinn-Phong. The interpolated vertex normal is used where defined; where it is not
-// (zero: nodes without an eq. 3 normal), the flat normal of the triangle from derivatives.
+// Per-pixel Blinn-Phong with the interpolated vertex normals. Where a vertex has no eq. 3 normal
+// (v_has_normal < 1), the flat normal of the triangle (from derivatives) fills in its share.
 #include "lib/blinn_phong.glsl"
 
 in vec3 v_world;
 in vec3 v_normal;
+in float v_has_normal;
 out vec4 o_colour;
 
 void main() {
+    vec3 flat_normal = normalize(cross(dFdx(v_world), dFdy(v_world)));
     vec3 n = v_normal;
-    if (dot(n, n) < 1e-6) {
-        n = cross(dFdx(v_world), dFdy(v_world));
+    if (dot(n, flat_normal) < 0.0) {
+        flat_normal = -flat_normal;  // orient like the node normals
     }
-    n = normalize(n);
+    n = normalize(n + (1.0 - v_has_normal) * flat_normal + 1e-6 * flat_normal);
     o_colour = vec4(blinn_phong(v_world, n), 1.0);
 }
