@@ -15,15 +15,16 @@ import numpy as np
 import trimesh
 
 from .camera import View, frame_box
-from .errors import SimulationError
+from .errors import InputError, SimulationError
 from .fragment_sim import FragmentSimulation
-from .grid import NodeGrid
+from .grid import AtlasLayout, NodeGrid
 from .imagediff import write_png_atomic
 from .meshio import load_mesh
 from .model import MAX_PULLS, SpringModel
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
+from .surface import grid_surface
 from .voxelize import voxelize
 
 
@@ -84,6 +85,11 @@ def build_scene_model(scene: Scene) -> SceneModel:
                    spacing=scene.grid.spacing, source=str(scene.mesh.path))
     grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
                     occupied=np.asarray(vox.occupied, dtype=bool))
+    if len(grid_surface(grid).triangles) == 0:
+        raise InputError(
+            f"{scene.mesh.path}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
+            f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
+            f"(grid.nodes_along_longest or grid.spacing in {scene.source.name})")
     bbox = np.array(mesh.bounds, dtype=np.float64)
     return SceneModel(mesh=mesh, centre=centre, grid=grid,
                       model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
@@ -133,9 +139,19 @@ def check_finite(sim: FragmentSimulation, source: Path) -> None:
             f"Verlet needs dt < 2/w = {2.0 / sim.model.max_angular_frequency():.4g} s)")
 
 
+def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
+    """The node grid must fit the GL texture limit; the error names the scene key to change."""
+    try:
+        AtlasLayout.for_grid(grid.shape, max_size)
+    except ValueError as exc:
+        key = "grid.spacing" if scene.grid.spacing is not None else "grid.nodes_along_longest"
+        raise InputError(f"{scene.source}: {key}: {exc}; use a coarser grid") from None
+
+
 def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False) -> np.ndarray:
     """Simulate a scene and render it: (height, width, 3) uint8 image."""
     built = build_scene_model(scene)
+    check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
     sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
     target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
     surface = GridSurfacePass(ctx, built.grid, sim.textures.layout, overlay=scene.render.show_grid)

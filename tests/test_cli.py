@@ -1,0 +1,149 @@
+"""The command line: render to PNG, overrides, info, help, and bad input (one-line errors, no PNG)."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from deformgl.cli import main
+from deformgl.imagediff import read_png
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+@pytest.fixture
+def jelly(tmp_path):
+    """A copy of the jelly scene and its mesh in tmp_path."""
+    (tmp_path / "assets").mkdir()
+    shutil.copy(SCENES / "assets" / "jelly_block.obj", tmp_path / "assets")
+    scene = tmp_path / "jelly.toml"
+    scene.write_text((SCENES / "jelly.toml").read_text())
+    return scene
+
+
+def run_cli(capsys, *args):
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_render_writes_png_of_the_scene_size(ctx, jelly, tmp_path, capsys):
+    out = tmp_path / "out.png"
+    code, stdout, err = run_cli(capsys, "render", jelly, "-o", out, "--steps", "20", "--quiet")
+    assert code == 0, err
+    img = read_png(out)
+    assert img.shape == (240, 320, 3)
+    background = np.array([0.96, 0.96, 0.94]) * 255
+    object_pixels = np.any(np.abs(img.astype(float) - background) > 10, axis=2).mean()
+    assert 0.1 < object_pixels < 0.9
+    assert not list(tmp_path.glob("*.tmp")) and not list(tmp_path.glob(".*tmp"))
+
+
+def test_size_steps_and_mesh_overrides(ctx, jelly, tmp_path, capsys):
+    box = tmp_path / "tall_box.stl"
+    trimesh.creation.box(extents=[0.02, 0.1, 0.02]).export(box)
+    out = tmp_path / "box.png"
+    code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--steps", "0", "--size", "200x100",
+                           "--mesh", box, "--quiet")
+    assert code == 0, err
+    img = read_png(out)
+    assert img.shape == (100, 200, 3)
+    # a tall thin box: its image is taller than wide, unlike the jelly block's
+    mask = np.any(np.abs(img.astype(int) - img[0, 0].astype(int)) > 10, axis=2)
+    rows, cols = np.nonzero(mask)
+    assert np.ptp(rows) > np.ptp(cols)
+
+
+def test_default_output_path_from_scene(ctx, jelly, capsys):
+    code, stdout, err = run_cli(capsys, "render", jelly, "--steps", "1", "--quiet")
+    assert code == 0, err
+    assert (jelly.parent / "jelly.png").is_file()
+    assert "wrote" in stdout
+
+
+def write_obj(path, vertices, faces):
+    lines = [f"v {x} {y} {z}" for x, y, z in vertices] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "nan", "thin", "too_large", "dt", "typo", "size"])
+def test_bad_input_gives_one_line_error_and_no_png(ctx, jelly, tmp_path, capsys, case):
+    out = tmp_path / "bad.png"
+    extra = []
+    if case == "missing":
+        extra = ["--mesh", tmp_path / "nope.ply"]
+        expect = "nope.ply"
+    elif case == "empty":
+        (tmp_path / "empty.obj").write_text("")
+        extra = ["--mesh", tmp_path / "empty.obj"]
+        expect = "empty.obj"
+    elif case == "nan":
+        box = trimesh.creation.box()
+        v = box.vertices.copy()
+        v[3, 1] = np.nan
+        write_obj(tmp_path / "nan.obj", v, box.faces)
+        extra = ["--mesh", tmp_path / "nan.obj"]
+        expect = "vertex 3"
+    elif case == "thin":
+        # a thin rod: at the scene's 9 nodes along its length it is a single row of nodes
+        rod = trimesh.creation.box(extents=[0.1, 0.001, 0.001])
+        rod.export(tmp_path / "rod.stl")
+        extra = ["--mesh", tmp_path / "rod.stl"]
+        expect = "too thin"
+    elif case == "too_large":
+        jelly.write_text(jelly.read_text().replace("nodes_along_longest = 9", "nodes_along_longest = 20000"))
+        expect = "grid"
+    elif case == "dt":
+        jelly.write_text(jelly.read_text().replace("dt = 0.0005", "dt = -1"))
+        expect = "physics.dt: must be > 0, got -1"
+    elif case == "typo":
+        jelly.write_text(jelly.read_text().replace("stiffness =", "stifness ="))
+        expect = "physics.stifness: unknown key (did you mean 'stiffness'?)"
+    else:
+        extra = ["--size", "640by480"]
+        expect = "--size"
+    code, stdout, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet", *extra)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("deformgl: error: ")
+    assert expect in lines[0]
+    assert "Traceback" not in err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.suffix == ".png" or "tmp" in p.name]
+
+
+def test_texture_limit_error_names_scene_key(jelly):
+    from deformgl.errors import InputError
+    from deformgl.pipeline import build_scene_model, check_texture_limit
+    from deformgl.scene import load_scene
+
+    scene = load_scene(jelly)
+    built = build_scene_model(scene)
+    with pytest.raises(InputError, match=r"jelly.toml: grid.nodes_along_longest: .*texture limit"):
+        check_texture_limit(scene, built.grid, max_size=32)
+    check_texture_limit(scene, built.grid, max_size=16384)
+
+
+def test_diverging_run_stops_with_node_and_step_and_writes_no_png(ctx, jelly, tmp_path, capsys):
+    jelly.write_text(jelly.read_text().replace("dt = 0.0005", "dt = 0.05"))
+    out = tmp_path / "nan.png"
+    code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet")
+    assert code == 1
+    assert "diverged: node" in err and "after step 300" in err and "dt <" in err
+    assert not out.exists()
+
+
+def test_info_and_help_from_the_console_script():
+    exe = shutil.which("deformgl") or None
+    cmd = [exe] if exe else [sys.executable, "-m", "deformgl"]
+    info = subprocess.run(cmd + ["info"], capture_output=True, text=True, timeout=60)
+    assert info.returncode == 0, info.stderr
+    assert "renderer: " in info.stdout and "RGBA32F render targets: yes" in info.stdout
+    for sub in ([], ["render"], ["info"], ["bench"]):
+        h = subprocess.run(cmd + sub + ["--help"], capture_output=True, text=True, timeout=60)
+        assert h.returncode == 0 and "usage: deformgl" in h.stdout
