@@ -22,8 +22,19 @@ from .grid import NodeGrid
 from .model import SpringModel
 from .reference import ReferenceVerlet
 
-#: The benchmark volumes: about 4k, 20k and 131k nodes, full blocks.
-SIM_GRIDS = ((16, 16, 16), (27, 27, 27), (64, 64, 32))
+#: The benchmark volumes: about 4k, 20k and 131k nodes in full blocks, and a ball of about 20k
+#: nodes filling 52 % of its box (where drawing only around existing nodes matters).
+SIM_GRIDS = ((16, 16, 16), (27, 27, 27), (64, 64, 32), "ball34")
+
+
+def bench_occupancy(spec: tuple[int, int, int] | str) -> np.ndarray:
+    """Occupancy of a benchmark grid: a full block of that shape, or ``"ballN"``: a ball in N^3."""
+    if isinstance(spec, str):
+        n = int(spec.removeprefix("ball"))
+        c = (n - 1) / 2.0
+        i, j, k = np.indices((n, n, n))
+        return (i - c) ** 2 + (j - c) ** 2 + (k - c) ** 2 <= (n / 2.0) ** 2
+    return np.ones(spec, bool)
 
 
 def machine_line(ctx: moderngl.Context) -> str:
@@ -49,11 +60,12 @@ def timed(fn: Callable[[], None], repeats: int = 5) -> float:
     return statistics.median(times)
 
 
-def block_model(shape: tuple[int, int, int], spacing: float = 0.01) -> SpringModel:
-    """A full block of nodes, top layer fixed, moderate damping: the benchmark scene."""
-    grid = NodeGrid(np.zeros(3), spacing, np.ones(shape, bool))
+def block_model(spec: tuple[int, int, int] | str, spacing: float = 0.01) -> SpringModel:
+    """Benchmark scene: a block or ball of nodes, top layer fixed, moderate damping."""
+    grid = NodeGrid(np.zeros(3), spacing, bench_occupancy(spec))
     n = grid.count
-    return SpringModel(grid=grid, mass=np.full(n, 1e-3), fixed=grid.ijk[:, 1] == shape[1] - 1,
+    top = grid.ijk[:, 1] == grid.ijk[:, 1].max()
+    return SpringModel(grid=grid, mass=np.full(n, 1e-3), fixed=top,
                        pull_groups=np.zeros(n, np.uint8), k_structural=10.0, k_shear=10.0,
                        damping=1e-3, gravity=np.array([0.0, -9.81, 0.0]))
 
@@ -62,6 +74,7 @@ def block_model(shape: tuple[int, int, int], spacing: float = 0.01) -> SpringMod
 class SimRow:
     """One grid of ``bench sim``."""
 
+    name: str
     nodes: int
     variant_ms: dict[str, float]
     numpy_ms: float
@@ -72,8 +85,8 @@ def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, varian
     variants = variants or {"rects": dict(draw="rects"), "rects+branch": dict(draw="rects", branch=True),
                             "quad": dict(draw="quad"), "points": dict(draw="points")}
     rows = []
-    for shape in grids:
-        model = block_model(shape)
+    for spec in grids:
+        model = block_model(spec)
         dt = 0.2 / model.max_angular_frequency()
         per_variant = {}
         for name, kw in variants.items():
@@ -90,19 +103,20 @@ def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, varian
         ref = ReferenceVerlet(model, dt)
         ref_steps = max(1, min(steps, int(2e5 // model.grid.count)))
         numpy_ms = timed(lambda: ref.step(ref_steps), repeats=3) / ref_steps * 1e3
-        rows.append(SimRow(model.grid.count, per_variant, numpy_ms))
+        name = spec if isinstance(spec, str) else "x".join(map(str, spec))
+        rows.append(SimRow(name, model.grid.count, per_variant, numpy_ms))
     return rows
 
 
 def format_sim(rows: list[SimRow], machine: str) -> str:
     """The ``bench sim`` table."""
     names = list(rows[0].variant_ms)
-    head = f"{'nodes':>8} | " + " | ".join(f"{n + ' ms/step':>20} {'Mnode/s':>8}" for n in names)
+    head = f"{'grid':>9} {'nodes':>7} | " + " | ".join(f"{n + ' ms/step':>20} {'Mnode/s':>8}" for n in names)
     head += f" | {'numpy ms/step':>13} | {'speed-up vs numpy':>17}"
     lines = [machine, "fragment pass, position Verlet, 18 neighbours (eq. 1-3); baseline: float64 "
              "NumPy reference in this process", head, "-" * len(head)]
     for r in rows:
         cells = " | ".join(f"{ms:>20.3f} {r.nodes / ms / 1e3:>8.1f}" for ms in r.variant_ms.values())
         best = min(r.variant_ms.values())
-        lines.append(f"{r.nodes:>8} | {cells} | {r.numpy_ms:>13.2f} | {r.numpy_ms / best:>16.1f}x")
+        lines.append(f"{r.name:>9} {r.nodes:>7} | {cells} | {r.numpy_ms:>13.2f} | {r.numpy_ms / best:>16.1f}x")
     return "\n".join(lines)
