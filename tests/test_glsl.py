@@ -88,3 +88,16 @@ def test_real_shader_files_ship_in_the_package():
     assert text.startswith("#version 330")
     full = glsl.preprocess("sim/verlet.frag", {"PULLS": 0}).text
     assert "vec3 unpack_normal" in full and "SpringSum spring_sum" in full
+
+
+def test_every_shader_file_of_the_source_tree_is_in_the_installed_package():
+    from importlib import resources
+    from pathlib import Path
+
+    source = Path(__file__).resolve().parent.parent / "shaders"
+    wanted = {p.relative_to(source).as_posix() for p in source.rglob("*")
+              if p.is_file() and p.suffix in {".glsl", ".vert", ".frag", ".geom"}}
+    assert wanted, "no shader files found in the source tree"
+    root = resources.files("deformgl.shaders")
+    missing = [name for name in sorted(wanted) if not root.joinpath(*name.split("/")).is_file()]
+    assert not missing, f"shader files not shipped in the package: {missing}"
