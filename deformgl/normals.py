@@ -1,19 +1,23 @@
 """Packed normals (Mosegaard & Sørensen 2005, eq. 3 and section 3.2), NumPy side.
 
 The approximate normal of a node is packed into the alpha channel of its RGBA32F position texel.
-A float32 render target must carry it bit-exactly, so the packed value is an *integer* below
-2^24 (exact in float32, never NaN, Inf or denormal): two 12-bit octahedral coordinates,
-``packed = qx * 4096 + qy``. A node whose unit-vector sum is (near) zero has no defined normal
-and stores :data:`NO_NORMAL` (-1.0). ``shaders/lib/octahedral.glsl`` is the GLSL twin.
+A float32 render target must carry it bit-exactly, so the packed value is always a *normal*
+positive float (never NaN, Inf, a denormal or negative): the octahedral coordinates of the
+direction, quantised to ``LEVELS + 1`` = 46,159 steps each (15.5 bits), give an index
+``c = qx * 46159 + qy < 2^31 - 2^24``, stored as the float whose bit pattern is ``c + 2^23``
+(exponent field 1..254). Round trip error at most 0.006 degrees. A node whose unit-vector sum is
+short has no defined normal and stores :data:`NO_NORMAL` (0.0, bit pattern 0: not a denormal).
+``shaders/lib/octahedral.glsl`` is the GLSL twin (``floatBitsToUint``/``uintBitsToFloat``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-BITS = 12
-LEVELS = (1 << BITS) - 1  # 4095
-NO_NORMAL = -1.0
+#: Quantisation steps per octahedral coordinate minus one: (LEVELS + 1)^2 < 2^31 - 2^24.
+LEVELS = 46158
+_BIAS = 1 << 23  # lifts every code into the normal-float range (exponent field >= 1)
+NO_NORMAL = 0.0
 #: A unit-vector sum shorter than this has no reliable direction. On a surface the sum of
 #: neighbour unit vectors is at least about 0.9 (a flat face gives 3.8); interior nodes and nodes
 #: with symmetric neighbours (grooves, one-node-thin parts) give 0 at rest and small, erratic
@@ -45,21 +49,20 @@ def octahedral_decode(e: np.ndarray) -> np.ndarray:
 
 
 def pack_normals(vectors: np.ndarray) -> np.ndarray:
-    """Pack direction vectors (N, 3), any length, into float32 integers; zero-ish -> NO_NORMAL."""
+    """Pack direction vectors (N, 3), any length, into float32 codes; short ones -> NO_NORMAL."""
     v = np.asarray(vectors, dtype=np.float64)
     length = np.linalg.norm(v, axis=-1)
     ok = length >= MIN_SUM_LENGTH
     safe = np.where(ok[..., None], v, np.array([0.0, 0.0, 1.0]))
-    e = octahedral_encode(safe)
-    q = np.rint(np.clip(e * 0.5 + 0.5, 0.0, 1.0) * LEVELS).astype(np.int64)
-    packed = (q[..., 0] * (LEVELS + 1) + q[..., 1]).astype(np.float32)
-    return np.where(ok, packed, np.float32(NO_NORMAL)).astype(np.float32)
+    q = np.rint(np.clip(octahedral_encode(safe) * 0.5 + 0.5, 0.0, 1.0) * LEVELS).astype(np.uint32)
+    bits = q[..., 0] * np.uint32(LEVELS + 1) + q[..., 1] + np.uint32(_BIAS)
+    return np.where(ok, bits, np.uint32(0)).astype(np.uint32).view(np.float32)
 
 
 def unpack_normals(packed: np.ndarray) -> np.ndarray:
-    """Unpack float32 integers into unit vectors (N, 3); NO_NORMAL gives the zero vector."""
-    p = np.asarray(packed, dtype=np.float64)
-    valid = p >= 0.0
-    q = np.where(valid, p, 0.0).astype(np.int64)
-    e = np.stack([q // (LEVELS + 1), q % (LEVELS + 1)], axis=-1) / LEVELS * 2.0 - 1.0
+    """Unpack float32 codes into unit vectors (N, 3); NO_NORMAL gives the zero vector."""
+    bits = np.ascontiguousarray(packed, dtype=np.float32).view(np.uint32)
+    valid = bits >= _BIAS
+    c = np.where(valid, bits - np.uint32(_BIAS), 0).astype(np.int64)
+    e = np.stack([c // (LEVELS + 1), c % (LEVELS + 1)], axis=-1) / LEVELS * 2.0 - 1.0
     return np.where(valid[..., None], octahedral_decode(e), 0.0)

@@ -1,11 +1,14 @@
-// Packed normals (Mosegaard & Sorensen 2005, eq. 3, section 3.2).
-// A normal travels in the alpha channel of an RGBA32F position texel as an integer below 2^24
-// (exact in float32: no NaN, Inf or denormal bit pattern): two 12-bit octahedral coordinates,
-// packed = qx * 4096 + qy. A node without a defined normal stores NO_NORMAL (-1.0).
-// NumPy twin: deformgl/normals.py.
+// Packed normals (Mosegaard & Sorensen 2005, eq. 3, section 3.2). NumPy twin: deformgl/normals.py.
+// A normal travels in the alpha channel of an RGBA32F position texel as a positive *normal*
+// float (never NaN, Inf or denormal, so any float32 render target carries it exactly): the
+// octahedral coordinates quantised to 46,159 steps each give c = qx * 46159 + qy < 2^31 - 2^24,
+// stored as the float with bit pattern c + 2^23. Round trip error at most 0.006 degrees.
+// A node without a defined normal stores NO_NORMAL = 0.0.
 
-const float OCT_LEVELS = 4095.0;
-const float NO_NORMAL = -1.0;
+const float OCT_LEVELS = 46158.0;
+const uint OCT_STEPS = 46159u;
+const uint OCT_BIAS = 8388608u;  // 2^23
+const float NO_NORMAL = 0.0;
 const float MIN_SUM_LENGTH = 0.5;  // shorter sums have no reliable direction (normals.py)
 
 vec2 oct_sign_not_zero(vec2 v) {
@@ -19,18 +22,24 @@ float pack_normal(vec3 v) {
     }
     vec3 p = v / (abs(v.x) + abs(v.y) + abs(v.z));
     vec2 e = p.z >= 0.0 ? p.xy : (1.0 - abs(p.yx)) * oct_sign_not_zero(p.xy);
-    vec2 q = floor(clamp(e * 0.5 + 0.5, 0.0, 1.0) * OCT_LEVELS + 0.5);
-    return q.x * (OCT_LEVELS + 1.0) + q.y;
+    uvec2 q = uvec2(floor(clamp(e * 0.5 + 0.5, 0.0, 1.0) * OCT_LEVELS + 0.5));
+    return uintBitsToFloat(q.x * OCT_STEPS + q.y + OCT_BIAS);
 }
 
-// Unpack; NO_NORMAL (or any negative value) gives the zero vector.
+// Whether a packed value holds a normal (false for NO_NORMAL).
+bool has_normal(float code) {
+    return floatBitsToUint(code) >= OCT_BIAS;
+}
+
+// Unpack; NO_NORMAL gives the zero vector.
 vec3 unpack_normal(float code) {
-    if (code < 0.0) {
+    uint bits = floatBitsToUint(code);
+    if (bits < OCT_BIAS) {
         return vec3(0.0);
     }
-    float qx = floor(code / (OCT_LEVELS + 1.0));
-    float qy = code - qx * (OCT_LEVELS + 1.0);
-    vec2 e = vec2(qx, qy) / OCT_LEVELS * 2.0 - 1.0;
+    uint c = bits - OCT_BIAS;
+    uint qx = c / OCT_STEPS;
+    vec2 e = vec2(float(qx), float(c - qx * OCT_STEPS)) / OCT_LEVELS * 2.0 - 1.0;
     float z = 1.0 - abs(e.x) - abs(e.y);
     float t = max(-z, 0.0);
     vec2 xy = e - t * oct_sign_not_zero(e);

@@ -15,6 +15,6 @@ void main() {
     vec4 node = texelFetch(u_position, in_texel, 0);
     v_world = node.xyz;
     v_normal = unpack_normal(node.w);
-    v_has_normal = node.w >= 0.0 ? 1.0 : 0.0;
+    v_has_normal = has_normal(node.w) ? 1.0 : 0.0;
     gl_Position = u_view_projection * vec4(node.xyz, 1.0);
 }
