@@ -6,6 +6,7 @@ of several repeats. Every report names the machine and the renderer.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import platform
 import statistics
@@ -82,8 +83,10 @@ class SimRow:
 
 def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, variants=None) -> list[SimRow]:
     """Fragment-pass Verlet step against the float64 NumPy reference on the same grids."""
-    variants = variants or {"rects": dict(draw="rects"), "rects+branch": dict(draw="rects", branch=True),
-                            "quad": dict(draw="quad"), "points": dict(draw="points")}
+    variants = variants or {
+        "compact": dict(layout="compact"), "compact+branch": dict(layout="compact", branch=True),
+        "atlas rects": dict(layout="atlas", draw="rects"), "atlas quad": dict(layout="atlas", draw="quad"),
+        "atlas points": dict(layout="atlas", draw="points")}
     rows = []
     for spec in grids:
         model = block_model(spec)
@@ -119,4 +122,96 @@ def format_sim(rows: list[SimRow], machine: str) -> str:
         cells = " | ".join(f"{ms:>20.3f} {r.nodes / ms / 1e3:>8.1f}" for ms in r.variant_ms.values())
         best = min(r.variant_ms.values())
         lines.append(f"{r.name:>9} {r.nodes:>7} | {cells} | {r.numpy_ms:>13.2f} | {r.numpy_ms / best:>16.1f}x")
+    return "\n".join(lines)
+
+
+@dataclass
+class RenderRow:
+    """One draw path of ``bench render``."""
+
+    name: str
+    ms: float
+
+
+def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples: int = 4,
+                 repeats: int = 7, frame_size: int = 512, frame_steps: int = 15):
+    """Draw paths of a mapped scene against the static mesh, and a simulate+draw frame.
+
+    Returns:
+        (rows, frame_ms, info): ms/frame of each draw path at ``size``² with ``samples``x MSAA;
+        ms of ``frame_steps`` simulation steps plus one curvature-corrected draw at
+        ``frame_size``²; and a dict of scene sizes.
+    """
+    from .mapped_render import MappedMeshPass, StaticMeshPass
+    from .mapping_setup import get_binding, mapped_vertices, rest_node_normals
+    from .pipeline import build_scene_model, pull_schedule, scene_lighting, scene_view
+    from .render import GridSurfacePass, RenderTarget
+    from .scene import load_scene
+    from .surface import grid_surface
+
+    scene = load_scene(scene_path)
+    built = build_scene_model(scene)
+    sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
+    sim.step(50)
+    surface = grid_surface(built.grid)
+    binding = get_binding(built.mesh, built.model, surface, use_cache=True, uv=None)
+    rest_normals = rest_node_normals(built.model)
+    mesh = built.mesh
+    passes = {
+        "static mesh": StaticMeshPass(ctx, mesh.vertices, mesh.vertex_normals, mesh.faces),
+        "one-to-one": GridSurfacePass(ctx, built.grid, sim.textures.layout),
+    }
+    for mode in ("constant", "curvature"):
+        passes[mode] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces,
+                                      mapped_vertices(binding, mode, built.grid.rest_positions, rest_normals))
+    view = scene_view(dataclasses.replace(scene, render=dataclasses.replace(scene.render, size=(size, size))),
+                      built.bbox)
+    lighting = scene_lighting(scene)
+    target = RenderTarget(ctx, (size, size), samples)
+    rows = []
+    try:
+        for name, p in passes.items():
+            def draw(p=p) -> None:
+                target.begin((1.0, 1.0, 1.0))
+                if name == "static mesh":
+                    p.draw(view, lighting)
+                else:
+                    p.draw(sim.position_texture, view, lighting)
+                ctx.finish()
+            draw()
+            rows.append(RenderRow(name, timed(draw, repeats) * 1e3))
+        small = RenderTarget(ctx, (frame_size, frame_size), samples)
+        try:
+            def frame() -> None:
+                sim.step(frame_steps)
+                small.begin((1.0, 1.0, 1.0))
+                passes["curvature"].draw(sim.position_texture, view, lighting)
+                ctx.finish()
+            frame()
+            frame_ms = timed(frame, repeats) * 1e3
+        finally:
+            small.release()
+    finally:
+        target.release()
+        for p in passes.values():
+            p.release()
+        sim.release()
+    info = {"faces": len(mesh.faces), "vertices": len(mesh.vertices), "nodes": built.grid.count,
+            "size": size, "samples": samples, "frame_size": frame_size, "frame_steps": frame_steps}
+    return rows, frame_ms, info
+
+
+def format_render(rows: list[RenderRow], frame_ms: float, info: dict, machine: str) -> str:
+    """The ``bench render`` table."""
+    base = rows[0].ms
+    lines = [machine,
+             f"{info['vertices']} vertices / {info['faces']} faces on {info['nodes']} nodes; "
+             f"{info['size']}x{info['size']}, {info['samples']}x MSAA; baseline: the static mesh",
+             f"{'draw path':>14} | {'ms/frame':>9} | {'frames/s':>8} | {'rate vs static':>14}",
+             "-" * 56]
+    for r in rows:
+        lines.append(f"{r.name:>14} | {r.ms:>9.2f} | {1e3 / r.ms:>8.1f} | {base / r.ms:>13.2f}x")
+    lines.append(f"frame = {info['frame_steps']} simulation steps + one curvature-corrected draw at "
+                 f"{info['frame_size']}x{info['frame_size']}: {frame_ms:.1f} ms = {1e3 / frame_ms:.1f} frames/s "
+                 f"(the paper's 2005 GPU: 25 frames/s)")
     return "\n".join(lines)

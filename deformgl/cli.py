@@ -29,6 +29,16 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
     r.add_argument("--mesh", type=Path, default=None,
                    help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
+    r.add_argument("--mapping", choices=["one-to-one", "constant", "curvature", "auto"], default=None,
+                   help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
+                        "curvature draw the detailed mesh through the triangle basis (eq. 6) or the "
+                        "curvature-corrected basis (eq. 8); auto picks per vertex")
+    r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
+                   help="also write the deformed detailed mesh as the mapping vertex shader computed "
+                        "it (captured with transform feedback)")
+    r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
+                   help="also write the node texture and vertex attributes for the shader pack's "
+                        "example program (examples/mapped_mesh_example.py)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
 
     sub.add_parser("info", help="print the GL renderer, version and limits",
@@ -39,8 +49,13 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
-    b.add_argument("what", choices=["sim"], help="sim: fragment-pass step vs the NumPy reference")
-    b.add_argument("--steps", type=int, default=40, help="steps per timing (default 40)")
+    b.add_argument("what", choices=["sim", "render", "binding"],
+                   help="sim: fragment-pass step vs the NumPy reference; render: draw paths of the "
+                        "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
+                        "binding time of 23k- and 50k-vertex meshes to a 20k-node grid")
+    b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
+    b.add_argument("--scene", type=Path, default=Path("scenes/heart.toml"),
+                   help="render: the scene to draw (default scenes/heart.toml)")
     return p
 
 
@@ -56,18 +71,22 @@ def _render(args: argparse.Namespace) -> int:
             size = parse_size(args.size)
         except ValueError as exc:
             raise DeformglError(f"--size: {exc}") from None
-    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size)
+    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping)
     out = args.output or scene.output.path
     if out.suffix.lower() != ".png":
         raise DeformglError(f"{out}: the output must be a .png file")
-    if not out.parent.is_dir():
-        raise DeformglError(f"{out}: the output folder {out.parent} does not exist")
+    for path in (out, args.export_mesh):
+        if path is not None and not path.resolve().parent.is_dir():
+            raise DeformglError(f"{path}: the output folder {path.resolve().parent} does not exist")
+    if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
+        raise DeformglError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
     ctx = create_context(args.device)
     try:
-        render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty())
+        render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
+                      export=args.export_mesh, pack_inputs=args.pack_inputs)
     finally:
         ctx.release()
-    print(f"wrote {out}")
+    print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
     return 0
 
 
@@ -83,12 +102,21 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from .bench import bench_sim, format_sim, machine_line
+    from .bench import bench_render, bench_sim, format_render, format_sim, machine_line
     from .context import create_context
 
     ctx = create_context(args.device)
     try:
-        print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
+        if args.what == "sim":
+            print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
+        elif args.what == "binding":
+            from .binding import bench_binding
+
+            print(machine_line(ctx))
+            print(bench_binding())
+        else:
+            rows, frame_ms, info = bench_render(ctx, args.scene)
+            print(format_render(rows, frame_ms, info, machine_line(ctx)))
     finally:
         ctx.release()
     return 0

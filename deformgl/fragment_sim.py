@@ -18,7 +18,7 @@ import moderngl
 import numpy as np
 
 from .errors import GLError
-from .grid import AtlasLayout
+from .grid import AtlasLayout, CompactLayout
 from .model import MAX_PULLS, SpringModel
 from .normals import pack_normals
 from .program import Program
@@ -26,6 +26,8 @@ from .reference import spring_sums
 
 PullSchedule = Callable[[float], np.ndarray]
 DRAW_MODES = ("rects", "points", "quad")
+LAYOUTS = ("compact", "atlas")
+NEIGHBOUR_UNIT = 3  # texture unit of the COMPACT neighbour-index texture
 
 
 def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
@@ -46,15 +48,28 @@ class NodeTextures:
         ctx: GL context.
         model: the spring model.
         n_state: number of state textures (3 for position Verlet).
+        layout: "compact" (existing nodes packed densely, neighbours from an index texture) or
+            "atlas" (z-slices as tiles, neighbours by tile arithmetic); see docs/ARCHITECTURE.md.
     """
 
-    def __init__(self, ctx: moderngl.Context, model: SpringModel, n_state: int = 3) -> None:
+    def __init__(self, ctx: moderngl.Context, model: SpringModel, n_state: int = 3,
+                 layout: str = "compact") -> None:
+        if layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         max_size = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
         grid = model.grid
         try:
-            self.layout = AtlasLayout.for_grid(grid.shape, max_size)
+            self.layout: AtlasLayout | CompactLayout = (
+                CompactLayout.for_grid(grid, max_size) if layout == "compact"
+                else AtlasLayout.for_grid(grid.shape, max_size))
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
+        self.neighbours: moderngl.TextureArray | None = None
+        if isinstance(self.layout, CompactLayout):
+            layers = self.layout.neighbour_layers(grid.neighbours)
+            w, h = self.layout.size
+            self.neighbours = ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4")
+            self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
         size = self.layout.size
         node = np.stack([model.mass, model.flags(), grid.neighbour_mask, np.zeros(grid.count)], axis=1)
         self.node = self._texture(ctx, self.layout.scatter(grid.ijk, node))
@@ -74,10 +89,17 @@ class NodeTextures:
         tex.repeat_x = tex.repeat_y = False
         return tex
 
+    def bind_static(self, node_unit: int) -> None:
+        """Bind the node-data texture (and the neighbour-index texture of compact layouts)."""
+        self.node.use(node_unit)
+        if self.neighbours is not None:
+            self.neighbours.use(NEIGHBOUR_UNIT)
+
     def release(self) -> None:
         """Release every texture and framebuffer."""
-        for obj in [*self.framebuffers, *self.state, self.node]:
-            obj.release()
+        for obj in [*self.framebuffers, *self.state, self.node, self.neighbours]:
+            if obj is not None:
+                obj.release()
         self.framebuffers, self.state = [], []
 
 
@@ -100,14 +122,17 @@ class VerletPass:
         if draw not in DRAW_MODES:
             raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
         self.ctx = ctx
+        layout = textures.layout
+        if isinstance(layout, CompactLayout) and draw == "rects":
+            draw = "quad"  # a compact layout is one rectangle of existing nodes already
         self.draw = draw
         self.n_pulls = model.n_pulls
         vert = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert",
                 "quad": "sim/fullscreen.vert"}[draw]
         self.program = Program(ctx, vert, "sim/verlet.frag", defines={
-            "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": model.n_pulls})
-        layout = textures.layout
-        self.program.set(u_grid=(layout.nx, layout.ny, layout.nz), u_tiles_x=layout.tiles_x,
+            "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": model.n_pulls,
+            **layout.shader_defines()})
+        self.program.set(**layout.shader_uniforms(),
                          u_spacing=model.grid.spacing, u_k_structural=model.k_structural,
                          u_k_shear=model.k_shear, u_damping=model.damping,
                          u_gravity=tuple(model.gravity), u_position=0, u_previous=1, u_node=2)
@@ -144,7 +169,7 @@ class VerletPass:
             self.program.set(u_pull_force=forces if self.n_pulls > 1 else forces[0])
         textures.state[current].use(0)
         textures.state[previous].use(1)
-        textures.node.use(2)
+        textures.bind_static(2)
         fbo = textures.framebuffers[target]
         fbo.use()
         self.vao.render(self.mode, vertices=self.vertices)
@@ -169,18 +194,19 @@ class FragmentSimulation:
         dt: time step (s).
         pull_force: callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group, or None.
         draw, branch: pass variants, see :class:`VerletPass`.
+        layout: texture layout, see :class:`NodeTextures`.
     """
 
     def __init__(self, ctx: moderngl.Context, model: SpringModel, dt: float,
-                 pull_force: PullSchedule | None = None, *, draw: str = "points",
-                 branch: bool = False) -> None:
+                 pull_force: PullSchedule | None = None, *, draw: str = "rects",
+                 branch: bool = False, layout: str = "compact") -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         self.ctx = ctx
         self.model = model
         self.dt = float(dt)
         self.pull_force = pull_force
-        self.textures = NodeTextures(ctx, model)
+        self.textures = NodeTextures(ctx, model, layout=layout)
         self.verlet = VerletPass(ctx, model, self.textures, draw=draw, branch=branch)
         self.current, self.previous, self.spare = 0, 1, 2
         self.steps_done = 0

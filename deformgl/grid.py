@@ -152,6 +152,14 @@ class AtlasLayout:
         """Texture (width, height) in texels."""
         return self.tiles_x * (self.nx + 2), self.tiles_y * (self.ny + 2)
 
+    def shader_defines(self) -> dict[str, object]:
+        """Defines selecting this layout in ``shaders/lib/springs.glsl``."""
+        return {}
+
+    def shader_uniforms(self) -> dict[str, object]:
+        """Uniforms of ``shaders/lib/atlas.glsl``."""
+        return {"u_grid": (self.nx, self.ny, self.nz), "u_tiles_x": self.tiles_x}
+
     def texel(self, ijk: np.ndarray) -> np.ndarray:
         """(N, 2) int64 texel (x, y) of grid indices ``ijk`` (N, 3) (unpadded, may be -1 or n)."""
         p = np.asarray(ijk) + 1
@@ -170,3 +178,80 @@ class AtlasLayout:
         """Read per-node values (N, C) back out of a (height, width, C) texture image."""
         t = self.texel(ijk)
         return image[t[:, 1], t[:, 0]]
+
+
+@dataclass(frozen=True, eq=False)
+class CompactLayout:
+    """Existing nodes packed densely in node order: node n is texel (n % width, n // width).
+
+    Only existing nodes occupy texels (the last row may be partly empty), so a pass costs work
+    for existing nodes only and the working set stays small; the 18 neighbours of each node are
+    looked up in a neighbour-index texture (5 RGBA32I layers, an absent neighbour points at the
+    node itself and is weighted 0). ``width`` is a power of two.
+    """
+
+    index: np.ndarray  # (nx, ny, nz) node number, -1 where absent (NodeGrid.index)
+    count: int
+    width: int
+
+    @classmethod
+    def for_grid(cls, grid: NodeGrid, max_size: int) -> "CompactLayout":
+        """A near-square power-of-two-wide layout for ``grid``.
+
+        Raises:
+            ValueError: more nodes than a ``max_size`` x ``max_size`` texture holds.
+        """
+        n = max(grid.count, 1)
+        width = 1 << max(4, int(np.ceil(np.log2(np.sqrt(n)))))
+        width = min(width, 1 << int(np.floor(np.log2(max_size))))
+        if -(-n // width) > max_size:
+            raise ValueError(f"{grid.count} nodes need more than {max_size}x{max_size} texels "
+                             f"(the GL texture limit)")
+        return cls(grid.index, grid.count, width)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """Texture (width, height) in texels."""
+        return self.width, max(1, -(-self.count // self.width))
+
+    def shader_defines(self) -> dict[str, object]:
+        """Defines selecting this layout in ``shaders/lib/springs.glsl``."""
+        return {"COMPACT": True}
+
+    def shader_uniforms(self) -> dict[str, object]:
+        """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3)."""
+        return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": 3}
+
+    def node_texel(self, nodes: np.ndarray) -> np.ndarray:
+        """(N, 2) int64 texel of node numbers."""
+        nodes = np.asarray(nodes)
+        return np.stack([nodes % self.width, nodes // self.width], axis=-1)
+
+    def texel(self, ijk: np.ndarray) -> np.ndarray:
+        """(N, 2) int64 texel of existing nodes at grid indices ``ijk`` (N, 3)."""
+        ijk = np.asarray(ijk)
+        return self.node_texel(self.index[ijk[:, 0], ijk[:, 1], ijk[:, 2]])
+
+    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
+        w, h = self.size
+        img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
+        t = self.texel(ijk)
+        img[t[:, 1], t[:, 0]] = values
+        return img
+
+    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
+        """Read per-node values (N, C) back out of a (height, width, C) texture image."""
+        t = self.texel(ijk)
+        return image[t[:, 1], t[:, 0]]
+
+    def neighbour_layers(self, neighbours: np.ndarray) -> np.ndarray:
+        """(5, height, width, 4) int32 neighbour node numbers, absent ones replaced by the node."""
+        n = len(neighbours)
+        own = np.arange(n)[:, None]
+        nb = np.where(neighbours >= 0, neighbours, own)
+        nb = np.concatenate([nb, np.repeat(own, 20 - nb.shape[1], axis=1)], axis=1)  # (N, 20)
+        w, h = self.size
+        out = np.zeros((5, h * w, 4), dtype=np.int32)
+        out[:, :n, :] = nb.reshape(n, 5, 4).transpose(1, 0, 2)
+        return out.reshape(5, h, w, 4)

@@ -7,6 +7,7 @@ memory, so a mesh far from the origin keeps its precision; the offset is kept in
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,14 +17,18 @@ import trimesh
 
 from .camera import View, frame_box
 from .errors import InputError, SimulationError
-from .fragment_sim import FragmentSimulation
+from .fragment_sim import FragmentSimulation, NodeTextures
 from .grid import AtlasLayout, NodeGrid
 from .imagediff import write_png_atomic
+from .mapped_render import MappedMeshPass
+from .mapping_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image, rest_node_normals, uv_for
 from .meshio import load_mesh
 from .model import MAX_PULLS, SpringModel
+from .node_drivers import DrivenNodes, Motion, load_node_frames
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
+from .shader_pack import write_pack_inputs
 from .surface import grid_surface
 from .voxelize import voxelize
 
@@ -148,27 +153,124 @@ def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
         raise InputError(f"{scene.source}: {key}: {exc}; use a coarser grid") from None
 
 
-def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False) -> np.ndarray:
-    """Simulate a scene and render it: (height, width, 3) uint8 image."""
+class NodeState:
+    """Where a scene's node positions come from: the simulation, a file or an analytic motion.
+
+    ``position_texture`` is what the draw passes read; ``release`` frees every GL object.
+    """
+
+    def __init__(self, ctx: moderngl.Context, scene: Scene, built: SceneModel, *, progress: bool) -> None:
+        nodes = scene.nodes
+        self.sim: FragmentSimulation | None = None
+        self.driven: DrivenNodes | None = None
+        self.textures: NodeTextures
+        if nodes.source == "simulate":
+            self.sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
+            self.textures = self.sim.textures
+            try:
+                simulate(self.sim, scene.physics.steps, progress=progress)
+                check_finite(self.sim, scene.source)
+            except BaseException:
+                self.release()
+                raise
+            return
+        self.textures = NodeTextures(ctx, built.model)
+        self.driven = DrivenNodes(ctx, self.textures, built.grid)
+        if nodes.source == "file":
+            frames = load_node_frames(nodes.file, built.grid.count, built.centre)
+            if not -len(frames) <= nodes.frame < len(frames):
+                self.release()
+                raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
+                                 f"{len(frames)} frame(s) of {nodes.file}")
+            positions = frames[nodes.frame]
+        else:
+            m = nodes.motion
+            motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
+            positions = motion.apply(built.grid.rest_positions, m.amount)
+        self.driven.set_positions(positions)
+
+    @property
+    def position_texture(self) -> moderngl.Texture:
+        """State texture with the node positions and packed normals to draw."""
+        return self.sim.position_texture if self.sim else self.driven.position_texture
+
+    @property
+    def layout(self):
+        """The atlas layout of the node textures."""
+        return self.textures.layout
+
+    def release(self) -> None:
+        """Release every GL object."""
+        if self.sim is not None:
+            self.sim.release()
+        else:
+            if self.driven is not None:
+                self.driven.release()
+            self.textures.release()
+
+
+def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layout):
+    """The pass that draws the scene: the grid surface (one-to-one) or the mapped detailed mesh."""
+    mode = scene.mapping.mode
+    if mode == "one-to-one":
+        return GridSurfacePass(ctx, built.grid, layout, overlay=scene.render.show_grid)
+    surface = grid_surface(built.grid)
+    normal_map = normal_map_image(scene.mapping.normal_map, scene.source)
+    uv, _ = uv_for(built.mesh, scene.mapping.normal_map_repeat)
+    binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache,
+                          uv=mesh_uv(built.mesh))
+    data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
+    if normal_map is not None:
+        data = dataclasses.replace(data, uv=uv)
+    return MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data, normal_map=normal_map,
+                          normal_map_strength=scene.mapping.normal_map_strength)
+
+
+def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
+                 export: Path | None = None, pack_inputs: Path | None = None) -> np.ndarray:
+    """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image.
+
+    Args:
+        export: also write the deformed detailed mesh, captured from the mapping vertex shader
+            (needs a mapping mode other than one-to-one).
+        pack_inputs: also write the inputs of the shader pack's example program (.npz).
+    """
+    for path, flag in ((export, "--export-mesh"), (pack_inputs, "--pack-inputs")):
+        if path is not None and scene.mapping.mode == "one-to-one":
+            raise InputError(f"{path}: {flag} needs a mapping of the detailed mesh "
+                             f"(--mapping constant, curvature or auto), not one-to-one")
     built = build_scene_model(scene)
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
-    sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
-    target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
-    surface = GridSurfacePass(ctx, built.grid, sim.textures.layout, overlay=scene.render.show_grid)
+    state = NodeState(ctx, scene, built, progress=progress)
+    draw_pass = None
+    target = None
     try:
-        simulate(sim, scene.physics.steps, progress=progress)
-        check_finite(sim, scene.source)
+        draw_pass = make_draw_pass(ctx, scene, built, state.layout)
+        target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
         target.begin(tuple(scene.render.background))
-        surface.draw(sim.position_texture, scene_view(scene, built.bbox), scene_lighting(scene))
-        return target.read_rgb()
+        view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
+        draw_pass.draw(state.position_texture, view, lighting)
+        image = target.read_rgb()
+        if pack_inputs is not None:
+            write_pack_inputs(pack_inputs, state.position_texture, built.grid, state.layout, draw_pass.data,
+                              built.mesh.faces, view, lighting, scene.render.size, tuple(scene.render.background))
+        if export is not None:
+            vertices, normals = draw_pass.capture(state.position_texture)
+            if not np.isfinite(vertices).all():
+                bad = int(np.argmax(~np.isfinite(vertices).all(axis=1)))
+                raise SimulationError(f"{export}: mapped vertex {bad} is non-finite; mesh not written")
+            export_mesh(export, vertices.astype(np.float64) + built.centre, normals, built.mesh.faces)
+        return image
     finally:
-        surface.release()
-        target.release()
-        sim.release()
+        for obj in (target, draw_pass):
+            if obj is not None:
+                obj.release()
+        state.release()
 
 
-def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False) -> np.ndarray:
+def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
+                  export: Path | None = None, pack_inputs: Path | None = None) -> np.ndarray:
     """Render a scene and write the PNG atomically (temporary file, then rename)."""
-    image = render_scene(ctx, scene, progress=progress)
+    image = render_scene(ctx, scene, progress=progress, export=export, pack_inputs=pack_inputs)
     write_png_atomic(out, image)
     return image

@@ -82,6 +82,45 @@ class RenderTarget:
                 obj.release()
 
 
+class FeedbackCapture:
+    """Captures a vertex shader's outputs with transform feedback: the same shader file and
+    variant as a draw pass, built with ``varyings``, rasterizer discarded.
+
+    Args:
+        ctx: GL context.
+        vertex: vertex shader file; defines: its variant; varyings: captured outputs (vec3 each).
+        content: the draw pass's vertex array content (attributes feeding no captured output are
+            inactive in the capture program and skipped).
+    """
+
+    def __init__(self, ctx: moderngl.Context, vertex: str, defines: dict[str, object],
+                 varyings: tuple[str, ...], content: list) -> None:
+        self.ctx = ctx
+        self.program = Program(ctx, vertex, defines=defines, varyings=varyings)
+        self.vao = ctx.vertex_array(self.program.gl, content, skip_errors=True)
+        self.width = 3 * len(varyings)
+        # Mesa skips every draw, transform feedback included, without a complete framebuffer.
+        self.fbo = ctx.simple_framebuffer((1, 1))
+
+    def run(self, positions: moderngl.Texture, count: int) -> np.ndarray:
+        """(count, 3 * len(varyings)) float32 outputs for node positions from ``positions``."""
+        self.fbo.use()
+        positions.use(0)
+        self.program.set(u_position=0)
+        out = self.ctx.buffer(reserve=count * self.width * 4)
+        try:
+            self.vao.transform(out, moderngl.POINTS, vertices=count)
+            return np.frombuffer(out.read(), dtype="f4").reshape(count, self.width).copy()
+        finally:
+            out.release()
+
+    def release(self) -> None:
+        """Release every GL object."""
+        self.vao.release()
+        self.fbo.release()
+        self.program.release()
+
+
 class GridSurfacePass:
     """Draws the node-grid surface with the one-to-one mapping (3.2), optionally with the
     node/spring overlay (figure 2b). Vertex and index buffers are static, built once.
@@ -95,6 +134,7 @@ class GridSurfacePass:
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout, *,
                  overlay: bool = False) -> None:
+        self.ctx = ctx
         self.surface = grid_surface(grid)
         texels = layout.texel(grid.ijk[self.surface.nodes]).astype("i4")
         self.program = Program(ctx, "render/grid_surface.vert", "render/lit_surface.frag")
@@ -102,6 +142,7 @@ class GridSurfacePass:
         self.ibo = ctx.buffer(self.surface.triangles.astype("i4").tobytes())
         self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")],
                                     index_buffer=self.ibo, index_element_size=4)
+        self._capture: FeedbackCapture | None = None
         self.overlay = None
         if overlay:
             self.overlay = Program(ctx, "render/grid_lines.vert", "render/flat_colour.frag")
@@ -123,12 +164,23 @@ class GridSurfacePass:
             self.overlay.set(u_colour=(0.8, 0.1, 0.1))
             self.point_vao.render(moderngl.POINTS)
 
+    def capture(self, positions: moderngl.Texture) -> tuple[np.ndarray, np.ndarray]:
+        """Surface vertices (one per node of ``surface.nodes``) and normals as the vertex shader
+        computes them, by transform feedback; one read-back."""
+        if self._capture is None:
+            self._capture = FeedbackCapture(self.ctx, "render/grid_surface.vert", {},
+                                            ("v_world", "v_normal"), [(self.vbo, "2i", "in_texel")])
+        data = self._capture.run(positions, len(self.surface.nodes))
+        return data[:, :3], data[:, 3:]
+
     def release(self) -> None:
         """Release every GL object."""
         self.vao.release()
         self.vbo.release()
         self.ibo.release()
         self.program.release()
+        if self._capture is not None:
+            self._capture.release()
         if self.overlay is not None:
             self.line_vao.release()
             self.point_vao.release()

@@ -144,6 +144,42 @@ class Render:
 
 
 @dataclass(frozen=True, slots=True)
+class Mapping:
+    """How the detailed mesh is drawn from the nodes (Mosegaard & Sørensen 3.2-3.3).
+
+    ``mode``: "one-to-one" (the node-grid surface), "constant" (eq. 6), "curvature" (eq. 8) or
+    "auto" (eq. 8 where the node normals are well defined, eq. 6 elsewhere). ``normal_map``:
+    None, "procedural", or an absolute path to a tangent-space normal-map PNG.
+    """
+    mode: str
+    normal_map: str | Path | None
+    normal_map_strength: float
+    normal_map_repeat: float
+    cache: bool
+
+
+@dataclass(frozen=True, slots=True)
+class MotionSpec:
+    """An analytic node motion (see :class:`deformgl.node_drivers.Motion`); axes as 0/1/2."""
+    kind: str
+    angle: float
+    axis: int
+    along: int
+    towards: int
+    translate: Vec3
+    amount: float
+
+
+@dataclass(frozen=True, slots=True)
+class Nodes:
+    """Where node positions come from: "simulate", "file" (``.npy``) or "motion"."""
+    source: str
+    file: Path | None
+    frame: int
+    motion: MotionSpec | None
+
+
+@dataclass(frozen=True, slots=True)
 class Output:
     """Where the PNG goes (absolute)."""
     path: Path
@@ -158,14 +194,18 @@ class Scene:
     physics: Physics
     render: Render
     output: Output
+    mapping: Mapping = None  # type: ignore[assignment]  # set by load_scene
+    nodes: Nodes = None  # type: ignore[assignment]
 
     def with_overrides(
-        self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None
+        self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None,
+        mapping: str | None = None,
     ) -> Scene:
         """Returns a copy with command-line overrides, validated like the scene file.
 
         Args:
             mesh: Replacement mesh file (relative to the working directory); must exist.
+            mapping: Replacement mapping mode.
             steps: Replacement step count, >= 0.
             size: Replacement (width, height), each in 1..16384.
 
@@ -181,6 +221,9 @@ class Scene:
         if size is not None:
             scene = dataclasses.replace(
                 scene, render=dataclasses.replace(scene.render, size=_SIZE(file, "--size", size)))
+        if mapping is not None:
+            scene = dataclasses.replace(
+                scene, mapping=dataclasses.replace(scene.mapping, mode=_MAPPING_MODE(file, "--mapping", mapping)))
         return scene
 
 
@@ -394,6 +437,22 @@ _RENDER = _table({
 }, _plain(Render))
 
 
+MAPPING_MODES = ("one-to-one", "constant", "curvature", "auto")
+_MAPPING_MODE = _str(MAPPING_MODES)
+_MOTION = _table({
+    "kind": (_str(("rigid", "bend", "twist")), REQUIRED), "angle": (_num(), 0.0),
+    "axis": (_str(AXES), "y"), "along": (_str(AXES), "x"), "towards": (_str(AXES), "y"),
+    "translate": (_vec(3), [0.0, 0.0, 0.0]), "amount": (_num(), 1.0),
+}, lambda file, key, d: _build_motion(file, key, d))
+
+
+def _build_motion(file: str, key: str, d: dict[str, Any]) -> MotionSpec:
+    if d["kind"] == "bend" and d["along"] == d["towards"]:
+        _fail(file, _join(key, "towards"), f"must differ from along ({d['along']!r})")
+    return MotionSpec(d["kind"], d["angle"], AXES.index(d["axis"]), AXES.index(d["along"]),
+                      AXES.index(d["towards"]), d["translate"], d["amount"])
+
+
 def load_scene(path: str | Path) -> Scene:
     """Reads and validates a scene file (named as given in ``path`` in error messages).
 
@@ -426,7 +485,35 @@ def load_scene(path: str | Path) -> Scene:
             _fail(file, _join(key, "path"), f"must end in .png, got {out!r}")
         return Output((source.parent / out).resolve())
 
+    def build_mapping(file: str, key: str, d: dict[str, Any]) -> Mapping:
+        nm = d["normal_map"]
+        if nm not in ("none", "procedural"):
+            nm = _existing(file, _join(key, "normal_map"), (source.parent / nm).resolve())
+        return Mapping(d["mode"], None if nm == "none" else nm, d["normal_map_strength"],
+                       d["normal_map_repeat"], d["cache"])
+
+    def build_nodes(file: str, key: str, d: dict[str, Any]) -> Nodes:
+        src = d["source"]
+        if src == "file" and d["file"] is None:
+            _fail(file, _join(key, "file"), "required for source 'file'")
+        if src == "motion" and d["motion"] is None:
+            _fail(file, _join(key, "motion"), "required for source 'motion'")
+        for k, needed_by in (("file", "file"), ("motion", "motion")):
+            if d[k] is not None and src != needed_by:
+                _fail(file, _join(key, k), f"not used by source {src!r}")
+        path = _existing(file, _join(key, "file"), (source.parent / d["file"]).resolve()) if d["file"] else None
+        return Nodes(src, path, d["frame"], d["motion"])
+
     scene = _table({
+        "mapping": (_table({
+            "mode": (_MAPPING_MODE, "one-to-one"), "normal_map": (_str(), "none"),
+            "normal_map_strength": (_UNIT, 1.0), "normal_map_repeat": (_POS, 4.0),
+            "cache": (_of(bool, "a boolean (true or false)"), True),
+        }, build_mapping), {}),
+        "nodes": (_table({
+            "source": (_str(("simulate", "file", "motion")), "simulate"), "file": (_str(), None),
+            "frame": (_int(), -1), "motion": (_MOTION, None),
+        }, build_nodes), {}),
         "mesh": (_table({"path": (_str(), REQUIRED)}, build_mesh), {}),
         "grid": (_GRID, {"nodes_along_longest": 8}),
         "physics": (_PHYSICS, {}),

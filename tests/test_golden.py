@@ -15,7 +15,13 @@ from deformgl.scene import load_scene
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
-@pytest.mark.parametrize("name", ["jelly", "dragon"])
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("DEFORMGL_CACHE_DIR", str(tmp_path / "cache"))
+
+
+@pytest.mark.parametrize("name", ["jelly", "dragon", "dragon_bend_constant", "dragon_bend_curvature",
+                                  "dragon_bend_auto", "fin", "heart"])
 def test_scene_matches_golden(ctx, golden, name):
     image = render_scene(ctx, load_scene(SCENES / f"{name}.toml"))
     golden(image, name)

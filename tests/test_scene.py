@@ -10,6 +10,7 @@ import pytest
 
 from deformgl.errors import SceneError
 from deformgl.scene import (
+    Mapping, MotionSpec, Nodes,
     Camera, GridSpec, Light, Material, MeshSpec, Output, Physics, Pull, Region, Render, Scene, load_scene,
     parse_size,
 )
@@ -19,6 +20,22 @@ MESH = '[mesh]\npath = "assets/m.ply.gz"\n'
 FULL = """
 [mesh]
 path = "assets/m.ply.gz"
+
+[mapping]
+mode = "curvature"
+normal_map = "procedural"
+normal_map_strength = 0.5
+normal_map_repeat = 2.0
+cache = false
+
+[nodes]
+source = "motion"
+[nodes.motion]
+kind = "bend"
+angle = 45.0
+along = "z"
+towards = "x"
+amount = 0.5
 
 [grid]
 spacing = 0.025
@@ -119,6 +136,8 @@ def test_full_scene_round_trips_every_value(scene_dir: Path) -> None:
             material=Material((0.1, 0.2, 0.3), 1.0, 8.0),
         ),
         output=Output(scene_dir / "out" / "full.png"),
+        mapping=Mapping("curvature", "procedural", 0.5, 2.0, False),
+        nodes=Nodes("motion", None, -1, MotionSpec("bend", 45.0, 1, 2, 0, (0.0, 0.0, 0.0), 0.5)),
     )
     assert scene == expected
     assert isinstance(scene.physics.stiffness, float) and isinstance(scene.render.size[0], int)
@@ -341,3 +360,27 @@ def test_parse_size() -> None:
     for bad in ["0x600", "800x16385"]:
         with pytest.raises(ValueError, match="must each be in 1..16384"):
             parse_size(bad)
+
+
+@pytest.mark.parametrize("text, key, what", [
+    ('[mapping]\nmode = "smooth"\n', "mapping.mode", "must be one of"),
+    ('[mapping]\nnormal_map = "missing.png"\n', "mapping.normal_map", "file not found"),
+    ('[nodes]\nsource = "file"\n', "nodes.file", "required for source 'file'"),
+    ('[nodes]\nsource = "motion"\n', "nodes.motion", "required for source 'motion'"),
+    ('[nodes]\nfile = "x.npy"\n', "nodes.file", "not used by source 'simulate'"),
+    ('[nodes]\nsource = "motion"\n[nodes.motion]\nkind = "bend"\nalong = "y"\n', "nodes.motion.towards", "must differ"),
+    ('[nodes]\nsource = "motion"\n[nodes.motion]\nkind = "wobble"\n', "nodes.motion.kind", "must be one of"),
+])
+def test_mapping_and_nodes_errors(scene_dir: Path, text: str, key: str, what: str) -> None:
+    path = scene_dir / "bad.toml"
+    path.write_text('[mesh]\npath = "assets/m.ply.gz"\n' + text)
+    with pytest.raises(SceneError) as err:
+        load_scene(path)
+    assert f"bad.toml: {key}: " in str(err.value) and what in str(err.value)
+
+
+def test_mapping_override(scene_dir: Path) -> None:
+    scene = _load(FULL)
+    assert scene.with_overrides(mapping="auto").mapping.mode == "auto"
+    with pytest.raises(SceneError, match="--mapping: must be one of"):
+        scene.with_overrides(mapping="jagged")

@@ -45,7 +45,9 @@ def pulls(grid):
     return (grid.ijk[:, 0] == 0) * 1 + (grid.ijk[:, 2] == grid.shape[2] - 1) * 2
 
 
-VARIANTS = [dict(draw="rects"), dict(draw="rects", branch=True), dict(draw="points"), dict(draw="quad")]
+VARIANTS = [dict(layout="compact"), dict(layout="compact", branch=True), dict(layout="compact", draw="points"),
+            dict(layout="atlas"), dict(layout="atlas", branch=True), dict(layout="atlas", draw="points"),
+            dict(layout="atlas", draw="quad")]
 
 
 def rel_error(gpu, ref):
@@ -86,7 +88,7 @@ def upload_state(sim, positions):
         tex.write(image.tobytes())
 
 
-@pytest.mark.parametrize("variant", VARIANTS[:2], ids=["branchless", "branch"])
+@pytest.mark.parametrize("variant", [VARIANTS[0], VARIANTS[1], VARIANTS[3]], ids=["compact", "compact-branch", "atlas"])
 def test_two_hundred_damped_steps_within_1e_3_spacing(ctx, variant):
     model = model_for(dragon_like_occupancy(), fixed=top_fixed, damping=0.05, pulls=pulls)
     dt = 1e-3

@@ -9,7 +9,8 @@
 // S1 + S2 is the unnormalised approximate normal of eq. 3.
 // Neighbour j exists when bit j of the node's mask is set; offsets in the order of
 // deformgl/grid.py NEIGHBOUR_OFFSETS. Without NEIGHBOUR_BRANCH the sum is branchless: an absent
-// neighbour (an empty, padded texel holding a finite position) is weighted by 0.
+// neighbour (an empty, padded atlas texel, or in COMPACT layouts the node itself, both holding a
+// finite position) is weighted by 0.
 
 uniform float u_spacing;        // h
 uniform float u_k_structural;   // k1, N/m
@@ -20,24 +21,47 @@ struct SpringSum {
     vec3 unit_sum;  // S1 + S2 (eq. 3 before normalisation)
 };
 
+// Where neighbour J lies: COMPACT layouts look its node number up in the neighbour-index
+// texture (grid.py CompactLayout); the z-slice atlas computes it from the tile arithmetic.
+#ifdef COMPACT
+uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
+uniform int u_width_log2;              // log2 of the texture width
+ivec2 node_texel(int n) {
+    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
+}
+#define NB_TEXEL(J, DX, DY, DZ) node_texel(nb[J])
+#else
+#define NB_TEXEL(J, DX, DY, DZ) (origin[DZ + 1] + local + ivec2(DX, DY))
+#endif
+
 #ifdef NEIGHBOUR_BRANCH
 #define NB_ACCUM(S, P, J, DX, DY, DZ) \
     if ((mask & (1u << J)) != 0u) { \
-        vec3 d = p - texelFetch(positions, origin[DZ + 1] + local + ivec2(DX, DY), 0).xyz; \
+        vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; \
         float len = length(d); \
         S += d / max(len, 1e-30); P += d; }
 #else
 #define NB_ACCUM(S, P, J, DX, DY, DZ) { \
         float w = float((mask >> J) & 1u); \
-        vec3 d = p - texelFetch(positions, origin[DZ + 1] + local + ivec2(DX, DY), 0).xyz; \
+        vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; \
         float len = length(d); \
         S += (w / max(len, 1e-30)) * d; P += w * d; }
 #endif
 
 SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
+#ifdef COMPACT
+    ivec4 n0 = texelFetch(u_neighbours, ivec3(texel, 0), 0);
+    ivec4 n1 = texelFetch(u_neighbours, ivec3(texel, 1), 0);
+    ivec4 n2 = texelFetch(u_neighbours, ivec3(texel, 2), 0);
+    ivec4 n3 = texelFetch(u_neighbours, ivec3(texel, 3), 0);
+    ivec4 n4 = texelFetch(u_neighbours, ivec3(texel, 4), 0);
+    int nb[18] = int[18](n0.x, n0.y, n0.z, n0.w, n1.x, n1.y, n1.z, n1.w, n2.x, n2.y, n2.z, n2.w,
+                         n3.x, n3.y, n3.z, n3.w, n4.x, n4.y);
+#else
     int pz = atlas_slice(texel);
     ivec2 local = texel - atlas_tile_origin(pz);
     ivec2 origin[3] = ivec2[3](atlas_tile_origin(pz - 1), atlas_tile_origin(pz), atlas_tile_origin(pz + 1));
+#endif
     vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
     NB_ACCUM(s1, p1, 0, 1, 0, 0)
     NB_ACCUM(s1, p1, 1, -1, 0, 0)

@@ -1,0 +1,139 @@
+"""Preparing a detailed mesh for a mapping mode: binding (cached), per-vertex basis choice,
+tangents and normal map; and writing the deformed mesh captured from the GPU."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .binding import Binding, bind, binding_key, load_binding, save_binding
+from .errors import InputError
+from .imagediff import read_png
+from .mapped_render import MappedVertices
+from .mapping import curvature_basis
+from .normals import pack_normals, unpack_normals
+from .reference import spring_sums
+from .tangents import procedural_normal_map, procedural_uv, vertex_tangents
+
+CACHE_ENV = "DEFORMGL_CACHE_DIR"
+BINDING_FORMAT = 1
+
+
+def cache_dir() -> Path:
+    """Where bindings are cached: ``$DEFORMGL_CACHE_DIR``, else ``$XDG_CACHE_HOME/deformgl``."""
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "deformgl"
+
+
+def rest_node_normals(model) -> np.ndarray:
+    """(N, 3) rest eq. 3 normals exactly as the GPU unpacks them (zero where undefined)."""
+    return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
+
+
+def mesh_uv(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """The mesh's own per-vertex UVs, if it has them."""
+    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    if uv is None or len(uv) != len(mesh.vertices):
+        return None
+    return np.asarray(uv, dtype=np.float64)
+
+
+def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: np.ndarray | None) -> Binding:
+    """Bind the mesh to the node surface, reusing a cached binding of the same inputs."""
+    grid = model.grid
+    key = binding_key(mesh.vertices, mesh.faces, grid.rest_positions, surface.triangles, grid.spacing,
+                      {"format": BINDING_FORMAT, "uv": None if uv is None else uv.tobytes().hex()[:64]})
+    path = cache_dir() / f"binding-{key[:24]}.npz"
+    if use_cache:
+        cached = load_binding(path, key)
+        if cached is not None:
+            return cached
+    binding = bind(mesh.vertices, mesh.faces, grid.rest_positions, rest_node_normals(model), surface,
+                   spacing=grid.spacing, uv=uv)
+    if use_cache:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_binding(path, binding, key)
+        except OSError:
+            pass  # a read-only cache only costs time
+    return binding
+
+
+def mapped_vertices(binding: Binding, mode: str, rest_positions: np.ndarray, rest_normals: np.ndarray) -> MappedVertices:
+    """Per-vertex data for ``mode``: which basis each vertex uses and its vectors in that basis.
+
+    "constant": eq. 6 everywhere. "curvature": eq. 8 wherever the rest curvature basis can be
+    built at all, eq. 6 where it cannot (nodes without normals summing to zero). "auto": eq. 8
+    only where the binding judged the node normals well defined (``curvature_ok``, paper 3.6).
+    """
+    p = rest_positions[binding.tri_nodes]
+    frame, buildable = curvature_basis(p[:, 0], p[:, 1], p[:, 2], binding.weights, rest_normals[binding.tri_nodes])
+    if mode == "constant":
+        use = np.zeros(len(binding.weights), bool)
+    elif mode == "curvature":
+        use = buildable
+    elif mode == "auto":
+        use = buildable & binding.curvature_ok
+    else:
+        raise ValueError(f"mapping mode {mode!r} has no per-vertex data")
+
+    def local(world: np.ndarray, constant: np.ndarray) -> np.ndarray:
+        in_curv = np.einsum("vkj,vj->vk", frame, world)
+        return np.where(use[:, None], in_curv, constant)
+
+    tangent = None
+    if binding.tangent_constant is not None:
+        t_local = local(binding.tangent_world[:, :3], binding.tangent_constant[:, :3])
+        tangent = np.hstack([t_local, binding.tangent_constant[:, 3:4]])
+    return MappedVertices(
+        tri_nodes=binding.tri_nodes, weights=binding.weights,
+        offset=local(binding.offset_world, binding.offset_constant), offset_world=binding.offset_world,
+        normal=local(binding.normal_world, binding.normal_constant), normal_world=binding.normal_world,
+        use_curvature=use, tangent=tangent,
+        tangent_world=None if binding.tangent_world is None else binding.tangent_world[:, :3])
+
+
+def normal_map_image(spec, source: Path) -> np.ndarray | None:
+    """The normal map of a scene: None, the procedural detail map, or a PNG file."""
+    if spec is None:
+        return None
+    if spec == "procedural":
+        return procedural_normal_map()
+    try:
+        image = read_png(Path(spec))
+    except OSError as exc:
+        raise InputError(f"{source}: mapping.normal_map: cannot read {spec}: {exc}") from None
+    return image[..., :3]
+
+
+def uv_for(mesh: trimesh.Trimesh, repeat: float) -> tuple[np.ndarray, bool]:
+    """UVs for normal mapping: the mesh's own, or procedural ones scaled by ``repeat``."""
+    uv = mesh_uv(mesh)
+    if uv is not None:
+        return uv, True
+    return procedural_uv(mesh.vertices, mesh.vertex_normals) * repeat, False
+
+
+def export_mesh(path: Path, vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> None:
+    """Write a deformed mesh (.ply, .obj or .glb) atomically: temporary file, then rename."""
+    suffix = path.suffix.lower()
+    if suffix not in (".ply", ".obj", ".glb"):
+        raise InputError(f"{path}: --export-mesh must end in .ply, .obj or .glb")
+    lengths = np.linalg.norm(normals, axis=1, keepdims=True)
+    mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), faces,
+                           vertex_normals=normals / np.where(lengths > 0, lengths, 1.0), process=False)
+    data = mesh.export(file_type=suffix[1:])
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data if isinstance(data, bytes) else data.encode())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

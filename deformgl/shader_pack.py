@@ -1,0 +1,43 @@
+"""Inputs for the shader pack's example program (``examples/mapped_mesh_example.py``): what another
+application would hold to draw a mapped mesh with ``shaders/render/mapped_mesh.*`` alone."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from .camera import View
+from .grid import AtlasLayout, NodeGrid
+from .mapped_render import MappedVertices
+from .render import Lighting
+
+
+def write_pack_inputs(path: Path, state: moderngl.Texture, grid: NodeGrid, layout: AtlasLayout,
+                      data: MappedVertices, faces: np.ndarray, view: View, lighting: Lighting,
+                      size: tuple[int, int], background: tuple[float, float, float]) -> None:
+    """Write the example's ``.npz`` (see its docstring for the keys) atomically."""
+    w, h = layout.size
+    image = np.frombuffer(state.read(), dtype="f4").reshape(h, w, 4)
+    texels = {f"texel{c + 1}": layout.texel(grid.ijk[data.tri_nodes[:, c]]).astype("i4") for c in range(3)}
+    u = lighting.uniforms()
+    arrays = dict(
+        state=image, **texels, weights=data.weights.astype("f4"), offset=data.offset.astype("f4"),
+        offset_world=data.offset_world.astype("f4"), normal=data.normal.astype("f4"),
+        normal_world=data.normal_world.astype("f4"), curvature=data.use_curvature.astype("f4"),
+        faces=np.asarray(faces, dtype="i4"), view_projection=view.view_projection.astype("f4"),
+        eye=np.asarray(view.eye, dtype="f4"), light_direction=np.asarray(u["u_light_direction"]),
+        light_colour=np.asarray(u["u_light_colour"]), material_colour=np.asarray(u["u_material_colour"]),
+        ambient=np.float32(u["u_ambient"]), specular=np.float32(u["u_specular"]),
+        shininess=np.float32(u["u_shininess"]), size=np.asarray(size), background=np.asarray(background))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.npz", dir=path.resolve().parent)
+    os.close(fd)
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
