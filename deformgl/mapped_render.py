@@ -63,11 +63,16 @@ class MappedMeshPass:
         data: per-vertex mapping data.
         normal_map: (H, W, 3) uint8 tangent-space normal map, or None (compiles no normal mapping).
         normal_map_strength: 0..1 scale of the map's perturbation.
+        stages: 1 maps every vertex in the drawing vertex shader (the paper's way: the shader runs
+            once per index on renderers without a post-transform cache); 2 maps each vertex once
+            into a buffer with transform feedback, then draws that buffer as a plain mesh.
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout, faces: np.ndarray,
                  data: MappedVertices, *, normal_map: np.ndarray | None = None,
-                 normal_map_strength: float = 1.0) -> None:
+                 normal_map_strength: float = 1.0, stages: int = 2) -> None:
+        if stages not in (1, 2):
+            raise ValueError(f"stages must be 1 or 2, got {stages}")
         self.ctx = ctx
         self.data = data
         self.faces = faces
@@ -99,14 +104,39 @@ class MappedMeshPass:
             self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             self.program.set(u_normal_map=1, u_normal_map_strength=float(normal_map_strength))
         self._capture: FeedbackCapture | None = None
+        self.stages = stages
+        self.stage_one: FeedbackCapture | None = None
+        if stages == 2:
+            names, fmt = ["v_world", "v_normal"], "3f 3f"
+            attrs = ["in_world", "in_normal"]
+            if self.normal_mapped:
+                names += ["v_tangent", "v_handedness", "v_uv"]
+                fmt += " 3f 1f 2f"
+                attrs += ["in_tangent", "in_handedness", "in_uv"]
+            width = 6 + (6 if self.normal_mapped else 0)
+            self.stage_one = FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
+                                             self.content, width=width)
+            self.mapped = ctx.buffer(reserve=self.count * width * 4)
+            self.cached = Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
+                                  defines={"NORMAL_MAP": self.normal_mapped})
+            self.cached_vao = ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
+                                               index_buffer=self.ibo, index_element_size=4)
+            if self.normal_mapped:
+                self.cached.set(u_normal_map=1, u_normal_map_strength=float(normal_map_strength))
 
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw the mapped mesh with node positions from ``positions``."""
-        positions.use(0)
         if self.normal_map_texture is not None:
             self.normal_map_texture.use(1)
-        self.program.set(u_position=0, u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
-                         u_eye=tuple(view.eye), **lighting.uniforms())
+        uniforms = dict(u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
+                        u_eye=tuple(view.eye), **lighting.uniforms())
+        if self.stage_one is not None:
+            self.stage_one.run_into(positions, self.count, self.mapped)
+            self.cached.set(**uniforms)
+            self.cached_vao.render(moderngl.TRIANGLES)
+            return
+        positions.use(0)
+        self.program.set(u_position=0, **uniforms)
         self.vao.render(moderngl.TRIANGLES)
 
     def capture(self, positions: moderngl.Texture) -> tuple[np.ndarray, np.ndarray]:
@@ -133,6 +163,11 @@ class MappedMeshPass:
             self.normal_map_texture.release()
         if self._capture is not None:
             self._capture.release()
+        if self.stage_one is not None:
+            self.stage_one.release()
+            self.cached_vao.release()
+            self.cached.release()
+            self.mapped.release()
 
 
 class StaticMeshPass:

@@ -94,22 +94,28 @@ class FeedbackCapture:
     """
 
     def __init__(self, ctx: moderngl.Context, vertex: str, defines: dict[str, object],
-                 varyings: tuple[str, ...], content: list) -> None:
+                 varyings: tuple[str, ...], content: list, width: int | None = None) -> None:
         self.ctx = ctx
         self.program = Program(ctx, vertex, defines=defines, varyings=varyings)
         self.vao = ctx.vertex_array(self.program.gl, content, skip_errors=True)
-        self.width = 3 * len(varyings)
+        self.width = 3 * len(varyings) if width is None else width  # floats per vertex
         # Mesa skips every draw, transform feedback included, without a complete framebuffer.
         self.fbo = ctx.simple_framebuffer((1, 1))
 
-    def run(self, positions: moderngl.Texture, count: int) -> np.ndarray:
-        """(count, 3 * len(varyings)) float32 outputs for node positions from ``positions``."""
+    def run_into(self, positions: moderngl.Texture, count: int, out: moderngl.Buffer) -> None:
+        """Write the outputs for node positions from ``positions`` into ``out`` (stays on the GPU)."""
+        previous = self.ctx.fbo
         self.fbo.use()
         positions.use(0)
         self.program.set(u_position=0)
+        self.vao.transform(out, moderngl.POINTS, vertices=count)
+        previous.use()
+
+    def run(self, positions: moderngl.Texture, count: int) -> np.ndarray:
+        """(count, width) float32 outputs for node positions from ``positions`` (one read-back)."""
         out = self.ctx.buffer(reserve=count * self.width * 4)
         try:
-            self.vao.transform(out, moderngl.POINTS, vertices=count)
+            self.run_into(positions, count, out)
             return np.frombuffer(out.read(), dtype="f4").reshape(count, self.width).copy()
         finally:
             out.release()
