@@ -308,3 +308,41 @@ def test_auto_keeps_the_constant_basis_where_node_normals_disagree(mapped):
             assert 0.3 < used.mean() < 0.9  # a real mix of both bases
     assert seams["auto"] < 0.5 * seams["curvature"]
     assert seams["auto"] < 1.5 * seams["constant"]
+
+
+@pytest.mark.parametrize("normal_map", [None, "procedural"])
+def test_two_stage_draw_equals_one_stage_draw(ctx, normal_map):
+    import dataclasses as dc
+
+    from deformgl.imagediff import compare_images
+    from deformgl.mapped_render import MappedMeshPass
+    from deformgl.pipeline import scene_lighting, scene_view
+    from deformgl.render import RenderTarget
+    from deformgl.tangents import procedural_normal_map
+
+    scene = load_scene(SCENES / "dragon_bend_curvature.toml").with_overrides(size=(200, 150))
+    scene = dc.replace(scene, mapping=dc.replace(scene.mapping, normal_map=normal_map))
+    built = build_scene_model(scene)
+    textures = NodeTextures(ctx, built.model)
+    nodes = DrivenNodes(ctx, textures, built.grid)
+    m = scene.nodes.motion
+    nodes.set_positions(Motion(m.kind, m.angle, m.axis, m.along, m.towards).apply(built.grid.rest_positions))
+    first = make_draw_pass(ctx, scene, built, textures.layout)
+    data = first.data
+    first.release()
+    images = []
+    for stages in (1, 2):
+        draw = MappedMeshPass(ctx, built.grid, textures.layout, built.mesh.faces, data,
+                              normal_map=None if normal_map is None else procedural_normal_map(),
+                              normal_map_strength=scene.mapping.normal_map_strength, stages=stages)
+        target = RenderTarget(ctx, scene.render.size, 4)
+        target.begin((1.0, 1.0, 1.0))
+        draw.draw(nodes.position_texture, scene_view(scene, built.bbox), scene_lighting(scene))
+        images.append(target.read_rgb())
+        target.release()
+        draw.release()
+    nodes.release()
+    textures.release()
+    diff = compare_images(images[1], images[0], channel_tol=2, max_fraction=0.001, pixel_max=16)
+    assert diff.passed, diff.reason
+    assert (images[0] != 255).any()
