@@ -41,6 +41,17 @@ def _parser() -> argparse.ArgumentParser:
                         "example program (examples/mapped_mesh_example.py)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    t = sub.add_parser("trilinear", help="render a trilinear scene-graph scene to PNG",
+                       description="Scenes of Knuth, Kohlhammer & Kuijper's trilinear scene graph: "
+                                   "tubes (figure 1: linear transforms left, trilinear right), tile "
+                                   "(figure 9: a tile wrapped onto a torus), helix (many small spheres).")
+    t.add_argument("scene", choices=["tubes", "tile", "helix"], help="which scene")
+    t.add_argument("-o", "--output", type=Path, required=True, help="output PNG")
+    t.add_argument("--size", default="960x480", metavar="WxH", help="image size (default 960x480)")
+    t.add_argument("--normals", choices=["direct", "tangent"], default="direct",
+                   help="normals transformed directly (smooth) or through the deformed tangent "
+                        "frame (orthogonal, seams at cell borders), section 4.2")
+
     sub.add_parser("info", help="print the GL renderer, version and limits",
                    description="Create the headless context and print renderer, GL version, max "
                                "texture size, vertex texture units and whether RGBA32F render "
@@ -49,10 +60,11 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
-    b.add_argument("what", choices=["sim", "render", "binding"],
+    b.add_argument("what", choices=["sim", "render", "binding", "trilinear"],
                    help="sim: fragment-pass step vs the NumPy reference; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
-                        "binding time of 23k- and 50k-vertex meshes to a 20k-node grid")
+                        "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
+                        "linear vs trilinear frames/s for the paper's three set-ups")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--scene", type=Path, default=Path("scenes/heart.toml"),
                    help="render: the scene to draw (default scenes/heart.toml)")
@@ -90,6 +102,28 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _trilinear(args: argparse.Namespace) -> int:
+    from .context import create_context
+    from .scene import parse_size
+    from .trilinear_scenes import write_trilinear_scene
+
+    try:
+        size = parse_size(args.size)
+    except ValueError as exc:
+        raise DeformglError(f"--size: {exc}") from None
+    if args.output.suffix.lower() != ".png":
+        raise DeformglError(f"{args.output}: the output must be a .png file")
+    if not args.output.resolve().parent.is_dir():
+        raise DeformglError(f"{args.output}: the output folder {args.output.resolve().parent} does not exist")
+    ctx = create_context(args.device)
+    try:
+        write_trilinear_scene(ctx, args.scene, args.output, size, normals=args.normals)
+    finally:
+        ctx.release()
+    print(f"wrote {args.output}")
+    return 0
+
+
 def _info(args: argparse.Namespace) -> int:
     from .context import context_info, create_context
 
@@ -109,6 +143,10 @@ def _bench(args: argparse.Namespace) -> int:
     try:
         if args.what == "sim":
             print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
+        elif args.what == "trilinear":
+            from .trilinear_scenes import trilinear_bench_report
+
+            print(trilinear_bench_report(ctx))
         elif args.what == "binding":
             from .binding import bench_binding
 
@@ -126,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     args = _parser().parse_args(argv)
     try:
-        return {"render": _render, "info": _info, "bench": _bench}[args.command](args)
+        return {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench}[args.command](args)
     except DeformglError as exc:
         print(f"deformgl: error: {exc}", file=sys.stderr)
         return 1

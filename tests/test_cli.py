@@ -147,3 +147,12 @@ def test_info_and_help_from_the_console_script():
     for sub in ([], ["render"], ["info"], ["bench"]):
         h = subprocess.run(cmd + sub + ["--help"], capture_output=True, text=True, timeout=60)
         assert h.returncode == 0 and "usage: deformgl" in h.stdout
+
+
+def test_trilinear_command_writes_png_and_rejects_bad_size(ctx, tmp_path, capsys):
+    out = tmp_path / "tubes.png"
+    code, _, err = run_cli(capsys, "trilinear", "tubes", "-o", out, "--size", "160x80")
+    assert code == 0, err
+    assert read_png(out).shape == (80, 160, 3)
+    code, _, err = run_cli(capsys, "trilinear", "tile", "-o", tmp_path / "t.png", "--size", "big")
+    assert code == 1 and "--size" in err and not (tmp_path / "t.png").exists()
