@@ -15,6 +15,7 @@ import moderngl
 import numpy as np
 import trimesh
 
+from .attachments import TubeAttachment
 from .camera import View, frame_box
 from .errors import InputError, SimulationError
 from .fragment_sim import FragmentSimulation, NodeTextures
@@ -28,6 +29,7 @@ from .node_drivers import DrivenNodes, Motion, load_node_frames
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
+from .scenegraph import TrilinearRenderer
 from .shader_pack import write_pack_inputs
 from .surface import grid_surface
 from .voxelize import voxelize
@@ -226,6 +228,27 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
                           normal_map_strength=scene.mapping.normal_map_strength)
 
 
+def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, draw_pass: MappedMeshPass,
+                     positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
+    """Draw the scene's attached tubes on the deformed detailed mesh (Knuth et al., section 5).
+
+    The anchors' frames need the deformed vertices on the CPU: one capture of the mapping vertex
+    shader per frame (the paper composes on the CPU too).
+    """
+    lo, hi = built.bbox
+    diag = float(np.linalg.norm(hi - lo))
+    deformed = draw_pass.capture(positions)[0].astype(np.float64)
+    renderer = TrilinearRenderer(ctx)
+    try:
+        for spec in scene.attach:
+            tube = TubeAttachment.along(built.mesh.vertices, built.mesh.faces, lo + (hi - lo) * np.asarray(spec.start),
+                                        lo + (hi - lo) * np.asarray(spec.end), count=spec.anchors,
+                                        radius=spec.radius * diag, colour=spec.colour)
+            renderer.draw(tube.compose(deformed, built.mesh.faces), view, lighting)
+    finally:
+        renderer.release()
+
+
 def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
                  export: Path | None = None, pack_inputs: Path | None = None) -> np.ndarray:
     """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image.
@@ -250,6 +273,8 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
         target.begin(tuple(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)
+        if scene.attach:
+            draw_attachments(ctx, scene, built, draw_pass, state.position_texture, view, lighting)
         image = target.read_rgb()
         if pack_inputs is not None:
             write_pack_inputs(pack_inputs, state.position_texture, built.grid, state.layout, draw_pass.data,

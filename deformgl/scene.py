@@ -180,6 +180,18 @@ class Nodes:
 
 
 @dataclass(frozen=True, slots=True)
+class Attach:
+    """A tube attached to the deforming detailed mesh (Knuth et al., section 5): anchors at the
+    mesh vertices nearest to a path from ``start`` to ``end`` (bounding-box fractions);
+    ``radius`` in bounding-box diagonals."""
+    start: Vec3
+    end: Vec3
+    anchors: int
+    radius: float
+    colour: Vec3
+
+
+@dataclass(frozen=True, slots=True)
 class Output:
     """Where the PNG goes (absolute)."""
     path: Path
@@ -196,6 +208,7 @@ class Scene:
     output: Output
     mapping: Mapping = None  # type: ignore[assignment]  # set by load_scene
     nodes: Nodes = None  # type: ignore[assignment]
+    attach: tuple[Attach, ...] = ()
 
     def with_overrides(
         self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None,
@@ -504,7 +517,16 @@ def load_scene(path: str | Path) -> Scene:
         path = _existing(file, _join(key, "file"), (source.parent / d["file"]).resolve()) if d["file"] else None
         return Nodes(src, path, d["frame"], d["motion"])
 
+    def build_scene(file: str, key: str, d: dict[str, Any]) -> Scene:
+        if d["attach"] and d["mapping"].mode == "one-to-one":
+            _fail(file, "attach", "needs a detailed mesh: set mapping.mode to constant, curvature or auto")
+        return Scene(source, **d)
+
     scene = _table({
+        "attach": (_array(_table({
+            "from": (_vec(3), REQUIRED), "to": (_vec(3), REQUIRED), "anchors": (_int(lo=2, hi=4096), 16),
+            "radius": (_num(lo=0.0, lo_open=True, hi=0.5), 0.01), "colour": (_vec(3, _UNIT), [0.2, 0.45, 0.85]),
+        }, lambda file, key, d: Attach(d["from"], d["to"], d["anchors"], d["radius"], d["colour"])), 8), []),
         "mapping": (_table({
             "mode": (_MAPPING_MODE, "one-to-one"), "normal_map": (_str(), "none"),
             "normal_map_strength": (_UNIT, 1.0), "normal_map_repeat": (_POS, 4.0),
@@ -519,5 +541,5 @@ def load_scene(path: str | Path) -> Scene:
         "physics": (_PHYSICS, {}),
         "render": (_RENDER, {}),
         "output": (_table({"path": (_str(), None)}, build_output), {}),
-    }, lambda file, key, d: Scene(source, **d))
+    }, build_scene)
     return scene(file, "", data)
