@@ -70,7 +70,7 @@ class MappedMeshPass:
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout, faces: np.ndarray,
                  data: MappedVertices, *, normal_map: np.ndarray | None = None,
-                 normal_map_strength: float = 1.0, stages: int = 2) -> None:
+                 normal_map_strength: float = 1.0, stages: int = 1) -> None:
         if stages not in (1, 2):
             raise ValueError(f"stages must be 1 or 2, got {stages}")
         self.ctx = ctx
