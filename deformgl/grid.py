@@ -106,8 +106,26 @@ class NodeGrid:
         return (points - lo) / extent
 
 
+class TexelImages:
+    """Mixin moving per-node values between node order and texture images; the layout class
+    provides ``size`` (width, height) and ``texel(ijk)``."""
+
+    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+        """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
+        w, h = self.size
+        img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
+        t = self.texel(ijk)
+        img[t[:, 1], t[:, 0]] = values
+        return img
+
+    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
+        """Read per-node values (N, C) back out of a (height, width, C) texture image."""
+        t = self.texel(ijk)
+        return image[t[:, 1], t[:, 0]]
+
+
 @dataclass(frozen=True)
-class AtlasLayout:
+class AtlasLayout(TexelImages):
     """How the 3D grid lies in a 2D texture: padded z-slices as tiles in rows.
 
     The grid is padded by one empty node on every side, so every neighbour fetch of an existing
@@ -166,22 +184,10 @@ class AtlasLayout:
         tile_x, tile_y = p[:, 2] % self.tiles_x, p[:, 2] // self.tiles_x
         return np.stack([tile_x * (self.nx + 2) + p[:, 0], tile_y * (self.ny + 2) + p[:, 1]], axis=1)
 
-    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
-        """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
-        w, h = self.size
-        img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
-        t = self.texel(ijk)
-        img[t[:, 1], t[:, 0]] = values
-        return img
-
-    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
-        """Read per-node values (N, C) back out of a (height, width, C) texture image."""
-        t = self.texel(ijk)
-        return image[t[:, 1], t[:, 0]]
 
 
 @dataclass(frozen=True, eq=False)
-class CompactLayout:
+class CompactLayout(TexelImages):
     """Existing nodes packed densely in node order: node n is texel (n % width, n // width).
 
     Only existing nodes occupy texels (the last row may be partly empty), so a pass costs work
@@ -232,18 +238,6 @@ class CompactLayout:
         ijk = np.asarray(ijk)
         return self.node_texel(self.index[ijk[:, 0], ijk[:, 1], ijk[:, 2]])
 
-    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
-        """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
-        w, h = self.size
-        img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
-        t = self.texel(ijk)
-        img[t[:, 1], t[:, 0]] = values
-        return img
-
-    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
-        """Read per-node values (N, C) back out of a (height, width, C) texture image."""
-        t = self.texel(ijk)
-        return image[t[:, 1], t[:, 0]]
 
     def neighbour_layers(self, neighbours: np.ndarray) -> np.ndarray:
         """(5, height, width, 4) int32 neighbour node numbers, absent ones replaced by the node."""
