@@ -95,7 +95,8 @@ def _render(args: argparse.Namespace) -> int:
     ctx = create_context(args.device)
     try:
         render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
-                      export=args.export_mesh, pack_inputs=args.pack_inputs)
+                      export=args.export_mesh, pack_inputs=args.pack_inputs,
+                      log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
     finally:
         ctx.release()
     print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))

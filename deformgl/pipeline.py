@@ -8,6 +8,7 @@ memory, so a mesh far from the origin keeps its precision; the offset is kept in
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -211,8 +212,13 @@ class NodeState:
             self.textures.release()
 
 
-def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layout):
-    """The pass that draws the scene: the grid surface (one-to-one) or the mapped detailed mesh."""
+def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layout, *,
+                   log: Callable[[str], None] | None = None):
+    """The pass that draws the scene: the grid surface (one-to-one) or the mapped detailed mesh.
+
+    Args:
+        log: receives the binding's report lines (what it could not do well), if given.
+    """
     mode = scene.mapping.mode
     if mode == "one-to-one":
         return GridSurfacePass(ctx, built.grid, layout, overlay=scene.render.show_grid)
@@ -221,6 +227,9 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
     uv, _ = uv_for(built.mesh, scene.mapping.normal_map_repeat)
     binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache,
                           uv=mesh_uv(built.mesh))
+    if log is not None:
+        for line in binding.report.lines():
+            log(f"{scene.mesh.path.name}: {line}")
     data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
     if normal_map is not None:
         data = dataclasses.replace(data, uv=uv)
@@ -250,13 +259,15 @@ def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, dra
 
 
 def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
-                 export: Path | None = None, pack_inputs: Path | None = None) -> np.ndarray:
+                 export: Path | None = None, pack_inputs: Path | None = None,
+                 log: Callable[[str], None] | None = None) -> np.ndarray:
     """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image.
 
     Args:
         export: also write the deformed detailed mesh, captured from the mapping vertex shader
             (needs a mapping mode other than one-to-one).
         pack_inputs: also write the inputs of the shader pack's example program (.npz).
+        log: receives human-readable notes (the binding report), if given.
     """
     for path, flag in ((export, "--export-mesh"), (pack_inputs, "--pack-inputs")):
         if path is not None and scene.mapping.mode == "one-to-one":
@@ -268,7 +279,7 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
     draw_pass = None
     target = None
     try:
-        draw_pass = make_draw_pass(ctx, scene, built, state.layout)
+        draw_pass = make_draw_pass(ctx, scene, built, state.layout, log=log)
         target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
         target.begin(tuple(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
@@ -294,8 +305,9 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
 
 
 def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
-                  export: Path | None = None, pack_inputs: Path | None = None) -> np.ndarray:
+                  export: Path | None = None, pack_inputs: Path | None = None,
+                  log: Callable[[str], None] | None = None) -> np.ndarray:
     """Render a scene and write the PNG atomically (temporary file, then rename)."""
-    image = render_scene(ctx, scene, progress=progress, export=export, pack_inputs=pack_inputs)
+    image = render_scene(ctx, scene, progress=progress, export=export, pack_inputs=pack_inputs, log=log)
     write_png_atomic(out, image)
     return image

@@ -346,3 +346,29 @@ def test_two_stage_draw_equals_one_stage_draw(ctx, normal_map):
     diff = compare_images(images[1], images[0], channel_tol=2, max_fraction=0.001, pixel_max=16)
     assert diff.passed, diff.reason
     assert (images[0] != 255).any()
+
+
+def test_binding_report_is_printed_unless_quiet(ctx, tmp_path, capsys):
+    scene = SCENES / "dragon_bend_auto.toml"
+    code, _, err = render_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--size", "64x48")
+    assert code == 0
+    assert "bound 5205 vertices to" in err and "curvature basis unreliable for" in err
+    code, _, err = render_cli(capsys, "render", scene, "-o", tmp_path / "b.png", "--size", "64x48", "--quiet")
+    assert code == 0 and err == ""
+
+
+def test_normal_map_from_a_png_file(ctx, tmp_path):
+    import dataclasses as dc
+
+    from deformgl.imagediff import compare_images, write_png_atomic
+    from deformgl.pipeline import render_scene
+    from deformgl.tangents import procedural_normal_map
+
+    write_png_atomic(tmp_path / "detail.png", procedural_normal_map())
+    base = load_scene(SCENES / "dragon_bend_constant.toml").with_overrides(size=(160, 120))
+    from_file = dc.replace(base, mapping=dc.replace(base.mapping, normal_map=tmp_path / "detail.png"))
+    assert compare_images(render_scene(ctx, from_file), render_scene(ctx, base)).passed
+    other = tmp_path / "flat.png"
+    write_png_atomic(other, np.tile(np.array([128, 200, 230], np.uint8), (64, 64, 1)))  # tilted normals
+    tilted = dc.replace(base, mapping=dc.replace(base.mapping, normal_map=other))
+    assert not compare_images(render_scene(ctx, tilted), render_scene(ctx, base)).passed
