@@ -152,9 +152,12 @@ def locate_on_mesh(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarr
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    normal = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    area2 = np.linalg.norm(normal, axis=1)
+    usable = np.flatnonzero(area2 > 1e-12 * max(float(np.ptp(v, axis=0).max()), 1e-300) ** 2)
+    t = t[usable]                                          # zero-area faces hold no anchor
     corners = v[t]                                         # (T, 3, 3)
-    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = normal[usable] / area2[usable, None]
     tri_out = np.empty(len(p), dtype=np.int64)
     bary_out = np.empty((len(p), 3))
     for i, q in enumerate(p):
@@ -164,7 +167,7 @@ def locate_on_mesh(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarr
         if not inside.any():
             raise InputError(f"anchor point {q.tolist()} does not project into any triangle of the mesh")
         best = np.flatnonzero(inside)[np.argmin(dist[inside])]
-        tri_out[i], bary_out[i] = best, bary[best]
+        tri_out[i], bary_out[i] = usable[best], bary[best]
     return tri_out, bary_out
 
 

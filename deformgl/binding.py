@@ -515,7 +515,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
 
 def rest_node_normals(model: SpringModel) -> np.ndarray:
     """(N, 3) rest eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
-    the unit-vector sums of the rest positions, packed and unpacked (12-bit octahedral)."""
+    the unit-vector sums of the rest positions, packed and unpacked (deformgl.normals)."""
     return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
 
 

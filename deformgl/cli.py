@@ -87,15 +87,17 @@ def _render(args: argparse.Namespace) -> int:
     out = args.output or scene.output.path
     if out.suffix.lower() != ".png":
         raise DeformglError(f"{out}: the output must be a .png file")
-    for path in (out, args.export_mesh):
+    for path in (out, args.export_mesh, args.pack_inputs):
         if path is not None and not path.resolve().parent.is_dir():
             raise DeformglError(f"{path}: the output folder {path.resolve().parent} does not exist")
     if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
         raise DeformglError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
+    if args.pack_inputs is not None and args.pack_inputs.suffix.lower() != ".npz":
+        raise DeformglError(f"{args.pack_inputs}: --pack-inputs must end in .npz")
     ctx = create_context(args.device)
     try:
         render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
-                      export=args.export_mesh, pack_inputs=args.pack_inputs,
+                      export=args.export_mesh, pack=args.pack_inputs,
                       log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
     finally:
         ctx.release()
@@ -137,6 +139,8 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
+    if args.steps < 1:
+        raise DeformglError(f"--steps: must be >= 1, got {args.steps}")
     from .bench import bench_render, bench_sim, format_render, format_sim, machine_line
     from .context import create_context
 

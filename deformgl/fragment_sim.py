@@ -207,7 +207,11 @@ class FragmentSimulation:
         self.dt = float(dt)
         self.pull_force = pull_force
         self.textures = NodeTextures(ctx, model, layout=layout)
-        self.verlet = VerletPass(ctx, model, self.textures, draw=draw, branch=branch)
+        try:
+            self.verlet = VerletPass(ctx, model, self.textures, draw=draw, branch=branch)
+        except BaseException:
+            self.textures.release()
+            raise
         self.current, self.previous, self.spare = 0, 1, 2
         self.steps_done = 0
 

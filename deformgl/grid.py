@@ -16,7 +16,7 @@ import numpy as np
 
 #: The 18 neighbour offsets: first the 6 at distance 1 (D1), then the 12 at sqrt(2) (D2).
 #: Bit j of a node's neighbour mask is set when the neighbour at NEIGHBOUR_OFFSETS[j] exists.
-#: ``shaders/lib/neighbours.glsl`` lists the same offsets in the same order.
+#: ``shaders/lib/springs.glsl`` unrolls the same offsets in the same order.
 NEIGHBOUR_OFFSETS = np.array(
     [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1),
      (1, 1, 0), (1, -1, 0), (-1, 1, 0), (-1, -1, 0),

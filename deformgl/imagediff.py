@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import os
 import secrets
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from PIL import Image
@@ -277,7 +279,19 @@ def write_png_atomic(path: str | os.PathLike[str], array: np.ndarray) -> None:
             f"array must have shape (H, W), (H, W, 3) or (H, W, 4), got {array.shape}"
         )
     image = Image.fromarray(np.ascontiguousarray(array))
+    write_atomic(path, lambda stream: image.save(stream, format="PNG"))
 
+
+def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]) -> None:
+    """Write a file so that ``path`` never holds a partial one: ``write(stream)`` fills a
+    temporary file in the same directory, which is flushed to disk and renamed over ``path``.
+    On any failure the temporary file is removed and an existing ``path`` is left as it was. The
+    new file gets the usual permissions for a new file (``0o666`` less the umask).
+
+    Raises:
+        FileNotFoundError: The directory of ``path`` does not exist.
+        OSError: The file could not be written or renamed.
+    """
     target = Path(path)
     directory = target.parent
     if not directory.is_dir():
@@ -298,7 +312,7 @@ def write_png_atomic(path: str | os.PathLike[str], array: np.ndarray) -> None:
 
     try:
         with os.fdopen(fd, "wb") as stream:
-            image.save(stream, format="PNG")
+            write(stream)
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, target)

@@ -5,7 +5,7 @@ Vertex attributes (static buffers, built once from a binding), per vertex of the
 
 | attribute | type | meaning |
 | --- | --- | --- |
-| in_texel1..3 | ivec2 | atlas texels of the three nodes of its triangle |
+| in_texel1..3 | ivec2 | state-texture texels of the three nodes of its triangle |
 | in_weights | vec3 | eq. 4 weights |
 | in_offset | vec3 | eq. 7 offset in its basis (constant or curvature, as chosen per vertex) |
 | in_offset_world | vec3 | eq. 5 rest offset (fallback for a degenerate basis) |
@@ -22,7 +22,7 @@ import moderngl
 import numpy as np
 
 from .camera import View
-from .grid import AtlasLayout, NodeGrid
+from .grid import AtlasLayout, CompactLayout, NodeGrid
 from .program import Program
 from .render import FeedbackCapture, Lighting
 
@@ -58,7 +58,7 @@ class MappedMeshPass:
 
     Args:
         ctx: GL context.
-        grid: the node grid; layout: its atlas in the state texture.
+        grid: the node grid; layout: where each node lies in the state texture.
         faces: (F, 3) triangles of the detailed mesh.
         data: per-vertex mapping data.
         normal_map: (H, W, 3) uint8 tangent-space normal map, or None (compiles no normal mapping).
@@ -68,7 +68,7 @@ class MappedMeshPass:
             into a buffer with transform feedback, then draws that buffer as a plain mesh.
     """
 
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout, faces: np.ndarray,
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, faces: np.ndarray,
                  data: MappedVertices, *, normal_map: np.ndarray | None = None,
                  normal_map_strength: float = 1.0, stages: int = 1) -> None:
         if stages not in (1, 2):
@@ -91,38 +91,48 @@ class MappedMeshPass:
             assert data.tangent is not None and data.tangent_world is not None and data.uv is not None
             columns += [("in_tangent", "4f", _f4(data.tangent)), ("in_tangent_world", "3f", _f4(data.tangent_world)),
                         ("in_uv", "2f", _f4(data.uv))]
-        self.buffers = [ctx.buffer(arr.tobytes()) for _, _, arr in columns]
-        self.content = [(buf, fmt, name) for buf, (name, fmt, _) in zip(self.buffers, columns)]
-        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
-        self.program = Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag", defines=self.defines)
-        self.vao = ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo, index_element_size=4)
-        self.normal_map_texture = None
-        if normal_map is not None:
-            h, w, _ = normal_map.shape
-            self.normal_map_texture = ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes())
-            self.normal_map_texture.build_mipmaps()
-            self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-            self.program.set(u_normal_map=1, u_normal_map_strength=float(normal_map_strength))
+        self.program: Program | None = None
+        self.vao: moderngl.VertexArray | None = None
+        self.normal_map_texture: moderngl.Texture | None = None
         self._capture: FeedbackCapture | None = None
         self.stages = stages
         self.stage_one: FeedbackCapture | None = None
-        if stages == 2:
-            names, fmt = ["v_world", "v_normal"], "3f 3f"
-            attrs = ["in_world", "in_normal"]
-            if self.normal_mapped:
-                names += ["v_tangent", "v_handedness", "v_uv"]
-                fmt += " 3f 1f 2f"
-                attrs += ["in_tangent", "in_handedness", "in_uv"]
-            width = 6 + (6 if self.normal_mapped else 0)
-            self.stage_one = FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
-                                             self.content, width=width)
-            self.mapped = ctx.buffer(reserve=self.count * width * 4)
-            self.cached = Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
-                                  defines={"NORMAL_MAP": self.normal_mapped})
-            self.cached_vao = ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
-                                               index_buffer=self.ibo, index_element_size=4)
-            if self.normal_mapped:
-                self.cached.set(u_normal_map=1, u_normal_map_strength=float(normal_map_strength))
+        self.cached: Program | None = None
+        self.buffers = [ctx.buffer(arr.tobytes()) for _, _, arr in columns]
+        self.content = [(buf, fmt, name) for buf, (name, fmt, _) in zip(self.buffers, columns)]
+        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
+        try:
+            if normal_map is not None:
+                h, w, _ = normal_map.shape
+                self.normal_map_texture = ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes())
+                self.normal_map_texture.build_mipmaps()
+                self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            map_uniforms = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
+                            if normal_map is not None else {})
+            if stages == 1:
+                self.program = Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag", defines=self.defines)
+                self.vao = ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo,
+                                            index_element_size=4)
+                self.program.set(**map_uniforms)
+            else:
+                names, fmt = ["v_world", "v_normal"], "3f 3f"
+                attrs = ["in_world", "in_normal"]
+                if self.normal_mapped:
+                    names += ["v_tangent", "v_handedness", "v_uv"]
+                    fmt += " 3f 1f 2f"
+                    attrs += ["in_tangent", "in_handedness", "in_uv"]
+                width = 6 + (6 if self.normal_mapped else 0)
+                self.stage_one = FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
+                                                 self.content, width=width)
+                self.mapped = ctx.buffer(reserve=self.count * width * 4)
+                self.cached = Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
+                                      defines={"NORMAL_MAP": self.normal_mapped})
+                self.cached_vao = ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
+                                                   index_buffer=self.ibo, index_element_size=4)
+                self.cached.set(**map_uniforms)
+        except BaseException:
+            self.release()
+            raise
 
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw the mapped mesh with node positions from ``positions``."""
@@ -153,21 +163,17 @@ class MappedMeshPass:
         return data[:, :3], data[:, 3:]
 
     def release(self) -> None:
-        """Release every GL object."""
-        self.vao.release()
-        self.program.release()
-        for buf in self.buffers:
-            buf.release()
-        self.ibo.release()
-        if self.normal_map_texture is not None:
-            self.normal_map_texture.release()
-        if self._capture is not None:
-            self._capture.release()
-        if self.stage_one is not None:
-            self.stage_one.release()
+        """Release every GL object (also after a failed construction)."""
+        for obj in (self.vao, self.program, *self.buffers, self.ibo, self.normal_map_texture, self._capture,
+                    self.stage_one):
+            if obj is not None:
+                obj.release()
+        if self.cached is not None:
             self.cached_vao.release()
             self.cached.release()
             self.mapped.release()
+        self.vao = self.program = self.normal_map_texture = self._capture = self.stage_one = self.cached = None
+        self.buffers = []
 
 
 class StaticMeshPass:

@@ -25,9 +25,6 @@ import numpy as np
 #: A basis vector shorter than this (before normalising) makes the basis degenerate.
 DEGENERATE = 1e-6
 
-MODES = ("one-to-one", "constant", "curvature", "auto")
-
-
 def _normalize(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit vectors and a bool mask of those that were long enough to normalise."""
     length = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -53,16 +50,6 @@ def curvature_basis(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray, weights: np.
     bc, ok_b = _normalize(np.cross(nc, t))
     tc = np.cross(bc, nc)
     return np.stack([tc, nc, bc], axis=1), ok_t & ok_n & ok_b
-
-
-def basis(mode: str, p: np.ndarray, weights: np.ndarray, normals: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The basis of ``mode`` ("constant" or "curvature") for corner positions p (V, 3, 3)."""
-    if mode == "constant":
-        return constant_basis(p[:, 0], p[:, 1], p[:, 2])
-    if mode == "curvature":
-        assert normals is not None
-        return curvature_basis(p[:, 0], p[:, 1], p[:, 2], weights, normals)
-    raise ValueError(f"no basis for mapping mode {mode!r}")
 
 
 def map_vertices(positions: np.ndarray, normals: np.ndarray, tri_nodes: np.ndarray, weights: np.ndarray,

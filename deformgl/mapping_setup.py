@@ -4,19 +4,16 @@ tangents and normal map; and writing the deformed mesh captured from the GPU."""
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from .binding import Binding, bind, binding_key, load_binding, save_binding
+from .binding import Binding, bind, binding_key, load_binding, rest_node_normals, save_binding
 from .errors import InputError
-from .imagediff import read_png
+from .imagediff import read_png, write_atomic
 from .mapped_render import MappedVertices
 from .mapping import curvature_basis
-from .normals import pack_normals, unpack_normals
-from .reference import spring_sums
 from .tangents import procedural_normal_map, procedural_uv, vertex_tangents
 
 CACHE_ENV = "DEFORMGL_CACHE_DIR"
@@ -31,11 +28,6 @@ def cache_dir() -> Path:
     return Path(base) / "deformgl"
 
 
-def rest_node_normals(model) -> np.ndarray:
-    """(N, 3) rest eq. 3 normals exactly as the GPU unpacks them (zero where undefined)."""
-    return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
-
-
 def mesh_uv(mesh: trimesh.Trimesh) -> np.ndarray | None:
     """The mesh's own per-vertex UVs, if it has them."""
     uv = getattr(getattr(mesh, "visual", None), "uv", None)
@@ -48,7 +40,7 @@ def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: n
     """Bind the mesh to the node surface, reusing a cached binding of the same inputs."""
     grid = model.grid
     key = binding_key(mesh.vertices, mesh.faces, grid.rest_positions, surface.triangles, grid.spacing,
-                      {"format": BINDING_FORMAT, "uv": None if uv is None else uv.tobytes().hex()[:64]})
+                      {"format": BINDING_FORMAT}, uv=uv)
     path = cache_dir() / f"binding-{key[:24]}.npz"
     if use_cache:
         cached = load_binding(path, key)
@@ -87,16 +79,14 @@ def mapped_vertices(binding: Binding, mode: str, rest_positions: np.ndarray, res
         in_curv = np.einsum("vkj,vj->vk", frame, world)
         return np.where(use[:, None], in_curv, constant)
 
-    tangent = None
-    if binding.tangent_constant is not None:
-        t_local = local(binding.tangent_world[:, :3], binding.tangent_constant[:, :3])
-        tangent = np.hstack([t_local, binding.tangent_constant[:, 3:4]])
+    t_local = local(binding.tangent_world[:, :3], binding.tangent_constant[:, :3])
+    tangent = np.hstack([t_local, binding.tangent_constant[:, 3:4]])
     return MappedVertices(
         tri_nodes=binding.tri_nodes, weights=binding.weights,
         offset=local(binding.offset_world, binding.offset_constant), offset_world=binding.offset_world,
         normal=local(binding.normal_world, binding.normal_constant), normal_world=binding.normal_world,
         use_curvature=use, tangent=tangent,
-        tangent_world=None if binding.tangent_world is None else binding.tangent_world[:, :3])
+        tangent_world=binding.tangent_world[:, :3])
 
 
 def normal_map_image(spec, source: Path) -> np.ndarray | None:
@@ -112,14 +102,6 @@ def normal_map_image(spec, source: Path) -> np.ndarray | None:
     return image[..., :3]
 
 
-def uv_for(mesh: trimesh.Trimesh, repeat: float) -> tuple[np.ndarray, bool]:
-    """UVs for normal mapping: the mesh's own, or procedural ones scaled by ``repeat``."""
-    uv = mesh_uv(mesh)
-    if uv is not None:
-        return uv, True
-    return procedural_uv(mesh.vertices, mesh.vertex_normals) * repeat, False
-
-
 def export_mesh(path: Path, vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> None:
     """Write a deformed mesh (.ply, .obj or .glb) atomically: temporary file, then rename."""
     suffix = path.suffix.lower()
@@ -129,11 +111,4 @@ def export_mesh(path: Path, vertices: np.ndarray, normals: np.ndarray, faces: np
     mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), faces,
                            vertex_normals=normals / np.where(lengths > 0, lengths, 1.0), process=False)
     data = mesh.export(file_type=suffix[1:])
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data if isinstance(data, bytes) else data.encode())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, lambda stream: stream.write(data if isinstance(data, bytes) else data.encode()))

@@ -67,9 +67,10 @@ def load_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         )
     data = _read(file_path, name, compressed)
     loaded = _parse(data, file_type, file_path, name)
-    vertices, faces = _flatten(loaded, name)
+    vertices, faces, uv = _flatten(loaded, name)
     _validate(vertices, faces, name)
-    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    visual = trimesh.visual.TextureVisuals(uv=uv) if uv is not None else None
+    return trimesh.Trimesh(vertices=vertices, faces=faces, visual=visual, process=False)
 
 
 def _format_of(file_path: Path) -> tuple[bool, str | None]:
@@ -113,8 +114,9 @@ def _parse(data: bytes, file_type: str, file_path: Path, name: str) -> trimesh.p
         raise InputError(f"{name}: cannot parse as {file_type.upper()}: {_one_line(exc)}") from exc
 
 
-def _flatten(loaded: object, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Return (vertices, faces) of a loaded Trimesh, or of all meshes of a Scene concatenated."""
+def _flatten(loaded: object, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Return (vertices, faces, per-vertex UVs or None) of a loaded Trimesh, or of all meshes of
+    a Scene concatenated (UVs only when every part has them)."""
     if isinstance(loaded, trimesh.Scene):
         # dump() applies each instance's scene-graph transform (and fixes winding on mirrors).
         found = list(loaded.dump())
@@ -128,13 +130,18 @@ def _flatten(loaded: object, name: str) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{name}: no triangle mesh in file (found only {kinds})")
     vertices: list[np.ndarray] = []
     faces: list[np.ndarray] = []
+    uvs: list[np.ndarray | None] = []
     offset = 0
     for part in parts:
         part_faces = np.asarray(part.faces, dtype=np.int64)
         vertices.append(np.asarray(part.vertices, dtype=np.float64).reshape(-1, 3))
         faces.append(part_faces.reshape(-1, 3) + offset)
         offset += len(vertices[-1])
-    return np.concatenate(vertices), np.concatenate(faces)
+        uv = getattr(getattr(part, "visual", None), "uv", None)
+        ok = uv is not None and np.shape(uv) == (len(vertices[-1]), 2) and np.isfinite(uv).all()
+        uvs.append(np.asarray(uv, dtype=np.float64) if ok else None)
+    uv_all = np.concatenate(uvs) if all(u is not None for u in uvs) else None
+    return np.concatenate(vertices), np.concatenate(faces), uv_all
 
 
 def _validate(vertices: np.ndarray, faces: np.ndarray, name: str) -> None:

@@ -20,10 +20,10 @@ from .attachments import TubeAttachment
 from .camera import View, frame_box
 from .errors import InputError, SimulationError
 from .fragment_sim import FragmentSimulation, NodeTextures
-from .grid import AtlasLayout, NodeGrid
+from .grid import CompactLayout, NodeGrid
 from .imagediff import write_png_atomic
 from .mapped_render import MappedMeshPass
-from .mapping_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image, rest_node_normals, uv_for
+from .mapping_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image, rest_node_normals
 from .meshio import load_mesh
 from .model import MAX_PULLS, SpringModel
 from .node_drivers import DrivenNodes, Motion, load_node_frames
@@ -31,7 +31,7 @@ from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
 from .scenegraph import TrilinearRenderer
-from .shader_pack import write_pack_inputs
+from .shader_pack import pack_inputs, write_pack_inputs
 from .surface import grid_surface
 from .voxelize import voxelize
 
@@ -88,7 +88,7 @@ def build_scene_model(scene: Scene) -> SceneModel:
     mesh = load_mesh(scene.mesh.path)
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2.0
-    mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, process=False)
+    mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, visual=mesh.visual, process=False)
     vox = voxelize(mesh, nodes_along_longest=scene.grid.nodes_along_longest,
                    spacing=scene.grid.spacing, source=str(scene.mesh.path))
     grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
@@ -150,7 +150,7 @@ def check_finite(sim: FragmentSimulation, source: Path) -> None:
 def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
     """The node grid must fit the GL texture limit; the error names the scene key to change."""
     try:
-        AtlasLayout.for_grid(grid.shape, max_size)
+        CompactLayout.for_grid(grid, max_size)  # the layout NodeTextures uses by default
     except ValueError as exc:
         key = "grid.spacing" if scene.grid.spacing is not None else "grid.nodes_along_longest"
         raise InputError(f"{scene.source}: {key}: {exc}; use a coarser grid") from None
@@ -177,12 +177,9 @@ class NodeState:
                 self.release()
                 raise
             return
-        self.textures = NodeTextures(ctx, built.model)
-        self.driven = DrivenNodes(ctx, self.textures, built.grid)
         if nodes.source == "file":
             frames = load_node_frames(nodes.file, built.grid.count, built.centre)
             if not -len(frames) <= nodes.frame < len(frames):
-                self.release()
                 raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
                                  f"{len(frames)} frame(s) of {nodes.file}")
             positions = frames[nodes.frame]
@@ -190,7 +187,13 @@ class NodeState:
             m = nodes.motion
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
-        self.driven.set_positions(positions)
+        self.textures = NodeTextures(ctx, built.model)
+        try:
+            self.driven = DrivenNodes(ctx, self.textures, built.grid)
+            self.driven.set_positions(positions)
+        except BaseException:
+            self.release()
+            raise
 
     @property
     def position_texture(self) -> moderngl.Texture:
@@ -199,7 +202,7 @@ class NodeState:
 
     @property
     def layout(self):
-        """The atlas layout of the node textures."""
+        """The layout of the node textures (compact or atlas)."""
         return self.textures.layout
 
     def release(self) -> None:
@@ -224,29 +227,31 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
         return GridSurfacePass(ctx, built.grid, layout, overlay=scene.render.show_grid)
     surface = grid_surface(built.grid)
     normal_map = normal_map_image(scene.mapping.normal_map, scene.source)
-    uv, _ = uv_for(built.mesh, scene.mapping.normal_map_repeat)
-    binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache,
-                          uv=mesh_uv(built.mesh))
+    own_uv = mesh_uv(built.mesh)
+    binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache, uv=own_uv)
     if log is not None:
         for line in binding.report.lines():
             log(f"{scene.mesh.path.name}: {line}")
     data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
     if normal_map is not None:
+        # the mesh's own UVs as they are; procedural ones (what the tangents were built from)
+        # repeated over the surface
+        uv = binding.uv if own_uv is not None else binding.uv * scene.mapping.normal_map_repeat
         data = dataclasses.replace(data, uv=uv)
     return MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data, normal_map=normal_map,
                           normal_map_strength=scene.mapping.normal_map_strength)
 
 
-def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, draw_pass: MappedMeshPass,
-                     positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
+def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, deformed: np.ndarray,
+                     view: View, lighting: Lighting) -> None:
     """Draw the scene's attached tubes on the deformed detailed mesh (Knuth et al., section 5).
 
-    The anchors' frames need the deformed vertices on the CPU: one capture of the mapping vertex
-    shader per frame (the paper composes on the CPU too).
+    Args:
+        deformed: (V, 3) the detailed mesh's vertices as the mapping shader computed them (the
+            anchors' frames need them on the CPU; the paper composes on the CPU too).
     """
     lo, hi = built.bbox
     diag = float(np.linalg.norm(hi - lo))
-    deformed = draw_pass.capture(positions)[0].astype(np.float64)
     renderer = TrilinearRenderer(ctx)
     try:
         for spec in scene.attach:
@@ -258,21 +263,38 @@ def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, dra
         renderer.release()
 
 
-def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
-                 export: Path | None = None, pack_inputs: Path | None = None,
-                 log: Callable[[str], None] | None = None) -> np.ndarray:
-    """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image.
+@dataclass
+class Rendered:
+    """What one render produced: the image, and on request the deformed mesh and the shader-pack
+    inputs (kept in memory so that files are written only after the PNG)."""
+
+    image: np.ndarray
+    mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # vertices (world), normals, faces
+    pack: dict | None = None
+
+
+def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
+    """Limits a scene can exceed, checked before any work: MSAA samples."""
+    max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
+    if scene.render.msaa > max(max_samples, 1):
+        raise InputError(f"{scene.source}: render.msaa: {scene.render.msaa}x is more than this renderer's "
+                         f"{max_samples}x")
+
+
+def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh: bool = False,
+           pack: bool = False, log: Callable[[str], None] | None = None) -> Rendered:
+    """Simulate (or drive) a scene's nodes and render it.
 
     Args:
-        export: also write the deformed detailed mesh, captured from the mapping vertex shader
-            (needs a mapping mode other than one-to-one).
-        pack_inputs: also write the inputs of the shader pack's example program (.npz).
+        mesh: also capture the deformed detailed mesh from the mapping vertex shader.
+        pack: also collect the inputs of the shader pack's example program.
         log: receives human-readable notes (the binding report), if given.
     """
-    for path, flag in ((export, "--export-mesh"), (pack_inputs, "--pack-inputs")):
-        if path is not None and scene.mapping.mode == "one-to-one":
-            raise InputError(f"{path}: {flag} needs a mapping of the detailed mesh "
-                             f"(--mapping constant, curvature or auto), not one-to-one")
+    if (mesh or pack) and scene.mapping.mode == "one-to-one":
+        flag = "--export-mesh" if mesh else "--pack-inputs"
+        raise InputError(f"{scene.source}: {flag} needs a mapping of the detailed mesh "
+                         f"(--mapping constant, curvature or auto), not one-to-one")
+    check_gl_limits(ctx, scene)
     built = build_scene_model(scene)
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
     state = NodeState(ctx, scene, built, progress=progress)
@@ -284,19 +306,23 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
         target.begin(tuple(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)
+        captured = None
+        if scene.attach or mesh:
+            captured = draw_pass.capture(state.position_texture)
+            if not np.isfinite(captured[0]).all():
+                bad = int(np.argmax(~np.isfinite(captured[0]).all(axis=1)))
+                raise SimulationError(f"{scene.source}: mapped vertex {bad} is non-finite")
         if scene.attach:
-            draw_attachments(ctx, scene, built, draw_pass, state.position_texture, view, lighting)
-        image = target.read_rgb()
-        if pack_inputs is not None:
-            write_pack_inputs(pack_inputs, state.position_texture, built.grid, state.layout, draw_pass.data,
-                              built.mesh.faces, view, lighting, scene.render.size, tuple(scene.render.background))
-        if export is not None:
-            vertices, normals = draw_pass.capture(state.position_texture)
-            if not np.isfinite(vertices).all():
-                bad = int(np.argmax(~np.isfinite(vertices).all(axis=1)))
-                raise SimulationError(f"{export}: mapped vertex {bad} is non-finite; mesh not written")
-            export_mesh(export, vertices.astype(np.float64) + built.centre, normals, built.mesh.faces)
-        return image
+            target.fbo.use()
+            draw_attachments(ctx, scene, built, captured[0].astype(np.float64), view, lighting)
+        result = Rendered(target.read_rgb())
+        if mesh:
+            result.mesh = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)
+        if pack:
+            result.pack = pack_inputs(state.position_texture, built.grid, state.layout, draw_pass.data,
+                                      built.mesh.faces, view, lighting, scene.render.size,
+                                      tuple(scene.render.background))
+        return result
     finally:
         for obj in (target, draw_pass):
             if obj is not None:
@@ -304,10 +330,20 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False,
         state.release()
 
 
+def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False) -> np.ndarray:
+    """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image."""
+    return render(ctx, scene, progress=progress).image
+
+
 def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
-                  export: Path | None = None, pack_inputs: Path | None = None,
+                  export: Path | None = None, pack: Path | None = None,
                   log: Callable[[str], None] | None = None) -> np.ndarray:
-    """Render a scene and write the PNG atomically (temporary file, then rename)."""
-    image = render_scene(ctx, scene, progress=progress, export=export, pack_inputs=pack_inputs, log=log)
-    write_png_atomic(out, image)
-    return image
+    """Render a scene and write the PNG, then the optional mesh and shader-pack inputs, each
+    atomically (temporary file, then rename); nothing is written if the render fails."""
+    result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
+    write_png_atomic(out, result.image)
+    if export is not None:
+        export_mesh(export, *result.mesh)
+    if pack is not None:
+        write_pack_inputs(pack, result.pack)
+    return result.image

@@ -43,14 +43,6 @@ class Program:
             return self.fragment_source.explain_log(log)
         return self.vertex_source.explain_log(log)
 
-    def has(self, name: str) -> bool:
-        """Whether the linked program has an active uniform (or block) called ``name``."""
-        try:
-            self.gl[name]
-        except KeyError:
-            return False
-        return True
-
     def set(self, **uniforms: Any) -> None:
         """Set uniforms by name; an unknown name raises :class:`ShaderError`."""
         for key, value in uniforms.items():

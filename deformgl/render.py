@@ -9,7 +9,7 @@ import numpy as np
 
 from .camera import View
 from .errors import GLError
-from .grid import AtlasLayout, NodeGrid
+from .grid import AtlasLayout, CompactLayout, NodeGrid
 from .program import Program
 from .surface import grid_surface
 
@@ -138,7 +138,7 @@ class GridSurfacePass:
         overlay: also draw nodes and surface springs as points and lines.
     """
 
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout, *,
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, *,
                  overlay: bool = False) -> None:
         self.ctx = ctx
         self.surface = grid_surface(grid)

@@ -237,6 +237,8 @@ class Scene:
         if mapping is not None:
             scene = dataclasses.replace(
                 scene, mapping=dataclasses.replace(scene.mapping, mode=_MAPPING_MODE(file, "--mapping", mapping)))
+            if scene.attach and mapping == "one-to-one":
+                _fail(file, "--mapping", "one-to-one draws no detailed mesh, which the scene's attach entries need")
         return scene
 
 

@@ -3,23 +3,22 @@ application would hold to draw a mapped mesh with ``shaders/render/mapped_mesh.*
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import moderngl
 import numpy as np
 
 from .camera import View
-from .grid import AtlasLayout, NodeGrid
+from .grid import AtlasLayout, CompactLayout, NodeGrid
+from .imagediff import write_atomic
 from .mapped_render import MappedVertices
 from .render import Lighting
 
 
-def write_pack_inputs(path: Path, state: moderngl.Texture, grid: NodeGrid, layout: AtlasLayout,
-                      data: MappedVertices, faces: np.ndarray, view: View, lighting: Lighting,
-                      size: tuple[int, int], background: tuple[float, float, float]) -> None:
-    """Write the example's ``.npz`` (see its docstring for the keys) atomically."""
+def pack_inputs(state: moderngl.Texture, grid: NodeGrid, layout: AtlasLayout | CompactLayout,
+                data: MappedVertices, faces: np.ndarray, view: View, lighting: Lighting,
+                size: tuple[int, int], background: tuple[float, float, float]) -> dict[str, np.ndarray]:
+    """The example's inputs (see its docstring for the keys); reads the state texture once."""
     w, h = layout.size
     image = np.frombuffer(state.read(), dtype="f4").reshape(h, w, 4)
     texels = {f"texel{c + 1}": layout.texel(grid.ijk[data.tri_nodes[:, c]]).astype("i4") for c in range(3)}
@@ -33,11 +32,9 @@ def write_pack_inputs(path: Path, state: moderngl.Texture, grid: NodeGrid, layou
         light_colour=np.asarray(u["u_light_colour"]), material_colour=np.asarray(u["u_material_colour"]),
         ambient=np.float32(u["u_ambient"]), specular=np.float32(u["u_specular"]),
         shininess=np.float32(u["u_shininess"]), size=np.asarray(size), background=np.asarray(background))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.npz", dir=path.resolve().parent)
-    os.close(fd)
-    try:
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    return arrays
+
+
+def write_pack_inputs(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write the example's ``.npz`` atomically."""
+    write_atomic(path, lambda stream: np.savez_compressed(stream, **arrays))

@@ -85,3 +85,20 @@ def test_attach_needs_a_detailed_mapping(tmp_path):
     path.write_text(text)
     with pytest.raises(SceneError, match="attach: needs a detailed mesh"):
         load_scene(path)
+
+
+def test_mapping_override_to_one_to_one_is_refused_with_attachments():
+    scene = load_scene(SCENES / "heart.toml")
+    with pytest.raises(SceneError, match="--mapping: one-to-one draws no detailed mesh"):
+        scene.with_overrides(mapping="one-to-one")
+
+
+def test_anchors_ignore_zero_area_faces():
+    import trimesh
+
+    from deformgl.anchors import locate_on_mesh
+
+    box = trimesh.creation.box()
+    faces = np.vstack([box.faces, [[0, 0, 1]]])  # one degenerate face anywhere in the mesh
+    tri, bary = locate_on_mesh(box.vertices, faces, np.array([[0.5, 0.1, 0.2]]))
+    assert tri[0] < len(box.faces) and np.isclose(bary.sum(), 1.0)

@@ -125,7 +125,7 @@ def test_texture_limit_error_names_scene_key(jelly):
     scene = load_scene(jelly)
     built = build_scene_model(scene)
     with pytest.raises(InputError, match=r"jelly.toml: grid.nodes_along_longest: .*texture limit"):
-        check_texture_limit(scene, built.grid, max_size=32)
+        check_texture_limit(scene, built.grid, max_size=16)  # 378 nodes need 16 x 24 texels
     check_texture_limit(scene, built.grid, max_size=16384)
 
 
@@ -156,3 +156,33 @@ def test_trilinear_command_writes_png_and_rejects_bad_size(ctx, tmp_path, capsys
     assert read_png(out).shape == (80, 160, 3)
     code, _, err = run_cli(capsys, "trilinear", "tile", "-o", tmp_path / "t.png", "--size", "big")
     assert code == 1 and "--size" in err and not (tmp_path / "t.png").exists()
+
+
+def test_pack_inputs_and_export_are_checked_before_work_and_not_private(ctx, tmp_path, capsys):
+    scene = SCENES / "dragon_bend_auto.toml"
+    code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--pack-inputs",
+                           tmp_path / "missing" / "p.npz", "--quiet")
+    assert code == 1 and "does not exist" in err and not (tmp_path / "a.png").exists()
+    code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--pack-inputs",
+                           tmp_path / "p.txt", "--quiet")
+    assert code == 1 and "must end in .npz" in err
+    code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--size", "64x48",
+                           "--export-mesh", tmp_path / "m.ply", "--pack-inputs", tmp_path / "p.npz", "--quiet")
+    assert code == 0, err
+    for name in ("a.png", "m.ply", "p.npz"):
+        mode = (tmp_path / name).stat().st_mode & 0o777
+        assert mode & 0o044, f"{name} is private ({oct(mode)}): written like any new file"
+
+
+def test_msaa_beyond_the_renderer_is_an_early_scene_error(ctx, jelly, tmp_path, capsys):
+    jelly.write_text(jelly.read_text().replace("msaa = 4", "msaa = 16"))
+    code, _, err = run_cli(capsys, "render", jelly, "-o", tmp_path / "x.png", "--quiet")
+    max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
+    if max_samples >= 16:
+        pytest.skip(f"this renderer supports {max_samples}x MSAA")
+    assert code == 1 and "render.msaa: 16x is more than this renderer's" in err
+
+
+def test_bench_rejects_zero_steps(capsys):
+    code, _, err = run_cli(capsys, "bench", "sim", "--steps", "0")
+    assert code == 1 and "--steps: must be >= 1" in err

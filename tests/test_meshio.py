@@ -254,3 +254,23 @@ def test_flat_mesh_is_accepted(tmp_path: Path):
     text = ascii_ply(["0 0 0", "1 0 0", "0 1 0"], ["3 0 1 2"])
     mesh = load_mesh(write(tmp_path / "flat.ply", text))
     np.testing.assert_array_equal(mesh.extents, [1, 1, 0])
+
+
+def test_uvs_are_kept(tmp_path):
+    """Per-vertex UVs survive loading (the normal map uses the mesh's own UVs)."""
+    import trimesh as tm
+
+    from deformgl.mapping_setup import mesh_uv
+
+    mesh = tm.creation.box()
+    uv = np.stack([mesh.vertices[:, 0] + 0.5, mesh.vertices[:, 1] + 0.5], axis=1)
+    mesh.visual = tm.visual.TextureVisuals(uv=uv)
+    path = tmp_path / "box_uv.obj"
+    path.write_text(tm.exchange.obj.export_obj(mesh, include_texture=True, write_texture=False))
+    loaded = load_mesh(path)
+    got = mesh_uv(loaded)
+    assert got is not None and got.shape == (len(loaded.vertices), 2)
+    # each loaded vertex keeps the UV of its position
+    by_pos = {tuple(np.round(v, 6)): tuple(np.round(t, 6)) for v, t in zip(mesh.vertices, uv)}
+    for v, t in zip(loaded.vertices, got):
+        assert by_pos[tuple(np.round(v, 6))] == tuple(np.round(t, 6))

@@ -16,9 +16,11 @@ uniform float u_normal_map_strength;  // 0: no perturbation, 1: as stored
 out vec4 o_colour;
 
 void main() {
-    vec3 n = normalize(v_normal);
+    // interpolated normals can cancel: never normalise a zero vector (NaN)
+    vec3 n = length(v_normal) > 1e-30 ? normalize(v_normal) : vec3(0.0, 0.0, 1.0);
 #ifdef NORMAL_MAP
-    vec3 t = normalize(v_tangent - dot(v_tangent, n) * n);
+    vec3 t = v_tangent - dot(v_tangent, n) * n;
+    t = length(t) > 1e-30 ? normalize(t) : normalize(cross(n, abs(n.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0)));
     vec3 b = cross(n, t) * v_handedness;
     vec3 m = texture(u_normal_map, v_uv).xyz * 2.0 - 1.0;
     m.xy *= u_normal_map_strength;
