@@ -18,7 +18,7 @@ import moderngl
 import numpy as np
 
 from .errors import GLError
-from .grid import AtlasLayout, CompactLayout
+from .grid import NEIGHBOUR_UNIT, AtlasLayout, CompactLayout
 from .model import MAX_PULLS, SpringModel
 from .normals import pack_normals
 from .program import Program
@@ -27,7 +27,6 @@ from .reference import spring_sums
 PullSchedule = Callable[[float], np.ndarray]
 DRAW_MODES = ("rects", "points", "quad")
 LAYOUTS = ("compact", "atlas")
-NEIGHBOUR_UNIT = 3  # texture unit of the COMPACT neighbour-index texture
 
 
 def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:

@@ -23,6 +23,8 @@ NEIGHBOUR_OFFSETS = np.array(
      (1, 0, 1), (1, 0, -1), (-1, 0, 1), (-1, 0, -1),
      (0, 1, 1), (0, 1, -1), (0, -1, 1), (0, -1, -1)], dtype=np.int64)
 N_STRUCTURAL = 6
+#: Texture unit of the compact layout's neighbour-index texture.
+NEIGHBOUR_UNIT = 3
 N_NEIGHBOURS = 18
 #: Rest length of each neighbour's spring, in grid spacings (eq. 2: 1 and sqrt(2)).
 REST_LENGTH_UNITS = np.linalg.norm(NEIGHBOUR_OFFSETS, axis=1)
@@ -226,7 +228,7 @@ class CompactLayout(TexelImages):
 
     def shader_uniforms(self) -> dict[str, object]:
         """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3)."""
-        return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": 3}
+        return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": NEIGHBOUR_UNIT}
 
     def node_texel(self, nodes: np.ndarray) -> np.ndarray:
         """(N, 2) int64 texel of node numbers."""

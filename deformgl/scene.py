@@ -21,12 +21,12 @@ from typing import Any, NoReturn
 import numpy as np
 
 from deformgl.errors import SceneError
+from deformgl.model import MAX_PULLS
 
 __all__ = ["Camera", "GridSpec", "Light", "Material", "MeshSpec", "Output", "Physics", "Pull", "Region",
            "Render", "Scene", "load_scene", "parse_size"]
 
 Vec3 = tuple[float, float, float]
-MAX_PULLS = 4
 MAX_SIZE = 16384
 MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
 AXES = ("x", "y", "z")
