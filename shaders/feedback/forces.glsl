@@ -1,0 +1,64 @@
+// Acceleration a = F / m of one node (Movania & Feng 2012 eq. 1-3; the lost formulas as in
+// papers/README.md), the same function as deformgl/springs.py forces() and
+// deformgl/integrators.py acceleration().
+//
+// Per spring to neighbour j (rest length L, stiffness k, spring damping c_s), d = x_i - x_j,
+// u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u   (eq. 2)
+// per node: m g + wind_drag (wind - v) - c v (eq. 1) + drags k_d (target - x).
+// Fixed nodes have a = 0.
+//
+// The stage shader defines, before including this file:
+//   vec4 eval_x(int j)   position (w mass) of node j at which forces are evaluated
+//   vec3 eval_v(int j)   its velocity (only with SPRING_DAMPING)
+//
+// Neighbour lists (CSR), RGBA32I/R32I/RGBA32F 2D textures, NEAREST, read with texelFetch:
+//   u_nodes   (NODE_ROW x rows)     node n: x = first list entry, y = count, z = 1 if fixed
+//   u_other   (SPRING_ROW x rows)   entry e: the other node j
+//   u_springs (SPRING_ROW x rows)   entry e: x = L, y = k, z = c_s
+// Each spring appears twice (once in the list of each end), so a node sums its own forces.
+
+uniform isampler2D u_nodes;
+uniform isampler2D u_other;
+uniform sampler2D u_springs;
+uniform vec3 u_gravity;
+uniform vec3 u_wind;
+uniform float u_wind_drag;
+uniform float u_velocity_damping;
+#if DRAGS > 0
+uniform int u_drag_node[DRAGS];
+uniform float u_drag_k[DRAGS];
+uniform vec3 u_drag_target[DRAGS];  // target(t) at the time of this stage
+#endif
+
+ivec4 node_info(int n) {
+    return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
+}
+
+vec3 acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
+    if (info.z != 0) {
+        return vec3(0.0);
+    }
+    vec3 f = vec3(0.0);
+    for (int e = info.x; e < info.x + info.y; ++e) {
+        ivec2 st = ivec2(e % SPRING_ROW, e / SPRING_ROW);
+        int j = texelFetch(u_other, st, 0).r;
+        vec4 s = texelFetch(u_springs, st, 0);
+        vec3 d = xi.xyz - eval_x(j).xyz;
+        float len = length(d);
+        vec3 u = len > 0.0 ? d / len : vec3(0.0);
+        float scale = s.y * (s.x - len);
+#ifdef SPRING_DAMPING
+        scale -= s.z * dot(vi - eval_v(j), u);
+#endif
+        f += scale * u;
+    }
+    f += xi.w * u_gravity + u_wind_drag * (u_wind - vi) - u_velocity_damping * vi;
+#if DRAGS > 0
+    for (int k = 0; k < DRAGS; ++k) {
+        if (u_drag_node[k] == i) {
+            f += u_drag_k[k] * (u_drag_target[k] - xi.xyz);
+        }
+    }
+#endif
+    return f / xi.w;
+}

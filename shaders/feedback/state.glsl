@@ -1,0 +1,11 @@
+// Node state of the transform-feedback backend (Movania & Feng 2012, section 4: the positions
+// and velocities that transform feedback writes, read back by the next pass on the GPU).
+// Transform feedback writes a pass's outputs interleaved (K vec4 per node, in varying order);
+// the same bytes are then copied, GPU to GPU, into an RGBA32F texture of K * NODE_ROW x rows
+// texels, so slot s of node n lies at texel (K * (n % NODE_ROW) + s, n / NODE_ROW) and every node
+// can fetch its neighbours' state.
+// Positions: xyz, w = mass (kg). Velocities: xyz, w unused.
+
+vec4 slot(sampler2D tex, int k, int node, int s) {
+    return texelFetch(tex, ivec2(k * (node % NODE_ROW) + s, node / NODE_ROW), 0);
+}
