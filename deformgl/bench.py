@@ -223,3 +223,75 @@ def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict,
                      f"{info['frame_size']}x{info['frame_size']}, {msaa}: {ms:.1f} ms = {1e3 / ms:.1f} frames/s "
                      f"(the paper's 2005 GPU: 25 frames/s)")
     return "\n".join(lines)
+
+
+@dataclass
+class IntegratorRow:
+    """One cloth size of ``bench integrators``: ms/step and bytes/node per (backend, integrator)."""
+
+    size: int
+    nodes: int
+    baseline_ms: float
+    ms: dict[tuple[str, str], float]
+    bytes_per_node: dict[tuple[str, str], float]
+
+
+def cloth_system(n: int, spacing: float = 0.01):
+    """The benchmark cloth: n x n nodes, two corners fixed, structural, shear and flexion springs."""
+    from .springs import cloth
+
+    fixed = np.zeros(n * n, bool)
+    fixed[[0, (n - 1) * n]] = True  # corners (0, 0) and (n-1, 0)
+    return cloth(n, n, spacing, k_structural=10.0, k_shear=10.0, k_flexion=2.0, mass=np.full(n * n, 1e-3),
+                 fixed=fixed, gravity=(0.0, -9.81, 0.0), velocity_damping=1e-4)
+
+
+def bench_integrators(ctx: moderngl.Context, *, sizes=(64, 256), steps: int = 20, backends=None) -> list[IntegratorRow]:
+    """Every integrator on every GPU backend on n x n cloths, against the fragment-pass Verlet
+    of the same grid (the baseline, measured in the same run)."""
+    from .feedback_sim import FeedbackSimulation
+    from .integrators import INTEGRATORS, initial_state
+    from .springs import max_angular_frequency
+
+    backends = backends or {"feedback": FeedbackSimulation}
+    rows = []
+    for n in sizes:
+        system = cloth_system(n)
+        dt = 0.5 / max_angular_frequency(system).omega
+        grid = NodeGrid(np.zeros(3), 0.01, np.ones((n, 1, n), bool))
+        model = SpringModel(grid=grid, mass=np.full(n * n, 1e-3), fixed=system.fixed.copy(),
+                            pull_groups=np.zeros(n * n, np.uint8), k_structural=10.0, k_shear=10.0,
+                            damping=1e-4, gravity=np.array([0.0, -9.81, 0.0]))
+        base = FragmentSimulation(ctx, model, dt)
+        try:
+            base.step(2)
+            ctx.finish()
+            baseline = timed(lambda: (base.step(steps), ctx.finish()), 3) / steps * 1e3
+        finally:
+            base.release()
+        ms, per_node = {}, {}
+        for backend, cls in backends.items():
+            for name in INTEGRATORS:
+                sim = cls(ctx, system, name, dt, state=initial_state(system, dt))
+                try:
+                    sim.step(2)
+                    ctx.finish()
+                    ms[backend, name] = timed(lambda: (sim.step(steps), ctx.finish()), 3) / steps * 1e3
+                    per_node[backend, name] = sim.bytes_per_node
+                finally:
+                    sim.release()
+        rows.append(IntegratorRow(n, n * n, baseline, ms, per_node))
+    return rows
+
+
+def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
+    """The ``bench integrators`` table."""
+    lines = [machine, "n x n cloth, two corners fixed, structural + shear + flexion springs; baseline: the "
+             "fragment-pass position Verlet of the same grid (structural + shear), same run"]
+    for r in rows:
+        lines.append(f"{r.size}x{r.size} cloth ({r.nodes} nodes): baseline fragment Verlet {r.baseline_ms:.3f} ms/step")
+        lines.append(f"  {'backend':>9} {'integrator':>14} | {'ms/step':>8} | {'vs baseline':>11} | {'bytes/node':>10}")
+        for (backend, name), ms in r.ms.items():
+            lines.append(f"  {backend:>9} {name:>14} | {ms:>8.3f} | {r.baseline_ms / ms:>10.2f}x | "
+                         f"{r.bytes_per_node[backend, name]:>10.0f}")
+    return "\n".join(lines)

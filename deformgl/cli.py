@@ -60,11 +60,12 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
-    b.add_argument("what", choices=["sim", "render", "binding", "trilinear"],
+    b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators"],
                    help="sim: fragment-pass step vs the NumPy reference; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
-                        "linear vs trilinear frames/s for the paper's three set-ups")
+                        "linear vs trilinear frames/s for the paper's three set-ups; integrators: "
+                        "each integrator on each GPU backend on 64^2 and 256^2 cloths")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--scene", type=Path, default=Path("scenes/heart.toml"),
                    help="render: the scene to draw (default scenes/heart.toml)")
@@ -148,6 +149,10 @@ def _bench(args: argparse.Namespace) -> int:
     try:
         if args.what == "sim":
             print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
+        elif args.what == "integrators":
+            from .bench import bench_integrators, format_integrators
+
+            print(format_integrators(bench_integrators(ctx, steps=min(args.steps, 20)), machine_line(ctx)))
         elif args.what == "trilinear":
             from .trilinear_scenes import trilinear_bench_report
 
