@@ -250,10 +250,11 @@ def bench_integrators(ctx: moderngl.Context, *, sizes=(64, 256), steps: int = 20
     """Every integrator on every GPU backend on n x n cloths, against the fragment-pass Verlet
     of the same grid (the baseline, measured in the same run)."""
     from .feedback_sim import FeedbackSimulation
+    from .fragment_integrators import FragmentIntegrator
     from .integrators import INTEGRATORS, initial_state
     from .springs import max_angular_frequency
 
-    backends = backends or {"feedback": FeedbackSimulation}
+    backends = backends or {"fragment": "fragment", "feedback": FeedbackSimulation}
     rows = []
     for n in sizes:
         system = cloth_system(n)
@@ -272,7 +273,10 @@ def bench_integrators(ctx: moderngl.Context, *, sizes=(64, 256), steps: int = 20
         ms, per_node = {}, {}
         for backend, cls in backends.items():
             for name in INTEGRATORS:
-                sim = cls(ctx, system, name, dt, state=initial_state(system, dt))
+                if cls == "fragment":
+                    sim = FragmentIntegrator(ctx, system, grid, name, dt, state=initial_state(system, dt))
+                else:
+                    sim = cls(ctx, system, name, dt, state=initial_state(system, dt))
                 try:
                     sim.step(2)
                     ctx.finish()

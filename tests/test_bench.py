@@ -12,7 +12,10 @@ def test_bench_integrators_covers_every_integrator_and_names_the_renderer(ctx):
     # Verlet keeps no velocity state: it needs less memory per node than RK4
     assert rows[0].bytes_per_node["feedback", "verlet"] < rows[0].bytes_per_node["feedback", "rk4"]
     text = format_integrators(rows, machine_line(ctx))
-    assert "renderer:" in text and "8x8 cloth" in text and text.count("feedback") == len(INTEGRATORS)
+    assert rows[0].bytes_per_node["fragment", "verlet"] < rows[0].bytes_per_node["fragment", "rk4"]
+    assert "renderer:" in text and "8x8 cloth" in text
+    backends = [line.split()[0] for line in text.splitlines() if line.startswith("  ")]
+    assert backends.count("feedback") == len(INTEGRATORS) and backends.count("fragment") == len(INTEGRATORS)
 
 
 def test_bench_sim_table_has_every_variant_and_the_numpy_ratio(ctx):

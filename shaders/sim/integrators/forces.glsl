@@ -1,0 +1,62 @@
+// Acceleration a = F / m of one grid node for the fragment-pass integrators
+// (Movania & Feng 2012 eq. 1-3, the lost formulas in papers/README.md), the same function as
+// deformgl/springs.py forces() and deformgl/integrators.py acceleration(), in float32.
+//
+// Topology is implicit on the node grid (Mosegaard & Sorensen 2005, section 3.1): neighbour j of
+// node i is looked up in u_neighbours, NB_LAYERS RGBA32I layers of node numbers in the order of
+// deformgl/grid.py NEIGHBOUR_OFFSETS (6 structural at h, 12 shear at h*sqrt(2)), followed with
+// FLEXION by the 6 flexion neighbours at 2h along +x, -x, +y, -y, +z, -z (Movania & Feng 2012,
+// section 3). An absent neighbour points at the node itself: d = 0 gives u = 0 and no force,
+// exactly as the reference's zero-length rule, so no neighbour mask is needed.
+//
+// Per spring, d = x_i - x_j, u = d/|d| (0 for |d| = 0), class stiffness k, rest length L,
+// spring damping c_s (one value per class, as springs.from_grid builds them):
+//   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (eq. 2, damping only with SPRING_DAMPING)
+// per node: m g + wind_drag (wind - v) - c v (eq. 1). Fixed nodes never call this.
+//
+// The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
+// texel T in the state at which forces are evaluated.
+
+uniform isampler2DArray u_neighbours;
+uniform int u_width_log2;   // log2 of the texture width (node n at texel (n % w, n / w))
+uniform vec3 u_k;           // stiffness of the structural, shear, flexion class, N/m
+uniform vec3 u_rest;        // rest length of each class
+#ifdef SPRING_DAMPING
+uniform vec3 u_c;           // spring damping of each class, N*s/m
+#endif
+uniform vec3 u_gravity;
+uniform vec3 u_wind;
+uniform float u_wind_drag;
+uniform float u_velocity_damping;
+
+ivec2 node_texel(int n) {
+    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
+}
+
+vec3 spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
+    vec3 d = xi - EVAL_X(tj);
+    float len = length(d);
+    vec3 u = len > 0.0 ? d / len : vec3(0.0);
+    float scale = u_k[cls] * (u_rest[cls] - len);
+#ifdef SPRING_DAMPING
+    scale -= u_c[cls] * dot(vi - EVAL_V(tj), u);
+#endif
+    return scale * u;
+}
+
+vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m) {
+    vec3 f = vec3(0.0);
+    for (int layer = 0; layer < NB_LAYERS; ++layer) {
+        ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
+        for (int c = 0; c < 4; ++c) {
+            int j = 4 * layer + c;
+            if (j >= NB_COUNT) {
+                break;
+            }
+            int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
+            f += spring_force(node_texel(nb[c]), xi, vi, cls);
+        }
+    }
+    f += m * u_gravity + u_wind_drag * (u_wind - vi) - u_velocity_damping * vi;
+    return f / m;
+}
