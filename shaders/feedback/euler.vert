@@ -11,7 +11,7 @@ uniform float u_dt;
 vec4 eval_x(int j) { return slot(u_state, 2, j, 0); }
 vec3 eval_v(int j) { return slot(u_state, 2, j, 1).xyz; }
 #include "feedback/forces.glsl"
-#include "feedback/constraints.glsl"
+#include "lib/constraints.glsl"
 out vec4 out_x;
 out vec4 out_v;
 void main() {

@@ -10,7 +10,7 @@ uniform float u_dt;
 vec4 eval_x(int j) { return slot(u_x, 1, j, 0); }
 vec3 eval_v(int j) { return (slot(u_x, 1, j, 0).xyz - slot(u_x_prev, 1, j, 0).xyz) / u_dt; }
 #include "feedback/forces.glsl"
-#include "feedback/constraints.glsl"
+#include "lib/constraints.glsl"
 out vec4 out_x;
 void main() {
     int i = gl_VertexID;

@@ -42,7 +42,7 @@ uniform sampler2D u_sum_v;
 #endif
 
 #include "sim/integrators/forces.glsl"
-#include "sim/integrators/constraints.glsl"
+#include "lib/constraints.glsl"
 
 layout(location = 0) out vec4 o_x;
 #ifndef VERLET
