@@ -9,8 +9,8 @@ the float64 reference :func:`deformgl.integrators.step`, in float32.
 GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
 
 * Static: ``nodes`` RGBA32I (NODE_ROW x rows): first entry and count of the node's neighbour
-  list, fixed flag; the neighbour list (CSR, each spring once per end) in ``other`` R32I (the
-  other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
+  list, fixed flag, load-group bits; the neighbour list (CSR, each spring once per end) in
+  ``other`` R32I (the other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
   entries per row.
 * State: a pass writes K vec4 per node, interleaved in varying order (``Program`` captures
   interleaved). The buffer is then copied GPU to GPU into an RGBA32F texture of K * NODE_ROW x
@@ -44,7 +44,7 @@ import numpy as np
 
 from .integrators import INTEGRATORS, Constraints, State, initial_state
 from .program import Program
-from .springs import Drag, SpringSystem
+from .springs import Drag, Load, SpringSystem, load_groups
 
 __all__ = ["FeedbackSimulation", "NODE_ROW_MAX", "SPRING_ROW_MAX"]
 
@@ -94,6 +94,8 @@ class FeedbackSimulation:
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated on the CPU at each stage's time, as uniforms).
+        loads: scripted per-node forces (at most ``springs.MAX_LOADS``; forces evaluated on the
+            CPU at each stage's time, as uniforms; group bits per node in ``nodes.w``).
         state: start state (default :func:`deformgl.integrators.initial_state` at rest); Verlet
             uses its ``x_prev``.
         t0: time of the start state.
@@ -101,7 +103,8 @@ class FeedbackSimulation:
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, integrator: str, dt: float,
                  *, constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
-                 state: State | None = None, t0: float = 0.0) -> None:
+                 loads: tuple[Load, ...] = (), state: State | None = None,
+                 t0: float = 0.0) -> None:
         if integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
                              f"{', '.join(INTEGRATORS)}")
@@ -114,9 +117,11 @@ class FeedbackSimulation:
         self.t = float(t0)
         self.constraints = constraints
         self.drags = tuple(drags)
+        self.loads = tuple(loads)
         self.count = system.count
         if self.count == 0:
             raise ValueError("FeedbackSimulation: the system has no nodes")
+        self.load_bits = load_groups(self.loads, self.count)
         for drag in self.drags:
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FeedbackSimulation: drag node {drag.node} outside the system")
@@ -166,6 +171,7 @@ class FeedbackSimulation:
         nodes[:n, 0] = first
         nodes[:n, 1] = counts
         nodes[:n, 2] = system.fixed
+        nodes[:n, 3] = self.load_bits
         other_img = np.zeros(spring_texels, np.int32)
         other_img[:len(ends)] = other[order]
         param_img = np.zeros((spring_texels, 4), np.float32)
@@ -176,7 +182,8 @@ class FeedbackSimulation:
         self.tex_springs = self._texture(self.spring_row, spring_rows, "f4", param_img.tobytes())
 
         # Start state (float64 on the CPU, uploaded once as float32).
-        s = initial_state(system, self.dt, t=self.t, drags=self.drags) if state is None else state
+        s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+             if state is None else state)
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
         if x.shape != (n, 3) or v.shape != (n, 3):
@@ -217,7 +224,9 @@ class FeedbackSimulation:
 
         # Programs: compile only what the system uses.
         common: dict[str, object] = {"NODE_ROW": self.node_row, "SPRING_ROW": self.spring_row,
-                                     "DRAGS": len(self.drags)}
+                                     "DRAGS": len(self.drags), "LOADS": len(self.loads)}
+        if system.wind_drag > 0:
+            common["WIND"] = True
         if np.any(system.damping > 0):
             common["SPRING_DAMPING"] = True
         c = self.constraints
@@ -262,8 +271,10 @@ class FeedbackSimulation:
         uniforms: dict[str, object] = {
             "u_nodes": 0, "u_other": 1, "u_springs": 2, "u_dt": self.dt,
             "u_gravity": tuple(float(g) for g in system.gravity),
-            "u_wind": tuple(float(w) for w in system.wind), "u_wind_drag": system.wind_drag,
             "u_velocity_damping": system.velocity_damping}
+        if "WIND" in defines:
+            uniforms.update(u_wind=tuple(float(w) for w in system.wind),
+                            u_wind_drag=system.wind_drag)
         if self.integrator == "verlet":
             uniforms.update(u_x=3, u_x_prev=4)
         else:
@@ -283,7 +294,12 @@ class FeedbackSimulation:
     # -- stepping ----------------------------------------------------------------------------
 
     def _set_time(self, p: _Pass, t: float, *, constrain: bool = False) -> None:
-        """Uniforms that depend on time: drag targets at the stage time t, sphere centres."""
+        """Uniforms that depend on time: loads and drag targets at the stage time t, sphere
+        centres."""
+        if self.loads:
+            forces = [tuple(float(c) for c in np.asarray(load.force(t), float))
+                      for load in self.loads]
+            p.program.set(u_load=_array(forces))
         if self.drags:
             targets = [tuple(float(c) for c in np.asarray(d.target(t), float)) for d in self.drags]
             p.program.set(u_drag_target=_array(targets))

@@ -16,16 +16,17 @@ system's springs are exactly the grid's.
 
 GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texelFetch``):
 
-* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed), neighbours RGBA32I array of
-  5 layers (6 with flexion);
+* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, B load-group bits),
+  neighbours RGBA32I array of 5 layers (6 with flexion);
 * state (``state_bytes_per_node`` = 16 x the vec4s of :data:`integrators.GPU_BUFFERS`):
   euler / semi-implicit x, v, x', v'; midpoint x, v, x_m, v_m, x', v'; rk4 x, v and two stage
   sets (x_s, v_s, sum_x, sum_v) used ping-pong; verlet three rotating positions (no velocity).
 
+Loads (per-node scripted forces) and drags (a stiff spring from one node to a moving target)
+are uniforms set before each pass at the pass's stage time, as on the feedback backend.
+
 Nothing is read back while stepping; only :meth:`FragmentIntegrator.positions` and
 :meth:`FragmentIntegrator.velocities` read.
-
-Not implemented: scripted drags (``drags`` must be empty).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from .errors import GLError
 from .grid import CompactLayout, NodeGrid
 from .integrators import INTEGRATORS, Constraints, State, initial_state
 from .program import Program
-from .springs import FLEXION, SHEAR, STRUCTURAL, Drag, SpringSystem
+from .springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
 
 __all__ = ["FragmentIntegrator", "grid_neighbours"]
 
@@ -45,6 +46,11 @@ _VEC4 = 16
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
 FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
                            dtype=np.int64)
+def _array(values: list) -> object:
+    """A uniform array value for moderngl: an array of length 1 is set as its element."""
+    return values[0] if len(values) == 1 else values
+
+
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7}
 
@@ -112,27 +118,27 @@ class FragmentIntegrator:
         integrator: one of :data:`deformgl.integrators.INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
-        drags: must be empty (scripted drags are not implemented on this backend).
+        drags: scripted drags (targets evaluated at each pass's stage time, as uniforms).
+        loads: scripted per-node forces (at most ``springs.MAX_LOADS``).
         state: start state (default :func:`integrators.initial_state` at rest); Verlet uses its
             ``x_prev``.
         t0: time of the start state.
 
     Raises:
-        ValueError: unknown integrator, dt <= 0, drags given, or a system that is not the grid's.
+        ValueError: unknown integrator, dt <= 0, a drag on a node that does not exist, too many
+            loads, or a system that is not the grid's.
         GLError: the grid does not fit in a texture.
     """
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid,
                  integrator: str, dt: float, *, constraints: Constraints | None = None,
-                 drags: tuple[Drag, ...] = (), state: State | None = None,
-                 t0: float = 0.0) -> None:
+                 drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
+                 state: State | None = None, t0: float = 0.0) -> None:
         if integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
                              f"{', '.join(INTEGRATORS)}")
         if not dt > 0:
             raise ValueError(f"FragmentIntegrator: dt must be > 0, got {dt}")
-        if drags:
-            raise ValueError("FragmentIntegrator: scripted drags are not implemented")
         if grid.count == 0:
             raise ValueError("FragmentIntegrator: the grid has no nodes")
         self.ctx = ctx
@@ -143,6 +149,12 @@ class FragmentIntegrator:
         self.t = float(t0)
         self.constraints = constraints
         self.count = grid.count
+        self.drags = tuple(drags)
+        self.loads = tuple(loads)
+        self.load_bits = load_groups(self.loads, self.count)
+        for drag in self.drags:
+            if not 0 <= drag.node < self.count:
+                raise ValueError(f"FragmentIntegrator: drag node {drag.node} outside the system")
         self.flexion = bool(np.any(system.spring_class == FLEXION))
         self.neighbour_table = grid_neighbours(grid, self.flexion)
         _check_topology(system, grid, self.neighbour_table)
@@ -195,10 +207,11 @@ class FragmentIntegrator:
         self.tex_neighbours = self._own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
                                                                dtype="i4"))
         self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed], axis=1)
+        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits], axis=1)
         self.tex_node = self._texture(self._image(node))
 
-        s = initial_state(system, self.dt, t=self.t) if state is None else state
+        s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+             if state is None else state)
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
         if x.shape != (n, 3) or v.shape != (n, 3):
@@ -216,7 +229,10 @@ class FragmentIntegrator:
 
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1],
                                      "SPRING_DAMPING": bool(np.any(system.damping > 0)),
-                                     "SPHERES": 0}
+                                     "SPHERES": 0, "DRAGS": len(self.drags),
+                                     "LOADS": len(self.loads)}
+        if system.wind_drag > 0:
+            common["WIND"] = True
         if name != "verlet":
             common["VELOCITY"] = True
         c = self.constraints
@@ -256,8 +272,13 @@ class FragmentIntegrator:
             "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
             "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3),
             "u_gravity": tuple(float(g) for g in system.gravity),
-            "u_wind": tuple(float(g) for g in system.wind), "u_wind_drag": system.wind_drag,
             "u_velocity_damping": system.velocity_damping}
+        if defines.get("WIND"):
+            uniforms.update(u_wind=tuple(float(g) for g in system.wind),
+                            u_wind_drag=system.wind_drag)
+        if self.drags:
+            uniforms["u_drag_node"] = _array([d.node for d in self.drags])
+            uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
         if defines.get("SPRING_DAMPING"):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("GROUND"):
@@ -283,13 +304,25 @@ class FragmentIntegrator:
             end = sphere.centre_at(self.t + self.dt)
             spheres.append((*map(float, end), float(sphere.radius)))
             velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
-        values: dict[str, object] = {"u_spheres": spheres[0] if len(spheres) == 1 else spheres}
+        values: dict[str, object] = {"u_spheres": _array(spheres)}
         if self.integrator != "verlet":
-            values["u_sphere_velocity"] = velocities[0] if len(velocities) == 1 else velocities
+            values["u_sphere_velocity"] = _array(velocities)
         program.set(**values)
 
-    def _run(self, key: str, inputs: dict[str, int], targets: tuple[int, ...]) -> None:
+    def _set_time(self, program: Program, t: float) -> None:
+        """Loads and drag targets at the stage time t."""
+        if self.loads:
+            program.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+                                       for load in self.loads]))
+        if self.drags:
+            program.set(u_drag_target=_array([tuple(float(c) for c in
+                                                    np.asarray(d.target(t), float))
+                                              for d in self.drags]))
+
+    def _run(self, key: str, inputs: dict[str, int], targets: tuple[int, ...],
+             t: float) -> None:
         program = self.passes[key]
+        self._set_time(program, t)
         if key == "step":
             self._set_spheres(program)
         for sampler, index in inputs.items():
@@ -308,16 +341,17 @@ class FragmentIntegrator:
         try:
             for _ in range(n):
                 r = self.roles
+                t, half = self.t, self.t + 0.5 * self.dt
                 if name == "verlet":
-                    self._run("step", {"u_x": r[0], "u_x_prev": r[1]}, (r[2],))
+                    self._run("step", {"u_x": r[0], "u_x_prev": r[1]}, (r[2],), t)
                     self.roles = [r[2], r[0], r[1]]
                 elif name in ("euler", "semi-implicit"):
-                    self._run("step", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]))
+                    self._run("step", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
                     self.roles = [r[2], r[3], r[0], r[1]]
                 elif name == "midpoint":
-                    self._run("half", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]))
+                    self._run("half", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
                     self._run("step", {"u_x": r[0], "u_v": r[1], "u_xs": r[2], "u_vs": r[3]},
-                              (r[4], r[5]))
+                              (r[4], r[5]), half)
                     self.roles = [r[4], r[5], r[2], r[3], r[0], r[1]]
                 else:
                     base = {"u_x": r[0], "u_v": r[1]}
@@ -325,10 +359,10 @@ class FragmentIntegrator:
 
                     def stage(s: tuple[int, ...]) -> dict[str, int]:
                         return {"u_xs": s[0], "u_vs": s[1], "u_sum_x": s[2], "u_sum_v": s[3]}
-                    self._run("stage1", base, a)
-                    self._run("stage2", {**base, **stage(a)}, b)
-                    self._run("stage3", {**base, **stage(b)}, a)
-                    self._run("step", {**base, **stage(a)}, b[:2])
+                    self._run("stage1", base, a, t)
+                    self._run("stage2", {**base, **stage(a)}, b, half)
+                    self._run("stage3", {**base, **stage(b)}, a, half)
+                    self._run("step", {**base, **stage(a)}, b[:2], t + self.dt)
                     self.roles = [b[0], b[1], *a, r[0], r[1], b[2], b[3]]
                 self.t += self.dt
         finally:

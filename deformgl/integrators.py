@@ -43,9 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .springs import Drag, SpringSystem, forces
+from .springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag",
+__all__ = ["INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
@@ -130,15 +130,15 @@ def _check_name(name: str) -> str:
 
 
 def acceleration(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
-                 drags: tuple[Drag, ...] = ()) -> np.ndarray:
+                 drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = ()) -> np.ndarray:
     """``a = F / m`` (Movania & Feng 2012 eq. 3), zero at fixed nodes. (N, 3) float64."""
-    a = forces(system, x, v, t, drags) / system.mass[:, None]
+    a = forces(system, x, v, t, drags, loads) / system.mass[:, None]
     return np.where(system.fixed[:, None], 0.0, a)
 
 
 def initial_state(system: SpringSystem, dt: float, *, x: ArrayLike | None = None,
                   v: ArrayLike | None = None, t: float = 0.0,
-                  drags: tuple[Drag, ...] = ()) -> State:
+                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = ()) -> State:
     """A start state: positions (default: rest), velocities (default 0; 0 at fixed nodes).
 
     ``x_prev = x - dt v + dt^2/2 a(x, v, t)``, the Taylor expansion of x(t - dt) to O(dt^3):
@@ -147,7 +147,7 @@ def initial_state(system: SpringSystem, dt: float, *, x: ArrayLike | None = None
     x0 = np.array(system.rest_positions if x is None else x, dtype=np.float64)
     v0 = np.zeros_like(x0) if v is None else np.array(v, dtype=np.float64)
     v0[system.fixed] = 0.0
-    a0 = acceleration(system, x0, v0, t, drags)
+    a0 = acceleration(system, x0, v0, t, drags, loads)
     return State(x=x0, v=v0, x_prev=x0 - dt * v0 + 0.5 * dt * dt * a0)
 
 
@@ -231,7 +231,8 @@ def apply_constraints(constraints: Constraints, x: np.ndarray, v: np.ndarray | N
 
 
 def step(system: SpringSystem, name: str, state: State, dt: float, t: float, *,
-         constraints: Constraints | None = None, drags: tuple[Drag, ...] = ()) -> State:
+         constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
+         loads: tuple[Load, ...] = ()) -> State:
     """One step of integrator ``name`` from time t to t + dt, then the constraints.
 
     Args:
@@ -242,6 +243,7 @@ def step(system: SpringSystem, name: str, state: State, dt: float, t: float, *,
         t: time at the start of the step.
         constraints: ground plane and spheres, or None.
         drags: scripted drags.
+        loads: scripted per-node forces.
 
     Returns:
         The state at t + dt; fixed nodes keep their position bit for bit, with zero velocity.
@@ -253,7 +255,7 @@ def step(system: SpringSystem, name: str, state: State, dt: float, t: float, *,
     start = State(state.x, np.where(fixed, 0.0, state.v), state.x_prev)
 
     def acc(x: np.ndarray, v: np.ndarray, s: float) -> np.ndarray:
-        return acceleration(system, x, v, s, drags)
+        return acceleration(system, x, v, s, drags, loads)
 
     x_new, v_new = stepper(acc, start, dt, t)
     if constraints is not None:
@@ -266,11 +268,12 @@ def step(system: SpringSystem, name: str, state: State, dt: float, t: float, *,
 
 def simulate(system: SpringSystem, name: str, dt: float, steps: int, *,
              state: State | None = None, t0: float = 0.0, constraints: Constraints | None = None,
-             drags: tuple[Drag, ...] = ()) -> State:
+             drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = ()) -> State:
     """``steps`` steps from ``state`` (default :func:`initial_state` at rest) at time t0."""
-    s = initial_state(system, dt, t=t0, drags=drags) if state is None else state
+    s = initial_state(system, dt, t=t0, drags=drags, loads=loads) if state is None else state
     for n in range(steps):
-        s = step(system, name, s, dt, t0 + n * dt, constraints=constraints, drags=drags)
+        s = step(system, name, s, dt, t0 + n * dt, constraints=constraints, drags=drags,
+                 loads=loads)
     return s
 
 
@@ -278,7 +281,8 @@ def run_until_converged(system: SpringSystem, name: str, dt: float, *, max_steps
                         threshold: float | None = None, patience: int = 1,
                         state: State | None = None, t0: float = 0.0,
                         constraints: Constraints | None = None,
-                        drags: tuple[Drag, ...] = ()) -> tuple[State, int]:
+                        drags: tuple[Drag, ...] = (),
+                        loads: tuple[Load, ...] = ()) -> tuple[State, int]:
     """Step until the largest node displacement in a step is below ``threshold``.
 
     Movania & Feng 2012, section 4: "repeated until the difference between the current and the
@@ -292,10 +296,11 @@ def run_until_converged(system: SpringSystem, name: str, dt: float, *, max_steps
         (state, steps taken); steps taken == max_steps when it did not converge.
     """
     limit = 0.001 * system.spacing if threshold is None else threshold
-    s = initial_state(system, dt, t=t0, drags=drags) if state is None else state
+    s = initial_state(system, dt, t=t0, drags=drags, loads=loads) if state is None else state
     quiet = 0
     for n in range(max_steps):
-        new = step(system, name, s, dt, t0 + n * dt, constraints=constraints, drags=drags)
+        new = step(system, name, s, dt, t0 + n * dt, constraints=constraints, drags=drags,
+                   loads=loads)
         moved = float(np.max(np.linalg.norm(new.x - s.x, axis=1), initial=0.0))
         s = new
         quiet = quiet + 1 if moved < limit else 0

@@ -265,8 +265,49 @@ class Drag:
     stiffness: float
 
 
+#: Load groups a GPU backend supports (one bit each in the static node data).
+MAX_LOADS = 4
+
+
+@dataclass(frozen=True, eq=False)
+class Load:
+    """A scripted force applied to each node of a set (a scene's ``[[physics.pull]]``).
+
+    Force on every node in ``nodes``: ``force(t)`` in N (the external force of Movania & Feng
+    2012 eq. 1; the foundation's pull groups of Mosegaard & Sørensen 2005, section 3.1).
+
+    Attributes:
+        nodes: (N,) bool, the nodes it acts on.
+        force: t (s) -> (3,) force per node in N.
+    """
+
+    nodes: np.ndarray
+    force: Callable[[float], ArrayLike]
+
+    def __post_init__(self) -> None:
+        mask = np.array(self.nodes, dtype=bool)
+        mask.setflags(write=False)
+        object.__setattr__(self, "nodes", mask)
+
+
+def load_groups(loads: tuple[Load, ...], count: int) -> np.ndarray:
+    """(N,) int32 bit g set where load g acts (what the GPU backends store per node).
+
+    Raises:
+        ValueError: more than :data:`MAX_LOADS` loads, or a mask of the wrong length.
+    """
+    if len(loads) > MAX_LOADS:
+        raise ValueError(f"{len(loads)} loads; the GPU backends support at most {MAX_LOADS}")
+    bits = np.zeros(count, np.int32)
+    for g, load in enumerate(loads):
+        if load.nodes.shape != (count,):
+            raise ValueError(f"load {g}: node mask of shape {load.nodes.shape}, expected ({count},)")
+        bits |= load.nodes.astype(np.int32) << g
+    return bits
+
+
 def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
-           drags: tuple[Drag, ...] = ()) -> np.ndarray:
+           drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = ()) -> np.ndarray:
     """Total force on every node (fixed nodes included; the integrators ignore theirs).
 
     Per spring (i, j) with ``d = x_i - x_j``, ``u = d/|d|`` (u = 0 for a zero-length spring, so
@@ -276,7 +317,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
-    (Movania & Feng 2012 eq. 1), and each drag's ``k_d (target(t) - x)``.
+    (Movania & Feng 2012 eq. 1), each drag's ``k_d (target(t) - x)`` and each load's
+    ``force(t)`` on its nodes.
 
     Args:
         system: the spring system.
@@ -284,6 +326,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
         v: (N, 3) velocities.
         t: time in s (the drag targets are evaluated at t).
         drags: scripted drags.
+        loads: scripted per-node forces.
 
     Returns:
         (N, 3) float64 force in N.
@@ -304,6 +347,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
               - system.velocity_damping * v)
     for drag in drags:
         total[drag.node] += drag.stiffness * (np.asarray(drag.target(t), float) - x[drag.node])
+    for load in loads:
+        total[load.nodes] += np.asarray(load.force(t), dtype=np.float64)
     return total
 
 

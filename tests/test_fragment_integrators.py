@@ -175,9 +175,6 @@ def test_rejects_systems_that_are_not_the_grids(ctx):
                                       stiffness=10.0)
     with pytest.raises(ValueError, match="not those of the grid"):
         FragmentIntegrator(ctx, mesh, grid, "euler", 1e-3)
-    with pytest.raises(ValueError, match="drags"):
-        FragmentIntegrator(ctx, system, grid, "euler", 1e-3,
-                           drags=(springs.Drag(1, lambda t: (0, 0, 0), 1.0),))
     with pytest.raises(ValueError, match="integrator"):
         FragmentIntegrator(ctx, system, grid, "leapfrog", 1e-3)
 

@@ -4,7 +4,8 @@
 //
 // Per spring to neighbour j (rest length L, stiffness k, spring damping c_s), d = x_i - x_j,
 // u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u   (eq. 2)
-// per node: m g + wind_drag (wind - v) - c v (eq. 1) + drags k_d (target - x).
+// per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1) + loads and drags
+// (lib/external_forces.glsl).
 // Fixed nodes have a = 0.
 //
 // The stage shader defines, before including this file:
@@ -12,7 +13,8 @@
 //   vec3 eval_v(int j)   its velocity (only with SPRING_DAMPING)
 //
 // Neighbour lists (CSR), RGBA32I/R32I/RGBA32F 2D textures, NEAREST, read with texelFetch:
-//   u_nodes   (NODE_ROW x rows)     node n: x = first list entry, y = count, z = 1 if fixed
+//   u_nodes   (NODE_ROW x rows)     node n: x = first list entry, y = count, z = 1 if fixed,
+//                                   w = load-group bits
 //   u_other   (SPRING_ROW x rows)   entry e: the other node j
 //   u_springs (SPRING_ROW x rows)   entry e: x = L, y = k, z = c_s
 // Each spring appears twice (once in the list of each end), so a node sums its own forces.
@@ -21,14 +23,12 @@ uniform isampler2D u_nodes;
 uniform isampler2D u_other;
 uniform sampler2D u_springs;
 uniform vec3 u_gravity;
+#ifdef WIND
 uniform vec3 u_wind;
 uniform float u_wind_drag;
-uniform float u_velocity_damping;
-#if DRAGS > 0
-uniform int u_drag_node[DRAGS];
-uniform float u_drag_k[DRAGS];
-uniform vec3 u_drag_target[DRAGS];  // target(t) at the time of this stage
 #endif
+uniform float u_velocity_damping;
+#include "lib/external_forces.glsl"
 
 ivec4 node_info(int n) {
     return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
@@ -52,13 +52,10 @@ vec3 acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
 #endif
         f += scale * u;
     }
-    f += xi.w * u_gravity + u_wind_drag * (u_wind - vi) - u_velocity_damping * vi;
-#if DRAGS > 0
-    for (int k = 0; k < DRAGS; ++k) {
-        if (u_drag_node[k] == i) {
-            f += u_drag_k[k] * (u_drag_target[k] - xi.xyz);
-        }
-    }
+    f += xi.w * u_gravity - u_velocity_damping * vi;
+#ifdef WIND
+    f += u_wind_drag * (u_wind - vi);
 #endif
+    f += external_force(i, info.w, xi.xyz);
     return f / xi.w;
 }

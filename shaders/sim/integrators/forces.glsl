@@ -12,7 +12,8 @@
 // Per spring, d = x_i - x_j, u = d/|d| (0 for |d| = 0), class stiffness k, rest length L,
 // spring damping c_s (one value per class, as springs.from_grid builds them):
 //   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (eq. 2, damping only with SPRING_DAMPING)
-// per node: m g + wind_drag (wind - v) - c v (eq. 1). Fixed nodes never call this.
+// per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1), loads and drags
+// (lib/external_forces.glsl). Fixed nodes never call this.
 //
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
 // texel T in the state at which forces are evaluated.
@@ -25,9 +26,12 @@ uniform vec3 u_rest;        // rest length of each class
 uniform vec3 u_c;           // spring damping of each class, N*s/m
 #endif
 uniform vec3 u_gravity;
+#ifdef WIND
 uniform vec3 u_wind;
 uniform float u_wind_drag;
+#endif
 uniform float u_velocity_damping;
+#include "lib/external_forces.glsl"
 
 ivec2 node_texel(int n) {
     return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
@@ -44,7 +48,7 @@ vec3 spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
     return scale * u;
 }
 
-vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m) {
+vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     vec3 f = vec3(0.0);
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
@@ -57,6 +61,10 @@ vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m) {
             f += spring_force(node_texel(nb[c]), xi, vi, cls);
         }
     }
-    f += m * u_gravity + u_wind_drag * (u_wind - vi) - u_velocity_damping * vi;
+    f += m * u_gravity - u_velocity_damping * vi;
+#ifdef WIND
+    f += u_wind_drag * (u_wind - vi);
+#endif
+    f += external_force((texel.y << u_width_log2) + texel.x, groups, xi);
     return f / m;
 }

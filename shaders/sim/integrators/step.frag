@@ -17,7 +17,7 @@
 // (velocity 0).
 #include "lib/node_flags.glsl"
 
-uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed)
+uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups
 uniform sampler2D u_x;      // xyz position at t
 uniform float u_dt;
 #ifdef VERLET
@@ -71,16 +71,17 @@ void main() {
         return;
     }
     float m = node.r;
+    int groups = int(node.b);
     float dt = u_dt;
 #ifdef VERLET
     vec3 v = EVAL_V(texel);
-    vec3 a = acceleration(texel, x.xyz, v, m);
+    vec3 a = acceleration(texel, x.xyz, v, m, groups);
     vec3 x1 = 2.0 * x.xyz - texelFetch(u_x_prev, texel, 0).xyz + (dt * dt) * a;
 #else
     vec3 v = texelFetch(u_v, texel, 0).xyz;
     vec3 xs = EVAL_X(texel);
     vec3 vs = EVAL_V(texel);
-    vec3 a = acceleration(texel, xs, vs, m);
+    vec3 a = acceleration(texel, xs, vs, m, groups);
 #if defined(EULER)
     vec3 x1 = x.xyz + dt * v;
     vec3 v1 = v + dt * a;
