@@ -33,6 +33,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
                         "curvature draw the detailed mesh through the triangle basis (eq. 6) or the "
                         "curvature-corrected basis (eq. 8); auto picks per vertex")
+    r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet"], default=None,
+                   help="override physics.integrator (Movania & Feng 2012): explicit Euler, semi-implicit "
+                        "Euler, midpoint (RK2), classical RK4 or position Verlet")
+    r.add_argument("--backend", choices=["fragment", "feedback", "numpy"], default=None,
+                   help="override physics.backend: fragment passes on the node grid, transform feedback over "
+                        "explicit neighbour lists, or the float64 NumPy reference")
     r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
                    help="also write the deformed detailed mesh as the mapping vertex shader computed "
                         "it (captured with transform feedback)")
@@ -84,7 +90,8 @@ def _render(args: argparse.Namespace) -> int:
             size = parse_size(args.size)
         except ValueError as exc:
             raise DeformglError(f"--size: {exc}") from None
-    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping)
+    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
+                                 integrator=args.integrator, backend=args.backend)
     out = args.output or scene.output.path
     if out.suffix.lower() != ".png":
         raise DeformglError(f"{out}: the output must be a .png file")

@@ -376,6 +376,13 @@ class FeedbackSimulation:
             return self._read(self.tex_x[self._current], 1)[:, 0, :3].copy()
         return self._read(self.tex_state, 2)[:, 0, :3].copy()
 
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
+        slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
+        if self.integrator == "verlet":
+            return self.tex_x[self._current], self.node_row, 1, 0
+        return self.tex_state, self.node_row, 2, 0
+
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""

@@ -381,6 +381,11 @@ class FragmentIntegrator:
         """(N, 3) float32 positions (one read-back)."""
         return self._read(0)
 
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
+        slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
+        return self.pool[self.roles[0]], self.layout.width, 1, 0
+
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""

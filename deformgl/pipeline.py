@@ -18,6 +18,7 @@ import trimesh
 
 from .attachments import TubeAttachment
 from .camera import View, frame_box
+from .colliders import draw_obstacles
 from .errors import InputError, SimulationError
 from .fragment_sim import FragmentSimulation, NodeTextures
 from .grid import CompactLayout, NodeGrid
@@ -30,6 +31,7 @@ from .node_drivers import DrivenNodes, Motion, load_node_frames
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
+from .scene_sim import SceneBox, SceneRun, needs_integrators, run_scene, scene_constraints
 from .scenegraph import TrilinearRenderer
 from .shader_pack import pack_inputs, write_pack_inputs
 from .surface import grid_surface
@@ -83,8 +85,26 @@ def pull_schedule(physics: Physics):
     return forces
 
 
+def build_cloth_model(scene: Scene) -> SceneModel:
+    """A cloth scene: a one-node-thin sheet of nodes centred on the origin in the plane y = 0; its
+    box is the cube of side ``cloth.size`` around it (Movania & Feng 2012, section 5)."""
+    nx, nz = scene.cloth.nodes
+    size = scene.cloth.size
+    spacing = size / (max(nx, nz) - 1)
+    origin = np.array([-(nx - 1) * spacing / 2.0, 0.0, -(nz - 1) * spacing / 2.0])
+    grid = NodeGrid(origin=origin, spacing=spacing, occupied=np.ones((nx, 1, nz), dtype=bool))
+    surface = grid_surface(grid)
+    mesh = trimesh.Trimesh(grid.rest_positions[surface.nodes], surface.triangles, process=False)
+    bbox = np.array([[origin[0], -size / 2.0, origin[2]], [-origin[0], size / 2.0, -origin[2]]])
+    return SceneModel(mesh=mesh, centre=np.zeros(3), grid=grid,
+                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+
+
 def build_scene_model(scene: Scene) -> SceneModel:
-    """Load and recentre the mesh, voxelize it into the node grid, build the spring model."""
+    """Load and recentre the mesh, voxelize it into the node grid, build the spring model (or
+    build the cloth sheet of a cloth scene)."""
+    if scene.cloth is not None:
+        return build_cloth_model(scene)
     mesh = load_mesh(scene.mesh.path)
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2.0
@@ -166,8 +186,12 @@ class NodeState:
         nodes = scene.nodes
         self.sim: FragmentSimulation | None = None
         self.driven: DrivenNodes | None = None
+        self.run: SceneRun | None = None  # the five-integrator run, if the scene used one
         self.textures: NodeTextures
-        if nodes.source == "simulate":
+        if nodes.source == "simulate" and needs_integrators(scene.physics):
+            self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress)
+            positions = self.run.positions
+        elif nodes.source == "simulate":
             self.sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
             self.textures = self.sim.textures
             try:
@@ -177,13 +201,13 @@ class NodeState:
                 self.release()
                 raise
             return
-        if nodes.source == "file":
+        elif nodes.source == "file":
             frames = load_node_frames(nodes.file, built.grid.count, built.centre)
             if not -len(frames) <= nodes.frame < len(frames):
                 raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
                                  f"{len(frames)} frame(s) of {nodes.file}")
             positions = frames[nodes.frame]
-        else:
+        else:  # "motion"
             m = nodes.motion
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
@@ -306,6 +330,14 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         target.begin(tuple(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)
+        if state.run is not None:
+            if log is not None:
+                log(f"{scene.name}: {state.run.summary(scene.physics)}")
+            constraints = scene_constraints(scene.physics, SceneBox(*built.bbox))
+            if constraints is not None:
+                target.fbo.use()
+                draw_obstacles(ctx, constraints, state.run.time, built.bbox[0], built.bbox[1],
+                               built.grid.spacing, view, lighting)
         captured = None
         if scene.attach or mesh:
             captured = draw_pass.capture(state.position_texture)

@@ -21,21 +21,37 @@ from typing import Any, NoReturn
 import numpy as np
 
 from deformgl.errors import SceneError
+from deformgl.integrators import INTEGRATORS
 from deformgl.model import MAX_PULLS
 
-__all__ = ["Camera", "GridSpec", "Light", "Material", "MeshSpec", "Output", "Physics", "Pull", "Region",
-           "Render", "Scene", "load_scene", "parse_size"]
+__all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light",
+           "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",
+           "SpringClass", "load_scene", "parse_size"]
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384
 MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
 AXES = ("x", "y", "z")
+#: Where a scene's simulation runs: fragment passes, transform feedback, or the float64 NumPy reference.
+BACKENDS = ("fragment", "feedback", "numpy")
+MAX_SPHERES = 8
+MAX_DRAGS = 8
 
 
 @dataclass(frozen=True, slots=True)
 class MeshSpec:
     """The detailed mesh to deform: an absolute path that existed at load time."""
     path: Path
+
+
+@dataclass(frozen=True, slots=True)
+class ClothSpec:
+    """A cloth instead of a mesh: ``nodes`` (along x, along z) in a square-spaced sheet of
+    ``size`` m along its longer side, centred on the origin in the plane y = 0 (Movania & Feng
+    2012, section 5). Its bounding box for fractions is the cube of side ``size`` around it, so
+    the sheet lies at y fraction 0.5."""
+    nodes: tuple[int, int]
+    size: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,9 +107,57 @@ class Pull:
 
 
 @dataclass(frozen=True, slots=True)
+class Keyframes:
+    """A piecewise-linear path: ``points`` (bounding-box fractions) at increasing ``times`` (s);
+    before the first time it is at the first point, after the last at the last."""
+    points: tuple[Vec3, ...]
+    times: tuple[float, ...]
+
+    def at(self, t: float) -> np.ndarray:
+        """Returns the (3,) point (box fractions) at time ``t``."""
+        p = np.asarray(self.points, dtype=np.float64)
+        return np.array([np.interp(t, self.times, p[:, c]) for c in range(3)])
+
+
+@dataclass(frozen=True, slots=True)
+class SpringClass:
+    """Stiffness (N/m; None: ``physics.stiffness``) and damping along the spring (N*s/m) of one
+    spring class (Movania & Feng 2012, section 3)."""
+    stiffness: float | None
+    damping: float
+
+
+@dataclass(frozen=True, slots=True)
+class SphereSpec:
+    """A sphere obstacle: fixed ``centre`` or moving along ``path`` (box fractions); ``radius``
+    in units of the bounding box's longest side."""
+    centre: Vec3 | None
+    path: Keyframes | None
+    radius: float
+
+
+@dataclass(frozen=True, slots=True)
+class DragSpec:
+    """A scripted drag: the node nearest to the path's first point is pulled toward the moving
+    point through a zero-rest-length spring of ``stiffness`` N/m."""
+    path: Keyframes
+    stiffness: float
+
+
+@dataclass(frozen=True, slots=True)
+class Converge:
+    """Stop once no node moved more than ``threshold`` grid spacings in a step (checked every
+    ``every`` steps, on the GPU); ``physics.steps`` is the limit."""
+    threshold: float
+    every: int
+
+
+@dataclass(frozen=True, slots=True)
 class Physics:
     """Time step (s), steps, spring stiffness (N/m), velocity damping (N*s/m), mass per node (kg),
-    gravity (m/s^2), fixed regions and pulls."""
+    gravity (m/s^2), fixed regions and pulls; the integrator and backend; springs by class, wind
+    (air velocity m/s and linear drag N*s/m), ground (box fraction along y), spheres, drags and
+    the convergence stop."""
     dt: float
     steps: int
     stiffness: float
@@ -102,6 +166,32 @@ class Physics:
     gravity: Vec3
     fixed: tuple[Region, ...]
     pull: tuple[Pull, ...]
+    integrator: str = "verlet"
+    backend: str = "fragment"
+    structural: SpringClass = SpringClass(None, 0.0)
+    shear: SpringClass = SpringClass(None, 0.0)
+    flexion: SpringClass = SpringClass(0.0, 0.0)
+    wind: Vec3 = (0.0, 0.0, 0.0)
+    wind_drag: float = 0.0
+    ground: float | None = None
+    sphere: tuple[SphereSpec, ...] = ()
+    drag: tuple[DragSpec, ...] = ()
+    converge: Converge | None = None
+
+    def class_stiffness(self) -> tuple[float, float, float]:
+        """Stiffness of the structural, shear and flexion springs in N/m."""
+        return tuple(self.stiffness if c.stiffness is None else c.stiffness
+                     for c in (self.structural, self.shear, self.flexion))  # type: ignore[return-value]
+
+    @property
+    def extended(self) -> bool:
+        """Uses anything the foundation's fragment Verlet pass does not model (springs by class,
+        spring damping, flexion, wind, obstacles, drags, the convergence stop)."""
+        k1, k2, k3 = self.class_stiffness()
+        return bool(k1 != self.stiffness or k2 != self.stiffness or k3 > 0
+                    or self.structural.damping or self.shear.damping or self.flexion.damping
+                    or self.wind_drag > 0 or self.ground is not None or self.sphere or self.drag
+                    or self.converge is not None)
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,7 +291,7 @@ class Output:
 class Scene:
     """A validated scene; ``source`` is the absolute path of its scene file."""
     source: Path
-    mesh: MeshSpec
+    mesh: MeshSpec | None
     grid: GridSpec
     physics: Physics
     render: Render
@@ -209,16 +299,26 @@ class Scene:
     mapping: Mapping = None  # type: ignore[assignment]  # set by load_scene
     nodes: Nodes = None  # type: ignore[assignment]
     attach: tuple[Attach, ...] = ()
+    cloth: ClothSpec | None = None
+
+    @property
+    def name(self) -> str:
+        """What the scene deforms, for messages: the mesh file name or ``cloth NxM``."""
+        if self.mesh is not None:
+            return self.mesh.path.name
+        return f"cloth {self.cloth.nodes[0]}x{self.cloth.nodes[1]}"  # type: ignore[union-attr]
 
     def with_overrides(
         self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None,
-        mapping: str | None = None,
+        mapping: str | None = None, integrator: str | None = None, backend: str | None = None,
     ) -> Scene:
         """Returns a copy with command-line overrides, validated like the scene file.
 
         Args:
             mesh: Replacement mesh file (relative to the working directory); must exist.
             mapping: Replacement mapping mode.
+            integrator: Replacement ``physics.integrator``.
+            backend: Replacement ``physics.backend``.
             steps: Replacement step count, >= 0.
             size: Replacement (width, height), each in 1..16384.
 
@@ -227,7 +327,14 @@ class Scene:
         """
         file, scene = str(self.source), self
         if mesh is not None:
+            if scene.cloth is not None:
+                _fail(file, "--mesh", "a cloth scene has no mesh to replace")
             scene = dataclasses.replace(scene, mesh=MeshSpec(_existing(file, "--mesh", Path(mesh).resolve())))
+        for flag, key, value, check in (("--integrator", "integrator", integrator, _INTEGRATOR),
+                                        ("--backend", "backend", backend, _BACKEND)):
+            if value is not None:
+                scene = dataclasses.replace(scene, physics=dataclasses.replace(
+                    scene.physics, **{key: check(file, flag, value)}))
         if steps is not None:
             scene = dataclasses.replace(
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))
@@ -239,6 +346,8 @@ class Scene:
                 scene, mapping=dataclasses.replace(scene.mapping, mode=_MAPPING_MODE(file, "--mapping", mapping)))
             if scene.attach and mapping == "one-to-one":
                 _fail(file, "--mapping", "one-to-one draws no detailed mesh, which the scene's attach entries need")
+            if scene.cloth is not None and mapping != "one-to-one":
+                _fail(file, "--mapping", "a cloth scene has no detailed mesh: only one-to-one")
         return scene
 
 
@@ -425,12 +534,72 @@ _PULL = _REGION | {
     "force": (_vec(3), REQUIRED), "start": (_NONNEG, 0.0), "ramp": (_NONNEG, 0.0),
     "stop": (_num(allow_inf=True), math.inf),
 }
+def _build_keyframes(file: str, key: str, points: tuple[Vec3, ...], times: tuple[float, ...] | None) -> Keyframes:
+    if times is None:
+        if len(points) != 1:
+            _fail(file, _join(key, "times"), f"required for a path of {len(points)} points")
+        times = (0.0,)
+    if len(times) != len(points):
+        _fail(file, _join(key, "times"), f"must have one time per point ({len(points)}), got {len(times)}")
+    for i in range(1, len(times)):
+        if times[i] <= times[i - 1]:
+            _fail(file, _join(key, "times"), f"must increase, got {times[i]:g} after {times[i - 1]:g}")
+    return Keyframes(points, times)
+
+
+def _points(file: str, key: str, v: Any) -> tuple[Vec3, ...]:
+    if not isinstance(v, list) or not v:
+        _fail(file, key, f"must be a non-empty array of [x, y, z] points, got {_describe(v)}")
+    return tuple(_vec(3)(file, f"{key}[{i}]", p) for i, p in enumerate(v))
+
+
+def _numbers(file: str, key: str, v: Any) -> tuple[float, ...]:
+    if not isinstance(v, list):
+        _fail(file, key, f"must be an array of numbers, got {_describe(v)}")
+    return tuple(_NONNEG(file, f"{key}[{i}]", t) for i, t in enumerate(v))
+
+
+def _build_sphere(file: str, key: str, d: dict[str, Any]) -> SphereSpec:
+    if (d["centre"] is None) == (d["path"] is None):
+        _fail(file, key, "set exactly one of 'centre' (a fixed sphere) or 'path' (a moving one)")
+    if d["path"] is None and d["times"] is not None:
+        _fail(file, _join(key, "times"), "only used with 'path'")
+    path = None if d["path"] is None else _build_keyframes(file, key, d["path"], d["times"])
+    return SphereSpec(d["centre"], path, d["radius"])
+
+
+def _build_physics(file: str, key: str, d: dict[str, Any]) -> Physics:
+    springs = d.pop("springs")
+    return Physics(**d, **springs)
+
+
+def _spring_class(flexion: bool) -> Check:
+    return _table({"stiffness": (_NONNEG, 0.0 if flexion else None), "damping": (_NONNEG, 0.0)},
+                  lambda file, key, d: SpringClass(d["stiffness"], d["damping"]))
+
+
+_INTEGRATOR, _BACKEND = _str(INTEGRATORS), _str(BACKENDS)
 _PHYSICS = _table({
     "dt": (_POS, 0.002), "steps": (_STEPS, 400), "stiffness": (_POS, 500.0),
     "damping": (_NONNEG, 0.5), "mass": (_POS, 0.01), "gravity": (_vec(3), [0.0, -9.81, 0.0]),
     "fixed": (_array(_table(_REGION, _build_region)), []),
     "pull": (_array(_table(_PULL, _build_pull), MAX_PULLS), []),
-}, _plain(Physics))
+    "integrator": (_INTEGRATOR, "verlet"), "backend": (_BACKEND, "fragment"),
+    "springs": (_table({"structural": (_spring_class(False), {}), "shear": (_spring_class(False), {}),
+                        "flexion": (_spring_class(True), {})}, lambda file, key, d: d), {}),
+    "wind": (_vec(3), [0.0, 0.0, 0.0]), "wind_drag": (_NONNEG, 0.0),
+    "ground": (_table({"at": (_num(), REQUIRED)}, lambda file, key, d: d["at"]), None),
+    "sphere": (_array(_table({
+        "centre": (_vec(3), None), "path": (_points, None), "times": (_numbers, None),
+        "radius": (_POS, REQUIRED)}, _build_sphere), MAX_SPHERES), []),
+    "drag": (_array(_table({
+        "path": (_points, REQUIRED), "times": (_numbers, None), "stiffness": (_POS, REQUIRED)},
+        lambda file, key, d: DragSpec(_build_keyframes(file, key, d["path"], d["times"]), d["stiffness"])),
+        MAX_DRAGS), []),
+    "converge": (_table({"threshold": (_POS, 0.001), "every": (_int(lo=1), 10)}, _plain(Converge)), None),
+}, _build_physics)
+
+
 _GRID = _table({"nodes_along_longest": (_int(lo=2), None), "spacing": (_POS, None)}, _build_grid)
 _CAMERA = _table({
     "projection": (_str(("perspective", "orthographic")), "perspective"),
@@ -520,6 +689,15 @@ def load_scene(path: str | Path) -> Scene:
         return Nodes(src, path, d["frame"], d["motion"])
 
     def build_scene(file: str, key: str, d: dict[str, Any]) -> Scene:
+        if (d["mesh"] is None) == (d["cloth"] is None):
+            _fail(file, "mesh", "set exactly one of [mesh] (a mesh to deform) or [cloth] (a cloth sheet)")
+        if d["cloth"] is not None:
+            if "grid" in data:
+                _fail(file, "grid", "a cloth scene sets its nodes in cloth.nodes")
+            if d["mapping"].mode != "one-to-one":
+                _fail(file, "mapping.mode", "a cloth scene has no detailed mesh: only one-to-one")
+            if d["nodes"].source != "simulate":
+                _fail(file, "nodes.source", "a cloth scene is simulated")
         if d["attach"] and d["mapping"].mode == "one-to-one":
             _fail(file, "attach", "needs a detailed mesh: set mapping.mode to constant, curvature or auto")
         return Scene(source, **d)
@@ -538,7 +716,9 @@ def load_scene(path: str | Path) -> Scene:
             "source": (_str(("simulate", "file", "motion")), "simulate"), "file": (_str(), None),
             "frame": (_int(), -1), "motion": (_MOTION, None),
         }, build_nodes), {}),
-        "mesh": (_table({"path": (_str(), REQUIRED)}, build_mesh), {}),
+        "mesh": (_table({"path": (_str(), REQUIRED)}, build_mesh), None),
+        "cloth": (_table({"nodes": (_vec(2, _int(lo=2, hi=MAX_SIZE)), REQUIRED), "size": (_POS, 1.0)},
+                         lambda file, key, d: ClothSpec(d["nodes"], d["size"])), None),
         "grid": (_GRID, {"nodes_along_longest": 8}),
         "physics": (_PHYSICS, {}),
         "render": (_RENDER, {}),

@@ -261,7 +261,8 @@ def test_ints_accepted_where_floats_expected(scene_dir: Path) -> None:
 
 
 def test_mesh_errors(scene_dir: Path) -> None:
-    assert _error("[physics]\ndt = 0.1\n") == "jelly.toml: mesh.path: required key is missing"
+    assert _error("[physics]\ndt = 0.1\n") == (
+        "jelly.toml: mesh: set exactly one of [mesh] (a mesh to deform) or [cloth] (a cloth sheet)")
     assert _error('mesh = "m.ply"\n') == "jelly.toml: mesh: must be a table, got string 'm.ply'"
     missing = scene_dir / "assets" / "nope.ply"
     assert _error('[mesh]\npath = "assets/nope.ply"\n') == f"jelly.toml: mesh.path: file not found: {missing}"
