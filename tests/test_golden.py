@@ -31,3 +31,11 @@ def test_rest_state_matches_golden(ctx, golden):
     """Zero steps: the undeformed grid surface, so a failure separates render from simulation."""
     scene = load_scene(SCENES / "jelly.toml").with_overrides(steps=0)
     golden(render_scene(ctx, scene), "jelly_rest")
+
+
+@pytest.mark.parametrize("integrator, backend", [("verlet", "fragment"), ("rk4", "feedback")])
+def test_cloth_on_sphere_matches_golden(ctx, golden, integrator, backend):
+    """The paper's cloth (64 x 64, corners pinned) draped on its sphere, by two integrators on the
+    two GPU backends; the sphere is drawn."""
+    scene = load_scene(SCENES / "cloth_64.toml").with_overrides(integrator=integrator, backend=backend)
+    golden(render_scene(ctx, scene), f"cloth_64_{integrator}")

@@ -1,0 +1,187 @@
+"""A scene's physics on every integrator and backend: same function, constraints, convergence."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deformgl import integrators as I
+from deformgl.errors import SimulationError
+from deformgl.integrators import INTEGRATORS
+from deformgl.pipeline import NodeState, build_scene_model
+from deformgl.scene import Converge, load_scene
+from deformgl.scene_sim import SceneBox, needs_integrators, run_scene, scene_constraints, scene_drags
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+EXTENDED = '''
+[physics.springs]
+structural = { damping = 0.001 }
+flexion = { stiffness = 2.0, damping = 0.0005 }
+
+[physics.ground]
+at = 0.02
+
+[[physics.sphere]]
+path = [[1.3, 0.5, 0.5], [0.8, 0.5, 0.5]]
+times = [0.0, 0.05]
+radius = 0.2
+
+[[physics.drag]]
+path = [[0.0, 1.0, 0.0], [-0.2, 1.1, -0.1]]
+times = [0.0, 0.05]
+stiffness = 0.5
+'''
+
+
+@pytest.fixture(scope="module")
+def extended_scene(tmp_path_factory):
+    """The jelly with every extended feature: classes, spring damping, flexion, wind, ground,
+    a moving sphere, a drag; and its pull (a load)."""
+    text = (SCENES / "jelly.toml").read_text()
+    text = text.replace('path = "assets/jelly_block.obj"', f'path = "{SCENES / "assets" / "jelly_block.obj"}"')
+    text = text.replace("[[physics.fixed]]", "wind = [0.5, 0.0, 0.2]\nwind_drag = 0.0002\n\n[[physics.fixed]]", 1)
+    text = text.replace("steps = 300", "steps = 120") + EXTENDED
+    path = tmp_path_factory.mktemp("scene") / "jelly_extended.toml"
+    path.write_text(text)
+    scene = load_scene(path)
+    return scene, build_scene_model(scene)
+
+
+def run(ctx, scene, built, **physics):
+    scene = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, **physics))
+    return run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=False)
+
+
+@pytest.mark.parametrize("name", INTEGRATORS)
+def test_every_backend_runs_the_same_scene(ctx, extended_scene, name):
+    scene, built = extended_scene
+    assert needs_integrators(scene.physics)
+    ref = run(ctx, scene, built, integrator=name, backend="numpy")
+    h = built.grid.spacing
+    moved = np.abs(ref.positions - built.grid.rest_positions).max()
+    assert moved > 0.1 * h  # something happened
+    for backend in ("fragment", "feedback"):
+        gpu = run(ctx, scene, built, integrator=name, backend=backend)
+        assert gpu.steps == ref.steps == 120
+        assert np.abs(gpu.positions - ref.positions).max() <= 1e-3 * h, backend
+        assert gpu.bytes_per_node > 0
+
+
+def test_constraints_fixed_nodes_and_drag_hold_in_the_scene(ctx, extended_scene):
+    scene, built = extended_scene
+    box = SceneBox(*built.bbox)
+    constraints = scene_constraints(scene.physics, box)
+    for backend in ("fragment", "feedback"):
+        out = run(ctx, scene, built, integrator="semi-implicit", backend=backend)
+        fixed = built.model.fixed
+        x = out.positions
+        assert x[~fixed, 1].min() >= constraints.ground - 1e-6  # fixed nodes stay where they are
+        assert x[fixed, 1].min() < constraints.ground  # (some start below the ground)
+        sphere = constraints.spheres[0]
+        gap = np.linalg.norm(x[~fixed] - sphere.centre_at(out.time), axis=1) - sphere.radius
+        assert gap.min() >= -1e-5 * sphere.radius and gap.min() < 0.05 * sphere.radius  # touched
+        assert np.array_equal(x[fixed].astype(np.float32), built.grid.rest_positions[fixed].astype(np.float32))
+    # the drag grabbed the node nearest to its first point
+    (drag,) = scene_drags(built.grid, scene.physics, box)
+    start = box.world((0.0, 1.0, 0.0))
+    assert drag.node == int(np.argmin(np.linalg.norm(built.grid.rest_positions - start, axis=1)))
+    np.testing.assert_allclose(drag.target(1.0), box.world((-0.2, 1.1, -0.1)))
+
+
+def test_convergence_stop_is_counted_on_the_gpu(ctx, extended_scene, monkeypatch):
+    """All three backends stop at the same check; the GPU ones read no state while stepping."""
+    scene, built = extended_scene
+    settle = dict(integrator="semi-implicit", steps=4000, damping=0.02, converge=Converge(0.001, 10))
+    ref = run(ctx, scene, built, backend="numpy", **settle)
+    assert ref.converged and ref.steps < 4000
+    import moderngl
+
+    reads = []
+    original = moderngl.Texture.read
+    monkeypatch.setattr(moderngl.Texture, "read", lambda self, *a, **k: reads.append(self) or original(self, *a, **k))
+    for backend in ("fragment", "feedback"):
+        reads.clear()
+        out = run(ctx, scene, built, backend=backend, **settle)
+        assert out.converged and abs(out.steps - ref.steps) <= 10, (backend, out.steps, ref.steps)
+        assert len(reads) == 1  # the final positions only
+    capped = run(ctx, scene, built, backend="fragment", **{**settle, "steps": 50})
+    assert capped.converged is False and capped.steps == 50
+
+
+def test_divergence_is_an_error_naming_a_node(ctx, extended_scene):
+    scene, built = extended_scene
+    with pytest.raises(SimulationError, match=r"node \d+ \(grid \(.*\)\) is non-finite after step"):
+        run(ctx, scene, built, integrator="euler", backend="feedback", dt=0.05, steps=200)
+
+
+def test_plain_scenes_keep_the_foundation_pass(ctx):
+    scene = load_scene(SCENES / "jelly.toml").with_overrides(steps=3)
+    assert not needs_integrators(scene.physics)
+    built = build_scene_model(scene)
+    state = NodeState(ctx, scene, built, progress=False)
+    try:
+        assert state.sim is not None and state.run is None
+    finally:
+        state.release()
+    for override in (dict(integrator="rk4"), dict(backend="feedback"), dict(backend="numpy")):
+        assert needs_integrators(scene.with_overrides(**override).physics)
+
+
+def test_foundation_pass_and_integrator_verlet_are_the_same_function(ctx):
+    """From the same start (x_prev = x: the foundation starts at rest that way; the integrator
+    backends start from the second-order Taylor x_prev) the two compute the same steps."""
+    from deformgl.fragment_integrators import FragmentIntegrator
+    from deformgl.fragment_sim import FragmentSimulation
+    from deformgl.pipeline import pull_schedule
+    from deformgl.scene_sim import scene_loads, scene_system
+
+    scene = load_scene(SCENES / "jelly.toml")
+    built = build_scene_model(scene)
+    ph = scene.physics
+    base = FragmentSimulation(ctx, built.model, ph.dt, pull_schedule(ph))
+    try:
+        base.step(100)
+        x_base = base.positions().astype(np.float64)
+    finally:
+        base.release()
+    system = scene_system(built.grid, built.model, ph)
+    x0 = built.grid.rest_positions
+    sim = FragmentIntegrator(ctx, system, built.grid, "verlet", ph.dt, loads=scene_loads(built.model, ph),
+                             state=I.State(x0, np.zeros_like(x0), x0.copy()))
+    try:
+        sim.step(100)
+        x_new = sim.positions().astype(np.float64)
+    finally:
+        sim.release()
+    assert np.abs(x_base - x0).max() > 0.05 * built.grid.spacing
+    # float32 rounding only: 100 steps, ~1e-5 h; the two start states differ by ~2e-3 h
+    assert np.abs(x_new - x_base).max() <= 1e-4 * built.grid.spacing
+
+
+def test_cloth_scene_builds_a_sheet_with_pinned_corners():
+    scene = load_scene(SCENES / "cloth_64.toml")
+    built = build_scene_model(scene)
+    assert built.grid.occupied.shape == (64, 1, 64) and built.grid.count == 4096
+    assert built.model.fixed.sum() == 4
+    corners = built.grid.ijk[built.model.fixed]
+    assert {(int(i), int(k)) for i, _, k in corners} == {(0, 0), (0, 63), (63, 0), (63, 63)}
+    np.testing.assert_allclose(built.grid.spacing, 1.0 / 63)
+    assert scene.physics.class_stiffness() == (50.0, 50.0, 5.0)
+
+
+@pytest.mark.parametrize("n", [256, 1024, 2048])
+def test_finer_cloths_are_the_same_cloth(n):
+    """Mass per node ~ h^2, damping ~ h^2 (global) and ~ h (springs), dt ~ h, same end time."""
+    base = load_scene(SCENES / "cloth_64.toml").physics
+    fine = load_scene(SCENES / f"cloth_{n}.toml").physics
+    r = n / 64
+    assert fine.mass * n * n == pytest.approx(base.mass * 64 * 64, rel=1e-3)
+    assert fine.dt * r == pytest.approx(base.dt) and fine.steps == base.steps * r
+    assert fine.class_stiffness() == base.class_stiffness()
+    assert fine.structural.damping * r == pytest.approx(base.structural.damping, rel=1e-3)
+    built = build_scene_model(load_scene(SCENES / f"cloth_{n}.toml"))
+    assert built.model.fixed.sum() == 4
