@@ -225,12 +225,19 @@ def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict,
     return "\n".join(lines)
 
 
+#: ``bench integrators`` workloads: the paper's cloths (Movania & Feng 2012, section 5) and the
+#: 20k / 131k-node volumes of ``bench sim``.
+INTEGRATOR_CLOTHS = (64, 256, 1024, 2048)
+INTEGRATOR_VOLUMES = ((27, 27, 27), (64, 64, 32))
+
+
 @dataclass
 class IntegratorRow:
-    """One cloth size of ``bench integrators``: ms/step and bytes/node per (backend, integrator)."""
+    """One workload of ``bench integrators``: ms/step and bytes/node per (backend, integrator)."""
 
-    size: int
+    name: str
     nodes: int
+    steps: int
     baseline_ms: float
     ms: dict[tuple[str, str], float]
     bytes_per_node: dict[tuple[str, str], float]
@@ -246,56 +253,129 @@ def cloth_system(n: int, spacing: float = 0.01):
                  fixed=fixed, gravity=(0.0, -9.81, 0.0), velocity_damping=1e-4)
 
 
-def bench_integrators(ctx: moderngl.Context, *, sizes=(64, 256), steps: int = 20, backends=None) -> list[IntegratorRow]:
-    """Every integrator on every GPU backend on n x n cloths, against the fragment-pass Verlet
-    of the same grid (the baseline, measured in the same run)."""
-    from .feedback_sim import FeedbackSimulation
-    from .fragment_integrators import FragmentIntegrator
-    from .integrators import INTEGRATORS, initial_state
-    from .springs import max_angular_frequency
+def _integrator_workloads(cloths, volumes):
+    """(name, grid, system, foundation model) of each workload."""
+    from .springs import from_grid
 
-    backends = backends or {"fragment": "fragment", "feedback": FeedbackSimulation}
-    rows = []
-    for n in sizes:
+    for n in cloths:
         system = cloth_system(n)
-        dt = 0.5 / max_angular_frequency(system).omega
         grid = NodeGrid(np.zeros(3), 0.01, np.ones((n, 1, n), bool))
         model = SpringModel(grid=grid, mass=np.full(n * n, 1e-3), fixed=system.fixed.copy(),
                             pull_groups=np.zeros(n * n, np.uint8), k_structural=10.0, k_shear=10.0,
                             damping=1e-4, gravity=np.array([0.0, -9.81, 0.0]))
+        yield f"{n}x{n} cloth", grid, system, model
+    for spec in volumes:
+        model = block_model(spec)
+        system = from_grid(model.grid, k_structural=10.0, k_shear=10.0, k_flexion=2.0, mass=model.mass,
+                           fixed=model.fixed, velocity_damping=model.damping)
+        yield "x".join(map(str, spec)) + " volume", model.grid, system, model
+
+
+def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volumes=INTEGRATOR_VOLUMES,
+                      steps: int = 20, backends=("fragment", "feedback", "numpy"),
+                      node_steps: float = 2e6, progress: Callable[[str], None] | None = None) -> list[IntegratorRow]:
+    """Every integrator on every backend on each workload, against the foundation's fragment-pass
+    Verlet of the same grid (the baseline, measured in the same run).
+
+    Steps per timing: ``steps``, fewer on big grids (about ``node_steps`` node-steps, at least 2)
+    so that 2048^2 finishes; the NumPy reference gets a tenth of that.
+    """
+    from .feedback_sim import FeedbackSimulation
+    from .fragment_integrators import FragmentIntegrator
+    from .integrators import INTEGRATORS, initial_state, step as numpy_step
+    from .springs import max_angular_frequency
+
+    rows = []
+    for name, grid, system, model in _integrator_workloads(cloths, volumes):
+        if progress is not None:
+            progress(name)
+        n_steps = max(2, min(steps, int(node_steps // grid.count)))
+        dt = 0.5 / max_angular_frequency(system).omega
         base = FragmentSimulation(ctx, model, dt)
         try:
             base.step(2)
             ctx.finish()
-            baseline = timed(lambda: (base.step(steps), ctx.finish()), 3) / steps * 1e3
+            baseline = timed(lambda: (base.step(n_steps), ctx.finish()), 3) / n_steps * 1e3
         finally:
             base.release()
         ms, per_node = {}, {}
-        for backend, cls in backends.items():
-            for name in INTEGRATORS:
-                if cls == "fragment":
-                    sim = FragmentIntegrator(ctx, system, grid, name, dt, state=initial_state(system, dt))
+        state = initial_state(system, dt)
+        for backend in backends:
+            for integrator in INTEGRATORS:
+                if backend == "numpy":
+                    k = max(1, n_steps // 10)
+                    holder = [state]
+
+                    def run_numpy() -> None:
+                        for i in range(k):
+                            holder[0] = numpy_step(system, integrator, holder[0], dt, i * dt)
+                    ms[backend, integrator] = timed(run_numpy, 1 if grid.count > 3e5 else 3) / k * 1e3
+                    continue
+                if backend == "fragment":
+                    sim = FragmentIntegrator(ctx, system, grid, integrator, dt, state=state)
                 else:
-                    sim = cls(ctx, system, name, dt, state=initial_state(system, dt))
+                    sim = FeedbackSimulation(ctx, system, integrator, dt, state=state)
                 try:
                     sim.step(2)
                     ctx.finish()
-                    ms[backend, name] = timed(lambda: (sim.step(steps), ctx.finish()), 3) / steps * 1e3
-                    per_node[backend, name] = sim.bytes_per_node
+                    ms[backend, integrator] = timed(lambda: (sim.step(n_steps), ctx.finish()), 3) / n_steps * 1e3
+                    per_node[backend, integrator] = sim.bytes_per_node
                 finally:
                     sim.release()
-        rows.append(IntegratorRow(n, n * n, baseline, ms, per_node))
+        rows.append(IntegratorRow(name, grid.count, n_steps, baseline, ms, per_node))
     return rows
 
 
 def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
-    """The ``bench integrators`` table."""
-    lines = [machine, "n x n cloth, two corners fixed, structural + shear + flexion springs; baseline: the "
-             "fragment-pass position Verlet of the same grid (structural + shear), same run"]
+    """The ``bench integrators`` table: ms/step, ratio to the baseline, GPU bytes per node."""
+    lines = [machine, "structural + shear + flexion springs (k 10/10/2 N/m), velocity damping; cloths with two "
+             "corners fixed, volumes with the top layer fixed; baseline: the foundation's fragment-pass "
+             "position Verlet of the same grid (structural + shear), same run; ratio = baseline / ms "
+             "(> 1: faster than the baseline)"]
     for r in rows:
-        lines.append(f"{r.size}x{r.size} cloth ({r.nodes} nodes): baseline fragment Verlet {r.baseline_ms:.3f} ms/step")
-        lines.append(f"  {'backend':>9} {'integrator':>14} | {'ms/step':>8} | {'vs baseline':>11} | {'bytes/node':>10}")
+        lines.append(f"{r.name} ({r.nodes} nodes, {r.steps} steps per timing): baseline fragment Verlet "
+                     f"{r.baseline_ms:.3f} ms/step")
+        lines.append(f"  {'backend':>9} {'integrator':>14} | {'ms/step':>9} | {'vs baseline':>11} | {'bytes/node':>10}")
         for (backend, name), ms in r.ms.items():
-            lines.append(f"  {backend:>9} {name:>14} | {ms:>8.3f} | {r.baseline_ms / ms:>10.2f}x | "
-                         f"{r.bytes_per_node[backend, name]:>10.0f}")
+            per_node = r.bytes_per_node.get((backend, name))
+            lines.append(f"  {backend:>9} {name:>14} | {ms:>9.3f} | {r.baseline_ms / ms:>10.3f}x | "
+                         f"{'-' if per_node is None else f'{per_node:.0f}':>10}")
+    return "\n".join(lines)
+
+
+def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32))) -> str:
+    """``bench sim --peers``: the foundation's fragment Verlet step against the same step in Taichi
+    (CPU) and NVIDIA Warp (CPU) on the same grids, in the same process; both timed as the best of
+    3 runs after a warm-up. Ratios are fragment throughput / peer throughput."""
+    from .peers import available_peers, bench_peers, peer_import_errors
+
+    lines = [machine_line(ctx), "same 18-neighbour position-Verlet step (eq. 1/2, damping, gravity, fixed "
+             "nodes) in float32; ratio = fragment nodes/s / peer nodes/s (> 1: the fragment pass is faster)"]
+    for peer, reason in peer_import_errors().items():
+        lines.append(f"{peer}: not installed ({reason}); pip install 'deformgl[peers]'")
+    if not any(available_peers().values()):
+        return "\n".join(lines)
+    for spec in grids:
+        model = block_model(spec)
+        dt = 0.2 / model.max_angular_frequency()
+        sim = FragmentSimulation(ctx, model, dt)
+        try:
+            sim.step(3)
+            ctx.finish()
+            best = float("inf")
+            for _ in range(3):
+                t0 = time.perf_counter()
+                sim.step(steps)
+                ctx.finish()
+                best = min(best, time.perf_counter() - t0)
+            fragment_ms = best / steps * 1e3
+        finally:
+            sim.release()
+        name = "x".join(map(str, spec))
+        lines.append(f"{name} ({model.grid.count} nodes): fragment {fragment_ms:.3f} ms/step "
+                     f"({model.grid.count / fragment_ms / 1e3:.1f} M nodes/s)")
+        for peer, t in bench_peers(model, dt, steps).items():
+            lines.append(f"  {peer} {t.version} CPU, {t.threads} thread(s): {t.ms_per_step:.3f} ms/step "
+                         f"({t.nodes_per_s / 1e6:.1f} M nodes/s; JIT {t.jit_s:.2f} s) -> fragment / {peer} = "
+                         f"{t.ms_per_step / fragment_ms:.2f}x")
     return "\n".join(lines)

@@ -67,12 +67,17 @@ def _parser() -> argparse.ArgumentParser:
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
     b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators"],
-                   help="sim: fragment-pass step vs the NumPy reference; render: draw paths of the "
+                   help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
                         "linear vs trilinear frames/s for the paper's three set-ups; integrators: "
-                        "each integrator on each GPU backend on 64^2 and 256^2 cloths")
+                        "each integrator on each backend (fragment, feedback, numpy) on 64^2 ... 2048^2 "
+                        "cloths and 20k / 131k-node volumes, against the fragment Verlet baseline")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
+    b.add_argument("--peers", action="store_true",
+                   help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
+                        "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
+    b.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     b.add_argument("--scene", type=Path, default=Path("scenes/heart.toml"),
                    help="render: the scene to draw (default scenes/heart.toml)")
     return p
@@ -154,12 +159,20 @@ def _bench(args: argparse.Namespace) -> int:
 
     ctx = create_context(args.device)
     try:
-        if args.what == "sim":
-            print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)))
-        elif args.what == "integrators":
+        if args.what in ("sim", "integrators"):
             from .bench import bench_integrators, format_integrators
 
-            print(format_integrators(bench_integrators(ctx, steps=min(args.steps, 20)), machine_line(ctx)))
+            if args.what == "sim":
+                print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)), flush=True)
+                print()
+            note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
+            print(format_integrators(bench_integrators(ctx, steps=min(args.steps, 20), progress=note),
+                                     machine_line(ctx)))
+            if args.peers:
+                from .bench import peers_report
+
+                print()
+                print(peers_report(ctx, steps=args.steps))
         elif args.what == "trilinear":
             from .trilinear_scenes import trilinear_bench_report
 

@@ -1,0 +1,158 @@
+"""The Taichi and Warp CPU peers of the Verlet step against the float64 NumPy reference."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from deformgl import peers
+from deformgl.grid import NodeGrid
+from deformgl.model import MAX_PULLS, SpringModel
+from deformgl.reference import ReferenceVerlet
+
+H = 0.05
+#: float32 peers after 50 steps of the jelly block below: max |x - x_ref| <= TOL * spacing
+#: (measured ~3.5e-5 on both peers, with the nodes moving ~0.3 spacing).
+TOL = 2e-4
+
+
+def jelly(shape=(6, 5, 4), k=(60.0, 15.0), damping=0.02, origin=(0.2, -0.1, 0.3)):
+    """Block, top face fixed, two pull groups (x = 0 face; far z face), per-class stiffness."""
+    grid = NodeGrid(np.array(origin, float), H, np.ones(shape, bool))
+    ijk = grid.ijk
+    groups = ((ijk[:, 0] == 0) * 1 + (ijk[:, 2] == shape[2] - 1) * 2).astype(np.uint8)
+    n = grid.count
+    return SpringModel(grid=grid, mass=np.full(n, 0.01), fixed=ijk[:, 1] == shape[1] - 1,
+                       pull_groups=groups, k_structural=k[0], k_shear=k[1], damping=damping,
+                       gravity=np.array([0.0, -9.81, 0.0]), n_pulls=2)
+
+
+def pull_schedule(t):
+    f = np.zeros((MAX_PULLS, 3))
+    f[0] = [0.3 * min(t / 0.02, 1.0), 0.0, 0.1]
+    f[1] = [0.0, 0.0, -0.2] if t > 0.02 else 0.0
+    return f
+
+
+def need(peer):
+    """Skip unless the peer is installed (the optional 'peers' extra; CI does not install it)."""
+    pytest.importorskip(peer, reason=f"optional extra 'peers': {peer} is not installed")
+
+
+def stepper(peer, model, dt=1e-3, pull=pull_schedule):
+    need(peer)
+    return peers.make_stepper(peer, model, dt, pull)
+
+
+@pytest.mark.parametrize("peer", peers.PEERS)
+def test_fifty_steps_match_reference(peer):
+    model = jelly()
+    ref = ReferenceVerlet(model, 1e-3, pull_schedule)
+    sim = stepper(peer, model)
+    try:
+        ref.step(50)
+        sim.step(50)
+        x = sim.positions()
+        assert x.dtype == np.float32 and x.shape == (model.grid.count, 3)
+        assert np.abs(ref.x - model.grid.rest_positions).max() > 0.2 * H  # really deforms
+        assert np.abs(x - ref.x).max() <= TOL * H
+        assert sim.steps_done == 50 and sim.time == pytest.approx(0.05)
+    finally:
+        sim.release()
+
+
+@pytest.mark.parametrize("peer", peers.PEERS)
+def test_one_step_from_random_deformation(peer):
+    """Every spring stretched or compressed, both stiffness classes and both pulls active."""
+    model = jelly()
+    rng = np.random.default_rng(1)
+    x0 = model.grid.rest_positions + rng.normal(scale=0.1 * H, size=(model.grid.count, 3))
+    x0[model.fixed] = model.grid.rest_positions[model.fixed]
+    xp = x0 + rng.normal(scale=0.01 * H, size=x0.shape)
+    xp[model.fixed] = x0[model.fixed]
+    ref = ReferenceVerlet(model, 1e-3, pull_schedule)
+    ref.x, ref.x_prev, ref.steps_done = x0.copy(), xp.copy(), 30
+    sim = stepper(peer, model)
+    try:
+        sim.set_state(x0, xp)
+        sim.steps_done = 30
+        ref.step(1)
+        sim.step(1)
+        extent = np.ptp(ref.x, axis=0).max()
+        assert np.abs(sim.positions() - ref.x).max() / extent <= 1e-5
+    finally:
+        sim.release()
+
+
+@pytest.mark.parametrize("peer", peers.PEERS)
+def test_fixed_nodes_bit_identical_to_rest(peer):
+    model = jelly()
+    sim = stepper(peer, model)
+    try:
+        sim.step(50)
+        x = sim.positions()
+        rest32 = model.grid.rest_positions.astype(np.float32)
+        assert np.array_equal(x[model.fixed], rest32[model.fixed])
+        assert not np.array_equal(x[~model.fixed], rest32[~model.fixed])
+    finally:
+        sim.release()
+
+
+@pytest.mark.parametrize("peer", peers.PEERS)
+def test_two_models_in_one_process(peer):
+    """Two steppers of different sizes, stepped interleaved, each matches its own reference."""
+    a, b = jelly(), jelly(shape=(4, 7, 3), k=(40.0, 40.0), damping=0.05, origin=(0.0, 0.0, 0.0))
+    sa = stepper(peer, a)
+    sb = stepper(peer, b, dt=5e-4, pull=None)
+    ra, rb = ReferenceVerlet(a, 1e-3, pull_schedule), ReferenceVerlet(b, 5e-4)
+    try:
+        for _ in range(5):
+            sa.step(10)
+            sb.step(10)
+        ra.step(50)
+        rb.step(50)
+        assert np.abs(rb.x - b.grid.rest_positions).max() > 1e-3 * H  # b sags under gravity
+        assert np.abs(sa.positions() - ra.x).max() <= TOL * H
+        assert np.abs(sb.positions() - rb.x).max() <= TOL * H
+        sa.release()
+        sc = stepper(peer, jelly(shape=(3, 3, 3)))  # a model after one was freed
+        sc.step(5)
+        sb.step(1)
+        rb.step(1)
+        assert np.abs(sb.positions() - rb.x).max() <= TOL * H
+        sc.release()
+    finally:
+        sa.release()
+        sb.release()
+
+
+@pytest.mark.parametrize("peer", peers.PEERS)
+def test_bench_peers_reports_a_timing(peer):
+    need(peer)
+    model = jelly(shape=(5, 4, 3))
+    timing = peers.bench_peers(model, 1e-3, steps=3, peers=[peer], repeats=2)[peer]
+    assert timing.nodes == model.grid.count
+    assert timing.ms_per_step > 0 and timing.jit_s >= 0 and timing.setup_s >= 0
+    assert timing.nodes_per_s == pytest.approx(model.grid.count / (timing.ms_per_step * 1e-3))
+    assert timing.version == peers.available_peers()[peer]
+    assert timing.threads >= 1
+
+
+def test_available_peers_and_lazy_import(monkeypatch):
+    found = peers.available_peers()
+    assert set(found) == set(peers.PEERS)
+    monkeypatch.setitem(sys.modules, "warp", None)  # import warp now raises ImportError
+    assert peers.available_peers()["warp"] is None
+    assert "import of warp halted" in peers.peer_import_errors()["warp"]
+    with pytest.raises(ValueError, match="peer must be one of"):
+        peers.make_stepper("numba", jelly(), 1e-3)
+    # importing deformgl.peers imports neither peer package
+    code = "import sys, deformgl.peers; print('taichi' in sys.modules, 'warp' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False"]
+
+
+def test_invalid_dt():
+    with pytest.raises(ValueError, match="dt must be > 0"):
+        peers.PeerStepper(jelly(), 0.0)
