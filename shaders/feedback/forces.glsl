@@ -5,7 +5,7 @@
 // Per spring to neighbour j (rest length L, stiffness k, spring damping c_s), d = x_i - x_j,
 // u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u   (eq. 2)
 // per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1) + loads and drags
-// (lib/external_forces.glsl).
+// (lib/node_forces.glsl).
 // Fixed nodes have a = 0.
 //
 // The stage shader defines, before including this file:
@@ -22,13 +22,7 @@
 uniform isampler2D u_nodes;
 uniform isampler2D u_other;
 uniform sampler2D u_springs;
-uniform vec3 u_gravity;
-#ifdef WIND
-uniform vec3 u_wind;
-uniform float u_wind_drag;
-#endif
-uniform float u_velocity_damping;
-#include "lib/external_forces.glsl"
+#include "lib/node_forces.glsl"
 
 ivec4 node_info(int n) {
     return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
@@ -52,10 +46,6 @@ vec3 acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
 #endif
         f += scale * u;
     }
-    f += xi.w * u_gravity - u_velocity_damping * vi;
-#ifdef WIND
-    f += u_wind_drag * (u_wind - vi);
-#endif
-    f += external_force(i, info.w, xi.xyz);
+    add_node_forces(f, i, info.w, xi.xyz, vi, xi.w);
     return f / xi.w;
 }

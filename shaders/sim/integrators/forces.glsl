@@ -13,7 +13,7 @@
 // spring damping c_s (one value per class, as springs.from_grid builds them):
 //   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (eq. 2, damping only with SPRING_DAMPING)
 // per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1), loads and drags
-// (lib/external_forces.glsl). Fixed nodes never call this.
+// (lib/node_forces.glsl). Fixed nodes never call this.
 //
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
 // texel T in the state at which forces are evaluated.
@@ -25,13 +25,7 @@ uniform vec3 u_rest;        // rest length of each class
 #ifdef SPRING_DAMPING
 uniform vec3 u_c;           // spring damping of each class, N*s/m
 #endif
-uniform vec3 u_gravity;
-#ifdef WIND
-uniform vec3 u_wind;
-uniform float u_wind_drag;
-#endif
-uniform float u_velocity_damping;
-#include "lib/external_forces.glsl"
+#include "lib/node_forces.glsl"
 
 ivec2 node_texel(int n) {
     return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
@@ -61,10 +55,6 @@ vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
             f += spring_force(node_texel(nb[c]), xi, vi, cls);
         }
     }
-    f += m * u_gravity - u_velocity_damping * vi;
-#ifdef WIND
-    f += u_wind_drag * (u_wind - vi);
-#endif
-    f += external_force((texel.y << u_width_log2) + texel.x, groups, xi);
+    add_node_forces(f, (texel.y << u_width_log2) + texel.x, groups, xi, vi, m);
     return f / m;
 }

@@ -1,5 +1,7 @@
-// External forces on one node (Movania & Feng 2012 eq. 1 and the user-intervention force of
-// section 3), the same as the ``loads`` and ``drags`` of deformgl/springs.py forces():
+// The per-node forces of both integrator backends (Movania & Feng 2012 eq. 1 and the
+// user-intervention force of section 3), the same as deformgl/springs.py forces() after the
+// springs, in the same order:
+//   m g - c v (gravity, global damping), wind_drag (wind - v) (WIND), then
 //   loads: force(t) per node on every node of load group g (bit g of the node's groups; a
 //          scene's [[physics.pull]]), at most 4 groups;
 //   drags: a zero-rest-length spring k_d (target(t) - x) pulling one node toward a moving target.
@@ -11,6 +13,12 @@
 #ifndef DRAGS
 #define DRAGS 0
 #endif
+uniform vec3 u_gravity;
+uniform float u_velocity_damping;
+#ifdef WIND
+uniform vec3 u_wind;
+uniform float u_wind_drag;
+#endif
 #if LOADS > 0
 uniform vec3 u_load[LOADS];         // N per node of each load group at this stage's time
 #endif
@@ -20,21 +28,26 @@ uniform float u_drag_k[DRAGS];      // N/m
 uniform vec3 u_drag_target[DRAGS];  // target(t) at this stage's time
 #endif
 
-vec3 external_force(int node, int groups, vec3 x) {
-    vec3 f = vec3(0.0);
+// Adds them to f (the node's spring force so far), term by term as the reference does.
+void add_node_forces(inout vec3 f, int node, int groups, vec3 x, vec3 v, float m) {
+    f += m * u_gravity - u_velocity_damping * v;
+#ifdef WIND
+    f += u_wind_drag * (u_wind - v);
+#endif
+    vec3 f_ext = vec3(0.0);
 #if LOADS > 0
     for (int g = 0; g < LOADS; ++g) {
         if (((groups >> g) & 1) != 0) {
-            f += u_load[g];
+            f_ext += u_load[g];
         }
     }
 #endif
 #if DRAGS > 0
     for (int k = 0; k < DRAGS; ++k) {
         if (u_drag_node[k] == node) {
-            f += u_drag_k[k] * (u_drag_target[k] - x);
+            f_ext += u_drag_k[k] * (u_drag_target[k] - x);
         }
     }
 #endif
-    return f;
+    f += f_ext;
 }
