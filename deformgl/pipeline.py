@@ -31,7 +31,8 @@ from .node_drivers import DrivenNodes, Motion, load_node_frames
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
-from .scene_sim import SceneBox, SceneRun, needs_integrators, run_scene, scene_constraints
+from .scene_sim import (SceneBox, SceneRun, check_positions_finite, needs_integrators, run_scene,
+                        scene_constraints, step_in_chunks)
 from .scenegraph import TrilinearRenderer
 from .shader_pack import pack_inputs, write_pack_inputs
 from .surface import grid_surface
@@ -142,29 +143,14 @@ def scene_lighting(scene: Scene) -> Lighting:
 
 def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25) -> None:
     """Run ``steps`` steps on the GPU in chunks, showing progress; no read-back."""
-    ctx: moderngl.Context = sim.ctx
     with Progress(steps, "steps", enabled=progress) as bar:
-        done = 0
-        while done < steps:
-            n = min(chunk, steps - done)
-            sim.step(n)
-            ctx.finish()
-            done += n
-            bar.update(done)
+        step_in_chunks(sim.ctx, sim, steps, bar, chunk)
 
 
 def check_finite(sim: FragmentSimulation, source: Path) -> None:
     """Read the final state once; a non-finite node stops the run with its number and grid index."""
-    pos = sim.read_state()
-    bad = ~np.isfinite(pos[:, :3]).all(axis=1)
-    if bad.any():
-        i = int(np.argmax(bad))
-        ijk = tuple(int(v) for v in sim.model.grid.ijk[i])
-        raise SimulationError(
-            f"{source}: simulation diverged: node {i} (grid {ijk}) is non-finite after step "
-            f"{sim.steps_done} ({int(bad.sum())} nodes bad); reduce physics.dt or stiffness "
-            f"(highest angular frequency w = {sim.model.max_angular_frequency():.4g} rad/s, "
-            f"Verlet needs dt < 2/w = {2.0 / sim.model.max_angular_frequency():.4g} s)")
+    check_positions_finite(sim.read_state(), sim.model.grid, sim.steps_done, source,
+                           sim.model.max_angular_frequency())
 
 
 def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:

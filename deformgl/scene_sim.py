@@ -31,9 +31,9 @@ from .integrators import Constraints, Sphere
 from .model import SpringModel
 from .progress import Progress
 from .scene import Keyframes, Physics, Scene
-from .springs import Drag, Load, SpringSystem, from_grid
+from .springs import Drag, Load, SpringSystem, from_grid, max_angular_frequency
 
-__all__ = ["SceneBox", "SceneRun", "needs_integrators", "scene_system", "scene_loads", "scene_drags",
+__all__ = ["SceneBox", "SceneRun", "check_positions_finite", "needs_integrators", "step_in_chunks", "scene_system", "scene_loads", "scene_drags",
            "scene_constraints", "run_scene"]
 
 
@@ -122,13 +122,29 @@ class SceneRun:
         return line
 
 
-def _finite_or_fail(positions: np.ndarray, grid: NodeGrid, steps: int, source) -> None:
-    bad = ~np.isfinite(positions).all(axis=1)
+def check_positions_finite(positions: np.ndarray, grid: NodeGrid, steps: int, source, omega: float) -> None:
+    """A non-finite node stops the run: the error names it (number and grid index), the step, and
+    the dt limits from the highest angular frequency bound ``omega`` (rad/s)."""
+    bad = ~np.isfinite(positions[:, :3]).all(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
-        raise SimulationError(f"{source}: simulation diverged: node {i} (grid {tuple(int(v) for v in grid.ijk[i])}) "
-                              f"is non-finite after step {steps} ({int(bad.sum())} nodes bad); reduce physics.dt "
-                              f"or the stiffness")
+        ijk = tuple(int(v) for v in grid.ijk[i])
+        raise SimulationError(
+            f"{source}: simulation diverged: node {i} (grid {ijk}) is non-finite after step {steps} "
+            f"({int(bad.sum())} nodes bad); reduce physics.dt or stiffness (highest angular frequency "
+            f"w = {omega:.4g} rad/s: Verlet and semi-implicit Euler need dt < 2/w = {2.0 / omega:.4g} s, "
+            f"RK4 dt < 2.83/w)")
+
+
+def step_in_chunks(ctx: moderngl.Context, sim, steps: int, bar: Progress, chunk: int = 25) -> None:
+    """``steps`` steps on the GPU in chunks of ``chunk``, updating the progress bar; no read-back."""
+    done = 0
+    while done < steps:
+        n = min(chunk, steps - done)
+        sim.step(n)
+        ctx.finish()
+        done += n
+        bar.update(done)
 
 
 def _run_numpy(system: SpringSystem, physics: Physics, constraints, drags, loads, bar: Progress,
@@ -148,20 +164,14 @@ def _run_numpy(system: SpringSystem, physics: Physics, constraints, drags, loads
 
 
 def _run_gpu(ctx: moderngl.Context, sim, physics: Physics, bar: Progress,
-             threshold: float | None, chunk: int = 25) -> tuple[int, bool | None]:
+             threshold: float | None) -> tuple[int, bool | None]:
     from .census import NodeCensus
 
     steps = physics.steps
     if threshold is None:
-        done = 0
-        while done < steps:
-            n = min(chunk, steps - done)
-            sim.step(n)
-            ctx.finish()
-            done += n
-            bar.update(done)
+        step_in_chunks(ctx, sim, steps, bar)
         return steps, None
-    texture, row, slots, slot = sim.position_slot()
+    _, row, slots, _ = sim.position_slot()
     census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
     try:
         done, every = 0, physics.converge.every
@@ -211,5 +221,5 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: Spring
                                steps * physics.dt)
             finally:
                 sim.release()
-    _finite_or_fail(run.positions, grid, run.steps, scene.source)
+    check_positions_finite(run.positions, grid, run.steps, scene.source, max_angular_frequency(system).omega)
     return run
