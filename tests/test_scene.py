@@ -10,7 +10,7 @@ import pytest
 
 from deformgl.errors import SceneError
 from deformgl.scene import (
-    Mapping, MotionSpec, Nodes,
+    ClothSpec, Converge, Mapping, MotionSpec, Nodes,
     Camera, GridSpec, Light, Material, MeshSpec, Output, Physics, Pull, Region, Render, Scene, load_scene,
     parse_size,
 )
@@ -385,3 +385,76 @@ def test_mapping_override(scene_dir: Path) -> None:
     assert scene.with_overrides(mapping="auto").mapping.mode == "auto"
     with pytest.raises(SceneError, match="--mapping: must be one of"):
         scene.with_overrides(mapping="jagged")
+
+
+EXTENDED_PHYSICS = MESH + """
+[physics]
+integrator = "rk4"
+backend = "feedback"
+wind = [1.0, 0.0, 0.0]
+wind_drag = 0.1
+
+[physics.springs]
+structural = { damping = 0.2 }
+flexion = { stiffness = 30.0 }
+
+[physics.ground]
+at = 0.1
+
+[[physics.sphere]]
+path = [[0.5, 0.2, 0.5], [0.5, 0.4, 0.5]]
+times = [0.0, 1.0]
+radius = 0.25
+
+[[physics.drag]]
+path = [[1.0, 1.0, 1.0]]
+stiffness = 40.0
+
+[physics.converge]
+every = 5
+"""
+
+
+def test_extended_physics_round_trips(scene_dir: Path) -> None:
+    p = _load(EXTENDED_PHYSICS).physics
+    assert (p.integrator, p.backend, p.wind, p.wind_drag, p.ground) == ("rk4", "feedback", (1.0, 0.0, 0.0), 0.1, 0.1)
+    assert p.class_stiffness() == (500.0, 500.0, 30.0) and p.structural.damping == 0.2
+    np.testing.assert_allclose(p.sphere[0].path.at(0.5), [0.5, 0.3, 0.5])
+    np.testing.assert_allclose(p.sphere[0].path.at(7.0), [0.5, 0.4, 0.5])
+    assert p.drag[0].path.times == (0.0,) and p.drag[0].stiffness == 40.0
+    assert p.converge == Converge(0.001, 5) and p.extended
+    assert not _load(MESH).physics.extended
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('integrator = "rk4"', 'integrator = "leapfrog"', "physics.integrator: must be one of"),
+    ('backend = "feedback"', 'backend = "cuda"', "physics.backend: must be one of"),
+    ("times = [0.0, 1.0]", "times = [1.0, 0.5]", "physics.sphere[0].times: must increase, got 0.5 after 1"),
+    ("times = [0.0, 1.0]", "times = [0.0]", "physics.sphere[0].times: must have one time per point (2), got 1"),
+    ("path = [[0.5, 0.2, 0.5], [0.5, 0.4, 0.5]]", "path = [[0.5, 0.2, 0.5], [0.5, 0.4, 0.5]]\ncentre = [0, 0, 0]",
+     "physics.sphere[0]: set exactly one of 'centre' (a fixed sphere) or 'path' (a moving one)"),
+    ("stiffness = 40.0", "stiffness = -1.0", "physics.drag[0].stiffness: must be > 0, got -1.0"),
+    ("flexion = { stiffness = 30.0 }", "flexion = { stifness = 30.0 }",
+     "physics.springs.flexion.stifness: unknown key (did you mean 'stiffness'?)"),
+    ("every = 5", "every = 0", "physics.converge.every: must be >= 1, got 0"),
+])
+def test_extended_physics_errors_name_the_key(scene_dir: Path, old: str, new: str, message: str) -> None:
+    assert old in EXTENDED_PHYSICS
+    assert _error(EXTENDED_PHYSICS.replace(old, new)).startswith(f"jelly.toml: {message}")
+
+
+def test_cloth_scene_rules(scene_dir: Path) -> None:
+    scene = _load('[cloth]\nnodes = [8, 6]\nsize = 2.0\n')
+    assert scene.cloth == ClothSpec((8, 6), 2.0) and scene.mesh is None and scene.name == "cloth 8x6"
+    assert _error('[cloth]\nnodes = [8, 6]\n[grid]\nspacing = 0.1\n') == \
+        "jelly.toml: grid: a cloth scene sets its nodes in cloth.nodes"
+    assert _error(MESH + '[cloth]\nnodes = [8, 6]\n') == \
+        "jelly.toml: mesh: set exactly one of [mesh] (a mesh to deform) or [cloth] (a cloth sheet)"
+    assert _error('[cloth]\nnodes = [8, 6]\n[mapping]\nmode = "constant"\n') == \
+        "jelly.toml: mapping.mode: a cloth scene has no detailed mesh: only one-to-one"
+    assert _error('[cloth]\nnodes = [1, 6]\n') == "jelly.toml: cloth.nodes[0]: must be in [2, 16384], got 1"
+    with pytest.raises(SceneError, match="--mesh: a cloth scene has no mesh to replace"):
+        scene.with_overrides(mesh=Path("x.ply"))
+    with pytest.raises(SceneError, match="--backend: must be one of"):
+        scene.with_overrides(backend="gpu")
+    assert scene.with_overrides(integrator="midpoint", backend="numpy").physics.backend == "numpy"
