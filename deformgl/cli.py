@@ -10,6 +10,8 @@ from .errors import DeformglError
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .safety import MAX_SUBSTEPS
+
     p = argparse.ArgumentParser(
         prog="deformgl",
         description="GPU mass-spring soft bodies on a coarse grid, rendered headless to PNG "
@@ -39,6 +41,17 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--backend", choices=["fragment", "feedback", "numpy"], default=None,
                    help="override physics.backend: fragment passes on the node grid, transform feedback over "
                         "explicit neighbour lists, or the float64 NumPy reference")
+    unstable = r.add_mutually_exclusive_group()
+    unstable.add_argument("--allow-unstable", dest="unstable", action="store_const", const="run", default=None,
+                          help="run a dt above the integrator's stability limit anyway (the default refuses it, "
+                               "naming the bound and the node and spring that set it)")
+    unstable.add_argument("--subdivide", dest="unstable", action="store_const", const="subdivide",
+                          help="split each step into enough substeps to be below the stability limit, and "
+                               f"restart a run that blows up with half the step (up to {MAX_SUBSTEPS} substeps)")
+    r.add_argument("--check-every", type=int, default=None, metavar="N",
+                   help="count non-finite or far-away nodes on the GPU every N steps (default: "
+                        "physics.safety.check_every, 100; 0: only at the end); a blow-up stops the run "
+                        "with the step and a node, and writes no PNG")
     r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
                    help="also write the deformed detailed mesh as the mapping vertex shader computed "
                         "it (captured with transform feedback)")
@@ -96,7 +109,8 @@ def _render(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise DeformglError(f"--size: {exc}") from None
     scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
-                                 integrator=args.integrator, backend=args.backend)
+                                 integrator=args.integrator, backend=args.backend, unstable=args.unstable,
+                                 check_every=args.check_every)
     out = args.output or scene.output.path
     if out.suffix.lower() != ".png":
         raise DeformglError(f"{out}: the output must be a .png file")

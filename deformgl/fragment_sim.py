@@ -224,6 +224,19 @@ class FragmentSimulation:
         """The state texture holding the latest positions and packed normals."""
         return self.textures.state[self.current]
 
+    @property
+    def count(self) -> int:
+        """Nodes simulated."""
+        return self.model.grid.count
+
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """(texture, nodes per row, texels per node, slot of the position) of the latest
+        positions, for :class:`~deformgl.census.NodeCensus` (compact layout only: node n is
+        texel (n % width, n // width); w, the packed normal, is not looked at)."""
+        if not isinstance(self.textures.layout, CompactLayout):
+            raise ValueError("position_slot: the atlas layout does not store node n at (n % width, n // width)")
+        return self.position_texture, self.textures.layout.width, 1, 0
+
     def step(self, n: int = 1) -> None:
         """Advance n steps on the GPU (no read-back)."""
         no_pull = np.zeros((MAX_PULLS, 3))

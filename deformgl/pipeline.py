@@ -31,8 +31,9 @@ from .node_drivers import DrivenNodes, Motion, load_node_frames
 from .progress import Progress
 from .render import GridSurfacePass, Lighting, RenderTarget
 from .scene import Physics, Scene
-from .scene_sim import (SceneBox, SceneRun, check_positions_finite, needs_integrators, run_scene,
-                        scene_constraints, step_in_chunks)
+from .safety import BlowUpWatch, StepPlan, plan_steps
+from .scene_sim import (SceneBox, SceneRun, bad_limit, needs_integrators, run_scene,
+                        run_with_retries, scene_constraints, scene_system, step_watched)
 from .scenegraph import TrilinearRenderer
 from .shader_pack import pack_inputs, write_pack_inputs
 from .surface import grid_surface
@@ -141,16 +142,32 @@ def scene_lighting(scene: Scene) -> Lighting:
                     specular=r.material.specular, shininess=r.material.shininess)
 
 
-def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25) -> None:
-    """Run ``steps`` steps on the GPU in chunks, showing progress; no read-back."""
+def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25,
+             watch: BlowUpWatch | None = None) -> None:
+    """Run ``steps`` steps on the GPU in chunks, showing progress, with the blow-up census of
+    ``watch`` if given; no read-back unless a check fails."""
     with Progress(steps, "steps", enabled=progress) as bar:
-        step_in_chunks(sim.ctx, sim, steps, bar, chunk)
+        step_watched(sim.ctx, sim, steps, bar, watch, chunk=chunk)
 
 
-def check_finite(sim: FragmentSimulation, source: Path) -> None:
-    """Read the final state once; a non-finite node stops the run with its number and grid index."""
-    check_positions_finite(sim.read_state(), sim.model.grid, sim.steps_done, source,
-                           sim.model.max_angular_frequency())
+def run_foundation(ctx: moderngl.Context, scene: Scene, built: SceneModel, plan: StepPlan, *,
+                   progress: bool) -> FragmentSimulation:
+    """The foundation's fragment Verlet pass over ``plan``'s steps, watched by the blow-up census
+    (the final census stands in for reading the state back). The caller owns the result."""
+    sim = FragmentSimulation(ctx, built.model, plan.step_dt, pull_schedule(scene.physics))
+    watch = None
+    try:
+        watch = BlowUpWatch(ctx, sim, every=scene.physics.safety.check_every,
+                            limit=bad_limit(scene.physics, SceneBox(*built.bbox)), grid=built.grid,
+                            source=scene.source, dt=plan.step_dt)
+        simulate(sim, plan.step_count, progress=progress, watch=watch)
+    except BaseException:
+        sim.release()
+        raise
+    finally:
+        if watch is not None:
+            watch.release()
+    return sim
 
 
 def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
@@ -173,27 +190,30 @@ class NodeState:
         self.sim: FragmentSimulation | None = None
         self.driven: DrivenNodes | None = None
         self.run: SceneRun | None = None  # the five-integrator run, if the scene used one
+        self.notes: list[str] = []  # what the step plan and restarts changed, for the log
         self.textures: NodeTextures
-        if nodes.source == "simulate" and needs_integrators(scene.physics):
-            self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress)
-            positions = self.run.positions
-        elif nodes.source == "simulate":
-            self.sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
-            self.textures = self.sim.textures
-            try:
-                simulate(self.sim, scene.physics.steps, progress=progress)
-                check_finite(self.sim, scene.source)
-            except BaseException:
-                self.release()
-                raise
-            return
-        elif nodes.source == "file":
+        if nodes.source == "simulate":
+            physics = scene.physics
+            plan = plan_steps(scene_system(built.grid, built.model, physics), physics, scene.source)
+            if needs_integrators(physics):
+                self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress,
+                                     plan=plan, notes=self.notes)
+                positions = self.run.positions
+            else:
+                if plan.note:
+                    self.notes.append(plan.note)
+                self.sim, _ = run_with_retries(
+                    plan, physics.safety.unstable,
+                    lambda p: run_foundation(ctx, scene, built, p, progress=progress), self.notes)
+                self.textures = self.sim.textures
+                return
+        if nodes.source == "file":
             frames = load_node_frames(nodes.file, built.grid.count, built.centre)
             if not -len(frames) <= nodes.frame < len(frames):
                 raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
                                  f"{len(frames)} frame(s) of {nodes.file}")
             positions = frames[nodes.frame]
-        else:  # "motion"
+        elif nodes.source == "motion":
             m = nodes.motion
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
@@ -316,6 +336,9 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         target.begin(tuple(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)
+        if log is not None:
+            for note in state.notes:
+                log(f"{scene.name}: {note}")
         if state.run is not None:
             if log is not None:
                 log(f"{scene.name}: {state.run.summary(scene.physics)}")

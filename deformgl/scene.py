@@ -24,7 +24,7 @@ from deformgl.errors import SceneError
 from deformgl.integrators import INTEGRATORS
 from deformgl.model import MAX_PULLS
 
-__all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light",
+__all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
            "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",
            "SpringClass", "load_scene", "parse_size"]
 
@@ -152,6 +152,22 @@ class Converge:
     every: int
 
 
+#: What to do with a dt above the integrator's stability limit (``physics.safety.unstable``).
+UNSTABLE_POLICIES = ("refuse", "run", "subdivide")
+
+
+@dataclass(frozen=True, slots=True)
+class Safety:
+    """Guards of a run: what a dt above the stability limit does (``refuse`` it, ``run`` anyway,
+    or ``subdivide`` each step into enough substeps; ``subdivide`` also restarts a run that blew
+    up with half the step, up to 16 substeps per step), and how often the GPU counts the
+    non-finite or far-away nodes (every ``check_every`` steps; 0: only at the end); a node
+    farther than ``bad_distance`` box lengths from the box centre counts as blown up."""
+    unstable: str = "refuse"
+    check_every: int = 100
+    bad_distance: float = 1000.0
+
+
 @dataclass(frozen=True, slots=True)
 class Physics:
     """Time step (s), steps, spring stiffness (N/m), velocity damping (N*s/m), mass per node (kg),
@@ -177,6 +193,7 @@ class Physics:
     sphere: tuple[SphereSpec, ...] = ()
     drag: tuple[DragSpec, ...] = ()
     converge: Converge | None = None
+    safety: Safety = Safety()
 
     def class_stiffness(self) -> tuple[float, float, float]:
         """Stiffness of the structural, shear and flexion springs in N/m."""
@@ -311,6 +328,7 @@ class Scene:
     def with_overrides(
         self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None,
         mapping: str | None = None, integrator: str | None = None, backend: str | None = None,
+        unstable: str | None = None, check_every: int | None = None,
     ) -> Scene:
         """Returns a copy with command-line overrides, validated like the scene file.
 
@@ -320,6 +338,8 @@ class Scene:
             integrator: Replacement ``physics.integrator``.
             backend: Replacement ``physics.backend``.
             steps: Replacement step count, >= 0.
+            unstable: Replacement ``physics.safety.unstable`` (refuse, run, subdivide).
+            check_every: Replacement ``physics.safety.check_every``, >= 0.
             size: Replacement (width, height), each in 1..16384.
 
         Raises:
@@ -338,6 +358,11 @@ class Scene:
         if steps is not None:
             scene = dataclasses.replace(
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))
+        for flag, key, value, check in (("--unstable", "unstable", unstable, _str(UNSTABLE_POLICIES)),
+                                        ("--check-every", "check_every", check_every, _int(lo=0))):
+            if value is not None:
+                safety = dataclasses.replace(scene.physics.safety, **{key: check(file, flag, value)})
+                scene = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, safety=safety))
         if size is not None:
             scene = dataclasses.replace(
                 scene, render=dataclasses.replace(scene.render, size=_SIZE(file, "--size", size)))
@@ -597,6 +622,8 @@ _PHYSICS = _table({
         lambda file, key, d: DragSpec(_build_keyframes(file, key, d["path"], d["times"]), d["stiffness"])),
         MAX_DRAGS), []),
     "converge": (_table({"threshold": (_POS, 0.001), "every": (_int(lo=1), 10)}, _plain(Converge)), None),
+    "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_int(lo=0), 100),
+                       "bad_distance": (_POS, 1000.0)}, _plain(Safety)), {}),
 }, _build_physics)
 
 

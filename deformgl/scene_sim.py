@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import moderngl
 import numpy as np
@@ -30,11 +31,14 @@ from .grid import NodeGrid
 from .integrators import Constraints, Sphere
 from .model import SpringModel
 from .progress import Progress
+from .safety import BlowUp, BlowUpWatch, StepPlan, describe_bad_node, plan_steps
 from .scene import Keyframes, Physics, Scene
 from .springs import Drag, Load, SpringSystem, from_grid, max_angular_frequency
 
-__all__ = ["SceneBox", "SceneRun", "check_positions_finite", "needs_integrators", "step_in_chunks", "scene_system", "scene_loads", "scene_drags",
-           "scene_constraints", "run_scene"]
+__all__ = ["SceneBox", "SceneRun", "bad_limit", "check_positions_finite", "needs_integrators", "run_scene",
+           "run_with_retries", "scene_constraints", "scene_drags", "scene_loads", "scene_system", "step_watched"]
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -136,90 +140,156 @@ def check_positions_finite(positions: np.ndarray, grid: NodeGrid, steps: int, so
             f"RK4 dt < 2.83/w)")
 
 
-def step_in_chunks(ctx: moderngl.Context, sim, steps: int, bar: Progress, chunk: int = 25) -> None:
-    """``steps`` steps on the GPU in chunks of ``chunk``, updating the progress bar; no read-back."""
-    done = 0
-    while done < steps:
-        n = min(chunk, steps - done)
-        sim.step(n)
-        ctx.finish()
-        done += n
-        bar.update(done)
+def bad_limit(physics: Physics, box: SceneBox) -> float:
+    """World distance from the (recentred) box centre beyond which a node counts as blown up."""
+    return physics.safety.bad_distance * box.longest
 
 
-def _run_numpy(system: SpringSystem, physics: Physics, constraints, drags, loads, bar: Progress,
-               threshold: float | None) -> tuple[np.ndarray, int, bool | None]:
-    dt, name = physics.dt, physics.integrator
+def step_watched(ctx: moderngl.Context, sim, steps: int, bar: Progress, watch: BlowUpWatch | None = None, *,
+                 chunk: int = 25, converge: tuple[float, int] | None = None) -> tuple[int, bool | None]:
+    """``steps`` steps on the GPU in chunks of at most ``chunk`` (the progress bar moves between
+    them), with the blow-up census every ``watch.every`` steps and once at the end, and the
+    convergence stop ``converge = (threshold, every)`` if given. Nothing is read back unless a
+    check fails.
+
+    Returns:
+        (steps done, converged: True/False, None without a convergence stop).
+
+    Raises:
+        BlowUp: a check counted bad nodes.
+    """
+    census = None
+    if converge is not None:
+        from .census import NodeCensus
+
+        _, row, slots, _ = sim.position_slot()
+        census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
+    try:
+        done = 0
+        while done < steps:
+            target = min(done + chunk, steps, watch.next_stop(done, steps) if watch else steps)
+            check_convergence = False
+            if converge is not None:
+                at = (done // converge[1] + 1) * converge[1]
+                if at <= target:
+                    target, check_convergence = at, True
+            if check_convergence:
+                if target - done > 1:
+                    sim.step(target - done - 1)
+                texture, _, _, slot = sim.position_slot()
+                before = census.snapshot(texture, slot=slot)
+                sim.step(1)
+            else:
+                sim.step(target - done)
+            ctx.finish()
+            done = target
+            bar.update(done)
+            if watch is not None and (watch.due(done) or done == steps):
+                watch.check(done)
+            if check_convergence:
+                now, _, _, slot = sim.position_slot()
+                if census.moved(now, before, converge[0], slot=slot, before_slots=1) == 0:
+                    if watch is not None and not watch.due(done):
+                        watch.check(done)
+                    return done, True
+        return steps, None if converge is None else False
+    finally:
+        if census is not None:
+            census.release()
+
+
+def _run_numpy(system: SpringSystem, physics: Physics, plan: StepPlan, constraints, drags, loads, bar: Progress,
+               converge: tuple[float, int] | None, limit: float, grid: NodeGrid, source) -> tuple[np.ndarray, int, bool | None]:
+    dt, name, every = plan.step_dt, physics.integrator, physics.safety.check_every
     s = integrators.initial_state(system, dt, drags=drags, loads=loads)
-    for n in range(physics.steps):
+    total = plan.step_count
+    for n in range(total):
         new = integrators.step(system, name, s, dt, n * dt, constraints=constraints, drags=drags, loads=loads)
         moved = float(np.max(np.linalg.norm(new.x - s.x, axis=1), initial=0.0))
         s = new
         bar.update(n + 1)
-        if not np.isfinite(moved):
-            return s.x, n + 1, None if threshold is None else False
-        if threshold is not None and (n + 1) % physics.converge.every == 0 and moved <= threshold:
+        if not np.isfinite(moved) or (every and (n + 1) % every == 0) or n + 1 == total:
+            node = describe_bad_node(s.x, grid, limit)
+            if node:
+                raise BlowUp(f"{source}: simulation blew up: at step {n + 1} (dt {dt:.4g} s) {node} is "
+                             f"non-finite or beyond {limit:.4g} from the centre; reduce physics.dt or "
+                             f"stiffness, or pass --subdivide", n + 1, 1)
+        if converge is not None and (n + 1) % converge[1] == 0 and moved <= converge[0]:
             return s.x, n + 1, True
-    return s.x, physics.steps, None if threshold is None else False
+    return s.x, total, None if converge is None else False
 
 
-def _run_gpu(ctx: moderngl.Context, sim, physics: Physics, bar: Progress,
-             threshold: float | None) -> tuple[int, bool | None]:
-    from .census import NodeCensus
+def _gpu_simulation(ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, physics: Physics, dt: float,
+                    constraints, drags, loads):
+    if physics.backend == "fragment":
+        from .fragment_integrators import FragmentIntegrator
 
-    steps = physics.steps
-    if threshold is None:
-        step_in_chunks(ctx, sim, steps, bar)
-        return steps, None
-    _, row, slots, _ = sim.position_slot()
-    census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
-    try:
-        done, every = 0, physics.converge.every
-        while done < steps:
-            n = min(every, steps - done)
-            if n > 1:
-                sim.step(n - 1)
-            texture, _, _, slot = sim.position_slot()
-            before = census.snapshot(texture, slot=slot)
-            sim.step(1)
-            done += n
-            bar.update(done)
-            now, _, _, slot = sim.position_slot()
-            if n == every and census.moved(now, before, threshold, slot=slot, before_slots=1) == 0:
-                return done, True
-        return steps, False
-    finally:
-        census.release()
+        return FragmentIntegrator(ctx, system, grid, physics.integrator, dt,
+                                  constraints=constraints, drags=drags, loads=loads)
+    from .feedback_sim import FeedbackSimulation
+
+    return FeedbackSimulation(ctx, system, physics.integrator, dt, constraints=constraints, drags=drags, loads=loads)
+
+
+def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T],
+                     notes: list[str]) -> tuple[T, StepPlan]:
+    """``attempt(plan)``; with the "subdivide" policy a :class:`BlowUp` restarts it with twice the
+    substeps (up to :data:`~deformgl.safety.MAX_SUBSTEPS`), each restart noted in ``notes``."""
+    while True:
+        try:
+            return attempt(plan), plan
+        except BlowUp as exc:
+            if policy != "subdivide":
+                raise
+            finer = plan.halved()
+            if finer is None:
+                raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "
+                                      f"--subdivide uses)") from None
+            notes.append(f"{exc}; {finer.note}")
+            plan = finer
 
 
 def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: SpringModel, box: SceneBox, *,
-              progress: bool) -> SceneRun:
-    """Simulate a scene's nodes with its integrator on its backend; positions are read once."""
+              progress: bool, plan: StepPlan | None = None, notes: list[str] | None = None) -> SceneRun:
+    """Simulate a scene's nodes with its integrator on its backend; positions are read once.
+
+    Args:
+        plan: the checked step plan (default: :func:`~deformgl.safety.plan_steps` of the scene,
+            which refuses a dt above the limit unless ``physics.safety.unstable`` says otherwise).
+        notes: receives what the plan and the restarts changed, if given.
+    """
     physics = scene.physics
     system = scene_system(grid, model, physics)
+    plan = plan_steps(system, physics, scene.source) if plan is None else plan
+    notes = [] if notes is None else notes
+    if plan.note:
+        notes.append(plan.note)
     loads, drags = scene_loads(model, physics), scene_drags(grid, physics, box)
     constraints = scene_constraints(physics, box)
-    threshold = None if physics.converge is None else physics.converge.threshold * grid.spacing
-    with Progress(physics.steps, "steps", enabled=progress) as bar:
-        if physics.backend == "numpy":
-            x, steps, converged = _run_numpy(system, physics, constraints, drags, loads, bar, threshold)
-            run = SceneRun(np.asarray(x, np.float64), steps, converged, 0.0, steps * physics.dt)
-        else:
-            if physics.backend == "fragment":
-                from .fragment_integrators import FragmentIntegrator
+    limit = bad_limit(physics, box)
 
-                sim = FragmentIntegrator(ctx, system, grid, physics.integrator, physics.dt,
-                                         constraints=constraints, drags=drags, loads=loads)
-            else:
-                from .feedback_sim import FeedbackSimulation
-
-                sim = FeedbackSimulation(ctx, system, physics.integrator, physics.dt,
-                                         constraints=constraints, drags=drags, loads=loads)
+    def attempt(p: StepPlan) -> SceneRun:
+        converge = None
+        if physics.converge is not None:  # per scene step: over a substep a node moves 1/substeps as far
+            converge = (physics.converge.threshold * grid.spacing / p.substeps, physics.converge.every * p.substeps)
+        with Progress(p.step_count, "steps", enabled=progress) as bar:
+            if physics.backend == "numpy":
+                x, steps, converged = _run_numpy(system, physics, p, constraints, drags, loads, bar, converge,
+                                                 limit, grid, scene.source)
+                return SceneRun(np.asarray(x, np.float64), steps, converged, 0.0, steps * p.step_dt)
+            sim = _gpu_simulation(ctx, system, grid, physics, p.step_dt, constraints, drags, loads)
+            watch = None
             try:
-                steps, converged = _run_gpu(ctx, sim, physics, bar, threshold)
-                run = SceneRun(sim.positions().astype(np.float64), steps, converged, sim.bytes_per_node,
-                               steps * physics.dt)
+                watch = BlowUpWatch(ctx, sim, every=physics.safety.check_every, limit=limit, grid=grid,
+                                    source=scene.source, dt=p.step_dt)
+                steps, converged = step_watched(ctx, sim, p.step_count, bar, watch, converge=converge)
+                return SceneRun(sim.positions().astype(np.float64), steps, converged, sim.bytes_per_node,
+                                steps * p.step_dt)
             finally:
+                if watch is not None:
+                    watch.release()
                 sim.release()
+
+    run, plan = run_with_retries(plan, physics.safety.unstable, attempt, notes)
     check_positions_finite(run.positions, grid, run.steps, scene.source, max_angular_frequency(system).omega)
     return run
