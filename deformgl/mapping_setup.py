@@ -57,11 +57,17 @@ def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: n
     return binding
 
 
+#: "curvature" mode uses eq. 8 only where ``|Nc x T|`` exceeds this (a conditioning bound, far
+#: below auto's :data:`deformgl.binding.MIN_SIN_NC_T`).
+MIN_SIN_CURVATURE = 1e-2
+
+
 def mapped_vertices(binding: Binding, mode: str, rest_positions: np.ndarray, rest_normals: np.ndarray) -> MappedVertices:
     """Per-vertex data for ``mode``: which basis each vertex uses and its vectors in that basis.
 
     "constant": eq. 6 everywhere. "curvature": eq. 8 wherever the rest curvature basis can be
-    built at all, eq. 6 where it cannot (nodes without normals summing to zero). "auto": eq. 8
+    built well conditioned (``|Nc x T| > MIN_SIN_CURVATURE``), eq. 6 where it cannot (nodes
+    without normals summing to zero, Nc along T). "auto": eq. 8
     only where the binding judged the node normals well defined (``curvature_ok``, paper 3.6).
     """
     p = rest_positions[binding.tri_nodes]
@@ -69,7 +75,11 @@ def mapped_vertices(binding: Binding, mode: str, rest_positions: np.ndarray, res
     if mode == "constant":
         use = np.zeros(len(binding.weights), bool)
     elif mode == "curvature":
-        use = buildable
+        # well conditioned only: where Nc is within ~0.6 degrees of T, the rounding of the 15-bit
+        # packed normals (~1e-4 rad) turns Bc = Nc x T around and the vertex jumps
+        edge = p[:, 1] - p[:, 0]
+        t = edge / np.maximum(np.linalg.norm(edge, axis=1, keepdims=True), 1e-300)
+        use = buildable & (np.linalg.norm(np.cross(frame[:, 1], t), axis=1) > MIN_SIN_CURVATURE)
     elif mode == "auto":
         use = buildable & binding.curvature_ok
     else:
