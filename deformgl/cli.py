@@ -79,20 +79,30 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
-    b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators"],
+    b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators", "trade", "mappings",
+                                    "scaling"],
                    help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
                         "linear vs trilinear frames/s for the paper's three set-ups; integrators: "
                         "each integrator on each backend (fragment, feedback, numpy) on 64^2 ... 2048^2 "
-                        "cloths and 20k / 131k-node volumes, against the fragment Verlet baseline")
+                        "cloths and 20k / 131k-node volumes, against the fragment Verlet baseline; trade: error "
+                        "against cost per simulated second for every integrator x dt (0.1 to 0.9 of the "
+                        "stability limit) x backend on a dragged volume and a cloth on a sphere, with the "
+                        "Pareto front; mappings: each mapping's error against an analytic bend and twist, and "
+                        "its draw time; scaling: ms/step from 4k to 1M nodes, the fitted exponent, bytes/node")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
                         "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
     b.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
-    b.add_argument("--scene", type=Path, default=Path("scenes/heart.toml"),
-                   help="render: the scene to draw (default scenes/heart.toml)")
+    b.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and trade.png, "
+                        "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
+    b.add_argument("--quick", action="store_true", help="trade, scaling: a smaller, faster study")
+    b.add_argument("--scene", type=Path, default=None,
+                   help="render: the scene to draw (default scenes/heart.toml); mappings: the scene whose mesh, "
+                        "camera and light are used (default scenes/dragon_bend_constant.toml)")
     return p
 
 
@@ -165,9 +175,47 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _study(args: argparse.Namespace, ctx, note) -> None:
+    """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV and JSON (and the
+    trade chart), each written atomically."""
+    from .bench import machine_line
+
+    out = args.out
+    if args.what == "trade":
+        from .trade import trade_study
+
+        report = trade_study(ctx, quick=args.quick, progress=note)
+        print(report.format())
+        if out is not None:
+            report.write_csv(out / "trade.csv")
+            report.write_json(out / "trade.json")
+            try:
+                report.write_chart(out / "trade.png")
+            except DeformglError as exc:
+                print(f"deformgl: no chart: {exc}", file=sys.stderr)
+    elif args.what == "mappings":
+        from .mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_csv, write_json
+
+        rows = mapping_accuracy(ctx, scene_path=args.scene or Path("scenes/dragon_bend_constant.toml"))
+        print(format_mapping_accuracy(rows, machine_line(ctx)))
+        if out is not None:
+            write_csv(out / "mappings.csv", rows)
+            write_json(out / "mappings.json", rows, machine_line(ctx))
+    else:
+        from .scaling import QUICK_SIZES, bench_scaling
+
+        report = bench_scaling(ctx, progress=note, **({"sizes": QUICK_SIZES} if args.quick else {}))
+        print(report.format())
+        if out is not None:
+            report.write_csv(out / "scaling.csv")
+            report.write_json(out / "scaling.json")
+
+
 def _bench(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise DeformglError(f"--steps: must be >= 1, got {args.steps}")
+    if args.out is not None and not args.out.is_dir():
+        raise DeformglError(f"--out: {args.out} is not a folder")
     from .bench import bench_render, bench_sim, format_render, format_sim, machine_line
     from .context import create_context
 
@@ -187,6 +235,9 @@ def _bench(args: argparse.Namespace) -> int:
 
                 print()
                 print(peers_report(ctx, steps=args.steps))
+        elif args.what in ("trade", "mappings", "scaling"):
+            note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
+            _study(args, ctx, note)
         elif args.what == "trilinear":
             from .trilinear_scenes import trilinear_bench_report
 
@@ -197,7 +248,7 @@ def _bench(args: argparse.Namespace) -> int:
             print(machine_line(ctx))
             print(bench_binding())
         else:
-            rows, frame_ms, info = bench_render(ctx, args.scene)
+            rows, frame_ms, info = bench_render(ctx, args.scene or Path("scenes/heart.toml"))
             print(format_render(rows, frame_ms, info, machine_line(ctx)))
     finally:
         ctx.release()

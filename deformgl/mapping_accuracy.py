@@ -54,7 +54,9 @@ from .scene import Scene, load_scene
 from .surface import grid_surface
 
 MODES = ("one-to-one", "constant", "curvature", "auto")
-DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "scenes" / "dragon_bend_constant.toml"
+#: The dragon of the paper's figure 6 (relative to the working directory, like ``bench render``'s
+#: scene: the scenes are in the repository, not the wheel).
+DEFAULT_SCENE = Path("scenes") / "dragon_bend_constant.toml"
 DEFAULT_GRIDS = (4, 8, 16)
 DEFAULT_MOTIONS = (Motion("bend", 80.0, along=0, towards=1), Motion("twist", 90.0, along=0))
 

@@ -1,7 +1,11 @@
 """The benchmark commands produce complete tables (content, not speed: timings are never asserted)."""
 
+from pathlib import Path
+
 from deformgl.bench import bench_integrators, bench_sim, format_integrators, format_sim, machine_line
 from deformgl.integrators import INTEGRATORS
+
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 
 def test_bench_integrators_covers_every_integrator_and_names_the_renderer(ctx):
@@ -26,3 +30,40 @@ def test_bench_sim_table_has_every_variant_and_the_numpy_ratio(ctx):
     for variant in ("compact", "compact+branch", "atlas rects", "atlas quad", "atlas points"):
         assert variant in text
     assert "speed-up vs numpy" in text and rows[0].numpy_ms > 0
+
+
+def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, tmp_path, capsys, monkeypatch):
+    """``bench trade|mappings|scaling --out DIR`` (shrunk: quick trade on the volume only, two
+    small scaling sizes, mappings on 4 nodes) print the table and write the files."""
+    import json
+
+    import deformgl.mapping_accuracy as mapping_accuracy
+    import deformgl.scaling as scaling
+    import deformgl.trade as trade
+    from deformgl.cli import main
+
+    monkeypatch.setattr(scaling, "QUICK_SIZES", (8, 10))
+    volume = trade.standard_workloads()[:1]
+    study = trade.trade_study
+    monkeypatch.setattr(trade, "trade_study", lambda ctx, **kw: study(ctx, workloads=volume, **kw))
+    accuracy = mapping_accuracy.mapping_accuracy
+    monkeypatch.setattr(mapping_accuracy, "mapping_accuracy",
+                        lambda ctx, scene_path: accuracy(ctx, scene_path=SCENES / scene_path.name, grids=(4,), repeats=1))
+    for what, words in (("trade", "Pareto front"), ("mappings", "one-to-one"), ("scaling", "ns/node-step")):
+        assert main(["bench", what, "--quick", "--quiet", "--out", str(tmp_path)]) == 0
+        out = capsys.readouterr().out
+        assert words in out and "renderer" in out, out
+        assert json.loads((tmp_path / f"{what}.json").read_text())
+        assert (tmp_path / f"{what}.csv").read_text().count("\n") >= 2
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return
+    assert (tmp_path / "trade.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bench_out_must_be_a_folder(tmp_path, capsys):
+    from deformgl.cli import main
+
+    assert main(["bench", "trade", "--out", str(tmp_path / "missing")]) == 1
+    assert "--out:" in capsys.readouterr().err

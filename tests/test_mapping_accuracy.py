@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
 from deformgl.mapping import map_vertices
-from deformgl.mapping_accuracy import (DEFAULT_SCENE, MODES, GridMappings, MappingRow, format_mapping_accuracy,
+from deformgl.mapping_accuracy import (MODES, GridMappings, MappingRow, format_mapping_accuracy,
                                        mapping_accuracy, write_csv, write_json)
 from deformgl.node_drivers import Motion
 from deformgl.normals import unpack_normals
@@ -20,7 +21,8 @@ from deformgl.scene import load_scene
 
 RIGID = Motion("rigid", 35.0, axis=1, translate=(0.02, -0.01, 0.03))
 BEND = Motion("bend", 80.0, along=0, towards=1)
-FAST = dict(size=(64, 64), samples=0, repeats=1)
+SCENE = Path(__file__).resolve().parent.parent / "scenes" / "dragon_bend_constant.toml"
+FAST = dict(size=(64, 64), samples=0, repeats=1, scene_path=SCENE)
 
 
 def pick(rows: list[MappingRow], **match) -> list[MappingRow]:
@@ -77,7 +79,7 @@ def test_bend_error_falls_as_the_grid_gets_finer(ctx):
 
 @pytest.fixture
 def twisted(ctx):
-    g = GridMappings(ctx, load_scene(DEFAULT_SCENE), 8)
+    g = GridMappings(ctx, load_scene(SCENE), 8)
     positions, truth = g.moved(Motion("twist", 70.0, along=0))
     g.set_positions(positions)
     yield g, positions, truth
