@@ -35,7 +35,7 @@ import moderngl
 import numpy as np
 
 from .errors import GLError
-from .grid import CompactLayout, NodeGrid
+from .grid import NEIGHBOUR_OFFSETS, CompactLayout, NodeGrid
 from .integrators import INTEGRATORS, Constraints, State, initial_state
 from .program import Program
 from .springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
@@ -164,6 +164,10 @@ class FragmentIntegrator:
             self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
+        #: every node of the box exists: neighbours by node-number offsets, no index texture
+        self.dense = self.layout.dense
+        offsets = np.concatenate([NEIGHBOUR_OFFSETS, FLEXION_OFFSETS])[: self.neighbour_table.shape[1]]
+        self.neighbour_offsets = [int(v) for v in offsets @ np.array(self.layout.strides)]
         self._objects: list = []
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.passes: dict[str, Program] = {}
@@ -199,15 +203,22 @@ class FragmentIntegrator:
         w, h = self.layout.size
         nb = self.neighbour_table
         layers = -(-nb.shape[1] // 4)
-        table = np.where(nb >= 0, nb, np.arange(n)[:, None])
-        table = np.concatenate([table, np.repeat(np.arange(n)[:, None], 4 * layers - nb.shape[1],
-                                                 axis=1)], axis=1)
-        img = np.zeros((layers, h * w, 4), np.int32)
-        img[:, :n, :] = table.reshape(n, layers, 4).transpose(1, 0, 2)
-        self.tex_neighbours = self._own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
-                                                               dtype="i4"))
-        self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits], axis=1)
+        self.tex_neighbours = None
+        mask = np.zeros(n)
+        if self.dense:
+            # neighbours by arithmetic: bit j of the mask (exact in float32: at most 24 bits)
+            bits = (nb >= 0).astype(np.int64) << np.arange(nb.shape[1])
+            mask = np.bitwise_or.reduce(bits, axis=1).astype(np.float64)
+        else:
+            table = np.where(nb >= 0, nb, np.arange(n)[:, None])
+            table = np.concatenate([table, np.repeat(np.arange(n)[:, None], 4 * layers - nb.shape[1],
+                                                     axis=1)], axis=1)
+            img = np.zeros((layers, h * w, 4), np.int32)
+            img[:, :n, :] = table.reshape(n, layers, 4).transpose(1, 0, 2)
+            self.tex_neighbours = self._own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
+                                                                   dtype="i4"))
+            self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
 
         s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
@@ -227,7 +238,7 @@ class FragmentIntegrator:
         # roles: indices into the pool
         self.roles = list(range(len(self.pool)))
 
-        common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1],
+        common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1], "DENSE": self.dense,
                                      "SPRING_DAMPING": bool(np.any(system.damping > 0)),
                                      "SPHERES": 0, "DRAGS": len(self.drags),
                                      "LOADS": len(self.loads)}
@@ -257,7 +268,7 @@ class FragmentIntegrator:
         self._vaos = {key: self._own(self.ctx.vertex_array(p.gl, []))
                       for key, p in self.passes.items()}
         self.state_bytes = len(self.pool) * w * h * _VEC4
-        static = w * h * _VEC4 + w * h * layers * _VEC4
+        static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
@@ -281,6 +292,8 @@ class FragmentIntegrator:
             uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
         if defines.get("SPRING_DAMPING"):
             uniforms["u_c"] = (c1, c2, c3)
+        if defines.get("DENSE"):
+            uniforms["u_offsets"] = self.neighbour_offsets
         if defines.get("GROUND"):
             uniforms["u_ground"] = float(self.constraints.ground)
         program.set(**uniforms)
@@ -336,7 +349,8 @@ class FragmentIntegrator:
             raise RuntimeError("FragmentIntegrator: released")
         previous = self.ctx.fbo
         self.tex_node.use(_SAMPLERS["u_node"])
-        self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
+        if self.tex_neighbours is not None:
+            self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
         name = self.integrator
         try:
             for _ in range(n):

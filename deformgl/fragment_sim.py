@@ -64,7 +64,7 @@ class NodeTextures:
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
         self.neighbours: moderngl.TextureArray | None = None
-        if isinstance(self.layout, CompactLayout):
+        if isinstance(self.layout, CompactLayout) and not self.layout.dense:
             layers = self.layout.neighbour_layers(grid.neighbours)
             w, h = self.layout.size
             self.neighbours = ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4")

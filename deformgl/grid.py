@@ -222,12 +222,30 @@ class CompactLayout(TexelImages):
         """Texture (width, height) in texels."""
         return self.width, max(1, -(-self.count // self.width))
 
+    @property
+    def dense(self) -> bool:
+        """Every node of the grid's box exists (blocks, cloth sheets): node n's neighbour at offset
+        (dx, dy, dz) is node ``n + dx ny nz + dy nz + dz`` (``np.argwhere`` order), so no
+        neighbour-index texture is needed."""
+        return self.count == self.index.size
+
+    @property
+    def strides(self) -> tuple[int, int, int]:
+        """Node-number step of a +1 move along x, y, z (dense grids)."""
+        _, ny, nz = self.index.shape
+        return ny * nz, nz, 1
+
     def shader_defines(self) -> dict[str, object]:
-        """Defines selecting this layout in ``shaders/lib/springs.glsl``."""
-        return {"COMPACT": True}
+        """Defines selecting this layout in ``shaders/lib/springs.glsl``: COMPACT, and
+        COMPACT_DENSE when neighbours are found by arithmetic (:attr:`dense`)."""
+        return {"COMPACT": True, "COMPACT_DENSE": self.dense}
 
     def shader_uniforms(self) -> dict[str, object]:
-        """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3)."""
+        """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3), or of
+        COMPACT_DENSE (node-number strides and the last node)."""
+        if self.dense:
+            return {"u_width_log2": int(self.width).bit_length() - 1, "u_strides": self.strides,
+                    "u_last_node": self.count - 1}
         return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": NEIGHBOUR_UNIT}
 
     def node_texel(self, nodes: np.ndarray) -> np.ndarray:

@@ -15,6 +15,10 @@ The peer packages are optional (``pip install deformgl[peers]``) and imported la
   without ``ti.reset()``.
 * Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
   the calling thread (one thread).
+
+On dense grids (every node of the box exists: blocks, cloth sheets) both peers find neighbour
+``j`` of node ``i`` at ``i + offsets[j]`` when bit ``j`` of the node's mask is set, like the
+fragment pass's ``COMPACT_DENSE`` variant; elsewhere they read the (N, 18) neighbour table.
 """
 
 # no "from __future__ import annotations": Taichi and Warp read the kernel annotations as objects
@@ -24,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .grid import NEIGHBOUR_OFFSETS
 from .model import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, SpringModel
 
 PEERS = ("taichi", "warp")
@@ -91,6 +96,12 @@ class PeerStepper:
         grid = model.grid
         self.rest32 = np.ascontiguousarray(grid.rest_positions, dtype=np.float32)
         self._neighbours = np.ascontiguousarray(grid.neighbours, dtype=np.int32)
+        # dense grids (every node of the box exists): neighbour j of node i is i + offsets[j] when
+        # bit j of the mask is set, as the fragment pass's COMPACT_DENSE variant does
+        self.dense = grid.count == grid.occupied.size
+        _, ny, nz = grid.occupied.shape
+        self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array([ny * nz, nz, 1]))
+        self._mask = np.ascontiguousarray(grid.neighbour_mask, dtype=np.int32)
         self._mass = np.ascontiguousarray(model.mass, dtype=np.float32)
         self._flags = np.ascontiguousarray(model.flags(), dtype=np.int32)
         self._scalars = tuple(float(np.float32(v)) for v in (
@@ -183,14 +194,19 @@ class TaichiStepper(PeerStepper):
         mass = ti.field(ti.f32)
         flags = ti.field(ti.i32)
         pull = ti.Vector.field(3, ti.f32)
+        dense = self.dense
+        offsets = self._offsets
         fb.dense(ti.ij, (3, n)).place(state)
-        fb.dense(ti.ij, (n, 18)).place(nb)
+        if dense:
+            fb.dense(ti.i, n).place(nb)  # the neighbour mask
+        else:
+            fb.dense(ti.ij, (n, 18)).place(nb)
         fb.dense(ti.i, n).place(mass, flags)
         fb.dense(ti.i, MAX_PULLS).place(pull)
         self._tree = fb.finalize()
         self._fields = (state, nb, mass, flags, pull)
         state.from_numpy(np.broadcast_to(self.rest32, (3, n, 3)).copy())
-        nb.from_numpy(self._neighbours)
+        nb.from_numpy(self._mask if dense else self._neighbours)
         mass.from_numpy(self._mass)
         flags.from_numpy(self._flags)
         pull.from_numpy(self._zero_pull)
@@ -215,9 +231,19 @@ class TaichiStepper(PeerStepper):
                     p1 = vec3(0.0)
                     s2 = vec3(0.0)
                     p2 = vec3(0.0)
+                    mask = 0
+                    if ti.static(dense):
+                        mask = nb[i]
                     for j in ti.static(range(18)):
-                        m_j = nb[i, j]
-                        if m_j >= 0:
+                        m_j = 0
+                        ok = False
+                        if ti.static(dense):
+                            m_j = i + offsets[j]
+                            ok = ((mask >> j) & 1) == 1
+                        else:
+                            m_j = nb[i, j]
+                            ok = m_j >= 0
+                        if ok:
                             d = p - state[cur, m_j]
                             inv = 1.0 / ti.max(d.norm(), 1e-30)
                             if ti.static(j < 6):
@@ -286,8 +312,8 @@ def _warp():
 
     @wp.kernel(enable_backward=False, module="unique")
     def verlet(x: wp.array(dtype=wp.vec3), xp: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3),
-               nb: wp.array2d(dtype=wp.int32), mass: wp.array(dtype=wp.float32),
-               flags: wp.array(dtype=wp.int32),
+               nb: wp.array2d(dtype=wp.int32), mask: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
+               dense: wp.int32, mass: wp.array(dtype=wp.float32), flags: wp.array(dtype=wp.int32),
                h: wp.float32, k1: wp.float32, k2: wp.float32, c: wp.float32, dt: wp.float32,
                gravity: wp.vec3, pull0: wp.vec3, pull1: wp.vec3, pull2: wp.vec3, pull3: wp.vec3):
         i = wp.tid()
@@ -300,14 +326,27 @@ def _warp():
         p1 = wp.vec3(0.0)
         s2 = wp.vec3(0.0)
         p2 = wp.vec3(0.0)
+        bits = int(0)
+        if dense != 0:
+            bits = mask[i]
         for j in range(6):
-            n = nb[i, j]
+            n = int(-1)
+            if dense != 0:
+                if ((bits >> j) & 1) != 0:
+                    n = i + offsets[j]
+            else:
+                n = nb[i, j]
             if n >= 0:
                 d = p - x[n]
                 s1 += d / wp.max(wp.length(d), 1e-30)
                 p1 += d
         for j in range(6, 18):
-            n = nb[i, j]
+            n = int(-1)
+            if dense != 0:
+                if ((bits >> j) & 1) != 0:
+                    n = i + offsets[j]
+            else:
+                n = nb[i, j]
             if n >= 0:
                 d = p - x[n]
                 s2 += d / wp.max(wp.length(d), 1e-30)
@@ -340,7 +379,10 @@ class WarpStepper(PeerStepper):
         self._wp = wp
         dev = "cpu"
         self._state = [wp.array(self.rest32, dtype=wp.vec3, device=dev) for _ in range(3)]
-        self._nb = wp.array(self._neighbours, dtype=wp.int32, device=dev)
+        # dense grids: neighbours by mask and offset (the index table is not passed, a 1x18 stand-in)
+        self._nb = wp.array(self._neighbours[:1] if self.dense else self._neighbours, dtype=wp.int32, device=dev)
+        self._bits = wp.array(self._mask, dtype=wp.int32, device=dev)
+        self._off = wp.array(np.array(self._offsets, np.int32), dtype=wp.int32, device=dev)
         self._m = wp.array(self._mass, dtype=wp.float32, device=dev)
         self._fl = wp.array(self._flags, dtype=wp.int32, device=dev)
         self._g = wp.vec3(*self._gravity)
@@ -352,7 +394,8 @@ class WarpStepper(PeerStepper):
         x, xp, out = self._state
         pulls = self._zero if pull is self._zero_pull else [wp.vec3(*map(float, r)) for r in pull]
         wp.launch(self._kernel, dim=self._n, device="cpu",
-                  inputs=[x, xp, out, self._nb, self._m, self._fl, *self._scalars, self._g, *pulls])
+                  inputs=[x, xp, out, self._nb, self._bits, self._off, int(self.dense), self._m, self._fl,
+                          *self._scalars, self._g, *pulls])
         self._state = [out, x, xp]
 
     def _sync(self) -> None:

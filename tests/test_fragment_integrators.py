@@ -214,14 +214,14 @@ def test_generated_source_compiles_only_what_is_used(ctx):
     try:
         prog = sim.passes["step"]
         text = prog.fragment_source.text
-        assert "#define VERLET" in text and "#define NB_LAYERS 5" in text
+        assert "#define VERLET" in text and "#define NB_LAYERS 5" in text and "#define DENSE" in text
         assert "#define NB_COUNT 18" in text and "#define SPHERES 0" in text
         for absent in ("#define SPRING_DAMPING", "#define CONSTRAINTS", "#define VELOCITY",
                        "#define GROUND", "#define EULER", "#define RK4_STAGE"):
             assert absent not in text
         members = set(prog.gl._members)
-        assert {"u_x", "u_x_prev", "u_node", "u_neighbours", "u_k"} <= members
-        assert not members & {"u_ground", "u_spheres", "u_sphere_velocity", "u_v", "u_c"}
+        assert {"u_x", "u_x_prev", "u_node", "u_offsets", "u_k"} <= members  # a full block: dense
+        assert not members & {"u_ground", "u_spheres", "u_sphere_velocity", "u_v", "u_c", "u_neighbours"}
         assert sim.state_bytes_per_node == I.memory_per_node("verlet") == 48
     finally:
         sim.release()
@@ -254,8 +254,20 @@ def test_bytes_per_node_is_what_is_allocated(ctx, name):
     try:
         assert sim.layout.size == (16, 16)  # no padding: state bytes are exact per node
         assert sim.state_bytes_per_node == I.memory_per_node(name)
-        static = 16 + 6 * 16  # node data + 6 neighbour layers (24 neighbours)
-        assert sim.bytes_per_node == I.memory_per_node(name) + static
+        assert sim.dense  # a full sheet: neighbours by offsets, the node data only
+        assert sim.bytes_per_node == I.memory_per_node(name) + 16
+    finally:
+        sim.release()
+    occupied = np.ones((16, 1, 16), bool)
+    occupied[0, 0, 0] = False  # a missing corner: the neighbour table comes back
+    holed = NodeGrid(np.zeros(3), 0.05, occupied)
+    system = springs.from_grid(holed, k_structural=100.0, k_shear=50.0, k_flexion=10.0)
+    sim = FragmentIntegrator(ctx, system, holed, name, 1e-3)
+    try:
+        assert not sim.dense
+        w, h = sim.layout.size
+        static = (16 + 6 * 16) * w * h / holed.count  # node data + 6 neighbour layers (24 neighbours)
+        assert sim.bytes_per_node == pytest.approx(I.memory_per_node(name) * w * h / holed.count + static)
     finally:
         sim.release()
 
@@ -286,7 +298,7 @@ def test_release_and_constructor_failure_clean_up(ctx, monkeypatch):
         m.setattr(fragment_integrators, "Program", broken)
         with pytest.raises(RuntimeError, match="no program"):
             FragmentIntegrator(ctx, system, grid, "midpoint", 1e-3)
-    assert len(made) == 8 and all(released(o) for o in made)
+    assert len(made) == 7 and all(released(o) for o in made)  # node data + 6 midpoint states (dense: no neighbour texture)
     made.clear()
     sim = FragmentIntegrator(ctx, system, grid, "rk4", 1e-3)
     sim.step(1)
@@ -329,3 +341,35 @@ def test_moving_sphere_matches_reference(ctx, name):
         grazing = gap < 1e-5 * scale
         assert np.sum(grazing) <= 3
         assert err[~grazing].max() <= 1e-4 * np.abs(ref.v).max()
+
+
+@pytest.mark.parametrize("name", ["verlet", "rk4"])
+def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, monkeypatch, name):
+    """A full block (and a sheet, with flexion) gives bit-identical steps with the neighbour
+    texture and with node-number offsets; a grid with a hole keeps the texture."""
+    from deformgl.grid import CompactLayout
+
+    system, grid = damped_grid(4)
+    results = {}
+    for dense in (True, False):
+        monkeypatch.setattr(CompactLayout, "dense", property(lambda self, d=dense: d and self.count == self.index.size))
+        sim = FragmentIntegrator(ctx, system, grid, name, 1e-3)
+        try:
+            assert sim.dense is dense and (sim.tex_neighbours is None) is dense
+            sim.step(20)
+            results[dense] = sim.positions()
+        finally:
+            sim.release()
+    np.testing.assert_array_equal(results[True], results[False])
+    assert np.abs(results[True] - system.rest_positions).max() > 0  # it moved
+    monkeypatch.undo()
+    occupied = np.ones((4, 4, 4), bool)
+    occupied[1, 1, 1] = False
+    holed = NodeGrid(np.zeros(3), 0.1, occupied)
+    from deformgl.springs import from_grid
+
+    sim = FragmentIntegrator(ctx, from_grid(holed, k_structural=10.0, k_shear=10.0, mass=0.01), holed, name, 1e-3)
+    try:
+        assert not sim.dense and sim.tex_neighbours is not None
+    finally:
+        sim.release()

@@ -63,9 +63,10 @@ def test_tiny_study_times_every_backend_and_counts_its_memory(ctx):
         assert r.setup_s is not None and r.setup_s > 0
         assert r.ns_per_node_step == pytest.approx(r.ms_per_step * 1e6 / r.nodes)
     foundation = {r.nodes: r.bytes_per_node for r in report.rows if r.backend == "foundation"}
-    # compact layout 16 texels wide: 216 nodes -> 14 rows; node + 3 state RGBA32F + 5 RGBA32I layers
-    assert foundation[216] == pytest.approx(16 * 14 * (4 + 5) * 16 / 216)
-    assert foundation[60] == pytest.approx(16 * 4 * (4 + 5) * 16 / 60)
+    # compact layout 16 texels wide: 216 nodes -> 14 rows; node + 3 state RGBA32F (full blocks
+    # are dense: no neighbour-index layers)
+    assert foundation[216] == pytest.approx(16 * 14 * 4 * 16 / 216)
+    assert foundation[60] == pytest.approx(16 * 4 * 4 * 16 / 60)
     # the integrator backends report what they allocate; bench_scaling records exactly that
     model = block_model((6, 6, 6))
     system = from_grid(model.grid, k_structural=10.0, k_shear=10.0, mass=model.mass, fixed=model.fixed)

@@ -22,14 +22,23 @@ struct SpringSum {
 };
 
 // Where neighbour J lies: COMPACT layouts look its node number up in the neighbour-index
-// texture (grid.py CompactLayout); the z-slice atlas computes it from the tile arithmetic.
+// texture (grid.py CompactLayout); COMPACT_DENSE ones (every node of the box exists) compute it,
+// n + DX sx + DY sy + DZ sz, clamped to a valid node (an absent neighbour is weighted 0 anyway);
+// the z-slice atlas computes it from the tile arithmetic.
 #ifdef COMPACT
-uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
 uniform int u_width_log2;              // log2 of the texture width
 ivec2 node_texel(int n) {
     return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
 }
+#ifdef COMPACT_DENSE
+uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
+uniform int u_last_node;               // count - 1
+#define NB_TEXEL(J, DX, DY, DZ) node_texel(clamp(self_node + DX * u_strides.x + DY * u_strides.y \
+                                                 + DZ * u_strides.z, 0, u_last_node))
+#else
+uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
 #define NB_TEXEL(J, DX, DY, DZ) node_texel(nb[J])
+#endif
 #else
 #define NB_TEXEL(J, DX, DY, DZ) (origin[DZ + 1] + local + ivec2(DX, DY))
 #endif
@@ -49,7 +58,9 @@ ivec2 node_texel(int n) {
 #endif
 
 SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
-#ifdef COMPACT
+#if defined(COMPACT_DENSE)
+    int self_node = (texel.y << u_width_log2) | texel.x;
+#elif defined(COMPACT)
     ivec4 n0 = texelFetch(u_neighbours, ivec3(texel, 0), 0);
     ivec4 n1 = texelFetch(u_neighbours, ivec3(texel, 1), 0);
     ivec4 n2 = texelFetch(u_neighbours, ivec3(texel, 2), 0);

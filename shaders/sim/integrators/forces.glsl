@@ -15,10 +15,18 @@
 // per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1), loads and drags
 // (lib/node_forces.glsl). Fixed nodes never call this.
 //
+// DENSE grids (every node of the box exists: blocks, cloth sheets) need no neighbour texture:
+// neighbour j of node n is node n + u_offsets[j] where bit j of the node's neighbour mask (u_node
+// alpha) is set, else the node itself (the same zero force).
+//
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
-// texel T in the state at which forces are evaluated.
+// texel T in the state at which forces are evaluated, and declares u_node.
 
+#ifdef DENSE
+uniform int u_offsets[NB_COUNT];  // node-number offset of each neighbour
+#else
 uniform isampler2DArray u_neighbours;
+#endif
 uniform int u_width_log2;   // log2 of the texture width (node n at texel (n % w, n / w))
 uniform vec3 u_k;           // stiffness of the structural, shear, flexion class, N/m
 uniform vec3 u_rest;        // rest length of each class
@@ -44,6 +52,15 @@ vec3 spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
 
 vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     vec3 f = vec3(0.0);
+#ifdef DENSE
+    int self_node = (texel.y << u_width_log2) | texel.x;
+    int mask = int(texelFetch(u_node, texel, 0).a);
+    for (int j = 0; j < NB_COUNT; ++j) {
+        int other = ((mask >> j) & 1) != 0 ? self_node + u_offsets[j] : self_node;
+        int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
+        f += spring_force(node_texel(other), xi, vi, cls);
+    }
+#else
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
         for (int c = 0; c < 4; ++c) {
@@ -55,6 +72,7 @@ vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
             f += spring_force(node_texel(nb[c]), xi, vi, cls);
         }
     }
+#endif
     add_node_forces(f, (texel.y << u_width_log2) + texel.x, groups, xi, vi, m);
     return f / m;
 }
