@@ -84,7 +84,8 @@ class SimRow:
 def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, variants=None) -> list[SimRow]:
     """Fragment-pass Verlet step against the float64 NumPy reference on the same grids."""
     variants = variants or {
-        "compact": dict(layout="compact"), "compact+branch": dict(layout="compact", branch=True),
+        "compact": dict(layout="compact"), "compact indexed": dict(layout="indexed"),
+        "compact+branch": dict(layout="compact", branch=True),
         "atlas rects": dict(layout="atlas", draw="rects"), "atlas quad": dict(layout="atlas", draw="quad"),
         "atlas points": dict(layout="atlas", draw="points")}
     rows = []

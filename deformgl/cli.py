@@ -80,7 +80,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
     b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators", "trade", "mappings",
-                                    "scaling"],
+                                    "scaling", "profile"],
                    help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
@@ -90,7 +90,9 @@ def _parser() -> argparse.ArgumentParser:
                         "against cost per simulated second for every integrator x dt (0.1 to 0.9 of the "
                         "stability limit) x backend on a dragged volume and a cloth on a sphere, with the "
                         "Pareto front; mappings: each mapping's error against an analytic bend and twist, and "
-                        "its draw time; scaling: ms/step from 4k to 1M nodes, the fitted exponent, bytes/node")
+                        "its draw time; scaling: ms/step from 4k to 1M nodes, the fitted exponent, bytes/node; "
+                        "profile: the step pass rebuilt stage by stage (own texels, neighbour lookup, 18 "
+                        "neighbour fetches, spring sums), what each costs")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
@@ -238,6 +240,10 @@ def _bench(args: argparse.Namespace) -> int:
         elif args.what in ("trade", "mappings", "scaling"):
             note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
             _study(args, ctx, note)
+        elif args.what == "profile":
+            from .step_profile import profile_report
+
+            print(profile_report(ctx))
         elif args.what == "trilinear":
             from .trilinear_scenes import trilinear_bench_report
 

@@ -26,7 +26,7 @@ from .reference import spring_sums
 
 PullSchedule = Callable[[float], np.ndarray]
 DRAW_MODES = ("rects", "points", "quad")
-LAYOUTS = ("compact", "atlas")
+LAYOUTS = ("compact", "indexed", "atlas")
 
 
 def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
@@ -47,8 +47,10 @@ class NodeTextures:
         ctx: GL context.
         model: the spring model.
         n_state: number of state textures (3 for position Verlet).
-        layout: "compact" (existing nodes packed densely, neighbours from an index texture) or
-            "atlas" (z-slices as tiles, neighbours by tile arithmetic); see docs/ARCHITECTURE.md.
+        layout: "compact" (existing nodes packed densely, neighbours from an index texture, or
+            by node-number offsets on dense grids), "indexed" (compact with the index texture
+            always, to measure what the offsets save) or "atlas" (z-slices as tiles, neighbours
+            by tile arithmetic); see docs/ARCHITECTURE.md.
     """
 
     def __init__(self, ctx: moderngl.Context, model: SpringModel, n_state: int = 3,
@@ -59,8 +61,8 @@ class NodeTextures:
         grid = model.grid
         try:
             self.layout: AtlasLayout | CompactLayout = (
-                CompactLayout.for_grid(grid, max_size) if layout == "compact"
-                else AtlasLayout.for_grid(grid.shape, max_size))
+                CompactLayout.for_grid(grid, max_size, arithmetic=layout == "compact")
+                if layout in ("compact", "indexed") else AtlasLayout.for_grid(grid.shape, max_size))
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
         self.neighbours: moderngl.TextureArray | None = None

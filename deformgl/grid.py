@@ -195,16 +195,18 @@ class CompactLayout(TexelImages):
     Only existing nodes occupy texels (the last row may be partly empty), so a pass costs work
     for existing nodes only and the working set stays small; the 18 neighbours of each node are
     looked up in a neighbour-index texture (5 RGBA32I layers, an absent neighbour points at the
-    node itself and is weighted 0). ``width`` is a power of two.
+    node itself and is weighted 0), or on :attr:`dense` grids computed. ``width`` is a power of
+    two.
     """
 
     index: np.ndarray  # (nx, ny, nz) node number, -1 where absent (NodeGrid.index)
     count: int
     width: int
+    arithmetic: bool = True  # False: the index texture even on dense grids (to benchmark it)
 
     @classmethod
-    def for_grid(cls, grid: NodeGrid, max_size: int) -> "CompactLayout":
-        """A near-square power-of-two-wide layout for ``grid``.
+    def for_grid(cls, grid: NodeGrid, max_size: int, *, arithmetic: bool = True) -> "CompactLayout":
+        """A near-square power-of-two-wide layout for ``grid`` (``arithmetic``: see :attr:`dense`).
 
         Raises:
             ValueError: more nodes than a ``max_size`` x ``max_size`` texture holds.
@@ -215,7 +217,7 @@ class CompactLayout(TexelImages):
         if -(-n // width) > max_size:
             raise ValueError(f"{grid.count} nodes need more than {max_size}x{max_size} texels "
                              f"(the GL texture limit)")
-        return cls(grid.index, grid.count, width)
+        return cls(grid.index, grid.count, width, arithmetic)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -226,8 +228,8 @@ class CompactLayout(TexelImages):
     def dense(self) -> bool:
         """Every node of the grid's box exists (blocks, cloth sheets): node n's neighbour at offset
         (dx, dy, dz) is node ``n + dx ny nz + dy nz + dz`` (``np.argwhere`` order), so no
-        neighbour-index texture is needed."""
-        return self.count == self.index.size
+        neighbour-index texture is needed (unless built with ``arithmetic=False``)."""
+        return self.arithmetic and self.count == self.index.size
 
     @property
     def strides(self) -> tuple[int, int, int]:

@@ -67,3 +67,14 @@ def test_bench_out_must_be_a_folder(tmp_path, capsys):
 
     assert main(["bench", "trade", "--out", str(tmp_path / "missing")]) == 1
     assert "--out:" in capsys.readouterr().err
+
+
+def test_bench_profile_rebuilds_the_step_stage_by_stage(ctx):
+    from deformgl.step_profile import STAGES, format_profile, profile_step
+
+    rows = profile_step(ctx, grids=((6, 5, 4),), passes=2, repeats=1)
+    assert [r.what for r in rows if r.lookup == "index"] == [*STAGES, "full step"]
+    assert [r.what for r in rows if r.lookup == "offsets"][2] == "+ neighbour offsets"
+    assert all(r.ms > 0 and r.nodes == 120 for r in rows)
+    text = format_profile(rows, machine_line(ctx))
+    assert "neighbours by index" in text and "neighbours by offsets" in text and "renderer" in text

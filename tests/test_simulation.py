@@ -213,16 +213,13 @@ def test_invalid_dt_and_release(ctx):
         FragmentSimulation(ctx, model, -1.0)
 
 
-def test_dense_blocks_find_neighbours_by_arithmetic_with_the_same_result(ctx, monkeypatch):
+def test_dense_blocks_find_neighbours_by_arithmetic_with_the_same_result(ctx):
     """A full block: no neighbour-index texture (COMPACT_DENSE), bit-identical to the indexed
-    pass, normals included; 80 fewer bytes per node."""
-    from deformgl.grid import CompactLayout
-
+    pass (layout "indexed"), normals included."""
     model = model_for(np.ones((5, 4, 3), bool), fixed=top_fixed, pulls=pulls)
-    states, sizes = {}, {}
+    states = {}
     for dense in (True, False):
-        monkeypatch.setattr(CompactLayout, "dense", property(lambda self, d=dense: d and self.count == self.index.size))
-        sim = FragmentSimulation(ctx, model, 1e-3, pull_schedule)
+        sim = FragmentSimulation(ctx, model, 1e-3, pull_schedule, layout="compact" if dense else "indexed")
         try:
             assert (sim.textures.neighbours is None) is dense
             assert ("#define COMPACT_DENSE" in sim.verlet.program.fragment_source.text) is dense

@@ -1,0 +1,74 @@
+#version 330 core
+// Ablation of the foundation's step pass (sim/verlet.frag) for `deformgl bench profile`: the
+// same fetches in the same order, cut off after stage STAGE, to measure what a step costs:
+//   0  one fetch of the node's own position (the floor of a pass)
+//   1  + previous position and node data (the step's own texels)
+//   2  + the 5 neighbour-index texels (compact layouts that are not dense)
+//   3  + the 18 neighbours' positions (summed)
+//   4  + the spring sums of eq. 1/2 (length, unit vector per neighbour)
+// Neighbours as in lib/springs.glsl: from u_neighbours, or with DENSE from node-number offsets.
+// The output is meaningless; it only keeps the compiler from removing the work.
+
+uniform sampler2D u_position;
+uniform sampler2D u_previous;
+uniform sampler2D u_node;
+uniform int u_width_log2;
+#ifdef DENSE
+uniform ivec3 u_strides;
+uniform int u_last_node;
+#else
+uniform isampler2DArray u_neighbours;
+#endif
+
+out vec4 o_value;
+
+const ivec3 OFFSETS[18] = ivec3[18](
+    ivec3(1, 0, 0), ivec3(-1, 0, 0), ivec3(0, 1, 0), ivec3(0, -1, 0), ivec3(0, 0, 1), ivec3(0, 0, -1),
+    ivec3(1, 1, 0), ivec3(1, -1, 0), ivec3(-1, 1, 0), ivec3(-1, -1, 0),
+    ivec3(1, 0, 1), ivec3(1, 0, -1), ivec3(-1, 0, 1), ivec3(-1, 0, -1),
+    ivec3(0, 1, 1), ivec3(0, 1, -1), ivec3(0, -1, 1), ivec3(0, -1, -1));
+
+ivec2 node_texel(int n) {
+    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
+}
+
+void main() {
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 x = texelFetch(u_position, texel, 0);
+    vec4 acc = x;
+#if STAGE >= 1
+    acc += texelFetch(u_previous, texel, 0) + texelFetch(u_node, texel, 0);
+#endif
+#if STAGE >= 2
+    int nb[18];
+#ifdef DENSE
+    int self_node = (texel.y << u_width_log2) | texel.x;
+    for (int j = 0; j < 18; ++j) {
+        nb[j] = clamp(self_node + OFFSETS[j].x * u_strides.x + OFFSETS[j].y * u_strides.y
+                      + OFFSETS[j].z * u_strides.z, 0, u_last_node);
+    }
+#else
+    for (int l = 0; l < 5; ++l) {
+        ivec4 n = texelFetch(u_neighbours, ivec3(texel, l), 0);
+        for (int c = 0; c < 4 && 4 * l + c < 18; ++c) {
+            nb[4 * l + c] = n[c];
+        }
+    }
+#endif
+    acc.w += float(nb[17]);
+#endif
+#if STAGE == 3
+    for (int j = 0; j < 18; ++j) {
+        acc += texelFetch(u_position, node_texel(nb[j]), 0);
+    }
+#elif STAGE >= 4
+    vec3 s = vec3(0.0), p = vec3(0.0);
+    for (int j = 0; j < 18; ++j) {
+        vec3 d = x.xyz - texelFetch(u_position, node_texel(nb[j]), 0).xyz;
+        s += d / max(length(d), 1e-30);
+        p += d;
+    }
+    acc.xyz += s + p;
+#endif
+    o_value = acc;
+}
