@@ -344,39 +344,52 @@ def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
     return "\n".join(lines)
 
 
-def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32))) -> str:
+def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32)),
+                 rounds: int = 7) -> str:
     """``bench sim --peers``: the foundation's fragment Verlet step against the same step in Taichi
-    (CPU) and NVIDIA Warp (CPU) on the same grids, in the same process; both timed as the best of
-    3 runs after a warm-up. Ratios are fragment throughput / peer throughput."""
-    from .peers import available_peers, bench_peers, peer_import_errors
+    (CPU) and NVIDIA Warp (CPU) on the same grids, in the same process. All steppers of a grid
+    are built and warmed up first; then ``rounds`` rounds time ``steps`` steps of each in turn,
+    so load from other processes hits all alike. Best and median of the rounds; ratios are
+    fragment throughput / peer throughput, of the medians."""
+    from .peers import available_peers, make_stepper, peer_import_errors
 
     lines = [machine_line(ctx), "same 18-neighbour position-Verlet step (eq. 1/2, damping, gravity, fixed "
-             "nodes) in float32; ratio = fragment nodes/s / peer nodes/s (> 1: the fragment pass is faster)"]
+             f"nodes) in float32; {rounds} alternating rounds of {steps} steps, best / median ms per step; "
+             "ratio = fragment nodes/s / peer nodes/s of the medians (> 1: the fragment pass is faster)"]
     for peer, reason in peer_import_errors().items():
         lines.append(f"{peer}: not installed ({reason}); pip install 'deformgl[peers]'")
-    if not any(available_peers().values()):
+    versions = {p: v for p, v in available_peers().items() if v is not None}
+    if not versions:
         return "\n".join(lines)
     for spec in grids:
         model = block_model(spec)
         dt = 0.2 / model.max_angular_frequency()
         sim = FragmentSimulation(ctx, model, dt)
+        steppers = {}
         try:
-            sim.step(3)
-            ctx.finish()
-            best = float("inf")
-            for _ in range(3):
-                t0 = time.perf_counter()
-                sim.step(steps)
-                ctx.finish()
-                best = min(best, time.perf_counter() - t0)
-            fragment_ms = best / steps * 1e3
+            for peer in versions:
+                steppers[peer] = make_stepper(peer, model, dt)
+            runs: dict[str, Callable[[], None]] = {"fragment": lambda: (sim.step(steps), ctx.finish())}
+            runs.update({peer: (lambda st=st: st.step(steps)) for peer, st in steppers.items()})
+            for run in runs.values():  # JIT and warm-up
+                run()
+            times: dict[str, list[float]] = {name: [] for name in runs}
+            for r in range(rounds):
+                for name in (list(runs) if r % 2 == 0 else list(reversed(runs))):
+                    t0 = time.perf_counter()
+                    runs[name]()
+                    times[name].append((time.perf_counter() - t0) / steps * 1e3)
         finally:
             sim.release()
+            for st in steppers.values():
+                st.release()
+        best = {name: min(t) for name, t in times.items()}
+        median = {name: statistics.median(t) for name, t in times.items()}
         name = "x".join(map(str, spec))
-        lines.append(f"{name} ({model.grid.count} nodes): fragment {fragment_ms:.3f} ms/step "
-                     f"({model.grid.count / fragment_ms / 1e3:.1f} M nodes/s)")
-        for peer, t in bench_peers(model, dt, steps).items():
-            lines.append(f"  {peer} {t.version} CPU, {t.threads} thread(s): {t.ms_per_step:.3f} ms/step "
-                         f"({t.nodes_per_s / 1e6:.1f} M nodes/s; JIT {t.jit_s:.2f} s) -> fragment / {peer} = "
-                         f"{t.ms_per_step / fragment_ms:.2f}x")
+        lines.append(f"{name} ({model.grid.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
+                     f"ms/step ({model.grid.count / median['fragment'] / 1e3:.1f} M nodes/s)")
+        for peer, st in steppers.items():
+            lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s): {best[peer]:.3f} / "
+                         f"{median[peer]:.3f} ms/step ({model.grid.count / median[peer] / 1e3:.1f} M nodes/s) "
+                         f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x")
     return "\n".join(lines)

@@ -161,3 +161,14 @@ def test_available_peers_and_lazy_import(monkeypatch):
 def test_invalid_dt():
     with pytest.raises(ValueError, match="dt must be > 0"):
         peers.PeerStepper(jelly(), 0.0)
+
+
+def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
+    for peer in peers.PEERS:
+        need(peer)
+    from deformgl.bench import peers_report
+
+    text = peers_report(ctx, steps=2, grids=((4, 4, 3),), rounds=2)
+    assert "renderer" in text and "2 alternating rounds" in text and "4x4x3 (48 nodes): fragment" in text
+    for peer in peers.PEERS:
+        assert f"-> fragment / {peer} = " in text
