@@ -329,7 +329,7 @@ def _warp():
         bits = int(0)
         if dense != 0:
             bits = mask[i]
-        for j in range(6):
+        for j in range(18):
             n = int(-1)
             if dense != 0:
                 if ((bits >> j) & 1) != 0:
@@ -338,19 +338,13 @@ def _warp():
                 n = nb[i, j]
             if n >= 0:
                 d = p - x[n]
-                s1 += d / wp.max(wp.length(d), 1e-30)
-                p1 += d
-        for j in range(6, 18):
-            n = int(-1)
-            if dense != 0:
-                if ((bits >> j) & 1) != 0:
-                    n = i + offsets[j]
-            else:
-                n = nb[i, j]
-            if n >= 0:
-                d = p - x[n]
-                s2 += d / wp.max(wp.length(d), 1e-30)
-                p2 += d
+                u = d / wp.max(wp.length(d), 1e-30)
+                if j < 6:
+                    s1 += u
+                    p1 += d
+                else:
+                    s2 += u
+                    p2 += d
         q = xp[i]
         m = mass[i]
         f = k1 * (h * s1 - p1) + k2 * (sqrt2 * h * s2 - p2) + m * gravity - c * (p - q) / dt

@@ -57,6 +57,17 @@ def run_fragment(ctx, system, grid, integrator, dt, steps) -> np.ndarray:
         sim.release()
 
 
+def run_backend(ctx, backend, system, grid, dt, steps) -> np.ndarray:
+    """Verlet from rest on the fragment or feedback backend: final positions, float64."""
+    sim = (FragmentIntegrator(ctx, system, grid, "verlet", dt) if backend == "fragment"
+           else FeedbackSimulation(ctx, system, "verlet", dt))
+    try:
+        sim.step(steps)
+        return sim.positions().astype(np.float64)
+    finally:
+        sim.release()
+
+
 @pytest.fixture(scope="module")
 def base_motion(ctx):
     """The dimensionless motion (displacement / h after 60 steps at half the limit) of the base
@@ -134,13 +145,7 @@ def test_the_smallest_grid_2x2x2_runs_like_the_reference(ctx, backend):
                        gravity=(0.0, -9.81, 0.0), velocity_damping=0.02)
     dt = 0.5 * dt_limit(system, "verlet", exact=True).dt
     ref = I.simulate(system, "verlet", dt, 300).x
-    sim = (FragmentIntegrator(ctx, system, grid, "verlet", dt) if backend == "fragment"
-           else FeedbackSimulation(ctx, system, "verlet", dt))
-    try:
-        sim.step(300)
-        x = sim.positions().astype(np.float64)
-    finally:
-        sim.release()
+    x = run_backend(ctx, backend, system, grid, dt, 300)
     assert np.abs(ref - system.rest_positions).max() > 0.01 * 0.1  # it sagged
     assert np.abs(x - ref).max() <= 1e-4 * 0.1
     np.testing.assert_array_equal(x[fixed], system.rest_positions[fixed].astype(np.float32))
@@ -174,13 +179,7 @@ def test_one_node_thin_sheet_is_stable_and_matches_the_reference(ctx, backend):
     assert np.allclose(grid.rest_positions, system.rest_positions)
     dt = 0.5 * dt_limit(system, "verlet", exact=False).dt
     ref = I.simulate(system, "verlet", dt, 200).x
-    sim = (FragmentIntegrator(ctx, system, grid, "verlet", dt) if backend == "fragment"
-           else FeedbackSimulation(ctx, system, "verlet", dt))
-    try:
-        sim.step(200)
-        x = sim.positions().astype(np.float64)
-    finally:
-        sim.release()
+    x = run_backend(ctx, backend, system, grid, dt, 200)
     assert np.abs(ref - system.rest_positions).max() > h  # it fell a spacing or more
     assert np.abs(x - ref).max() <= 1e-3 * h
 
