@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from .errors import GLError
 from .integrators import INTEGRATORS, Constraints, State, initial_state
 from .program import Program
 from .springs import Drag, Load, SpringSystem, load_groups
@@ -149,7 +150,8 @@ class FeedbackSimulation:
 
     def _build(self, state: State | None) -> None:
         system, n = self.system, self.count
-        self.node_row = _row(n, NODE_ROW_MAX)
+        limit = int(self.ctx.info["GL_MAX_TEXTURE_SIZE"])
+        self.node_row = _row(n, min(NODE_ROW_MAX, limit))
         self.rows = -(-n // self.node_row)
         texels = self.node_row * self.rows
 
@@ -164,8 +166,12 @@ class FeedbackSimulation:
         params[:, 1] = np.tile(system.stiffness, 2)[order]
         params[:, 2] = np.tile(system.damping, 2)[order]
         entries = max(len(ends), 1)
-        self.spring_row = _row(entries, SPRING_ROW_MAX)
+        self.spring_row = _row(entries, min(SPRING_ROW_MAX, limit))
         spring_rows = -(-entries // self.spring_row)
+        if self.rows > limit or spring_rows > limit:
+            raise GLError(f"FeedbackSimulation: {n} nodes and {entries} spring-list entries need {self.rows} "
+                          f"rows of {self.node_row} and {spring_rows} rows of {self.spring_row} texels, more than "
+                          f"the GL texture limit {limit}; use a coarser grid")
         spring_texels = self.spring_row * spring_rows
         nodes = np.zeros((texels, 4), np.int32)
         nodes[:n, 0] = first

@@ -168,6 +168,57 @@ def test_grids_up_to_the_texture_limit_and_one_node_beyond_it_is_refused(ctx):
     assert CompactLayout.for_grid(big, limit).size == (512, 512)
 
 
+@pytest.mark.parametrize("backend", ["foundation", "fragment", "feedback"])
+def test_every_backend_runs_at_the_texture_limit_and_refuses_beyond_it(ctx, monkeypatch, backend):
+    """With the context's texture limit lowered to 64 (the real 16384 would need 2^28 nodes), the
+    largest sheet that fits steps like the reference and one row more is refused with GLError
+    naming the limit: for the fragment backends 64x64 nodes fill the node texture exactly; for
+    transform feedback the spring lists (2 entries per spring) fill their 64x64 texture first."""
+    from deformgl.errors import GLError
+    from deformgl.fragment_sim import FragmentSimulation
+    from deformgl.model import SpringModel
+
+    real = dict(ctx.info)
+    monkeypatch.setattr(type(ctx), "info", property(lambda self: {**real, "GL_MAX_TEXTURE_SIZE": 64}))
+    assert ctx.info["GL_MAX_TEXTURE_SIZE"] == 64
+
+    nz = 64 if backend != "feedback" else 16
+
+    def make(nx):
+        grid = NodeGrid(np.zeros(3), 0.05, np.ones((nx, 1, nz), bool))
+        fixed = grid.ijk[:, 2] == 0
+        system = from_grid(grid, k_structural=10.0, k_shear=10.0, mass=1e-3, fixed=fixed,
+                           gravity=(0.0, -9.81, 0.0), velocity_damping=1e-3)
+        dt = 0.5 * dt_limit(system, "verlet", exact=False).dt
+        if backend == "foundation":
+            model = SpringModel(grid=grid, mass=np.full(grid.count, 1e-3), fixed=fixed,
+                                pull_groups=np.zeros(grid.count, np.uint8), k_structural=10.0, k_shear=10.0,
+                                damping=1e-3, gravity=np.array([0.0, -9.81, 0.0]))
+            return system, dt, lambda: FragmentSimulation(ctx, model, dt)
+        if backend == "fragment":
+            return system, dt, lambda: FragmentIntegrator(ctx, system, grid, "verlet", dt)
+        return system, dt, lambda: FeedbackSimulation(ctx, system, "verlet", dt)
+
+    fits = 64
+    if backend == "feedback":  # the largest sheet whose spring-list entries fit 64 x 64 texels
+        fits = max(nx for nx in range(2, 64) if 2 * make(nx)[0].spring_count <= 64 * 64)
+        assert 2 * make(fits + 1)[0].spring_count > 64 * 64
+    system, dt, build = make(fits)
+    sim = build()
+    try:
+        sim.step(20)
+        x = sim.positions().astype(np.float64)
+    finally:
+        sim.release()
+    assert np.isfinite(x).all() and np.abs(x - system.rest_positions).max() > 0
+    if backend != "foundation":  # (the foundation starts from x_prev = x, the reference from Taylor)
+        ref = I.simulate(system, "verlet", dt, 20).x
+        assert np.abs(x - ref).max() <= 1e-4 * 0.05
+    _, _, build = make(fits + 1)
+    with pytest.raises(GLError, match="texture limit"):
+        build()
+
+
 @pytest.mark.parametrize("backend", ["fragment", "feedback"])
 def test_one_node_thin_sheet_is_stable_and_matches_the_reference(ctx, backend):
     n, h = 12, 0.05
