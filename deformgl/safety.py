@@ -87,8 +87,8 @@ def plan_steps(system: SpringSystem, physics: Physics, source) -> StepPlan:
     if policy == "refuse":
         hint = ""
         if refusal.limit.bound == "gershgorin":
-            hint = (" (a conservative bound: the exact limit of a volume can be up to twice it; "
-                    "running anyway keeps the blow-up census watching)")
+            hint = (" (a conservative bound, used above 30,000 free nodes: the exact limit of a volume "
+                    "can be up to twice it; running anyway keeps the blow-up census watching)")
         raise SimulationError(f"{source}: physics.dt: {refusal.message}{hint}. Pass --allow-unstable to run it "
                               f"anyway or --subdivide to split each step (physics.safety.unstable)")
     if policy == "run":

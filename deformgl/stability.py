@@ -38,6 +38,7 @@ dt are ignored); limits below 1e-3 / max(w, g) are reported as 0 (unusable).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -412,9 +413,10 @@ def gershgorin_limit(system: SpringSystem, integrator: str) -> AnalyticLimit:
 
 
 def exact_limit(system: SpringSystem, integrator: str, *,
-                method: str = "auto") -> tuple[AnalyticLimit, ExactFrequency]:
+                method: str = "auto", tol: float = 1e-10) -> tuple[AnalyticLimit, ExactFrequency]:
     """Limit from the exact spectrum: every mode when dense (one ``eigh``), the band
-    [0, w_max] when Lanczos and damped (conservative as :func:`gershgorin_limit`)."""
+    [0, w_max] when Lanczos (relative residual ``tol``) and damped (conservative as
+    :func:`gershgorin_limit`)."""
     damping = modal_damping(system)
     free = int((~system.fixed).sum())
     if free and (method == "dense" or (method == "auto" and free <= DENSE_MAX_NODES)):
@@ -422,7 +424,7 @@ def exact_limit(system: SpringSystem, integrator: str, *,
         top = _describe(system, float(lam[-1]), vec[:, -1], "dense", 1e-12)
         omegas = np.unique(np.round(np.sqrt(np.clip(lam, 0.0, None)), 9))
     else:
-        top = exact_frequency(system, method=method)
+        top = exact_frequency(system, method=method, tol=tol)
         omegas = np.linspace(0.0, top.omega, 257)
     if damping.undamped:
         omegas = np.array([top.omega])  # every limit is c/w: the top mode sets it
@@ -441,7 +443,8 @@ class DtLimit:
         integrator: one of ``INTEGRATORS``.
         dt: s (0.0: no dt is stable).
         omega: rad/s, the frequency used (Gershgorin bound or exact).
-        bound: "gershgorin" (conservative: never accepts an unstable dt) or "exact".
+        bound: "gershgorin" (conservative: never accepts an unstable dt), "exact" (dense) or
+            "lanczos" (the exact top frequency estimated, the limit kept LANCZOS_MARGIN below).
         formula: see :class:`AnalyticLimit`.
         node: the node that sets omega (Gershgorin: largest ``2 sum k / m``; exact: the node
             moving most in the top mode).
@@ -483,13 +486,24 @@ class DtRefusal:
     message: str
 
 
+#: Relative residual of the Lanczos estimate that :func:`check_dt` uses on systems too big for a
+#: dense solve, and the margin below its limit that a dt must keep: the estimate of w_max is a
+#: Rayleigh quotient, never above it, so the limit it gives is never below the true one.
+LANCZOS_TOL = 1e-4
+LANCZOS_MARGIN = 1e-3
+
+
 def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
     if bound == "gershgorin":
         lim = gershgorin_limit(system, integrator)
         fb = max_angular_frequency(system)
         omega, node, spring = fb.omega, fb.node, fb.spring
     else:
-        lim, top = exact_limit(system, integrator)
+        if bound == "lanczos":
+            lim, top = exact_limit(system, integrator, method="lanczos", tol=LANCZOS_TOL)
+            lim = dataclasses.replace(lim, dt=lim.dt * (1.0 - LANCZOS_MARGIN))
+        else:
+            lim, top = exact_limit(system, integrator)
         omega, node, spring = top.omega, top.node, top.spring
     k = float(system.stiffness[spring]) if spring >= 0 else 0.0
     m = float(system.mass[node]) if node >= 0 else 0.0
@@ -506,12 +520,14 @@ def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None
 
 
 def check_dt(system: SpringSystem, integrator: str, dt: float, *,
-             exact_up_to: int = 300) -> DtRefusal | None:
+             exact_up_to: int = 300, lanczos_up_to: int = 30000) -> DtRefusal | None:
     """None when ``dt`` is stable for ``integrator`` on ``system``, else the refusal.
 
     The cheap Gershgorin limit is tried first; a dt at or below it is accepted (it is
     conservative). A dt above it is judged on the exact spectrum when the system has at most
-    ``exact_up_to`` free nodes (dense eigen solve, ~0.3 s for 300 nodes), else refused on the
+    ``exact_up_to`` free nodes (dense eigen solve, ~0.3 s for 300 nodes), on a Lanczos estimate
+    of its top (relative residual :data:`LANCZOS_TOL`, a dt must stay :data:`LANCZOS_MARGIN`
+    below the limit; ~1 s for 20k nodes) up to ``lanczos_up_to``, else refused on the
     Gershgorin bound, whose message says so.
 
     Forward Euler and midpoint on an undamped system are always refused (no dt is stable: growth
@@ -524,8 +540,9 @@ def check_dt(system: SpringSystem, integrator: str, dt: float, *,
     if dt <= cheap.dt:
         return None
     limit = cheap
-    if int((~system.fixed).sum()) <= exact_up_to:
-        limit = _dt_limit(system, integrator, "exact")
+    free = int((~system.fixed).sum())
+    if free <= lanczos_up_to:
+        limit = _dt_limit(system, integrator, "exact" if free <= exact_up_to else "lanczos")
         if dt <= limit.dt:
             return None
     return DtRefusal(dt, limit, limit.message(dt))

@@ -15,7 +15,7 @@ from deformgl.pipeline import NodeState, build_scene_model, render_to_png
 from deformgl.safety import MAX_SUBSTEPS, SAFETY_MARGIN, BlowUp, StepPlan, describe_bad_node, plan_steps
 from deformgl.scene import Safety, load_scene
 from deformgl.scene_sim import SceneBox, run_scene, run_with_retries, scene_system
-from deformgl.stability import dt_limit
+from deformgl.stability import check_dt, dt_limit
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -35,19 +35,31 @@ def test_plan_accepts_a_stable_dt_and_refuses_one_above_the_limit(jelly):
     scene, _, system = jelly
     plan = plan_steps(system, scene.physics, scene.source)
     assert plan == StepPlan(scene.physics.dt, scene.physics.steps) and plan.note == ""
-    limit = dt_limit(system, "verlet", exact=False)
+    # 378 nodes: above the dense solve's 300, so the limit is the Lanczos estimate
+    limit = check_dt(system, "verlet", 1.0).limit
+    assert limit.bound == "lanczos" and limit.dt > 1.5 * dt_limit(system, "verlet", exact=False).dt
     over = with_physics(scene, dt=1.2 * limit.dt).physics
     with pytest.raises(SimulationError) as err:
         plan_steps(system, over, scene.source)
     text = str(err.value)
     assert text.startswith(f"{scene.source}: physics.dt: dt ")
     assert f"verlet limit {limit.dt:.4g} s" in text and f"node {limit.node} (spring {limit.spring}," in text
-    assert "--allow-unstable" in text and "--subdivide" in text and "conservative" in text
+    assert "--allow-unstable" in text and "--subdivide" in text and "lanczos bound" in text
+    # beyond 30,000 free nodes only the Gershgorin bound is used, and the message says it is conservative
+    gershgorin = dt_limit(system, "verlet", exact=False).dt
+    from deformgl import safety
+
+    refusal = check_dt(system, "verlet", 1.2 * gershgorin, lanczos_up_to=0)
+    assert refusal is not None and refusal.limit.bound == "gershgorin"
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(safety, "check_dt", lambda *a: refusal)
+        with pytest.raises(SimulationError, match="conservative bound, used above 30,000 free nodes"):
+            plan_steps(system, with_physics(scene, dt=1.2 * gershgorin).physics, scene.source)
 
 
 def test_run_anyway_notes_the_limit_and_subdivide_splits_below_it(jelly):
     scene, _, system = jelly
-    limit = dt_limit(system, "verlet", exact=False).dt
+    limit = check_dt(system, "verlet", 1.0).limit.dt
     run = plan_steps(system, with_physics(scene, dt=1.2 * limit, safety=Safety("run")).physics, "s.toml")
     assert run.substeps == 1 and run.note.startswith("running anyway: dt")
     for factor in (1.2, 3.0, 7.5):

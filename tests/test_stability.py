@@ -187,12 +187,27 @@ def test_check_dt_uses_the_conservative_gershgorin_bound_for_large_systems(
         small: SpringSystem) -> None:
     bound = max_angular_frequency(small)
     g_limit = 2.0 / bound.omega
-    assert st.check_dt(small, "semi-implicit", 0.999 * g_limit, exact_up_to=0) is None
-    refusal = st.check_dt(small, "semi-implicit", 1.001 * g_limit, exact_up_to=0)
+    assert st.check_dt(small, "semi-implicit", 0.999 * g_limit, exact_up_to=0, lanczos_up_to=0) is None
+    refusal = st.check_dt(small, "semi-implicit", 1.001 * g_limit, exact_up_to=0, lanczos_up_to=0)
     assert refusal is not None and refusal.limit.bound == "gershgorin"
     assert refusal.limit.node == bound.node and refusal.limit.spring == bound.spring
     assert f"node {bound.node} (spring {bound.spring}," in refusal.message
     assert "gershgorin bound" in refusal.message
+
+
+def test_check_dt_uses_a_lanczos_estimate_between_dense_and_gershgorin(
+        small: SpringSystem, small_top: st.ExactFrequency) -> None:
+    """Above exact_up_to free nodes the top frequency is estimated by Lanczos (a Rayleigh
+    quotient: never above w_max); the dt must stay LANCZOS_MARGIN below its limit, so nothing
+    above the true limit is accepted, and dts between the Gershgorin and the true limit are."""
+    limit = 2.0 / small_top.omega
+    g_limit = 2.0 / max_angular_frequency(small).omega
+    assert g_limit < 0.7 * limit
+    assert st.check_dt(small, "verlet", 0.99 * limit, exact_up_to=0) is None
+    refusal = st.check_dt(small, "verlet", (1.0 - st.LANCZOS_MARGIN / 2) * limit, exact_up_to=0)
+    assert refusal is not None and refusal.limit.bound == "lanczos" and "lanczos bound" in refusal.message
+    assert limit * (1 - 2 * st.LANCZOS_MARGIN) <= refusal.limit.dt <= limit * (1 - st.LANCZOS_MARGIN) * (1 + 1e-4)
+    assert refusal.limit.node == small_top.node
 
 
 def test_check_dt_refuses_undamped_euler_at_any_dt_and_uses_the_damped_limit(
