@@ -244,10 +244,9 @@ class CompactLayout(TexelImages):
 
     def shader_uniforms(self) -> dict[str, object]:
         """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3), or of
-        COMPACT_DENSE (node-number strides and the last node)."""
+        COMPACT_DENSE (node-number strides)."""
         if self.dense:
-            return {"u_width_log2": int(self.width).bit_length() - 1, "u_strides": self.strides,
-                    "u_last_node": self.count - 1}
+            return {"u_width_log2": int(self.width).bit_length() - 1, "u_strides": self.strides}
         return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": NEIGHBOUR_UNIT}
 
     def node_texel(self, nodes: np.ndarray) -> np.ndarray:

@@ -65,11 +65,12 @@ class StepPlan:
         return self.steps * self.substeps
 
     def halved(self) -> StepPlan | None:
-        """The plan with twice the substeps, None past :data:`MAX_SUBSTEPS`."""
-        if self.substeps * 2 > MAX_SUBSTEPS:
+        """The plan with twice the substeps (at most :data:`MAX_SUBSTEPS`), None when it already
+        has that many."""
+        if self.substeps >= MAX_SUBSTEPS:
             return None
-        return StepPlan(self.dt, self.steps, self.substeps * 2,
-                        f"restarted with {self.substeps * 2} substeps per step (dt {self.dt / (self.substeps * 2):.4g} s)")
+        k = min(2 * self.substeps, MAX_SUBSTEPS)
+        return StepPlan(self.dt, self.steps, k, f"restarted with {k} substeps per step (dt {self.dt / k:.4g} s)")
 
 
 def plan_steps(system: SpringSystem, physics: Physics, source) -> StepPlan:
@@ -153,6 +154,7 @@ class BlowUpWatch:
         self.sim, self.every, self.limit, self.grid, self.source, self.dt = sim, every, limit, grid, source, dt
         self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
         self.checks = 0
+        self.last_clean: int | None = None  # step of the last check that found nothing
 
     def due(self, done: int) -> bool:
         """Whether a check falls at ``done`` steps."""
@@ -170,9 +172,10 @@ class BlowUpWatch:
         count = self.census.bad(texture, self.limit, slot=slot)
         self.checks += 1
         if count == 0:
+            self.last_clean = done
             return
         node = describe_bad_node(self.sim.positions(), self.grid, self.limit)
-        last = f"; none at step {done - self.every}" if self.every > 0 and done > self.every else ""
+        last = f"; none at step {self.last_clean}" if self.last_clean is not None else ""
         raise BlowUp(f"{self.source}: simulation blew up: at step {done} (dt {self.dt:.4g} s{last}) "
                      f"{count} node(s) are non-finite or beyond {self.limit:.4g} from the centre, first "
                      f"{node}; reduce physics.dt or stiffness, or pass --subdivide", done, count)

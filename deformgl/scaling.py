@@ -249,7 +249,7 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
         integrator the backend lacks) is a row with ``skipped`` set to the reason.
 
     Raises:
-        ValueError: an unknown backend or integrator.
+        ValueError: an unknown backend or integrator, or repeats < 1.
     """
     from .integrators import INTEGRATORS
     from .springs import from_grid, max_angular_frequency
@@ -258,6 +258,8 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
         raise ValueError(f"unknown backend(s) {unknown}; expected some of {', '.join(BACKENDS)}")
     if integrator not in INTEGRATORS:
         raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
     start = time.perf_counter()
     report = ScalingReport([], machine_line(ctx), integrator, repeats)
     live: list[tuple[ScalingRow, Any, list[float]]] = []  # row, simulation, ms/step samples

@@ -107,18 +107,22 @@ def scene_constraints(physics: Physics, box: SceneBox) -> Constraints | None:
 
 @dataclass
 class SceneRun:
-    """What a run produced: final positions (N, 3) float64, steps taken, whether the convergence
-    stop ended it (None without one), GPU bytes per node (0 for numpy), the end time."""
+    """What a run produced: final positions (N, 3) float64, steps taken (of dt / substeps),
+    whether the convergence stop ended it (None without one), GPU bytes per node (0 for numpy),
+    the end time, the substeps per scene step."""
 
     positions: np.ndarray
     steps: int
     converged: bool | None
     bytes_per_node: float
     time: float
+    substeps: int = 1
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
         line = f"{physics.integrator} on the {physics.backend} backend: {self.steps} steps"
+        if self.substeps > 1:
+            line += f" ({self.substeps} substeps per scene step)"
         if self.converged is not None:
             line += " (converged)" if self.converged else " (step limit reached before convergence)"
         if self.bytes_per_node:
@@ -276,7 +280,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: Spring
             if physics.backend == "numpy":
                 x, steps, converged = _run_numpy(system, physics, p, constraints, drags, loads, bar, converge,
                                                  limit, grid, scene.source)
-                return SceneRun(np.asarray(x, np.float64), steps, converged, 0.0, steps * p.step_dt)
+                return SceneRun(np.asarray(x, np.float64), steps, converged, 0.0, steps * p.step_dt, p.substeps)
             sim = _gpu_simulation(ctx, system, grid, physics, p.step_dt, constraints, drags, loads)
             watch = None
             try:
@@ -284,7 +288,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: Spring
                                     source=scene.source, dt=p.step_dt)
                 steps, converged = step_watched(ctx, sim, p.step_count, bar, watch, converge=converge)
                 return SceneRun(sim.positions().astype(np.float64), steps, converged, sim.bytes_per_node,
-                                steps * p.step_dt)
+                                steps * p.step_dt, p.substeps)
             finally:
                 if watch is not None:
                     watch.release()

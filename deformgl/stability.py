@@ -501,7 +501,10 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
     else:
         if bound == "lanczos":
             lim, top = exact_limit(system, integrator, method="lanczos", tol=LANCZOS_TOL)
-            lim = dataclasses.replace(lim, dt=lim.dt * (1.0 - LANCZOS_MARGIN))
+            if not top.tolerance <= LANCZOS_TOL:  # did not converge: its w may be too low
+                return _dt_limit(system, integrator, "gershgorin")
+            lim = dataclasses.replace(lim, dt=lim.dt * (1.0 - LANCZOS_MARGIN),
+                                      formula=f"{lim.formula} less {LANCZOS_MARGIN:.1%} (w estimated)")
         else:
             lim, top = exact_limit(system, integrator)
         omega, node, spring = top.omega, top.node, top.spring

@@ -87,7 +87,7 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
             uniforms = {"u_position": 0, "u_previous": 1, "u_node": 2,
                         "u_width_log2": int(layout.width).bit_length() - 1}
             if dense:
-                uniforms.update(u_strides=layout.strides, u_last_node=layout.count - 1)
+                uniforms.update(u_strides=layout.strides)
             else:
                 uniforms["u_neighbours"] = NEIGHBOUR_UNIT
             members = set(program.gl._members)

@@ -300,3 +300,33 @@ def test_a_grid_spacing_of_1e_4_runs_the_same_scene_scaled(ctx, jelly_image, tmp
     image = render_scene(ctx, scene)
     diff = np.abs(image.astype(int) - near.astype(int))
     assert diff.mean() < 0.05 and (diff.max(axis=2) > 8).mean() < 1e-3  # a few edge pixels may round
+
+
+@pytest.mark.parametrize("layout", ["compact", "indexed"])
+def test_a_nan_node_spreads_only_to_its_springs_on_dense_and_indexed_grids(ctx, layout):
+    """Absent neighbours read the node itself (d = 0), never an unrelated node across a row
+    wrap, so a NaN reaches exactly the nodes connected to it, the same on both lookups."""
+    from deformgl.fragment_sim import FragmentSimulation
+    from deformgl.model import SpringModel
+
+    grid = NodeGrid(np.zeros(3), 0.1, np.ones((3, 4, 3), bool))
+    model = SpringModel(grid=grid, mass=np.full(grid.count, 0.01), fixed=np.zeros(grid.count, bool),
+                        pull_groups=np.zeros(grid.count, np.uint8), k_structural=10.0, k_shear=10.0,
+                        damping=0.0, gravity=np.zeros(3))
+    sim = FragmentSimulation(ctx, model, 1e-3, layout=layout)
+    try:
+        bad = int(grid.index[1, 0, 1])
+        state = sim.read_state()
+        state[bad, 0] = np.nan
+        w, h = sim.textures.size
+        image = sim.textures.layout.scatter(grid.ijk, state)
+        for t in sim.textures.state[:2]:
+            t.write(np.ascontiguousarray(image, np.float32).tobytes())
+        sim.step(1)
+        nan = ~np.isfinite(sim.positions()).all(axis=1)
+    finally:
+        sim.release()
+    expected = np.zeros(grid.count, bool)
+    expected[bad] = True
+    expected[grid.neighbours[bad][grid.neighbours[bad] >= 0]] = True
+    np.testing.assert_array_equal(nan, expected)

@@ -181,3 +181,34 @@ def test_bad_safety_keys_name_the_key(tmp_path, text, key):
     path.write_text(src + f"\n[physics.safety]\n{text}\n")
     with pytest.raises(SceneError, match=rf"s.toml: {key}: "):
         load_scene(path)
+
+
+def test_the_blow_up_message_names_the_last_clean_check_and_halving_reaches_the_cap():
+    """Checks fall every 100 steps and at the end: a blow-up seen at the final check (250) names
+    step 200 as the last clean one; from 9 substeps a restart tries the cap, 16."""
+    from deformgl.safety import BlowUpWatch
+
+    class Census:
+        def __init__(self):
+            self.counts = iter([0, 0, 3])
+
+        def bad(self, texture, limit, slot=0):
+            return next(self.counts)
+
+    class Sim:
+        count = 2
+
+        def position_slot(self):
+            return None, 2, 1, 0
+
+        def positions(self):
+            return np.array([[0.0, 0.0, 0.0], [np.inf, 0.0, 0.0]])
+
+    watch = BlowUpWatch.__new__(BlowUpWatch)
+    watch.sim, watch.every, watch.limit, watch.grid, watch.source, watch.dt = Sim(), 100, 10.0, None, "s.toml", 0.01
+    watch.census, watch.checks, watch.last_clean = Census(), 0, None
+    watch.check(100)
+    watch.check(200)
+    with pytest.raises(BlowUp, match=r"at step 250 \(dt 0.01 s; none at step 200\) 3 node\(s\) .* first node 1 at \(inf"):
+        watch.check(250)
+    assert StepPlan(0.1, 10, 9).halved().substeps == 16 and StepPlan(0.1, 10, 16).halved() is None

@@ -23,7 +23,8 @@ struct SpringSum {
 
 // Where neighbour J lies: COMPACT layouts look its node number up in the neighbour-index
 // texture (grid.py CompactLayout); COMPACT_DENSE ones (every node of the box exists) compute it,
-// n + DX sx + DY sy + DZ sz, clamped to a valid node (an absent neighbour is weighted 0 anyway);
+// n + DX sx + DY sy + DZ sz, or take the node itself where mask bit J says the neighbour is
+// absent (as the index texture does: d = 0, so not even a NaN elsewhere can leak in);
 // the z-slice atlas computes it from the tile arithmetic.
 #ifdef COMPACT
 uniform int u_width_log2;              // log2 of the texture width
@@ -32,9 +33,8 @@ ivec2 node_texel(int n) {
 }
 #ifdef COMPACT_DENSE
 uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
-uniform int u_last_node;               // count - 1
-#define NB_TEXEL(J, DX, DY, DZ) node_texel(clamp(self_node + DX * u_strides.x + DY * u_strides.y \
-                                                 + DZ * u_strides.z, 0, u_last_node))
+#define NB_TEXEL(J, DX, DY, DZ) node_texel(((mask >> J) & 1u) != 0u \
+    ? self_node + DX * u_strides.x + DY * u_strides.y + DZ * u_strides.z : self_node)
 #else
 uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
 #define NB_TEXEL(J, DX, DY, DZ) node_texel(nb[J])

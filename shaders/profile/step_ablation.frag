@@ -6,7 +6,8 @@
 //   2  + the 5 neighbour-index texels (compact layouts that are not dense)
 //   3  + the 18 neighbours' positions (summed)
 //   4  + the spring sums of eq. 1/2 (length, unit vector per neighbour)
-// Neighbours as in lib/springs.glsl: from u_neighbours, or with DENSE from node-number offsets.
+// Neighbours as in lib/springs.glsl: from u_neighbours, or with DENSE from node-number offsets
+// (the node itself where the mask says the neighbour is absent).
 // The output is meaningless; it only keeps the compiler from removing the work.
 
 uniform sampler2D u_position;
@@ -15,7 +16,6 @@ uniform sampler2D u_node;
 uniform int u_width_log2;
 #ifdef DENSE
 uniform ivec3 u_strides;
-uniform int u_last_node;
 #else
 uniform isampler2DArray u_neighbours;
 #endif
@@ -37,15 +37,17 @@ void main() {
     vec4 x = texelFetch(u_position, texel, 0);
     vec4 acc = x;
 #if STAGE >= 1
-    acc += texelFetch(u_previous, texel, 0) + texelFetch(u_node, texel, 0);
+    vec4 node = texelFetch(u_node, texel, 0);
+    acc += texelFetch(u_previous, texel, 0) + node;
 #endif
 #if STAGE >= 2
     int nb[18];
 #ifdef DENSE
     int self_node = (texel.y << u_width_log2) | texel.x;
+    uint mask = uint(node.b);
     for (int j = 0; j < 18; ++j) {
-        nb[j] = clamp(self_node + OFFSETS[j].x * u_strides.x + OFFSETS[j].y * u_strides.y
-                      + OFFSETS[j].z * u_strides.z, 0, u_last_node);
+        nb[j] = ((mask >> j) & 1u) != 0u ? self_node + OFFSETS[j].x * u_strides.x + OFFSETS[j].y * u_strides.y
+                                           + OFFSETS[j].z * u_strides.z : self_node;
     }
 #else
     for (int l = 0; l < 5; ++l) {
@@ -55,7 +57,9 @@ void main() {
         }
     }
 #endif
-    acc.w += float(nb[17]);
+    for (int j = 0; j < 18; ++j) {
+        acc.w += float(nb[j]);  // every index used, or the compiler drops the unused fetches
+    }
 #endif
 #if STAGE == 3
     for (int j = 0; j < 18; ++j) {
