@@ -99,7 +99,7 @@ def _parser() -> argparse.ArgumentParser:
                         "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
     b.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and trade.png, "
+                   help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and WHAT.png, "
                         "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
     b.add_argument("--quick", action="store_true", help="trade, scaling: a smaller, faster study")
     b.add_argument("--scene", type=Path, default=None,
@@ -177,6 +177,14 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _chart(write) -> None:
+    """Write a chart; without matplotlib say so on stderr (the tables and files are written)."""
+    try:
+        write()
+    except DeformglError as exc:
+        print(f"deformgl: no chart: {exc}", file=sys.stderr)
+
+
 def _study(args: argparse.Namespace, ctx, note) -> None:
     """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV and JSON (and the
     trade chart), each written atomically."""
@@ -191,18 +199,16 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
         if out is not None:
             report.write_csv(out / "trade.csv")
             report.write_json(out / "trade.json")
-            try:
-                report.write_chart(out / "trade.png")
-            except DeformglError as exc:
-                print(f"deformgl: no chart: {exc}", file=sys.stderr)
+            _chart(lambda: report.write_chart(out / "trade.png"))
     elif args.what == "mappings":
-        from .mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_csv, write_json
+        from .mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
 
         rows = mapping_accuracy(ctx, scene_path=args.scene or Path("scenes/dragon_bend_constant.toml"))
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
             write_csv(out / "mappings.csv", rows)
             write_json(out / "mappings.json", rows, machine_line(ctx))
+            _chart(lambda: write_chart(out / "mappings.png", rows, machine_line(ctx)))
     else:
         from .scaling import QUICK_SIZES, bench_scaling
 
@@ -211,6 +217,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
         if out is not None:
             report.write_csv(out / "scaling.csv")
             report.write_json(out / "scaling.json")
+            _chart(lambda: report.write_chart(out / "scaling.png"))
 
 
 def _bench(args: argparse.Namespace) -> int:

@@ -345,3 +345,36 @@ def write_csv(path: str | os.PathLike[str], rows: list[MappingRow]) -> None:
     writer.writeheader()
     writer.writerows(to_records(rows))
     write_atomic(path, lambda stream: stream.write(buffer.getvalue().encode()))
+
+
+def write_chart(path: str | os.PathLike[str], rows: list[MappingRow], machine: str) -> None:
+    """PNG: RMS error (per mille of the mesh diagonal, comparable across grids) against ms per
+    frame, one panel per motion, one line per mode through its grid sizes (labelled), log-log;
+    one-to-one hollow (a surface distance).
+
+    Raises:
+        DeformglError: matplotlib is not installed (``pip install 'deformgl[plot]'``).
+    """
+    from .charts import new_figure, save_png
+
+    motions = list(dict.fromkeys(r.motion for r in rows))
+    fig, axes = new_figure(1, len(motions), width=5.2, height=4.2, what="mappings")
+    markers = {"one-to-one": "o", "constant": "s", "curvature": "^", "auto": "D"}
+    for ax, motion in zip(axes[0], motions):
+        for mode in dict.fromkeys(r.mode for r in rows):
+            pts = sorted((r.grid, r.ms, _per_mille(r)) for r in rows if r.motion == motion and r.mode == mode)
+            if not pts:
+                continue
+            hollow = mode == "one-to-one"
+            line, = ax.plot([p[1] for p in pts], [p[2] for p in pts], marker=markers.get(mode, "o"), lw=1,
+                            mfc="none" if hollow else None, label=mode + (" (surface distance)" if hollow else ""))
+            for grid, ms, err in pts:
+                ax.annotate(str(grid), (ms, err), textcoords="offset points", xytext=(4, 3), fontsize=6,
+                            color=line.get_color())
+        ax.set(xscale="log", yscale="log", xlabel="ms per frame (draw, 512x512)",
+               ylabel="RMS error [per mille of the mesh diagonal]", title=f"{motion} (labels: nodes along the longest side)")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"mapping error against draw cost; {machine}", fontsize=8)
+    fig.tight_layout()
+    save_png(fig, path)

@@ -157,6 +157,37 @@ class ScalingReport:
         writer.writerows(records)
         write_atomic(path, lambda stream: stream.write(buffer.getvalue().encode()))
 
+    def write_chart(self, path: str | os.PathLike[str]) -> None:
+        """PNG: ms per step against nodes, log-log, one line per backend, with the power law
+        fitted on sizes >= :data:`UPPER_NODES` (its exponent in the legend).
+
+        Raises:
+            DeformglError: matplotlib is not installed (``pip install 'deformgl[plot]'``).
+        """
+        from .charts import new_figure, save_png
+
+        fig, axes = new_figure(1, 1, width=6.0, height=4.4, what="scaling")
+        ax = axes[0][0]
+        fits = self.fits(UPPER_NODES)
+        for backend in self.backends():
+            pts = sorted((r.nodes, r.ms_per_step) for r in self.rows
+                         if r.backend == backend and r.ms_per_step is not None)
+            if not pts:
+                continue
+            fit = fits.get(backend)
+            label = backend + (f" (b = {fit.exponent:.2f} from {UPPER_NODES // 1000}k nodes)" if fit else "")
+            line, = ax.plot(*zip(*pts), marker="o", lw=1, label=label)
+            if fit:
+                xs = np.array([UPPER_NODES, pts[-1][0]], float)
+                ax.plot(xs, fit.prefactor * xs ** fit.exponent, ls="--", lw=0.8, color=line.get_color())
+        ax.set(xscale="log", yscale="log", xlabel="nodes", ylabel="ms per step",
+               title=f"{self.integrator} step, full blocks; median of {self.repeats} rounds")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+        ax.legend(fontsize=7)
+        fig.suptitle(self.machine, fontsize=8)
+        fig.tight_layout()
+        save_png(fig, path)
+
     def fit_records(self) -> list[dict[str, object]]:
         """One dict per fit: backend, ``range`` "all" or "upper", ``of`` "median" or "fastest"
         (exponent None: fewer than 2 sizes)."""

@@ -48,7 +48,6 @@ import moderngl
 import numpy as np
 
 from .bench import machine_line, timed
-from .errors import DeformglError
 from .grid import NodeGrid
 from .imagediff import write_atomic
 from .integrators import INTEGRATORS, Constraints, Sphere, initial_state, simulate
@@ -177,13 +176,10 @@ def pareto_front(points: Iterable[P],
     return front
 
 
-def _atomic(path: str | os.PathLike, write: Callable[[IO[Any]], None], binary: bool = False) -> None:
-    """``write`` into a text (or binary) stream, stored through :func:`imagediff.write_atomic`
-    (temporary file in the same directory, then rename)."""
+def _atomic(path: str | os.PathLike, write: Callable[[IO[Any]], None]) -> None:
+    """``write`` into a text stream, stored through :func:`imagediff.write_atomic` (temporary
+    file in the same directory, then rename)."""
     def fill(stream: IO[bytes]) -> None:
-        if binary:
-            write(stream)
-            return
         text = io.TextIOWrapper(stream, encoding="utf-8", newline="")
         write(text)
         text.flush()
@@ -331,18 +327,12 @@ class TradeReport:
         Raises:
             DeformglError: matplotlib is not installed (``pip install 'deformgl[plot]'``).
         """
-        try:
-            from matplotlib.backends.backend_agg import FigureCanvasAgg
-            from matplotlib.figure import Figure
-            from matplotlib.ticker import NullFormatter
-        except ImportError as exc:
-            raise DeformglError(f"the trade chart needs matplotlib ({exc}); "
-                                "pip install 'deformgl[plot]'") from None
+        from .charts import new_figure, save_png
+
         workloads = list(dict.fromkeys(w for w, _ in self.groups()))
         backends = list(dict.fromkeys(b for _, b in self.groups()))
-        fig = Figure(figsize=(5.0 * len(backends), 4.2 * len(workloads) + 0.8), dpi=110)
-        FigureCanvasAgg(fig)
-        axes = fig.subplots(len(workloads), len(backends), squeeze=False)
+        fig, axes = new_figure(len(workloads), len(backends), width=5.0, height=4.2, what="trade")
+        from matplotlib.ticker import NullFormatter
         for (i, workload), (j, backend) in ((a, b) for a in enumerate(workloads)
                                             for b in enumerate(backends)):
             ax = axes[i][j]
@@ -370,7 +360,7 @@ class TradeReport:
                                    f"{self.sim_time:g} s vs float64 RK4 reference", 150),
                      fontsize=8)
         fig.tight_layout()
-        _atomic(path, lambda f: fig.savefig(f, format="png"), binary=True)
+        save_png(fig, path)
 
 
 def _errors(w: Workload, x: np.ndarray, ref: np.ndarray) -> tuple[float, float]:

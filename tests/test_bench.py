@@ -59,7 +59,8 @@ def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, 
         import matplotlib  # noqa: F401
     except ImportError:
         return
-    assert (tmp_path / "trade.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for what in ("trade", "mappings", "scaling"):
+        assert (tmp_path / f"{what}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_bench_out_must_be_a_folder(tmp_path, capsys):
