@@ -194,10 +194,11 @@ class NodeState:
         self.textures: NodeTextures
         if nodes.source == "simulate":
             physics = scene.physics
-            plan = plan_steps(scene_system(built.grid, built.model, physics), physics, scene.source)
+            system = scene_system(built.grid, built.model, physics)
+            plan = plan_steps(system, physics, scene.source)
             if needs_integrators(physics):
                 self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress,
-                                     plan=plan, notes=self.notes)
+                                     plan=plan, notes=self.notes, system=system)
                 positions = self.run.positions
             else:
                 if plan.note:

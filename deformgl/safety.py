@@ -31,7 +31,8 @@ from .scene import Physics
 from .springs import SpringSystem
 from .stability import check_dt
 
-__all__ = ["MAX_SUBSTEPS", "SAFETY_MARGIN", "BlowUp", "BlowUpWatch", "StepPlan", "plan_steps", "describe_bad_node"]
+__all__ = ["MAX_SUBSTEPS", "SAFETY_MARGIN", "BlowUp", "BlowUpWatch", "StepPlan", "bad_nodes", "describe_bad_node",
+           "plan_steps"]
 
 #: The most substeps per scene step that ``subdivide`` uses (before the run and after a blow-up).
 MAX_SUBSTEPS = 16
@@ -116,13 +117,30 @@ class BlowUp(SimulationError):
         self.step = step
         self.count = count
 
+    @classmethod
+    def at(cls, source, step: int, dt: float, count: int, node: str, limit: float,
+           last_clean: int | None) -> BlowUp:
+        """The error of a check at ``step`` that found ``count`` bad nodes, ``node`` the first
+        (:func:`describe_bad_node`); ``last_clean``: the step of the last check that found none."""
+        last = f"; none at step {last_clean}" if last_clean is not None else ""
+        return cls(f"{source}: simulation blew up: at step {step} (dt {dt:.4g} s{last}) {count} node(s) are "
+                   f"non-finite or beyond {limit:.4g} from the centre, first {node}; reduce physics.dt or "
+                   f"stiffness, or pass --subdivide", step, count)
+
+
+def bad_nodes(positions: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) bool: the nodes of ``positions`` (N, 3+) with a non-finite coordinate or one beyond
+    ``limit`` (what the census's BAD pass counts on the GPU)."""
+    xyz = np.asarray(positions, np.float64)[:, :3]
+    with np.errstate(invalid="ignore"):
+        return ~np.isfinite(xyz).all(axis=1) | (np.abs(xyz) > limit).any(axis=1)
+
 
 def describe_bad_node(positions: np.ndarray, grid: NodeGrid | None, limit: float) -> str:
     """``"node 17 (grid (1, 2, 0)) at (nan, 0, 1)"`` for the first node of ``positions`` (N, 3+)
     that is non-finite or has a component beyond ``limit``; "" when there is none."""
     xyz = np.asarray(positions, np.float64)[:, :3]
-    with np.errstate(invalid="ignore"):
-        bad = ~np.isfinite(xyz).all(axis=1) | (np.abs(xyz) > limit).any(axis=1)
+    bad = bad_nodes(xyz, limit)
     if not bad.any():
         return ""
     i = int(np.argmax(bad))
@@ -153,7 +171,6 @@ class BlowUpWatch:
         _, row, slots, _ = sim.position_slot()
         self.sim, self.every, self.limit, self.grid, self.source, self.dt = sim, every, limit, grid, source, dt
         self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
-        self.checks = 0
         self.last_clean: int | None = None  # step of the last check that found nothing
 
     def due(self, done: int) -> bool:
@@ -170,15 +187,11 @@ class BlowUpWatch:
         """Count the bad nodes after ``done`` steps; raise :class:`BlowUp` if there are any."""
         texture, _, _, slot = self.sim.position_slot()
         count = self.census.bad(texture, self.limit, slot=slot)
-        self.checks += 1
         if count == 0:
             self.last_clean = done
             return
         node = describe_bad_node(self.sim.positions(), self.grid, self.limit)
-        last = f"; none at step {self.last_clean}" if self.last_clean is not None else ""
-        raise BlowUp(f"{self.source}: simulation blew up: at step {done} (dt {self.dt:.4g} s{last}) "
-                     f"{count} node(s) are non-finite or beyond {self.limit:.4g} from the centre, first "
-                     f"{node}; reduce physics.dt or stiffness, or pass --subdivide", done, count)
+        raise BlowUp.at(self.source, done, self.dt, count, node, self.limit, self.last_clean)
 
     def release(self) -> None:
         """Release the census."""

@@ -206,7 +206,7 @@ def test_the_blow_up_message_names_the_last_clean_check_and_halving_reaches_the_
 
     watch = BlowUpWatch.__new__(BlowUpWatch)
     watch.sim, watch.every, watch.limit, watch.grid, watch.source, watch.dt = Sim(), 100, 10.0, None, "s.toml", 0.01
-    watch.census, watch.checks, watch.last_clean = Census(), 0, None
+    watch.census, watch.last_clean = Census(), None
     watch.check(100)
     watch.check(200)
     with pytest.raises(BlowUp, match=r"at step 250 \(dt 0.01 s; none at step 200\) 3 node\(s\) .* first node 1 at \(inf"):
