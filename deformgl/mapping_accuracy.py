@@ -28,10 +28,7 @@ dragon on 16 nodes: 0.7 spacings at rest); curvature mode now keeps eq. 6 there
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
-import json
 import os
 import time
 from dataclasses import dataclass
@@ -43,7 +40,7 @@ import numpy as np
 from .bench import timed
 from .binding import closest_on_triangles, rest_node_normals
 from .fragment_sim import NodeTextures
-from .imagediff import write_atomic
+from . import report_files
 from .mapped_render import MappedMeshPass
 from .mapping import constant_basis
 from .mapping_setup import get_binding, mapped_vertices, mesh_uv
@@ -334,17 +331,12 @@ def to_records(rows: list[MappingRow]) -> list[dict[str, object]]:
 
 def write_json(path: str | os.PathLike[str], rows: list[MappingRow], machine: str) -> None:
     """Write ``{"machine": ..., "rows": [...]}`` atomically (temporary file, then rename)."""
-    text = json.dumps({"machine": machine, "rows": to_records(rows)}, indent=1)
-    write_atomic(path, lambda stream: stream.write(text.encode()))
+    report_files.write_json(path, {"machine": machine, "rows": to_records(rows)})
 
 
 def write_csv(path: str | os.PathLike[str], rows: list[MappingRow]) -> None:
     """Write one CSV line per row (header: the field names) atomically."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=[f.name for f in dataclasses.fields(MappingRow)])
-    writer.writeheader()
-    writer.writerows(to_records(rows))
-    write_atomic(path, lambda stream: stream.write(buffer.getvalue().encode()))
+    report_files.write_csv(path, to_records(rows), [f.name for f in dataclasses.fields(MappingRow)])
 
 
 def write_chart(path: str | os.PathLike[str], rows: list[MappingRow], machine: str) -> None:

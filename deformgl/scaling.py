@@ -11,9 +11,6 @@ the CPU caches pushes it above 1, so the fit over sizes >= :data:`UPPER_NODES` i
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 import os
 import statistics
@@ -27,7 +24,7 @@ import numpy as np
 
 from .bench import block_model, machine_line
 from .errors import GLError
-from .imagediff import write_atomic
+from .report_files import write_csv, write_json
 
 __all__ = ["BACKENDS", "DEFAULT_SIZES", "QUICK_SIZES", "UPPER_NODES", "PowerFit", "ScalingReport", "ScalingRow",
            "bench_scaling", "fit_power_law", "gl_bytes"]
@@ -144,18 +141,12 @@ class ScalingReport:
 
     def write_json(self, path: str | os.PathLike[str]) -> None:
         """``{"machine", "integrator", "rows", "fits"}`` as JSON, atomically."""
-        text = json.dumps({"machine": self.machine, "integrator": self.integrator, "lp_threads": self.lp_threads,
-                           "rows": self.to_records(), "fits": self.fit_records()}, indent=1)
-        write_atomic(path, lambda stream: stream.write(text.encode()))
+        write_json(path, {"machine": self.machine, "integrator": self.integrator, "lp_threads": self.lp_threads,
+                          "rows": self.to_records(), "fits": self.fit_records()})
 
     def write_csv(self, path: str | os.PathLike[str]) -> None:
         """One line per (size, backend), atomically."""
-        records = self.to_records()
-        buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=list(records[0]) if records else ["backend"])
-        writer.writeheader()
-        writer.writerows(records)
-        write_atomic(path, lambda stream: stream.write(buffer.getvalue().encode()))
+        write_csv(path, self.to_records())
 
     def write_chart(self, path: str | os.PathLike[str]) -> None:
         """PNG: ms per step against nodes, log-log, one line per backend, with the power law

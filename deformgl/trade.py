@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import io
 import json
 import math
 import os
@@ -42,14 +41,14 @@ import textwrap
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from typing import IO, Any, TypeVar
+from typing import Any, TypeVar
 
 import moderngl
 import numpy as np
 
 from .bench import machine_line, timed
 from .grid import NodeGrid
-from .imagediff import write_atomic
+from . import report_files
 from .integrators import INTEGRATORS, Constraints, Sphere, initial_state, simulate
 from .springs import Drag, SpringSystem, cloth, from_grid
 from .stability import dt_limit
@@ -176,17 +175,6 @@ def pareto_front(points: Iterable[P],
     return front
 
 
-def _atomic(path: str | os.PathLike, write: Callable[[IO[Any]], None]) -> None:
-    """``write`` into a text stream, stored through :func:`imagediff.write_atomic` (temporary
-    file in the same directory, then rename)."""
-    def fill(stream: IO[bytes]) -> None:
-        text = io.TextIOWrapper(stream, encoding="utf-8", newline="")
-        write(text)
-        text.flush()
-        text.detach()
-    write_atomic(path, fill)
-
-
 _FIELDS = [f.name for f in dataclasses.fields(TradeRow)]
 
 
@@ -307,17 +295,11 @@ class TradeReport:
 
     def write_csv(self, path: str | os.PathLike) -> None:
         """One line per row (floats in full precision), atomically."""
-        def write(f: IO[Any]) -> None:
-            w = csv.writer(f)
-            w.writerow(_FIELDS)
-            for r in self.rows:
-                w.writerow([repr(v) if isinstance(v, float) else v
-                            for v in dataclasses.astuple(r)])
-        _atomic(path, write)
+        report_files.write_csv(path, [dataclasses.asdict(r) for r in self.rows], _FIELDS)
 
     def write_json(self, path: str | os.PathLike) -> None:
         """:meth:`to_dict` as JSON, atomically."""
-        _atomic(path, lambda f: json.dump(self.to_dict(), f, indent=1))
+        report_files.write_json(path, self.to_dict())
 
     def write_chart(self, path: str | os.PathLike) -> None:
         """PNG: log-log RMS error against ms per simulated second, one subplot per workload and
