@@ -186,8 +186,8 @@ def _chart(write) -> None:
 
 
 def _study(args: argparse.Namespace, ctx, note) -> None:
-    """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV and JSON (and the
-    trade chart), each written atomically."""
+    """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV, JSON and chart,
+    each written atomically."""
     from .bench import machine_line
 
     out = args.out
@@ -203,7 +203,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     elif args.what == "mappings":
         from .mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
 
-        rows = mapping_accuracy(ctx, scene_path=args.scene or Path("scenes/dragon_bend_constant.toml"))
+        rows = mapping_accuracy(ctx, **({"scene_path": args.scene} if args.scene else {}))
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
             write_csv(out / "mappings.csv", rows)

@@ -10,13 +10,11 @@ gravity, pulls, fixed nodes) is measured alongside, with the index texture and w
 
 from __future__ import annotations
 
-import statistics
-import time
 from dataclasses import dataclass
 
 import moderngl
 
-from .bench import block_model, machine_line
+from .bench import block_model, machine_line, timed
 from .fragment_sim import FragmentSimulation, NodeTextures
 from .grid import NEIGHBOUR_UNIT
 from .program import Program
@@ -41,15 +39,10 @@ class ProfileRow:
 
 
 def _median_ms(ctx: moderngl.Context, run, passes: int, repeats: int) -> float:
+    """Median ms per pass of ``run(passes)`` (finished), after a warm-up of 3 passes."""
     run(3)
     ctx.finish()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        run(passes)
-        ctx.finish()
-        times.append((time.perf_counter() - t0) / passes * 1e3)
-    return statistics.median(times)
+    return timed(lambda: (run(passes), ctx.finish()), repeats) / passes * 1e3
 
 
 def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), passes: int = 30,
