@@ -30,6 +30,12 @@ N_NEIGHBOURS = 18
 REST_LENGTH_UNITS = np.linalg.norm(NEIGHBOUR_OFFSETS, axis=1)
 
 
+def node_strides(shape: tuple[int, int, int]) -> tuple[int, int, int]:
+    """Node-number step of a +1 move along x, y, z on a full grid of ``shape`` (nx, ny, nz)."""
+    _, ny, nz = shape
+    return ny * nz, nz, 1
+
+
 @dataclass(frozen=True, eq=False)
 class NodeGrid:
     """A regular grid of nodes, some of which exist.
@@ -62,6 +68,12 @@ class NodeGrid:
     def count(self) -> int:
         """Number of existing nodes N."""
         return int(self.ijk.shape[0])
+
+    @property
+    def full(self) -> bool:
+        """Every node of the box exists (blocks, cloth sheets): node (i, j, k) is then node number
+        ``i ny nz + j nz + k`` (``np.argwhere`` order), see :func:`node_strides`."""
+        return self.count == self.occupied.size
 
     @cached_property
     def index(self) -> np.ndarray:
@@ -234,8 +246,7 @@ class CompactLayout(TexelImages):
     @property
     def strides(self) -> tuple[int, int, int]:
         """Node-number step of a +1 move along x, y, z (dense grids)."""
-        _, ny, nz = self.index.shape
-        return ny * nz, nz, 1
+        return node_strides(self.index.shape)
 
     def shader_defines(self) -> dict[str, object]:
         """Defines selecting this layout in ``shaders/lib/springs.glsl``: COMPACT, and

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .grid import NEIGHBOUR_OFFSETS
+from .grid import NEIGHBOUR_OFFSETS, node_strides
 from .model import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, SpringModel
 
 PEERS = ("taichi", "warp")
@@ -98,9 +98,8 @@ class PeerStepper:
         self._neighbours = np.ascontiguousarray(grid.neighbours, dtype=np.int32)
         # dense grids (every node of the box exists): neighbour j of node i is i + offsets[j] when
         # bit j of the mask is set, as the fragment pass's COMPACT_DENSE variant does
-        self.dense = grid.count == grid.occupied.size
-        _, ny, nz = grid.occupied.shape
-        self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array([ny * nz, nz, 1]))
+        self.dense = grid.full
+        self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array(node_strides(grid.shape)))
         self._mask = np.ascontiguousarray(grid.neighbour_mask, dtype=np.int32)
         self._mass = np.ascontiguousarray(model.mass, dtype=np.float32)
         self._flags = np.ascontiguousarray(model.flags(), dtype=np.int32)
