@@ -6,11 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from .errors import DeformglError
+from deformgl.errors import DeformglError
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .safety import MAX_SUBSTEPS
+    from deformgl.sim.guards import MAX_SUBSTEPS
 
     p = argparse.ArgumentParser(
         prog="deformgl",
@@ -109,9 +109,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from .context import create_context
-    from .pipeline import render_to_png
-    from .scene import load_scene, parse_size
+    from deformgl.gl.context import create_context
+    from deformgl.scene.pipeline import render_to_png
+    from deformgl.scene.schema import load_scene, parse_size
 
     scene = load_scene(args.scene)
     size = None
@@ -145,9 +145,9 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _trilinear(args: argparse.Namespace) -> int:
-    from .context import create_context
-    from .scene import parse_size
-    from .trilinear_scenes import write_trilinear_scene
+    from deformgl.gl.context import create_context
+    from deformgl.scene.schema import parse_size
+    from deformgl.trilinear.scenes import write_trilinear_scene
 
     try:
         size = parse_size(args.size)
@@ -167,7 +167,7 @@ def _trilinear(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
-    from .context import context_info, create_context
+    from deformgl.gl.context import context_info, create_context
 
     ctx = create_context(args.device)
     try:
@@ -188,11 +188,11 @@ def _chart(write) -> None:
 def _study(args: argparse.Namespace, ctx, note) -> None:
     """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV, JSON and chart,
     each written atomically."""
-    from .bench import machine_line
+    from deformgl.bench.studies import machine_line
 
     out = args.out
     if args.what == "trade":
-        from .trade import trade_study
+        from deformgl.bench.trade import trade_study
 
         report = trade_study(ctx, quick=args.quick, progress=note)
         print(report.format())
@@ -201,7 +201,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
             report.write_json(out / "trade.json")
             _chart(lambda: report.write_chart(out / "trade.png"))
     elif args.what == "mappings":
-        from .mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
+        from deformgl.bench.mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
 
         rows = mapping_accuracy(ctx, **({"scene_path": args.scene} if args.scene else {}))
         print(format_mapping_accuracy(rows, machine_line(ctx)))
@@ -210,7 +210,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
             write_json(out / "mappings.json", rows, machine_line(ctx))
             _chart(lambda: write_chart(out / "mappings.png", rows, machine_line(ctx)))
     else:
-        from .scaling import QUICK_SIZES, bench_scaling
+        from deformgl.bench.scaling import QUICK_SIZES, bench_scaling
 
         report = bench_scaling(ctx, progress=note, **({"sizes": QUICK_SIZES} if args.quick else {}))
         print(report.format())
@@ -225,13 +225,13 @@ def _bench(args: argparse.Namespace) -> int:
         raise DeformglError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
         raise DeformglError(f"--out: {args.out} is not a folder")
-    from .bench import bench_render, bench_sim, format_render, format_sim, machine_line
-    from .context import create_context
+    from deformgl.bench.studies import bench_render, bench_sim, format_render, format_sim, machine_line
+    from deformgl.gl.context import create_context
 
     ctx = create_context(args.device)
     try:
         if args.what in ("sim", "integrators"):
-            from .bench import bench_integrators, format_integrators
+            from deformgl.bench.studies import bench_integrators, format_integrators
 
             if args.what == "sim":
                 print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)), flush=True)
@@ -240,7 +240,7 @@ def _bench(args: argparse.Namespace) -> int:
             print(format_integrators(bench_integrators(ctx, steps=min(args.steps, 20), progress=note),
                                      machine_line(ctx)))
             if args.peers:
-                from .bench import peers_report
+                from deformgl.bench.studies import peers_report
 
                 print()
                 print(peers_report(ctx, steps=args.steps))
@@ -248,15 +248,15 @@ def _bench(args: argparse.Namespace) -> int:
             note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
             _study(args, ctx, note)
         elif args.what == "profile":
-            from .step_profile import profile_report
+            from deformgl.bench.profile import profile_report
 
             print(profile_report(ctx))
         elif args.what == "trilinear":
-            from .trilinear_scenes import trilinear_bench_report
+            from deformgl.bench.trilinear import trilinear_bench_report
 
             print(trilinear_bench_report(ctx))
         elif args.what == "binding":
-            from .binding import bench_binding
+            from deformgl.mapping.binding import bench_binding
 
             print(machine_line(ctx))
             print(bench_binding())

@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from deformgl.camera import frame_box
-from deformgl.colliders import draw_obstacles
-from deformgl.context import create_context
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.imagediff import write_png_atomic
-from deformgl.integrators import Constraints, Sphere
-from deformgl.render import Lighting, RenderTarget
-from deformgl.scenegraph import Geometry, GeometryNode, TrilinearRenderer, compose_scene
-from deformgl.springs import from_triangle_mesh, max_angular_frequency
+from deformgl.render.camera import frame_box
+from deformgl.scene.obstacles import draw_obstacles
+from deformgl.gl.context import create_context
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.files import write_png_atomic
+from deformgl.sim.integrators import Constraints, Sphere
+from deformgl.render.passes import Lighting, RenderTarget
+from deformgl.trilinear.scenegraph import Geometry, GeometryNode, TrilinearRenderer, compose_scene
+from deformgl.sim.springs import from_triangle_mesh, max_angular_frequency
 
 
 def shell_system():

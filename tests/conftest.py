@@ -41,7 +41,7 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
 
 @pytest.fixture(scope="session")
 def ctx():
-    from deformgl.context import create_context
+    from deformgl.gl.context import create_context
     from deformgl.errors import GLError
 
     try:
@@ -57,7 +57,7 @@ def ctx():
 @pytest.fixture
 def golden(request: pytest.FixtureRequest):
     """``golden(image, "name")`` compares a uint8 render with ``tests/golden/name.png``."""
-    from deformgl.imagediff import check_golden
+    from deformgl.testing.imagediff import check_golden
 
     update = request.config.getoption("--update-goldens")
 

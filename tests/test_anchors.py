@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from deformgl.anchors import Anchor, AnchorArray, anchor_frames, attachment_grid, locate_on_mesh
+from deformgl.trilinear.anchors import Anchor, AnchorArray, anchor_frames, attachment_grid, locate_on_mesh
 from deformgl.errors import InputError
-from deformgl.scenegraph import Geometry, GeometryNode, TransformNode, compose_scene
-from deformgl.trilinear import Bend, Box, Twist, unit_lattice
+from deformgl.trilinear.scenegraph import Geometry, GeometryNode, TransformNode, compose_scene
+from deformgl.trilinear.transforms import Bend, Box, Twist, unit_lattice
 
 LENGTH, WIDTH, RADIUS = 4.0, 2.0, 2.0
 

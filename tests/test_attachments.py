@@ -5,11 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deformgl.attachments import TubeAttachment
+from deformgl.trilinear.attachments import TubeAttachment
 from deformgl.errors import SceneError
-from deformgl.node_drivers import Motion, rotate
-from deformgl.scene import load_scene
-from deformgl.scenegraph import TrilinearRenderer
+from deformgl.mapping.node_drivers import Motion, rotate
+from deformgl.scene.schema import load_scene
+from deformgl.trilinear.scenegraph import TrilinearRenderer
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -96,7 +96,7 @@ def test_mapping_override_to_one_to_one_is_refused_with_attachments():
 def test_anchors_ignore_zero_area_faces():
     import trimesh
 
-    from deformgl.anchors import locate_on_mesh
+    from deformgl.trilinear.anchors import locate_on_mesh
 
     box = trimesh.creation.box()
     faces = np.vstack([box.faces, [[0, 0, 1]]])  # one degenerate face anywhere in the mesh

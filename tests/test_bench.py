@@ -2,8 +2,8 @@
 
 from pathlib import Path
 
-from deformgl.bench import bench_integrators, bench_sim, format_integrators, format_sim, machine_line
-from deformgl.integrators import INTEGRATORS
+from deformgl.bench.studies import bench_integrators, bench_sim, format_integrators, format_sim, machine_line
+from deformgl.sim.integrators import INTEGRATORS
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -37,9 +37,9 @@ def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, 
     small scaling sizes, mappings on 4 nodes) print the table and write the files."""
     import json
 
-    import deformgl.mapping_accuracy as mapping_accuracy
-    import deformgl.scaling as scaling
-    import deformgl.trade as trade
+    import deformgl.bench.mapping_accuracy as mapping_accuracy
+    import deformgl.bench.scaling as scaling
+    import deformgl.bench.trade as trade
     from deformgl.cli import main
 
     monkeypatch.setattr(scaling, "QUICK_SIZES", (8, 10))
@@ -71,7 +71,7 @@ def test_bench_out_must_be_a_folder(tmp_path, capsys):
 
 
 def test_bench_profile_rebuilds_the_step_stage_by_stage(ctx):
-    from deformgl.step_profile import STAGES, format_profile, profile_step
+    from deformgl.bench.profile import STAGES, format_profile, profile_step
 
     rows = profile_step(ctx, grids=((6, 5, 4),), passes=2, repeats=1)
     assert [r.what for r in rows if r.lookup == "index"] == [*STAGES, "full step"]

@@ -1,4 +1,4 @@
-"""Tests for :mod:`deformgl.binding`: binding a detailed mesh to the node surface (no GL).
+"""Tests for :mod:`deformgl.mapping.binding`: binding a detailed mesh to the node surface (no GL).
 
 Rest reproduction and rigid motion are checked through :func:`deformgl.mapping.map_vertices`,
 the float64 forward mapping the binding inverts; closest points against trimesh's per-triangle
@@ -16,8 +16,8 @@ import pytest
 import trimesh
 from trimesh.triangles import closest_point as triangle_closest_point
 
-from deformgl import binding as bd
-from deformgl.binding import (
+from deformgl.mapping import binding as bd
+from deformgl.mapping.binding import (
     Binding,
     bind,
     binding_key,
@@ -27,13 +27,13 @@ from deformgl.binding import (
     save_binding,
 )
 from deformgl.errors import InputError
-from deformgl.grid import NodeGrid
-from deformgl.mapping import map_vertices
-from deformgl.meshio import load_mesh
-from deformgl.model import SpringModel
-from deformgl.surface import GridSurface, grid_surface
-from deformgl.tangents import procedural_uv, vertex_tangents
-from deformgl.voxelize import voxelize
+from deformgl.grid.nodes import NodeGrid
+from deformgl.mapping.bases import map_vertices
+from deformgl.grid.meshio import load_mesh
+from deformgl.sim.model import SpringModel
+from deformgl.grid.surface import GridSurface, grid_surface
+from deformgl.mapping.tangents import procedural_uv, vertex_tangents
+from deformgl.grid.voxelize import voxelize
 
 ASSETS = Path(__file__).resolve().parents[1] / "scenes" / "assets"
 DRAGON = ASSETS / "dragon_vrip_res4.ply.gz"

@@ -6,12 +6,12 @@ import moderngl
 import numpy as np
 import pytest
 
-from deformgl import springs
-from deformgl.census import NodeCensus
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.fragment_integrators import FragmentIntegrator
-from deformgl.grid import NodeGrid
-from deformgl.integrators import initial_state
+from deformgl.sim import springs
+from deformgl.sim.census import NodeCensus
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import initial_state
 
 #: (count, row, slots): a partly filled last row, a single partial row, a full square
 LAYOUTS = [(203, 16, 1), (203, 16, 2), (5, 8, 2), (64, 8, 1)]

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from deformgl.cli import main
-from deformgl.imagediff import read_png
+from deformgl.files import read_png
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -120,8 +120,8 @@ def test_bad_input_gives_one_line_error_and_no_png(ctx, jelly, tmp_path, capsys,
 
 def test_texture_limit_error_names_scene_key(jelly):
     from deformgl.errors import InputError
-    from deformgl.pipeline import build_scene_model, check_texture_limit
-    from deformgl.scene import load_scene
+    from deformgl.scene.pipeline import build_scene_model, check_texture_limit
+    from deformgl.scene.schema import load_scene
 
     scene = load_scene(jelly)
     built = build_scene_model(scene)

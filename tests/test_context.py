@@ -2,10 +2,10 @@
 
 import pytest
 
-from deformgl import context as context_mod
-from deformgl.context import context_info, create_context, device_from_env
+from deformgl.gl import context as context_mod
+from deformgl.gl.context import context_info, create_context, device_from_env
 from deformgl.errors import GLError, ShaderError
-from deformgl.program import Program
+from deformgl.gl.programs import Program
 
 
 def test_context_is_gl33_core_and_info_reports_capabilities(ctx):
@@ -60,7 +60,7 @@ def test_unknown_uniform_names_program_and_uniform(ctx):
 
 
 def test_compile_error_names_the_included_file(ctx, monkeypatch):
-    from deformgl import glsl
+    from deformgl.gl import preprocessor as glsl
 
     real = glsl.read_shader_file
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deformgl import integrators as I
-from deformgl import springs
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.fragment_integrators import FragmentIntegrator
-from deformgl.grid import NodeGrid
-from deformgl.integrators import INTEGRATORS
+from deformgl.sim import integrators as I
+from deformgl.sim import springs
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import INTEGRATORS
 
 BACKENDS = ("fragment", "feedback")
 

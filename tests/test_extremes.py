@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl import integrators as I
-from deformgl.census import NodeCensus
-from deformgl.fragment_integrators import FragmentIntegrator
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.grid import CompactLayout, NodeGrid
-from deformgl.pipeline import build_scene_model, render_scene
-from deformgl.scene import load_scene
-from deformgl.springs import SpringSystem, cloth, from_grid
-from deformgl.stability import check_dt, dt_limit, exact_frequency, spectral_radius
+from deformgl.sim import integrators as I
+from deformgl.sim.census import NodeCensus
+from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.scene.pipeline import build_scene_model, render_scene
+from deformgl.scene.schema import load_scene
+from deformgl.sim.springs import SpringSystem, cloth, from_grid
+from deformgl.sim.stability import check_dt, dt_limit, exact_frequency, spectral_radius
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 ZETA = 0.1  # damping ratio of the top mode
@@ -175,8 +175,8 @@ def test_every_backend_runs_at_the_texture_limit_and_refuses_beyond_it(ctx, monk
     naming the limit: for the fragment backends 64x64 nodes fill the node texture exactly; for
     transform feedback the spring lists (2 entries per spring) fill their 64x64 texture first."""
     from deformgl.errors import GLError
-    from deformgl.fragment_sim import FragmentSimulation
-    from deformgl.model import SpringModel
+    from deformgl.sim.backends.foundation import FragmentSimulation
+    from deformgl.sim.model import SpringModel
 
     real = dict(ctx.info)
     monkeypatch.setattr(type(ctx), "info", property(lambda self: {**real, "GL_MAX_TEXTURE_SIZE": 64}))
@@ -306,8 +306,8 @@ def test_a_grid_spacing_of_1e_4_runs_the_same_scene_scaled(ctx, jelly_image, tmp
 def test_a_nan_node_spreads_only_to_its_springs_on_dense_and_indexed_grids(ctx, layout):
     """Absent neighbours read the node itself (d = 0), never an unrelated node across a row
     wrap, so a NaN reaches exactly the nodes connected to it, the same on both lookups."""
-    from deformgl.fragment_sim import FragmentSimulation
-    from deformgl.model import SpringModel
+    from deformgl.sim.backends.foundation import FragmentSimulation
+    from deformgl.sim.model import SpringModel
 
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((3, 4, 3), bool))
     model = SpringModel(grid=grid, mass=np.full(grid.count, 0.01), fixed=np.zeros(grid.count, bool),

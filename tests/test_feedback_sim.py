@@ -6,11 +6,11 @@ import moderngl
 import numpy as np
 import pytest
 
-from deformgl import integrators as I
-from deformgl import springs
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.grid import NodeGrid
-from deformgl.integrators import INTEGRATORS, Constraints, Sphere
+from deformgl.sim import integrators as I
+from deformgl.sim import springs
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
 
 EPS32 = 2.0 ** -23
 
@@ -265,7 +265,7 @@ def test_release_and_constructor_failure_clean_up(ctx, monkeypatch):
     def released(obj) -> bool:
         return type(obj.mglo).__name__ == "InvalidObject"
 
-    from deformgl import feedback_sim
+    from deformgl.sim.backends import feedback as feedback_sim
 
     def broken(*args, **kwargs):
         raise RuntimeError("no program")

@@ -6,11 +6,11 @@ import moderngl
 import numpy as np
 import pytest
 
-from deformgl import integrators as I
-from deformgl import springs
-from deformgl.fragment_integrators import FragmentIntegrator, grid_neighbours
-from deformgl.grid import NodeGrid
-from deformgl.integrators import INTEGRATORS, Constraints, Sphere
+from deformgl.sim import integrators as I
+from deformgl.sim import springs
+from deformgl.sim.backends.fragment import FragmentIntegrator, grid_neighbours
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
 
 EPS32 = 2.0 ** -23
 
@@ -290,7 +290,7 @@ def test_release_and_constructor_failure_clean_up(ctx, monkeypatch):
     def released(obj) -> bool:
         return type(obj.mglo).__name__ == "InvalidObject"
 
-    from deformgl import fragment_integrators
+    from deformgl.sim.backends import fragment as fragment_integrators
 
     def broken(*args, **kwargs):
         raise RuntimeError("no program")
@@ -347,7 +347,7 @@ def test_moving_sphere_matches_reference(ctx, name):
 def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, monkeypatch, name):
     """A full block (and a sheet, with flexion) gives bit-identical steps with the neighbour
     texture and with node-number offsets; a grid with a hole keeps the texture."""
-    from deformgl.grid import CompactLayout
+    from deformgl.grid.nodes import CompactLayout
 
     system, grid = damped_grid(4)
     results = {}
@@ -366,7 +366,7 @@ def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, mon
     occupied = np.ones((4, 4, 4), bool)
     occupied[1, 1, 1] = False
     holed = NodeGrid(np.zeros(3), 0.1, occupied)
-    from deformgl.springs import from_grid
+    from deformgl.sim.springs import from_grid
 
     sim = FragmentIntegrator(ctx, from_grid(holed, k_structural=10.0, k_shear=10.0, mass=0.01), holed, name, 1e-3)
     try:

@@ -2,7 +2,7 @@
 
 import pytest
 
-from deformgl import glsl
+from deformgl.gl import preprocessor as glsl
 from deformgl.errors import ShaderError
 
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from deformgl.pipeline import render_scene
-from deformgl.scene import load_scene
+from deformgl.scene.pipeline import render_scene
+from deformgl.scene.schema import load_scene
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 

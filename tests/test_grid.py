@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.grid import NEIGHBOUR_OFFSETS, REST_LENGTH_UNITS, AtlasLayout, NodeGrid
-from deformgl.surface import grid_surface
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, REST_LENGTH_UNITS, AtlasLayout, NodeGrid
+from deformgl.grid.surface import grid_surface
 
 
 def make_grid(occ, spacing=0.5):

@@ -1,4 +1,4 @@
-"""Tests for deformgl.imagediff: tolerant image comparison, diff images, atomic PNG writing."""
+"""Tests for deformgl.testing.imagediff: tolerant image comparison, diff images, atomic PNG writing."""
 
 from __future__ import annotations
 
@@ -10,14 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from deformgl.imagediff import (
-    ImageDiff,
-    check_golden,
-    compare_images,
-    diff_image,
-    read_png,
-    write_png_atomic,
-)
+from deformgl.files import read_png, write_png_atomic
+
+from deformgl.testing.imagediff import ImageDiff, check_golden, compare_images, diff_image
 
 HEIGHT, WIDTH = 100, 120  # not square, so swapped x and y show up
 

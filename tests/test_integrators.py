@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from deformgl.grid import NodeGrid
-from deformgl.integrators import (INTEGRATORS, Constraints, Drag, Sphere, State, initial_state,
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import (INTEGRATORS, Constraints, Drag, Sphere, State, initial_state,
                                   memory_per_node, run_until_converged, simulate, step)
-from deformgl.model import SpringModel
-from deformgl.reference import ReferenceVerlet
-from deformgl.springs import STRUCTURAL, SpringSystem, cloth, from_grid, from_triangle_mesh
+from deformgl.sim.model import SpringModel
+from deformgl.sim.reference import ReferenceVerlet
+from deformgl.sim.springs import STRUCTURAL, SpringSystem, cloth, from_grid, from_triangle_mesh
 
 G = 9.81
 H = 0.05

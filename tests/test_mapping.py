@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.fragment_sim import NodeTextures
-from deformgl.mapping import map_vertices
-from deformgl.mapping_setup import mapped_vertices, rest_node_normals
-from deformgl.node_drivers import DrivenNodes, Motion
-from deformgl.normals import unpack_normals
-from deformgl.pipeline import build_scene_model, make_draw_pass
-from deformgl.scene import load_scene
+from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.mapping.bases import map_vertices
+from deformgl.render.mapped_setup import mapped_vertices, rest_node_normals
+from deformgl.mapping.node_drivers import DrivenNodes, Motion
+from deformgl.sim.normals import unpack_normals
+from deformgl.scene.pipeline import build_scene_model, make_draw_pass
+from deformgl.scene.schema import load_scene
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -186,13 +186,13 @@ def test_export_mesh_is_what_the_vertex_shader_computed(ctx, mapped, tmp_path, c
     code, _, err = render_cli(capsys, "render", scene, "-o", tmp_path / "bent.png", "--size", "64x48",
                               "--export-mesh", out, "--quiet")
     assert code == 0, err
-    from deformgl.meshio import load_mesh
+    from deformgl.grid.meshio import load_mesh
 
     loaded = load_mesh(out)  # keeps every vertex, in order
     # the same capture, in this process: the exported mesh holds exactly these vertices
     m = mapped(scene, "curvature")
     motion = m.scene.nodes.motion
-    from deformgl.node_drivers import Motion as M
+    from deformgl.mapping.node_drivers import Motion as M
     vertices, _ = m.gpu(M(motion.kind, motion.angle, motion.axis, motion.along, motion.towards,
                           motion.translate).apply(m.rest, motion.amount))
     expected = vertices.astype(np.float64) + m.built.centre
@@ -234,7 +234,7 @@ def test_nodes_from_npy_file_frame_and_sequence(ctx, mapped, tmp_path, capsys):
         scene = scene_with_nodes(tmp_path, "[nodes]\n" + table + "\n")
         code, _, err = render_cli(capsys, "render", scene, "-o", tmp_path / f"{name}.png", "--quiet")
         assert code == 0, err
-        from deformgl.imagediff import read_png
+        from deformgl.files import read_png
         images[name] = read_png(tmp_path / f"{name}.png")
     assert not np.array_equal(images["rest"], images["lifted"])
     assert not np.array_equal(images["rest"], images["stretched"])
@@ -259,8 +259,8 @@ def test_bad_node_files_are_clear_errors(ctx, tmp_path, capsys, content, message
 def test_normal_map_changes_shading_and_strength_zero_removes_it(ctx, golden):
     import dataclasses as dc
 
-    from deformgl.imagediff import compare_images
-    from deformgl.pipeline import render_scene
+    from deformgl.testing.imagediff import compare_images
+    from deformgl.scene.pipeline import render_scene
 
     base = load_scene(SCENES / "dragon_bend_constant.toml").with_overrides(size=(160, 120))
     mapped_img = render_scene(ctx, base)
@@ -274,7 +274,9 @@ def test_shader_pack_example_draws_like_deformgl(ctx, tmp_path, capsys):
     import subprocess
     import sys
 
-    from deformgl.imagediff import compare_images, read_png
+    from deformgl.files import read_png
+
+    from deformgl.testing.imagediff import compare_images
 
     root = Path(__file__).resolve().parent.parent
     scene = SCENES / "fin.toml"
@@ -314,11 +316,11 @@ def test_auto_keeps_the_constant_basis_where_node_normals_disagree(mapped):
 def test_two_stage_draw_equals_one_stage_draw(ctx, normal_map):
     import dataclasses as dc
 
-    from deformgl.imagediff import compare_images
-    from deformgl.mapped_render import MappedMeshPass
-    from deformgl.pipeline import scene_lighting, scene_view
-    from deformgl.render import RenderTarget
-    from deformgl.tangents import procedural_normal_map
+    from deformgl.testing.imagediff import compare_images
+    from deformgl.render.mapped import MappedMeshPass
+    from deformgl.scene.pipeline import scene_lighting, scene_view
+    from deformgl.render.passes import RenderTarget
+    from deformgl.mapping.tangents import procedural_normal_map
 
     scene = load_scene(SCENES / "dragon_bend_curvature.toml").with_overrides(size=(200, 150))
     scene = dc.replace(scene, mapping=dc.replace(scene.mapping, normal_map=normal_map))
@@ -360,9 +362,11 @@ def test_binding_report_is_printed_unless_quiet(ctx, tmp_path, capsys):
 def test_normal_map_from_a_png_file(ctx, tmp_path):
     import dataclasses as dc
 
-    from deformgl.imagediff import compare_images, write_png_atomic
-    from deformgl.pipeline import render_scene
-    from deformgl.tangents import procedural_normal_map
+    from deformgl.files import write_png_atomic
+
+    from deformgl.testing.imagediff import compare_images
+    from deformgl.scene.pipeline import render_scene
+    from deformgl.mapping.tangents import procedural_normal_map
 
     write_png_atomic(tmp_path / "detail.png", procedural_normal_map())
     base = load_scene(SCENES / "dragon_bend_constant.toml").with_overrides(size=(160, 120))

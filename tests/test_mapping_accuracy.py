@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.mapping import map_vertices
-from deformgl.mapping_accuracy import (MODES, GridMappings, MappingRow, format_mapping_accuracy,
+from deformgl.mapping.bases import map_vertices
+from deformgl.bench.mapping_accuracy import (MODES, GridMappings, MappingRow, format_mapping_accuracy,
                                        mapping_accuracy, write_csv, write_json)
-from deformgl.node_drivers import Motion
-from deformgl.normals import unpack_normals
-from deformgl.scene import load_scene
+from deformgl.mapping.node_drivers import Motion
+from deformgl.sim.normals import unpack_normals
+from deformgl.scene.schema import load_scene
 
 RIGID = Motion("rigid", 35.0, axis=1, translate=(0.02, -0.01, 0.03))
 BEND = Motion("bend", 80.0, along=0, towards=1)

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from deformgl.errors import InputError
-from deformgl.meshio import SUPPORTED_SUFFIXES, load_mesh
+from deformgl.grid.meshio import SUPPORTED_SUFFIXES, load_mesh
 
 DRAGON = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res4.ply.gz"
 
@@ -260,7 +260,7 @@ def test_uvs_are_kept(tmp_path):
     """Per-vertex UVs survive loading (the normal map uses the mesh's own UVs)."""
     import trimesh as tm
 
-    from deformgl.mapping_setup import mesh_uv
+    from deformgl.render.mapped_setup import mesh_uv
 
     mesh = tm.creation.box()
     uv = np.stack([mesh.vertices[:, 0] + 0.5, mesh.vertices[:, 1] + 0.5], axis=1)

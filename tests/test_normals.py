@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from deformgl.glsl import read_shader_file
-from deformgl.normals import LEVELS, NO_NORMAL, pack_normals, unpack_normals
+from deformgl.gl.preprocessor import read_shader_file
+from deformgl.sim.normals import LEVELS, NO_NORMAL, pack_normals, unpack_normals
 
 
 def directions(n=200_000, seed=1):

@@ -6,10 +6,10 @@ import sys
 import numpy as np
 import pytest
 
-from deformgl import peers
-from deformgl.grid import NodeGrid
-from deformgl.model import MAX_PULLS, SpringModel
-from deformgl.reference import ReferenceVerlet
+from deformgl.bench import peers
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.model import MAX_PULLS, SpringModel
+from deformgl.sim.reference import ReferenceVerlet
 
 H = 0.05
 #: float32 peers after 50 steps of the jelly block below: max |x - x_ref| <= TOL * spacing
@@ -152,8 +152,8 @@ def test_available_peers_and_lazy_import(monkeypatch):
     assert "import of warp halted" in peers.peer_import_errors()["warp"]
     with pytest.raises(ValueError, match="peer must be one of"):
         peers.make_stepper("numba", jelly(), 1e-3)
-    # importing deformgl.peers imports neither peer package
-    code = "import sys, deformgl.peers; print('taichi' in sys.modules, 'warp' in sys.modules)"
+    # importing deformgl.bench.peers imports neither peer package
+    code = "import sys, deformgl.bench.peers; print('taichi' in sys.modules, 'warp' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "False"]
 
@@ -166,7 +166,7 @@ def test_invalid_dt():
 def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
     for peer in peers.PEERS:
         need(peer)
-    from deformgl.bench import peers_report
+    from deformgl.bench.studies import peers_report
 
     text = peers_report(ctx, steps=2, grids=((4, 4, 3),), rounds=2)
     assert "renderer" in text and "2 alternating rounds" in text and "4x4x3 (48 nodes): fragment" in text

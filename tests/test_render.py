@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from deformgl.camera import frame_box, look_at, orthographic, perspective
-from deformgl.fragment_sim import FragmentSimulation
-from deformgl.grid import NodeGrid
-from deformgl.model import SpringModel
+from deformgl.render.camera import frame_box, look_at, orthographic, perspective
+from deformgl.sim.backends.foundation import FragmentSimulation
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.model import SpringModel
 from deformgl.progress import Progress
-from deformgl.render import GridSurfacePass, Lighting, RenderTarget
+from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 
 
 def block_model():

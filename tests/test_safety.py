@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from deformgl.errors import SceneError, SimulationError
-from deformgl.pipeline import NodeState, build_scene_model, render_to_png
-from deformgl.safety import MAX_SUBSTEPS, SAFETY_MARGIN, BlowUp, StepPlan, describe_bad_node, plan_steps
-from deformgl.scene import Safety, load_scene
-from deformgl.scene_sim import SceneBox, run_scene, run_with_retries, scene_system
-from deformgl.stability import check_dt, dt_limit
+from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
+from deformgl.sim.guards import MAX_SUBSTEPS, SAFETY_MARGIN, BlowUp, StepPlan, describe_bad_node, plan_steps
+from deformgl.scene.schema import Safety, load_scene
+from deformgl.scene.run import SceneBox, run_scene, run_with_retries, scene_system
+from deformgl.sim.stability import check_dt, dt_limit
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -47,7 +47,7 @@ def test_plan_accepts_a_stable_dt_and_refuses_one_above_the_limit(jelly):
     assert "--allow-unstable" in text and "--subdivide" in text and "lanczos bound" in text
     # beyond 30,000 free nodes only the Gershgorin bound is used, and the message says it is conservative
     gershgorin = dt_limit(system, "verlet", exact=False).dt
-    from deformgl import safety
+    from deformgl.sim import guards as safety
 
     refusal = check_dt(system, "verlet", 1.2 * gershgorin, lanczos_up_to=0)
     assert refusal is not None and refusal.limit.bound == "gershgorin"
@@ -139,7 +139,7 @@ def test_the_foundation_pass_is_watched_too_and_reads_nothing_back(ctx, jelly, m
 def test_a_far_away_finite_node_counts_as_blown_up(ctx, jelly):
     """A node flung beyond bad_distance box lengths is caught before it overflows: a drag pulls
     one node 50 box lengths away, with bad_distance 10."""
-    from deformgl.scene import DragSpec, Keyframes
+    from deformgl.scene.schema import DragSpec, Keyframes
 
     scene, built, _ = jelly
 
@@ -186,7 +186,7 @@ def test_bad_safety_keys_name_the_key(tmp_path, text, key):
 def test_the_blow_up_message_names_the_last_clean_check_and_halving_reaches_the_cap():
     """Checks fall every 100 steps and at the end: a blow-up seen at the final check (250) names
     step 200 as the last clean one; from 9 substeps a restart tries the cap, 16."""
-    from deformgl.safety import BlowUpWatch
+    from deformgl.sim.guards import BlowUpWatch
 
     class Census:
         def __init__(self):

@@ -7,11 +7,11 @@ import moderngl
 import numpy as np
 import pytest
 
-from deformgl import grid as grid_module
-from deformgl.bench import block_model
-from deformgl.feedback_sim import FeedbackSimulation
-from deformgl.scaling import UPPER_NODES, ScalingReport, ScalingRow, bench_scaling, fit_power_law
-from deformgl.springs import from_grid
+from deformgl.grid import nodes as grid_module
+from deformgl.bench.studies import block_model
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.bench.scaling import UPPER_NODES, ScalingReport, ScalingRow, bench_scaling, fit_power_law
+from deformgl.sim.springs import from_grid
 
 
 def test_fit_recovers_an_exact_power_law():

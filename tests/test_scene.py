@@ -1,4 +1,4 @@
-"""Tests for deformgl.scene: parsing, defaults, every class of error message, regions and pulls."""
+"""Tests for deformgl.scene.schema: parsing, defaults, every class of error message, regions and pulls."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from deformgl.errors import SceneError
-from deformgl.scene import (
+from deformgl.scene.schema import (
     ClothSpec, Converge, Mapping, MotionSpec, Nodes,
     Camera, GridSpec, Light, Material, MeshSpec, Output, Physics, Pull, Region, Render, Scene, load_scene,
     parse_size,

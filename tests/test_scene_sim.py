@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deformgl import integrators as I
+from deformgl.sim import integrators as I
 from deformgl.errors import SimulationError
-from deformgl.integrators import INTEGRATORS
-from deformgl.pipeline import NodeState, build_scene_model
-from deformgl.scene import Converge, Safety, load_scene
-from deformgl.scene_sim import SceneBox, needs_integrators, run_scene, scene_constraints, scene_drags
+from deformgl.sim.integrators import INTEGRATORS
+from deformgl.scene.pipeline import NodeState, build_scene_model
+from deformgl.scene.schema import Converge, Safety, load_scene
+from deformgl.scene.run import SceneBox, needs_integrators, run_scene, scene_constraints, scene_drags
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -138,10 +138,10 @@ def test_plain_scenes_keep_the_foundation_pass(ctx):
 def test_foundation_pass_and_integrator_verlet_are_the_same_function(ctx):
     """From the same start (x_prev = x: the foundation starts at rest that way; the integrator
     backends start from the second-order Taylor x_prev) the two compute the same steps."""
-    from deformgl.fragment_integrators import FragmentIntegrator
-    from deformgl.fragment_sim import FragmentSimulation
-    from deformgl.pipeline import pull_schedule
-    from deformgl.scene_sim import scene_loads, scene_system
+    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.foundation import FragmentSimulation
+    from deformgl.scene.pipeline import pull_schedule
+    from deformgl.scene.run import scene_loads, scene_system
 
     scene = load_scene(SCENES / "jelly.toml")
     built = build_scene_model(scene)

@@ -4,14 +4,15 @@ import numpy as np
 import pytest
 
 from deformgl.errors import GLError, InputError
-from deformgl.scenegraph import (
+from deformgl.trilinear.scenegraph import (
     Geometry, GeometryNode, GroupNode, TransformNode, atlas_image, compose_scene, instance_data, pack_atlas,
     shader_defines,
 )
-from deformgl.trilinear import (
+from deformgl.trilinear.transforms import (
     Bend, Box, Taper, Trilinear, Twist, apply_coefficients, coefficient_matrix, compose, trilinear_corners,
 )
-from deformgl.trilinear_scenes import depth_scene, tile_scene, tubes_scene, uv_sphere
+from deformgl.trilinear.scenes import depth_scene, tile_scene, tubes_scene
+from deformgl.trilinear.shapes import uv_sphere
 
 RNG = np.random.default_rng(7)
 

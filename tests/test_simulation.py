@@ -4,11 +4,11 @@ import moderngl
 import numpy as np
 import pytest
 
-from deformgl.fragment_sim import FragmentSimulation
-from deformgl.grid import NodeGrid
-from deformgl.model import MAX_PULLS, SpringModel
-from deformgl.normals import unpack_normals
-from deformgl.reference import ReferenceVerlet, spring_sums
+from deformgl.sim.backends.foundation import FragmentSimulation
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.model import MAX_PULLS, SpringModel
+from deformgl.sim.normals import unpack_normals
+from deformgl.sim.reference import ReferenceVerlet, spring_sums
 
 H = 0.05
 
@@ -171,8 +171,8 @@ def test_unconstrained_grid_falls_half_g_t_squared(ctx):
 
 
 def test_no_texture_read_back_while_stepping_and_drawing(ctx, monkeypatch):
-    from deformgl.camera import frame_box
-    from deformgl.render import GridSurfacePass, Lighting, RenderTarget
+    from deformgl.render.camera import frame_box
+    from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 
     model = model_for(dragon_like_occupancy(), fixed=top_fixed)
     sim = FragmentSimulation(ctx, model, 1e-3)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.grid import NodeGrid
-from deformgl.springs import (FLEXION, SHEAR, STRUCTURAL, Drag, SpringSystem, cloth, forces,
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.springs import (FLEXION, SHEAR, STRUCTURAL, Drag, SpringSystem, cloth, forces,
                               from_grid, from_triangle_mesh, max_angular_frequency)
 
 H = 0.05

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from deformgl import stability as st
-from deformgl.grid import NodeGrid
-from deformgl.integrators import acceleration, initial_state, step
-from deformgl.springs import SpringSystem, cloth, from_grid, max_angular_frequency
+from deformgl.sim import stability as st
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import acceleration, initial_state, step
+from deformgl.sim.springs import SpringSystem, cloth, from_grid, max_angular_frequency
 
 NO_GRAVITY = (0.0, 0.0, 0.0)
 

@@ -1,4 +1,4 @@
-"""Tests for :mod:`deformgl.tangents`: vertex normals, UV tangents, procedural UVs and detail map."""
+"""Tests for :mod:`deformgl.mapping.tangents`: vertex normals, UV tangents, procedural UVs and detail map."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.tangents import (
+from deformgl.mapping.tangents import (
     any_orthogonal,
     orthonormalize_tangents,
     procedural_normal_map,

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from deformgl.errors import DeformglError
-from deformgl.grid import NodeGrid
-from deformgl.integrators import INTEGRATORS
-from deformgl.springs import cloth
-from deformgl.trade import (TradeReport, TradeRow, Workload, pareto_front, read_csv,
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.springs import cloth
+from deformgl.bench.trade import (TradeReport, TradeRow, Workload, pareto_front, read_csv,
                             trade_study)
 
 VOLUME, CLOTH = "volume under a drag", "cloth on a sphere"

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from deformgl.errors import InputError
-from deformgl.trilinear import (
+from deformgl.trilinear.transforms import (
     CORNERS, Bend, Box, Helix, Taper, TorusWrap, Trilinear, Twist, apply_coefficients, coefficient_matrix,
     compose, corner_weight_gradients, corner_weights, finite_difference_jacobian, is_linear_coefficients,
     parameter_vector, tangent_affine, transform_normals, trilinear_corners,

@@ -4,10 +4,10 @@ feedback (Knuth, Kohlhammer & Kuijper eq. 1-4, grids by 3D-texture filtering, no
 import numpy as np
 import pytest
 
-from deformgl.camera import frame_box
-from deformgl.render import Lighting, RenderTarget
-from deformgl.scenegraph import Geometry, GeometryNode, GroupNode, TransformNode, TrilinearRenderer, compose_scene
-from deformgl.trilinear import Box, Trilinear, Twist, finite_difference_jacobian, unit_lattice
+from deformgl.render.camera import frame_box
+from deformgl.render.passes import Lighting, RenderTarget
+from deformgl.trilinear.scenegraph import Geometry, GeometryNode, GroupNode, TransformNode, TrilinearRenderer, compose_scene
+from deformgl.trilinear.transforms import Box, Trilinear, Twist, finite_difference_jacobian, unit_lattice
 
 RNG = np.random.default_rng(99)
 BOX = Box(np.array([-1.0, -0.5, 0.0]), np.array([1.0, 0.5, 3.0]))
@@ -163,7 +163,7 @@ def test_draw_picks_the_path_per_leaf_and_renders_all(ctx):
 
 
 def _sphere(n=16):
-    from deformgl.trilinear_scenes import uv_sphere
+    from deformgl.trilinear.shapes import uv_sphere
 
     g = uv_sphere(1.0, n, n)
     return g.vertices, g.normals, g.triangles

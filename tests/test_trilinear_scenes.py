@@ -5,11 +5,10 @@ import pytest
 import trimesh
 
 from deformgl.errors import InputError
-from deformgl.imagediff import read_png
-from deformgl.trilinear_scenes import (
-    BenchSetup, bench_depth, bench_trilinear, format_trilinear, hall_tile, render_trilinear_scene, tube, uv_sphere,
-    write_trilinear_scene,
-)
+from deformgl.files import read_png
+from deformgl.bench.trilinear import BenchSetup, bench_depth, bench_trilinear, format_trilinear
+from deformgl.trilinear.scenes import render_trilinear_scene, write_trilinear_scene
+from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
 
 SIZE = (320, 240)
 

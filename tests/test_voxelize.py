@@ -1,4 +1,4 @@
-"""Tests for :mod:`deformgl.voxelize`: grid definition, exact surface cover, interior fill."""
+"""Tests for :mod:`deformgl.grid.voxelize`: grid definition, exact surface cover, interior fill."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import pytest
 import trimesh
 from scipy import ndimage
 
-from deformgl import voxelize as vz
+from deformgl.grid import voxelize as vz
 from deformgl.errors import InputError
-from deformgl.meshio import load_mesh
-from deformgl.voxelize import Voxelization, node_positions, voxelize
+from deformgl.grid.meshio import load_mesh
+from deformgl.grid.voxelize import Voxelization, node_positions, voxelize
 
 DRAGON = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res4.ply.gz"
 HALF_DIAGONAL = np.sqrt(3) / 2  # centre-to-corner distance of a unit cube

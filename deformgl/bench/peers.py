@@ -1,0 +1,479 @@
+"""The foundation step of :class:`~deformgl.reference.ReferenceVerlet` in Taichi and NVIDIA Warp
+on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
+
+Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (eq. 1/2 of
+Mosegaard & Sørensen 2005 over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
+velocity damping ``-c (x - x_prev)/dt``, gravity, pull groups, fixed nodes kept exactly). The
+state stays inside the peer between steps; only :meth:`positions` copies it out. The eq. 3
+normals are not computed (nothing here draws).
+
+The peer packages are optional (``pip install deformgl[peers]``) and imported lazily:
+
+* Taichi runs its kernels on the CPU backend (``ti.init(arch=ti.cpu)``, once per process, with
+  Taichi's default thread pool of ``cpu_max_num_threads`` = the core count). Each model gets its
+  own fields in their own SNode tree and its own kernel, so several models live in one process
+  without ``ti.reset()``.
+* Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
+  the calling thread (one thread).
+
+On dense grids (every node of the box exists: blocks, cloth sheets) both peers find neighbour
+``j`` of node ``i`` at ``i + offsets[j]`` when bit ``j`` of the node's mask is set, like the
+fragment pass's ``COMPACT_DENSE`` variant; elsewhere they read the (N, 18) neighbour table.
+"""
+
+# no "from __future__ import annotations": Taichi and Warp read the kernel annotations as objects
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
+from deformgl.sim.model import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, SpringModel
+
+PEERS = ("taichi", "warp")
+PullSchedule = Callable[[float], np.ndarray]
+
+
+def available_peers() -> dict[str, str | None]:
+    """Version of each installed peer package; None where it cannot be imported.
+
+    Returns:
+        ``{"taichi": "1.7.4" | None, "warp": "1.19.0" | None}``; use :func:`peer_import_errors`
+        for the reason of a None.
+    """
+    return {name: version for name, (version, _) in _probe().items()}
+
+
+def peer_import_errors() -> dict[str, str]:
+    """The import error of each peer that is not available."""
+    return {name: err for name, (_, err) in _probe().items() if err is not None}
+
+
+def _probe() -> dict[str, tuple[str | None, str | None]]:
+    out = {}
+    for name, module in (("taichi", "taichi"), ("warp", "warp")):
+        try:
+            mod = __import__(module)
+        except Exception as exc:  # ImportError, or a native library that fails to load
+            out[name] = (None, f"{type(exc).__name__}: {exc}")
+            continue
+        version = getattr(mod, "__version__", None)
+        if isinstance(version, tuple):
+            version = ".".join(map(str, version))
+        out[name] = (str(version), None)
+    return out
+
+
+def _pull_rows(pull_force: PullSchedule | None, t: float) -> np.ndarray:
+    """(MAX_PULLS, 3) float32 pull force per group at time t, as ReferenceVerlet.pull_at."""
+    out = np.zeros((MAX_PULLS, 3), np.float32)
+    if pull_force is not None:
+        p = np.asarray(pull_force(t), dtype=np.float64)
+        out[: min(len(p), MAX_PULLS)] = p[:MAX_PULLS]
+    return out
+
+
+class PeerStepper:
+    """Common part of the peer steppers: model data in float32, rotation of three state buffers.
+
+    Args:
+        model: the spring model.
+        dt: time step (s).
+        pull_force: callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group, or None
+            (evaluated at ``steps_done * dt`` before each step, as in ReferenceVerlet).
+    """
+
+    name = ""
+
+    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        self.model = model
+        self.dt = float(dt)
+        self.pull_force = pull_force
+        self.steps_done = 0
+        grid = model.grid
+        self.rest32 = np.ascontiguousarray(grid.rest_positions, dtype=np.float32)
+        self._neighbours = np.ascontiguousarray(grid.neighbours, dtype=np.int32)
+        # dense grids (every node of the box exists): neighbour j of node i is i + offsets[j] when
+        # bit j of the mask is set, as the fragment pass's COMPACT_DENSE variant does
+        self.dense = grid.full
+        self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array(node_strides(grid.shape)))
+        self._mask = np.ascontiguousarray(grid.neighbour_mask, dtype=np.int32)
+        self._mass = np.ascontiguousarray(model.mass, dtype=np.float32)
+        self._flags = np.ascontiguousarray(model.flags(), dtype=np.int32)
+        self._scalars = tuple(float(np.float32(v)) for v in (
+            grid.spacing, model.k_structural, model.k_shear, model.damping, self.dt))
+        self._gravity = tuple(float(g) for g in np.asarray(model.gravity, np.float32))
+        self._zero_pull = np.zeros((MAX_PULLS, 3), np.float32)
+
+    @property
+    def time(self) -> float:
+        """Simulated time (s)."""
+        return self.steps_done * self.dt
+
+    def _pull(self) -> np.ndarray:
+        if self.pull_force is None:
+            return self._zero_pull
+        return _pull_rows(self.pull_force, self.time)
+
+    def step(self, n: int = 1) -> None:
+        """Advance n steps (state stays in the peer's arrays)."""
+        for _ in range(n):
+            self._launch(self._pull())
+            self.steps_done += 1
+        self._sync()
+
+    def _launch(self, pull: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _sync(self) -> None:
+        pass
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 current positions (one copy out)."""
+        raise NotImplementedError
+
+    def set_state(self, x: np.ndarray, x_prev: np.ndarray | None = None) -> None:
+        """Overwrite the current (and previous, default: same) positions, e.g. for a test."""
+        raise NotImplementedError
+
+    @property
+    def threads(self) -> int:
+        """Worker threads a step uses."""
+        raise NotImplementedError
+
+    def release(self) -> None:
+        """Free the peer's arrays now (otherwise they go with the stepper)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Taichi
+
+_TI: dict = {}
+
+
+def _taichi():
+    """Import Taichi and ``ti.init(arch=ti.cpu)`` once per process (a second ``ti.init`` would
+    invalidate every field already allocated)."""
+    if _TI:
+        return _TI["ti"]
+    import taichi as ti
+    from taichi.lang import impl
+
+    if impl.get_runtime().prog is None:
+        ti.init(arch=ti.cpu)
+    elif impl.current_cfg().arch not in (ti.x64, ti.arm64):
+        raise RuntimeError(f"taichi is already initialised on {impl.current_cfg().arch}, not the CPU")
+    _TI["ti"] = ti
+    return ti
+
+
+class TaichiStepper(PeerStepper):
+    """The Verlet step as a Taichi CPU kernel over this model's own fields.
+
+    The fields (state ``(3, N)`` vec3, neighbours, mass, flags, pulls) live in their own SNode tree
+    (``ti.FieldsBuilder``), so models come and go without ``ti.reset()``; :meth:`release` frees
+    them. The kernel is compiled per stepper with the model constants folded in (like uniforms
+    that never change) and takes one int argument, the rotation phase of the three state rows:
+    Taichi's Python-side launch cost grows by ~15-150 us per kernel argument on this machine.
+    """
+
+    name = "taichi"
+
+    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
+        super().__init__(model, dt, pull_force)
+        ti = _taichi()
+        self._ti = ti
+        n = model.grid.count
+        fb = ti.FieldsBuilder()
+        state = ti.Vector.field(3, ti.f32)
+        nb = ti.field(ti.i32)
+        mass = ti.field(ti.f32)
+        flags = ti.field(ti.i32)
+        pull = ti.Vector.field(3, ti.f32)
+        dense = self.dense
+        offsets = self._offsets
+        fb.dense(ti.ij, (3, n)).place(state)
+        if dense:
+            fb.dense(ti.i, n).place(nb)  # the neighbour mask
+        else:
+            fb.dense(ti.ij, (n, 18)).place(nb)
+        fb.dense(ti.i, n).place(mass, flags)
+        fb.dense(ti.i, MAX_PULLS).place(pull)
+        self._tree = fb.finalize()
+        self._fields = (state, nb, mass, flags, pull)
+        state.from_numpy(np.broadcast_to(self.rest32, (3, n, 3)).copy())
+        nb.from_numpy(self._mask if dense else self._neighbours)
+        mass.from_numpy(self._mass)
+        flags.from_numpy(self._flags)
+        pull.from_numpy(self._zero_pull)
+        self._pull_now = self._zero_pull
+        self._phase = 0  # state row of x is phase, x_prev (phase + 2) % 3, new (phase + 1) % 3
+        h, k1, k2, c, dt32 = self._scalars
+        gx, gy, gz = self._gravity
+        sqrt2 = float(np.sqrt(2.0))
+        vec3 = ti.math.vec3
+
+        @ti.kernel
+        def verlet(phase: ti.i32):
+            cur, prev, new = phase, (phase + 2) % 3, (phase + 1) % 3
+            gravity = vec3(gx, gy, gz)
+            for i in range(n):
+                p = state[cur, i]
+                fl = flags[i]
+                if fl & FLAG_FIXED:
+                    state[new, i] = p
+                else:
+                    s1 = vec3(0.0)
+                    p1 = vec3(0.0)
+                    s2 = vec3(0.0)
+                    p2 = vec3(0.0)
+                    mask = 0
+                    if ti.static(dense):
+                        mask = nb[i]
+                    for j in ti.static(range(18)):
+                        m_j = 0
+                        ok = False
+                        if ti.static(dense):
+                            m_j = i + offsets[j]
+                            ok = ((mask >> j) & 1) == 1
+                        else:
+                            m_j = nb[i, j]
+                            ok = m_j >= 0
+                        if ok:
+                            d = p - state[cur, m_j]
+                            inv = 1.0 / ti.max(d.norm(), 1e-30)
+                            if ti.static(j < 6):
+                                s1 += inv * d
+                                p1 += d
+                            else:
+                                s2 += inv * d
+                                p2 += d
+                    q = state[prev, i]
+                    m = mass[i]
+                    f = k1 * (h * s1 - p1) + k2 * (sqrt2 * h * s2 - p2) + m * gravity - c * (p - q) / dt32
+                    for g in ti.static(range(MAX_PULLS)):
+                        if (fl >> (PULL_SHIFT + g)) & 1:
+                            f += pull[g]
+                    state[new, i] = 2.0 * p - q + (dt32 * dt32 / m) * f
+
+        self._kernel = verlet
+
+    def _launch(self, pull: np.ndarray) -> None:
+        if pull is not self._pull_now and not np.array_equal(pull, self._pull_now):
+            self._fields[4].from_numpy(pull)
+        self._pull_now = pull
+        self._kernel(self._phase)
+        self._phase = (self._phase + 1) % 3
+
+    def _sync(self) -> None:
+        self._ti.sync()
+
+    def positions(self) -> np.ndarray:
+        return self._fields[0].to_numpy()[self._phase].astype(np.float32)
+
+    def set_state(self, x: np.ndarray, x_prev: np.ndarray | None = None) -> None:
+        state = self._fields[0].to_numpy()
+        state[self._phase] = x
+        state[(self._phase + 2) % 3] = x if x_prev is None else x_prev
+        self._fields[0].from_numpy(state)
+
+    def release(self) -> None:
+        """Free this model's fields (the stepper is unusable afterwards)."""
+        if self._tree is not None:
+            self._tree.destroy()
+            self._tree = None
+
+    @property
+    def threads(self) -> int:
+        from taichi.lang import impl
+
+        return int(impl.current_cfg().cpu_max_num_threads)
+
+
+# ---------------------------------------------------------------------------------------------
+# Warp
+
+_WP: dict = {}
+
+
+def _warp():
+    """Import and initialise Warp once, and build the kernel (its own module, no backward pass)."""
+    if _WP:
+        return _WP["wp"], _WP["kernel"]
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.init()
+    sqrt2 = float(np.sqrt(2.0))
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def verlet(x: wp.array(dtype=wp.vec3), xp: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3),
+               nb: wp.array2d(dtype=wp.int32), mask: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
+               dense: wp.int32, mass: wp.array(dtype=wp.float32), flags: wp.array(dtype=wp.int32),
+               h: wp.float32, k1: wp.float32, k2: wp.float32, c: wp.float32, dt: wp.float32,
+               gravity: wp.vec3, pull0: wp.vec3, pull1: wp.vec3, pull2: wp.vec3, pull3: wp.vec3):
+        i = wp.tid()
+        p = x[i]
+        fl = flags[i]
+        if (fl & FLAG_FIXED) != 0:
+            out[i] = p
+            return
+        s1 = wp.vec3(0.0)
+        p1 = wp.vec3(0.0)
+        s2 = wp.vec3(0.0)
+        p2 = wp.vec3(0.0)
+        bits = int(0)
+        if dense != 0:
+            bits = mask[i]
+        for j in range(18):
+            n = int(-1)
+            if dense != 0:
+                if ((bits >> j) & 1) != 0:
+                    n = i + offsets[j]
+            else:
+                n = nb[i, j]
+            if n >= 0:
+                d = p - x[n]
+                u = d / wp.max(wp.length(d), 1e-30)
+                if j < 6:
+                    s1 += u
+                    p1 += d
+                else:
+                    s2 += u
+                    p2 += d
+        q = xp[i]
+        m = mass[i]
+        f = k1 * (h * s1 - p1) + k2 * (sqrt2 * h * s2 - p2) + m * gravity - c * (p - q) / dt
+        if ((fl >> PULL_SHIFT) & 1) != 0:
+            f += pull0
+        if ((fl >> (PULL_SHIFT + 1)) & 1) != 0:
+            f += pull1
+        if ((fl >> (PULL_SHIFT + 2)) & 1) != 0:
+            f += pull2
+        if ((fl >> (PULL_SHIFT + 3)) & 1) != 0:
+            f += pull3
+        out[i] = 2.0 * p - q + (dt * dt / m) * f
+
+    _WP.update(wp=wp, kernel=verlet)
+    return wp, verlet
+
+
+class WarpStepper(PeerStepper):
+    """The Verlet step as a Warp kernel on ``device="cpu"`` (state kept in three wp arrays)."""
+
+    name = "warp"
+
+    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
+        super().__init__(model, dt, pull_force)
+        wp, self._kernel = _warp()
+        self._wp = wp
+        dev = "cpu"
+        self._state = [wp.array(self.rest32, dtype=wp.vec3, device=dev) for _ in range(3)]
+        # dense grids: neighbours by mask and offset (the index table is not passed, a 1x18 stand-in)
+        self._nb = wp.array(self._neighbours[:1] if self.dense else self._neighbours, dtype=wp.int32, device=dev)
+        self._bits = wp.array(self._mask, dtype=wp.int32, device=dev)
+        self._off = wp.array(np.array(self._offsets, np.int32), dtype=wp.int32, device=dev)
+        self._m = wp.array(self._mass, dtype=wp.float32, device=dev)
+        self._fl = wp.array(self._flags, dtype=wp.int32, device=dev)
+        self._g = wp.vec3(*self._gravity)
+        self._zero = [wp.vec3(0.0, 0.0, 0.0)] * MAX_PULLS
+        self._n = model.grid.count
+
+    def _launch(self, pull: np.ndarray) -> None:
+        wp = self._wp
+        x, xp, out = self._state
+        pulls = self._zero if pull is self._zero_pull else [wp.vec3(*map(float, r)) for r in pull]
+        wp.launch(self._kernel, dim=self._n, device="cpu",
+                  inputs=[x, xp, out, self._nb, self._bits, self._off, int(self.dense), self._m, self._fl,
+                          *self._scalars, self._g, *pulls])
+        self._state = [out, x, xp]
+
+    def _sync(self) -> None:
+        self._wp.synchronize_device("cpu")
+
+    def positions(self) -> np.ndarray:
+        return self._state[0].numpy().astype(np.float32)
+
+    def set_state(self, x: np.ndarray, x_prev: np.ndarray | None = None) -> None:
+        wp = self._wp
+        self._state[0] = wp.array(np.ascontiguousarray(x, np.float32), dtype=wp.vec3, device="cpu")
+        self._state[1] = wp.array(np.ascontiguousarray(x if x_prev is None else x_prev, np.float32),
+                                  dtype=wp.vec3, device="cpu")
+
+    @property
+    def threads(self) -> int:
+        return 1
+
+
+STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}
+
+
+def make_stepper(peer: str, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> PeerStepper:
+    """The stepper of ``peer`` (one of :data:`PEERS`) for ``model``.
+
+    Raises:
+        ValueError: unknown peer. ImportError: the peer package is not installed.
+    """
+    if peer not in STEPPERS:
+        raise ValueError(f"peer must be one of {PEERS}, got {peer!r}")
+    return STEPPERS[peer](model, dt, pull_force)
+
+
+@dataclass
+class PeerTiming:
+    """One peer on one model.
+
+    Attributes:
+        peer: name; version: package version; nodes: N.
+        ms_per_step: best of ``repeats`` runs of ``steps`` steps, after warm-up, JIT excluded.
+        nodes_per_s: N / (s per step).
+        setup_s: building the stepper (first use: import, init) without the kernel compile.
+        jit_s: the first step, which compiles (or loads from the peer's kernel cache) the kernel.
+        threads: worker threads the peer uses for a step.
+        cpu_per_wall: process CPU time / wall time during the timed runs (how many cores it kept busy).
+    """
+
+    peer: str
+    version: str
+    nodes: int
+    ms_per_step: float
+    nodes_per_s: float
+    setup_s: float
+    jit_s: float
+    threads: int
+    cpu_per_wall: float
+
+
+def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, repeats: int = 3,
+                pull_force: PullSchedule | None = None) -> dict[str, PeerTiming]:
+    """Time each available peer's step on ``model``.
+
+    Each peer: build, one step (JIT, timed apart), a warm-up of ``steps`` steps, then the best of
+    ``repeats`` runs of ``steps`` steps. Peers that cannot be imported are left out.
+    """
+    versions = available_peers()
+    out = {}
+    for peer in peers or PEERS:
+        if versions.get(peer) is None:
+            continue
+        t0 = time.perf_counter()
+        stepper = make_stepper(peer, model, dt, pull_force)
+        t1 = time.perf_counter()
+        stepper.step(1)
+        t2 = time.perf_counter()
+        stepper.step(steps)
+        best, cpu, wall = float("inf"), 0.0, 0.0
+        for _ in range(repeats):
+            c0, w0 = time.process_time(), time.perf_counter()
+            stepper.step(steps)
+            w = time.perf_counter() - w0
+            cpu += time.process_time() - c0
+            wall += w
+            best = min(best, w)
+        ms = best / steps * 1e3
+        out[peer] = PeerTiming(peer, versions[peer], model.grid.count, ms, model.grid.count / (ms * 1e-3),
+                               t1 - t0, t2 - t1, stepper.threads, cpu / wall)
+    return out

@@ -1,0 +1,196 @@
+"""``deformgl bench trilinear``: the benchmark of Knuth, Kohlhammer & Kuijper, section 6 (linear
+against trilinear scene graphs, and the cost of depth), on the scenes of
+:mod:`deformgl.trilinear.scenes`.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import moderngl
+
+from deformgl.bench.studies import machine_line
+from deformgl.render.camera import View
+from deformgl.render.passes import RenderTarget
+from deformgl.trilinear.scenegraph import ComposedScene, Node, TrilinearRenderer, compose_scene, shader_defines
+from deformgl.trilinear.scenes import BACKGROUND, BuiltScene, LIGHT, depth_scene, helix_scene, scene_view, spheres_scene
+
+
+@dataclass(frozen=True)
+class BenchSetup:
+    """One row of the paper's table: scene, objects, sphere tessellation, paper's FPS."""
+
+    scene: str
+    objects: int
+    segments: int
+    rings: int
+    paper_fps: tuple[float, float]
+
+    def build(self, mode: str) -> BuiltScene:
+        """The scene graph of this set-up with linear or trilinear transforms."""
+        if self.scene == "spheres":
+            return spheres_scene(mode, along=37, around=self.objects // 37, segments=self.segments, rings=self.rings)
+        return helix_scene(mode, self.objects, segments=self.segments, rings=self.rings)
+
+
+#: 185 x 8,064 = 1.49M, 4,617 x 36 = 166k and 2,566 x 256 = 657k triangles (paper: 1.5M, 164k, 656k).
+BENCH_SETUPS = (
+    BenchSetup("spheres", 185, 64, 64, (19.5, 14.9)),
+    BenchSetup("helix", 4617, 6, 4, (16.5, 13.3)),
+    BenchSetup("helix", 2566, 16, 9, (10.8, 8.4)),
+)
+
+
+@dataclass
+class TrilinearRow:
+    """Linear vs trilinear timings of one set-up (milliseconds, medians)."""
+
+    setup: BenchSetup
+    triangles: int
+    compose_ms: dict[str, float]
+    draw_ms: dict[str, float]
+    paths: dict[str, dict[str, int]]
+    grid_error: float
+
+    def fps(self, mode: str) -> float:
+        """Frames per second including the CPU composition."""
+        return 1e3 / (self.compose_ms[mode] + self.draw_ms[mode])
+
+    def ratio(self) -> float:
+        """Trilinear over linear frames per second (the paper's figure)."""
+        return self.fps("trilinear") / self.fps("linear")
+
+    def draw_ratio(self) -> float:
+        """Trilinear over linear, GPU draw only."""
+        return self.draw_ms["linear"] / self.draw_ms["trilinear"]
+
+
+def time_frames(ctx: moderngl.Context, roots: dict[str, Node], size: tuple[int, int], repeats: int, *,
+                view: View | None = None) -> tuple[dict[str, tuple[float, float]], dict[str, ComposedScene]]:
+    """Median compose and draw times (ms) of full frames of several scenes, interleaved frame by
+    frame (in alternating order) so that all see the same machine load. A frame: compose on the
+    CPU, then upload, draw and ``ctx.finish()`` into a ``size`` offscreen target without MSAA.
+    The camera frames the first scene unless ``view`` is given; the first frame of each
+    (compiling programs, allocating buffers) is not counted.
+
+    Returns:
+        Per key: (compose ms, draw ms); and the last composed scene of each.
+    """
+    target = RenderTarget(ctx, size, 0)
+    renderer = TrilinearRenderer(ctx)
+    try:
+        scenes = {key: compose_scene(root) for key, root in roots.items()}
+        view = view or scene_view(next(iter(scenes.values())), size)
+        times: dict[str, list[tuple[float, float]]] = {key: [] for key in roots}
+        keys = list(roots)
+        for i in range(repeats + 1):
+            for key in keys if i % 2 else keys[::-1]:  # alternate the order: no position bias
+                root = roots[key]
+                t0 = time.perf_counter()
+                scenes[key] = compose_scene(root)
+                t1 = time.perf_counter()
+                target.begin(BACKGROUND)
+                renderer.draw(scenes[key], view, LIGHT)
+                ctx.finish()
+                t2 = time.perf_counter()
+                if i:
+                    times[key].append((t1 - t0, t2 - t1))
+        medians = {key: (statistics.median(c for c, _ in t) * 1e3, statistics.median(d for _, d in t) * 1e3)
+                   for key, t in times.items()}
+        return medians, scenes
+    finally:
+        renderer.release()
+        target.release()
+
+
+def bench_trilinear(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), repeats: int = 16,
+                    setups: tuple[BenchSetup, ...] = BENCH_SETUPS) -> list[TrilinearRow]:
+    """Frames per second with linear vs trilinear transforms for the paper's three set-ups.
+
+    Both modes draw the same meshes with the same camera; the linear scene places every object
+    with the tangent affine map, the trilinear one by a grid at the root, composed per leaf.
+    """
+    rows = []
+    for setup in setups:
+        built = {mode: setup.build(mode) for mode in ("trilinear", "linear")}
+        medians, scenes = time_frames(ctx, {m: b.root for m, b in built.items()}, size, repeats)
+        error = max((g.error for g in built["trilinear"].grids.values()), default=0.0)
+        rows.append(TrilinearRow(setup, scenes["trilinear"].triangle_count,
+                                 {m: medians[m][0] for m in medians}, {m: medians[m][1] for m in medians},
+                                 {m: s.paths() for m, s in scenes.items()}, error))
+    return rows
+
+
+@dataclass
+class DepthRow:
+    """The same geometry under ``depth`` nested grid transforms."""
+
+    depth: int
+    compose_ms: float
+    draw_ms: float
+    cells: tuple[int, int, int]
+    defines: dict[str, object]
+    triangles: int
+
+
+def bench_depth(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), repeats: int = 16,
+                depths: tuple[int, ...] = (1, 8)) -> list[DepthRow]:
+    """Shader cost per depth: ms/frame of one sphere under 1 vs 8 nested 8^3 grids."""
+    roots = {str(d): depth_scene(d).root for d in depths}
+    medians, scenes = time_frames(ctx, roots, size, repeats)
+    rows = []
+    for d in depths:
+        scene = scenes[str(d)]
+        (batch,) = scene.batches
+        cells = tuple(s - 1 for s in batch.grids[0].shape[1:4]) if batch.path == "grid" else (1, 1, 1)
+        rows.append(DepthRow(d, *medians[str(d)], cells, shader_defines(batch.path, batch.normals),
+                             scene.triangle_count))
+    return rows
+
+
+def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machine: str, *,
+                     size: tuple[int, int], repeats: int) -> str:
+    """The ``bench trilinear`` report."""
+    lines = [machine,
+             f"trilinear scene graph (Knuth et al., section 6): {size[0]}x{size[1]} offscreen, no MSAA, "
+             f"median of {repeats} frames; a frame = CPU composition + upload + draw + finish",
+             f"{'scene':>8} {'objects':>7} {'triangles':>9} | {'linear':>6} {'compose':>8} {'draw':>8} | "
+             f"{'trilin.':>7} {'compose':>8} {'draw':>8} {'paths (trilinear)':>22} | {'fps ratio':>9} "
+             f"{'draw ratio':>10} | {'paper':>5} | {'grid err':>8}"]
+    lines.append("-" * len(lines[-1]))
+    for r in rows:
+        p = r.paths["trilinear"]
+        path_text = f"{p['affine']}a/{p['cuboid']}c/{p['grid']}g"
+        paper = r.setup.paper_fps[1] / r.setup.paper_fps[0]
+        lines.append(
+            f"{r.setup.scene:>8} {r.setup.objects:>7} {r.triangles:>9} | {r.fps('linear'):>6.2f} "
+            f"{r.compose_ms['linear']:>6.1f}ms {r.draw_ms['linear']:>6.1f}ms | {r.fps('trilinear'):>7.2f} "
+            f"{r.compose_ms['trilinear']:>6.1f}ms {r.draw_ms['trilinear']:>6.1f}ms {path_text:>22} | "
+            f"{r.ratio():>8.2f}x {r.draw_ratio():>9.2f}x | {paper:>5.2f} | {r.grid_error:>8.1e}")
+    lines.append("fps: frames/s; fps ratio = trilinear / linear (target >= 0.8); draw ratio: GPU part only; "
+                 "paths: leaves drawn affine / one cuboid (eq. 4) / 3D-texture grid; grid err: stated "
+                 "approximation error of the root grid (scene units, objects have diameter 1)")
+    if depth_rows:
+        lines.append("")
+        lines.append("shader cost vs depth: one sphere under nested 8^3 grids (twist/taper), composed per frame")
+        lines.append(f"{'depth':>5} {'triangles':>9} {'compose ms':>10} {'draw ms':>8} {'leaf grid':>9}  "
+                     "shader defines")
+        for d in depth_rows:
+            lines.append(f"{d.depth:>5} {d.triangles:>9} {d.compose_ms:>10.2f} {d.draw_ms:>8.2f} "
+                         f"{'x'.join(map(str, d.cells)):>9}  {d.defines}")
+    return "\n".join(lines)
+
+
+def trilinear_bench_report(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), repeats: int = 16,
+                           progress: Callable[[str], None] | None = None) -> str:
+    """``deformgl bench trilinear``: run both benchmarks and format the report."""
+    if progress:
+        progress("linear vs trilinear, three set-ups")
+    rows = bench_trilinear(ctx, size=size, repeats=repeats)
+    if progress:
+        progress("depth 1 vs 8")
+    depth_rows = bench_depth(ctx, size=size, repeats=repeats)
+    return format_trilinear(rows, depth_rows, machine_line(ctx), size=size, repeats=repeats)

@@ -1,0 +1,57 @@
+"""Compiled GL programs that fail loudly: compile errors name files, unknown uniforms are errors."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import moderngl
+
+from deformgl.errors import ShaderError
+from deformgl.gl.preprocessor import Source, preprocess
+
+
+class Program:
+    """A moderngl program built from shader files, owning its GL object.
+
+    Setting a uniform the program does not have (misspelt, or optimised away because unused) is a
+    :class:`ShaderError` naming the program and the uniform: no silent ``except: pass``.
+
+    Args:
+        ctx: the GL context.
+        vertex: vertex shader file, relative to ``shaders/``.
+        fragment: fragment shader file, or ``None`` (transform feedback).
+        defines: variant switches for both stages.
+        varyings: transform-feedback outputs, in buffer order.
+    """
+
+    def __init__(self, ctx: moderngl.Context, vertex: str, fragment: str | None = None, *,
+                 defines: dict[str, object] | None = None, varyings: tuple[str, ...] = ()) -> None:
+        self.name = f"{vertex}+{fragment}" if fragment else vertex
+        self.defines = dict(defines or {})
+        self.vertex_source = preprocess(vertex, self.defines)
+        self.fragment_source = preprocess(fragment, self.defines) if fragment else None
+        try:
+            self.gl = ctx.program(
+                vertex_shader=self.vertex_source.text,
+                fragment_shader=self.fragment_source.text if self.fragment_source else None,
+                varyings=list(varyings))
+        except moderngl.Error as exc:
+            raise ShaderError(f"program {self.name} failed to build:\n{self._explain(str(exc))}") from None
+
+    def _explain(self, log: str) -> str:
+        if "fragment_shader" in log and self.fragment_source is not None:
+            return self.fragment_source.explain_log(log)
+        return self.vertex_source.explain_log(log)
+
+    def set(self, **uniforms: Any) -> None:
+        """Set uniforms by name; an unknown name raises :class:`ShaderError`."""
+        for key, value in uniforms.items():
+            try:
+                member = self.gl[key]
+            except KeyError:
+                raise ShaderError(f"program {self.name} has no active uniform {key!r}") from None
+            member.value = value
+
+    def release(self) -> None:
+        """Release the GL program."""
+        self.gl.release()

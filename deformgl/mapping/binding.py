@@ -1,0 +1,679 @@
+"""Binding a detailed mesh to the node surface, once, on the CPU (Mosegaard & Sørensen 2005, 3.3).
+
+For every vertex ``v`` of the detailed mesh :func:`bind` finds the closest point ``r`` on the
+node-grid surface (:func:`deformgl.surface.grid_surface` over the rest node positions), the
+triangle of nodes ``(p1, p2, p3)`` it lies on and its barycentric weights (eq. 4), and the
+offset ``o = v - r`` (eq. 5). The offset, the vertex normal and the vertex tangent (3.3.4) are
+then expressed (eq. 7) in the two triangle bases :mod:`deformgl.mapping.bases` rebuilds from the
+deformed nodes: the constant basis (eq. 6) and the curvature-corrected basis (eq. 8), the latter
+from the rest node normals exactly as the GPU unpacks them. This is the inverse of
+:func:`deformgl.mapping.map_vertices`: at rest every vertex, normal and tangent maps to itself.
+
+Where the curvature basis is unreliable (paper 3.5: nodes without an eq. 3 normal, such as
+one-node-thin sheets) :attr:`Binding.curvature_ok` is False, and an "auto" mapping uses the
+constant basis there (paper 3.6). Bindings are cached by a hash of their inputs
+(:func:`binding_key`, :func:`save_binding`, :func:`load_binding`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import tempfile
+import time
+import zipfile
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from deformgl.errors import InputError
+from deformgl.grid.nodes import NodeGrid
+from deformgl.mapping.bases import constant_basis, curvature_basis
+from deformgl.grid.meshio import load_mesh
+from deformgl.sim.model import SpringModel
+from deformgl.sim.normals import pack_normals, unpack_normals
+from deformgl.sim.reference import spring_sums
+from deformgl.grid.surface import GridSurface, grid_surface
+from deformgl.grid.voxelize import voxelize
+from deformgl.mapping.tangents import orthonormalize_tangents, procedural_uv, vertex_normals, vertex_tangents
+
+#: Default far threshold, in grid spacings: a vertex farther than this from the node surface is
+#: reported (its offset is long, so it swings with every rotation of its triangle).
+FAR_SPACINGS = 1.5
+#: curvature_ok needs ``|Nc x T| > MIN_SIN_NC_T`` with Nc the normalised weighted node normal
+#: and T the triangle tangent (eq. 8): below it (about 5.7 degrees) ``Bc = Nc x T`` is a
+#: difference of nearly parallel vectors and turns erratically as the nodes move.
+MIN_SIN_NC_T = 0.1
+#: curvature_ok needs Nc within this angle of the constant-basis normal N (eq. 6). Beyond it the
+#: node normals disagree with the triangle (a sheet wound the other way, a groove, a corner
+#: node whose normal points along an edge) and the offset would be rotated far off. At rest T is
+#: perpendicular to N, so this test alone already keeps Nc at least 15 degrees off T
+#: (``|Nc x T| >= 0.26``); MIN_SIN_NC_T is checked first and reported as its own reason.
+MAX_NC_ANGLE_DEG = 75.0
+#: curvature_ok needs the weighted sum of the three unit node normals to be at least this long:
+#: shorter means the normals disagree (opposite faces of a slab two nodes thick), so Nc is the
+#: small difference of large vectors and swings wildly as the nodes move (measured on the
+#: dragon on 21 nodes: such vertices opened seams 10x wider than the constant basis).
+MIN_NC_AGREEMENT = 0.7
+#: A node normal shorter than this is "undefined" (unpack_normals gives exactly 0 or unit).
+MIN_NODE_NORMAL = 0.5
+#: Most (vertex, candidate triangle) pairs :func:`closest_on_triangles` handles at once (about
+#: 0.5 KB of temporaries each).
+PAIR_BLOCK = 1 << 20
+#: Bumped whenever the binding's meaning or file layout changes: invalidates cached bindings.
+BINDING_VERSION = 2
+
+
+@dataclass(frozen=True, eq=False)
+class BindingReport:
+    """What :func:`bind` noticed about a binding.
+
+    Attributes:
+        vertex_count: vertices bound.
+        triangle_count: triangles of the node surface.
+        spacing: grid spacing h.
+        far: far threshold in spacings.
+        far_vertices: (K,) int64 vertices farther than ``far * spacing`` from the node surface.
+        far_distances: (K,) float64 their distances.
+        degenerate_triangles: (D,) int64 indices into the surface triangles whose nodes are
+            repeated or collinear at rest (the constant basis, eq. 6, cannot be built).
+        degenerate_vertices: (M,) int64 vertices bound to such a triangle (they keep their
+            world-space offset while it stays degenerate).
+        no_normal: vertices whose triangle has a node without an eq. 3 normal.
+        parallel: vertices whose interpolated normal Nc is near-parallel to T (or zero).
+        disagree: vertices whose node normals disagree (weighted sum shorter than MIN_NC_AGREEMENT).
+        flipped: vertices whose Nc is more than MAX_NC_ANGLE_DEG from the triangle normal N.
+        curvature_fallback: vertices with curvature_ok False. Each is counted under the first
+            reason that applies: degenerate triangle (``degenerate_vertices``), no_normal,
+            parallel (which includes an Nc that sums to zero), disagree, flipped.
+        normal_fallback: vertices without a mesh normal (no face, or faces whose area-weighted
+            normals cancel: zero-area or double-sided), given the normal of their node triangle.
+    """
+
+    vertex_count: int
+    triangle_count: int
+    spacing: float
+    far: float
+    far_vertices: np.ndarray
+    far_distances: np.ndarray
+    degenerate_triangles: np.ndarray
+    degenerate_vertices: np.ndarray
+    no_normal: int
+    parallel: int
+    disagree: int
+    flipped: int
+    curvature_fallback: int
+    normal_fallback: int
+
+    def lines(self) -> list[str]:
+        """Human summary, one finding per line."""
+        out = [f"bound {self.vertex_count} vertices to {self.triangle_count} node-surface triangles "
+               f"(spacing {self.spacing:.4g})"]
+        if len(self.far_vertices):
+            worst = int(np.argmax(self.far_distances))
+            out.append(f"{len(self.far_vertices)} vertices farther than {self.far:g} spacings from the "
+                       f"node surface; farthest: vertex {int(self.far_vertices[worst])} at "
+                       f"{self.far_distances[worst] / self.spacing:.2f} spacings")
+        if len(self.degenerate_triangles):
+            out.append(f"{len(self.degenerate_triangles)} degenerate node triangles (repeated or "
+                       f"collinear nodes at rest), {len(self.degenerate_vertices)} vertices bound "
+                       f"to them keep world-space offsets")
+        if self.curvature_fallback:
+            out.append(f"curvature basis unreliable for {self.curvature_fallback} vertices (auto mode "
+                       f"uses the constant basis there): node without normal {self.no_normal}, "
+                       f"normal near-parallel to T {self.parallel}, node normals disagreeing {self.disagree}, "
+                       f"flipped against the triangle "
+                       f"{self.flipped}")
+        if self.normal_fallback:
+            out.append(f"{self.normal_fallback} vertices have no mesh normal (used by no face, or "
+                       f"their faces' normals cancel: zero-area or double-sided faces); they use "
+                       f"their node triangle's normal")
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class Binding:
+    """Per-vertex data of a detailed mesh bound to the node surface (all arrays read-only).
+
+    Attributes:
+        tri_nodes: (V, 3) int64 node numbers (p1, p2, p3) of each vertex's node triangle (a
+            triangle of the GridSurface, its winding kept).
+        weights: (V, 3) float64 eq. 4 weights of the reference point r: sum 1, each in [0, 1].
+        offset_world: (V, 3) eq. 5 offset ``o = v - r`` at rest, world space.
+        offset_constant: (V, 3) o in the constant basis (T, N, B) of eq. 6/7 (x along T, y along
+            N, z along B).
+        offset_curvature: (V, 3) o in the curvature basis (Tc, Nc, Bc) of eq. 8 built from the
+            rest node normals passed to :func:`bind`. Where that basis cannot be built at rest it
+            holds the constant-basis values (finite; the mapping falls back to world space).
+        normal_constant, normal_curvature: (V, 3) the vertex normal in each basis (3.3.4).
+        tangent_constant, tangent_curvature: (V, 4) xyz the vertex tangent in each basis, w the
+            handedness (+1/-1): the bitangent is ``w * (normal x tangent)``.
+        normal_world, tangent_world: (V, 3), (V, 4) rest normal and tangent in world space
+            (used where a basis is degenerate).
+        uv: (V, 2) the texture coordinates the tangents belong to (given, or procedural).
+        curvature_ok: (V,) bool, the curvature basis is reliable for this vertex.
+        distance: (V,) ``|o|``.
+        report: what :func:`bind` noticed.
+    """
+
+    tri_nodes: np.ndarray
+    weights: np.ndarray
+    offset_world: np.ndarray
+    offset_constant: np.ndarray
+    offset_curvature: np.ndarray
+    normal_constant: np.ndarray
+    normal_curvature: np.ndarray
+    tangent_constant: np.ndarray
+    tangent_curvature: np.ndarray
+    normal_world: np.ndarray
+    tangent_world: np.ndarray
+    uv: np.ndarray
+    curvature_ok: np.ndarray
+    distance: np.ndarray
+    report: BindingReport
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+
+    @property
+    def vertex_count(self) -> int:
+        """Number of bound vertices V."""
+        return int(self.tri_nodes.shape[0])
+
+
+# --------------------------------------------------------------------------------------------
+# Input checks
+
+
+def _array(value: Any, name: str, what: str, cols: int, dtype: type) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.ndim != 2 or arr.shape[1] != cols:
+        raise InputError(f"{name}: {what} must be an array of shape (n, {cols}), got shape {arr.shape}")
+    if dtype is np.int64:
+        if arr.size and not np.issubdtype(arr.dtype, np.integer):
+            raise InputError(f"{name}: {what} must be integers, got {arr.dtype}")
+        return arr.astype(np.int64)
+    arr = arr.astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+    if len(bad):
+        raise InputError(f"{name}: {what} {bad[0]} is not finite ({len(bad)} such rows)")
+    return arr
+
+
+def _check_inputs(name: str, vertices: Any, faces: Any, node_positions: Any, node_normals: Any,
+                  surface: GridSurface, spacing: float, far: float) -> tuple[np.ndarray, ...]:
+    v = _array(vertices, name, "vertex", 3, np.float64)
+    f = _array(faces, name, "face", 3, np.int64)
+    if len(v) == 0:
+        raise InputError(f"{name}: the mesh has no vertices to bind")
+    if len(f):
+        bad = np.flatnonzero(((f < 0) | (f >= len(v))).any(axis=1))
+        if len(bad):
+            raise InputError(f"{name}: face {bad[0]} uses a vertex index out of range "
+                             f"({len(v)} vertices)")
+    x = _array(node_positions, name, "node position", 3, np.float64)
+    n = _array(node_normals, name, "node normal", 3, np.float64)
+    if len(n) != len(x):
+        raise InputError(f"{name}: {len(n)} node normals for {len(x)} nodes")
+    if len(surface.triangles) == 0:
+        raise InputError(f"{name}: the node surface has no triangles to bind the mesh to "
+                         f"(no full cell and no 2x2 sheet of nodes)")
+    if surface.nodes.min() < 0 or surface.nodes.max() >= len(x):
+        raise InputError(f"{name}: the node surface uses node {int(surface.nodes.max())}, but only "
+                         f"{len(x)} node positions were given")
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise InputError(f"{name}: grid spacing must be positive and finite, got {spacing!r}")
+    if not (math.isfinite(far) and far > 0):
+        raise InputError(f"{name}: far threshold must be positive and finite, got {far!r}")
+    return v, f, x, n
+
+
+# --------------------------------------------------------------------------------------------
+# Closest points on the node surface
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _triangle_weights(ap: np.ndarray, ab: np.ndarray, ac: np.ndarray, abab: np.ndarray, abac: np.ndarray,
+                      acac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weights (v, w) of corners b and c of the closest point on non-degenerate triangles.
+
+    Ericson, Real-Time Collision Detection, 5.1.5: the Voronoi region of the point decides
+    between a corner, an edge and the interior (the first region test that holds wins). With
+    ``ap = p - a``, ``ab = b - a``, ``ac = c - a``: ``d1 = ab.ap``, ``d2 = ac.ap``, and the dot
+    products with ``bp = ap - ab`` and ``cp = ap - ac`` follow from ``ab.ab``, ``ab.ac``,
+    ``ac.ac``. Every denominator is a squared edge length or ``|ab x ac|^2``, positive for a
+    non-degenerate triangle. The weight of corner a is ``1 - v - w``.
+    """
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+    d3, d4 = d1 - abab, d2 - abac
+    d5, d6 = d1 - abac, d2 - acac
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+
+    def ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+        return np.clip(num / np.where(den > 0, den, 1.0), 0.0, 1.0)
+
+    t_ab, t_ac = ratio(d1, d1 - d3), ratio(d2, d2 - d6)
+    t_bc = ratio(d4 - d3, (d4 - d3) + (d5 - d6))
+    den = va + vb + vc
+    zero, one = np.zeros_like(d1), np.ones_like(d1)
+    regions = [
+        (d1 <= 0) & (d2 <= 0),                           # corner a
+        (d3 >= 0) & (d4 <= d3),                          # corner b
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),               # edge ab
+        (d6 >= 0) & (d5 <= d6),                          # corner c
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),               # edge ac
+        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),     # edge bc
+    ]
+    v = np.select(regions, [zero, one, t_ab, zero, zero, 1.0 - t_bc], ratio(vb, den))
+    w = np.select(regions, [zero, zero, zero, one, t_ac, t_bc], ratio(vc, den))
+    w = np.minimum(w, 1.0 - v)                           # interior rounding: keep 1 - v - w >= 0
+    return v, w
+
+
+def _segment_weights(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Weights (M, 3) of the closest point on the three edges of (degenerate) triangles."""
+    corners = (a, b, c)
+    best = np.full(len(p), np.inf)
+    out = np.zeros((len(p), 3))
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        e = corners[j] - corners[i]
+        ee = _dot(e, e)
+        t = np.clip(_dot(p - corners[i], e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0) * (ee > 0)
+        q = corners[i] + t[:, None] * e
+        d2 = _dot(p - q, p - q)
+        better = d2 < best
+        best = np.where(better, d2, best)
+        w = np.zeros((len(p), 3))
+        w[:, i], w[:, j] = 1.0 - t, t
+        out = np.where(better[:, None], w, out)
+    return out
+
+
+def _block_bounds(lengths: np.ndarray, budget: int) -> list[tuple[int, int]]:
+    """Split consecutive points into blocks of at most ``budget`` candidates (>= 1 point each)."""
+    cum = np.cumsum(lengths)
+    out, lo = [], 0
+    while lo < len(lengths):
+        base = int(cum[lo - 1]) if lo else 0
+        hi = max(int(np.searchsorted(cum, base + budget, side="right")), lo + 1)
+        out.append((lo, hi))
+        lo = hi
+    return out
+
+
+def closest_on_triangles(points: np.ndarray, corners: np.ndarray, degenerate: np.ndarray,
+                         node_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every point, the closest triangle and the barycentric weights of the closest point.
+
+    Candidates: the distance ``d`` to the nearest node (a triangle corner) bounds the distance
+    to the surface, so the closest triangle has its centroid within ``d + R`` of the point, R
+    its circumradius about the centroid (k-d trees, then an exact per-pair filter). Points are
+    handled in blocks of at most :data:`PAIR_BLOCK` candidate pairs, so memory stays bounded
+    even for points far from the surface (many candidates each). Among equally close triangles
+    the lowest index wins.
+
+    Args:
+        points: (V, 3) query points.
+        corners: (T, 3, 3) triangle corner positions.
+        degenerate: (T,) bool, triangles handled as three segments.
+        node_points: (K, 3) the corner positions as a point set (every corner among them).
+
+    Returns:
+        (V,) int64 triangle index and (V, 3) weights (>= 0, sum 1).
+    """
+    nearest, _ = cKDTree(node_points).query(points, workers=-1)
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
+    slack = 1e-9 * (float(radius.max()) + float(np.abs(corners).max()))
+    tree = cKDTree(centroid)
+    reach = nearest + radius.max() + slack
+    lengths = tree.query_ball_point(points, reach, workers=-1, return_length=True)
+    tri_out = np.empty(len(points), dtype=np.int64)
+    w_out = np.empty((len(points), 3))
+    for lo, hi in _block_bounds(lengths, PAIR_BLOCK):
+        lists = tree.query_ball_point(points[lo:hi], reach[lo:hi], workers=-1, return_sorted=False)
+        counts = np.asarray(lengths[lo:hi], dtype=np.int64)
+        tri = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(counts.sum()))
+        pt = np.repeat(np.arange(lo, hi), counts)
+        gap = np.linalg.norm(points[pt] - centroid[tri], axis=1)
+        keep = gap <= nearest[pt] + radius[tri] + slack
+        tri_out[lo:hi], w_out[lo:hi] = _closest_among(points, corners, degenerate, tri[keep], pt[keep] - lo,
+                                                      lo, hi - lo)
+    return tri_out, w_out
+
+
+def _closest_among(points: np.ndarray, corners: np.ndarray, degenerate: np.ndarray, tri: np.ndarray,
+                   pt: np.ndarray, offset: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Closest of the candidate pairs (tri, pt) for points ``offset .. offset + count``; pairs are
+    grouped by ``pt`` (0-based in the block), in order."""
+    p, c = points[pt + offset], corners[tri]
+    ap, ab, ac = p - c[:, 0], c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
+    v, w = _triangle_weights(ap, ab, ac, _dot(ab, ab), _dot(ab, ac), _dot(ac, ac))
+    weights = np.stack([1.0 - v - w, v, w], axis=1)
+    deg = degenerate[tri]
+    if deg.any():
+        weights[deg] = _segment_weights(p[deg], c[deg, 0], c[deg, 1], c[deg, 2])
+        v, w = weights[:, 1], weights[:, 2]
+    gap = ap - v[:, None] * ab - w[:, None] * ac           # p - q, q the closest point
+    d2 = _dot(gap, gap)
+    counts = np.bincount(pt, minlength=count)
+    if (counts == 0).any():  # the bound above makes this impossible; keep the failure loud
+        raise RuntimeError("closest_on_triangles: a point has no candidate triangle")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    best = np.minimum.reduceat(d2, starts)
+    tie = d2 <= best[pt]
+    best_tri = np.minimum.reduceat(np.where(tie, tri, len(corners)), starts)
+    chosen = np.flatnonzero(tie & (tri == best_tri[pt]))
+    return tri[chosen], weights[chosen]
+
+
+def _clean_weights(w: np.ndarray) -> np.ndarray:
+    """Eq. 4 weights: tiny negatives clipped, renormalised to sum 1."""
+    w = np.clip(w, 0.0, None)
+    return w / w.sum(axis=1, keepdims=True)
+
+
+# --------------------------------------------------------------------------------------------
+# Binding
+
+
+def _in_basis(frame: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """Eq. 7: components of world vectors (V, 3) along the rows of orthonormal frames (V, 3, 3)."""
+    return np.einsum("vkj,vj->vk", frame, vec)
+
+
+def _tangents(v: np.ndarray, f: np.ndarray, normal: np.ndarray, name: str, tangents: Any, uv: Any,
+              periodic_u: bool | None) -> tuple[np.ndarray, np.ndarray]:
+    """World tangents (V, 4) and the UVs they belong to (see :func:`bind`)."""
+    if uv is not None:
+        uv = _array(uv, name, "texture coordinate", 2, np.float64)
+        if len(uv) != len(v):
+            raise InputError(f"{name}: {len(uv)} texture coordinates for {len(v)} vertices")
+    if tangents is not None:
+        t = np.asarray(tangents)
+        cols = t.shape[1] if t.ndim == 2 else 0
+        t = _array(t, name, "tangent", 4 if cols == 4 else 3, np.float64)
+        if len(t) != len(v):
+            raise InputError(f"{name}: {len(t)} tangents for {len(v)} vertices")
+        w = np.where(t[:, 3] < 0, -1.0, 1.0) if t.shape[1] == 4 else np.ones(len(v))
+        out = np.concatenate([orthonormalize_tangents(normal, t[:, :3]), w[:, None]], axis=1)
+        return out, (procedural_uv(v, normal) if uv is None else uv)
+    periodic = (uv is None) if periodic_u is None else periodic_u
+    if uv is None:
+        uv = procedural_uv(v, normal)
+    return vertex_tangents(v, f, normal, uv, periodic_u=periodic), uv
+
+
+def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, node_normals: np.ndarray,
+         surface: GridSurface, *, spacing: float, tangents: np.ndarray | None = None,
+         uv: np.ndarray | None = None, periodic_u: bool | None = None, far: float = FAR_SPACINGS,
+         name: str = "mesh") -> Binding:
+    """Bind every vertex of a detailed mesh to its closest node-surface triangle (3.3.1-3.3.4).
+
+    Args:
+        vertices: (V, 3) rest positions of the detailed mesh (same frame as the nodes).
+        faces: (F, 3) its triangles (for vertex normals and tangents).
+        node_positions: (N, 3) rest node positions.
+        node_normals: (N, 3) rest eq. 3 node normals as the GPU sees them (unit, or zero where
+            undefined): ``unpack_normals(pack_normals(unit sums))``, see :func:`rest_node_normals`.
+        surface: the node surface (triangles over ``surface.nodes``).
+        spacing: grid spacing h (for the far test).
+        tangents: (V, 4) or (V, 3) tangents to use (orthonormalised against the vertex normals;
+            w kept as its sign, +1 if absent); they take precedence over ``uv``.
+        uv: (V, 2) texture coordinates to derive tangents from (Lengyel); without either,
+            :func:`deformgl.tangents.procedural_uv` coordinates are used.
+        periodic_u: u is periodic with period 1 (wrap per-face u differences); default: True
+            for the procedural coordinates, False for ``uv`` given.
+        far: far threshold in spacings (reported, not an error).
+        name: the mesh's name for messages.
+
+    Returns:
+        The binding; ``binding.report`` lists far vertices, degenerate triangles and the
+        vertices where the curvature basis is unreliable.
+
+    Raises:
+        InputError: malformed or non-finite input arrays, an empty node surface.
+    """
+    v, f, x, node_n = _check_inputs(name, vertices, faces, node_positions, node_normals, surface,
+                                    float(spacing), float(far))
+    tri_all = surface.nodes[surface.triangles]                       # (T, 3) node numbers
+    corners = x[tri_all]
+    _, tri_valid = constant_basis(corners[:, 0], corners[:, 1], corners[:, 2])
+    tri_id, w = closest_on_triangles(v, corners, ~tri_valid, x[surface.nodes])
+    w = _clean_weights(w)                                            # eq. 4
+    tri_nodes = tri_all[tri_id]
+    p = x[tri_nodes]                                                 # (V, 3, 3)
+    r = np.einsum("vi,vij->vj", w, p)                                # eq. 4, as map_vertices
+    o = v - r                                                        # eq. 5
+
+    const, ok_c = constant_basis(p[:, 0], p[:, 1], p[:, 2])          # eq. 6
+    curv, ok_k = curvature_basis(p[:, 0], p[:, 1], p[:, 2], w, node_n[tri_nodes])  # eq. 8
+
+    normal, has_normal = vertex_normals(v, f)
+    normal = np.where(has_normal[:, None], normal,
+                      np.where(ok_c[:, None], const[:, 1], np.array([0.0, 0.0, 1.0])))
+    tangent, uv_used = _tangents(v, f, normal, name, tangents, uv, periodic_u)
+
+    def constant_local(vec: np.ndarray) -> np.ndarray:
+        return np.where(ok_c[:, None], _in_basis(const, vec), vec)  # eq. 7 (world if degenerate)
+
+    def curvature_local(vec: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+        return np.where(ok_k[:, None], _in_basis(curv, vec), fallback)
+
+    off_c, nrm_c, tan_c = constant_local(o), constant_local(normal), constant_local(tangent[:, :3])
+    hand = tangent[:, 3:4]
+
+    # curvature_ok (paper 3.5/3.6): all three node normals defined, Nc off T, Nc near N.
+    defined = np.linalg.norm(node_n, axis=1) > MIN_NODE_NORMAL
+    all_defined = defined[tri_nodes].all(axis=1)
+    nc_raw = np.einsum("vi,vij->vj", w, node_n[tri_nodes])
+    nc_len = np.linalg.norm(nc_raw, axis=1)
+    nc = nc_raw / np.where(nc_len > 0, nc_len, 1.0)[:, None]
+    sin_t = np.linalg.norm(np.cross(nc, const[:, 0]), axis=1)
+    cos_n = _dot(nc, const[:, 1])
+    # Reasons, exclusive, in this order (the first that applies counts).
+    no_normal = ok_c & ~all_defined
+    parallel = ok_c & all_defined & ~(ok_k & (sin_t > MIN_SIN_NC_T) & (nc_len > 0))
+    disagree = ok_c & all_defined & ~parallel & (nc_len < MIN_NC_AGREEMENT)
+    flipped = (ok_c & all_defined & ~parallel & ~disagree
+               & ~(cos_n > math.cos(math.radians(MAX_NC_ANGLE_DEG))))
+    curvature_ok = ok_c & ~(no_normal | parallel | disagree | flipped)
+
+    dist = np.linalg.norm(o, axis=1)
+    far_idx = np.flatnonzero(dist > far * spacing)
+    degenerate_tris = np.flatnonzero(~tri_valid)
+    report = BindingReport(
+        vertex_count=len(v), triangle_count=len(corners), spacing=float(spacing), far=float(far),
+        far_vertices=far_idx, far_distances=dist[far_idx], degenerate_triangles=degenerate_tris,
+        degenerate_vertices=np.flatnonzero(~tri_valid[tri_id]),
+        no_normal=int(no_normal.sum()), parallel=int(parallel.sum()), disagree=int(disagree.sum()),
+        flipped=int(flipped.sum()),
+        curvature_fallback=int((~curvature_ok).sum()),
+        normal_fallback=int((~has_normal).sum()))
+    return Binding(
+        tri_nodes=tri_nodes, weights=w, offset_world=o,
+        offset_constant=off_c, offset_curvature=curvature_local(o, off_c),
+        normal_constant=nrm_c, normal_curvature=curvature_local(normal, nrm_c),
+        tangent_constant=np.concatenate([tan_c, hand], axis=1),
+        tangent_curvature=np.concatenate([curvature_local(tangent[:, :3], tan_c), hand], axis=1),
+        normal_world=normal, tangent_world=tangent, uv=uv_used, curvature_ok=curvature_ok,
+        distance=dist, report=report)
+
+
+def rest_node_normals(model: SpringModel) -> np.ndarray:
+    """(N, 3) rest eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
+    the unit-vector sums of the rest positions, packed and unpacked (deformgl.sim.normals)."""
+    return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
+
+
+# --------------------------------------------------------------------------------------------
+# Cache
+
+
+def binding_key(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray,
+                surface_triangles: np.ndarray, spacing: float, options: dict[str, Any], *,
+                surface_nodes: np.ndarray | None = None, node_normals: np.ndarray | None = None,
+                uv: np.ndarray | None = None, tangents: np.ndarray | None = None) -> str:
+    """sha256 hex digest of everything a binding depends on, and :data:`BINDING_VERSION`.
+
+    Arrays are hashed as float64 / int64 C-order bytes with their shapes, so equal values give
+    equal keys whatever dtype they came in. ``options`` (e.g. far, periodic_u, a format number)
+    must be JSON-serialisable; keys are sorted. The keyword arrays are optional extra inputs
+    (``surface.nodes``, rest node normals, uv, tangents) for callers whose binding depends on
+    more than the rest grid.
+    """
+    h = hashlib.sha256(f"deformgl-binding-{BINDING_VERSION}".encode())
+    arrays = {"vertices": (vertices, np.float64), "faces": (faces, np.int64),
+              "node_positions": (node_positions, np.float64),
+              "surface_triangles": (surface_triangles, np.int64), "surface_nodes": (surface_nodes, np.int64),
+              "node_normals": (node_normals, np.float64), "uv": (uv, np.float64),
+              "tangents": (tangents, np.float64)}
+    for label, (arr, dtype) in arrays.items():
+        if arr is None:
+            h.update(f"|{label}:none".encode())
+            continue
+        a = np.ascontiguousarray(np.asarray(arr, dtype=dtype))
+        h.update(f"|{label}:{a.shape}".encode())
+        h.update(a.tobytes())
+    h.update(f"|spacing:{float(spacing)!r}".encode())
+    h.update(("|options:" + json.dumps(options, sort_keys=True, default=repr)).encode())
+    return h.hexdigest()
+
+
+_ARRAY_FIELDS = tuple(f.name for f in fields(Binding) if f.name != "report")
+_REPORT_ARRAYS = ("far_vertices", "far_distances", "degenerate_triangles", "degenerate_vertices")
+_REPORT_SCALARS = tuple(f.name for f in fields(BindingReport) if f.name not in _REPORT_ARRAYS)
+
+
+def save_binding(path: str | os.PathLike[str], binding: Binding, key: str) -> None:
+    """Write a binding and its key to ``path`` (.npz, compressed), atomically.
+
+    The data goes to a temporary file in the same directory, which then replaces ``path``
+    (``os.replace``), so a reader never sees a half-written file; the temporary file is removed
+    if writing fails.
+
+    Raises:
+        OSError: the directory does not exist or is not writable, or the disk is full.
+    """
+    path = Path(path)
+    data: dict[str, np.ndarray] = {name: getattr(binding, name) for name in _ARRAY_FIELDS}
+    report = binding.report
+    data.update({f"report_{name}": getattr(report, name) for name in _REPORT_ARRAYS})
+    data.update({f"report_{name}": np.asarray(getattr(report, name)) for name in _REPORT_SCALARS})
+    data["key"] = np.asarray(key)
+    data["version"] = np.asarray(BINDING_VERSION)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, **data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+_SHAPES = {"tri_nodes": 3, "weights": 3, "offset_world": 3, "offset_constant": 3,
+           "offset_curvature": 3, "normal_constant": 3, "normal_curvature": 3,
+           "tangent_constant": 4, "tangent_curvature": 4, "normal_world": 3, "tangent_world": 4,
+           "uv": 2, "curvature_ok": 0, "distance": 0}
+
+
+def load_binding(path: str | os.PathLike[str], key: str) -> Binding | None:
+    """The binding cached at ``path`` if it was saved with ``key``, else None.
+
+    Never raises for a bad cache file: missing, unreadable, corrupt, written by another
+    version, for other inputs (key mismatch) or with inconsistent arrays all give None, and the
+    caller binds again.
+    """
+    try:
+        with np.load(Path(path), allow_pickle=False) as npz:
+            if str(npz["key"]) != key or int(npz["version"]) != BINDING_VERSION:
+                return None
+            arrays = {name: np.array(npz[name]) for name in _ARRAY_FIELDS}
+            rep_arrays = {name: np.array(npz[f"report_{name}"]) for name in _REPORT_ARRAYS}
+            rep_scalars = {name: npz[f"report_{name}"].item() for name in _REPORT_SCALARS}
+    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile):
+        return None
+    count = len(arrays["tri_nodes"])
+    for name, cols in _SHAPES.items():
+        a = arrays[name]
+        if a.shape != ((count,) if cols == 0 else (count, cols)):
+            return None
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            return None
+    if arrays["tri_nodes"].dtype != np.int64 or arrays["curvature_ok"].dtype != bool:
+        return None
+    try:
+        report = BindingReport(**rep_arrays, **rep_scalars)
+        return Binding(**arrays, report=report)
+    except TypeError:
+        return None
+
+
+# --------------------------------------------------------------------------------------------
+# Benchmark
+
+BENCH_MESH = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res3.ply.gz"
+#: nodes_along_longest giving the res3 dragon a grid of about 20,000 nodes (19,455).
+BENCH_NODES_ALONG_LONGEST = 64
+BENCH_LARGE = 50_000
+
+
+def _jittered_copies(vertices: np.ndarray, faces: np.ndarray, count: int,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh of exactly ``count`` vertices: copies of the mesh, each jittered by a tenth of the
+    mean edge length, the last one cut (faces using only its kept vertices)."""
+    rng = np.random.default_rng(seed)
+    edge = float(np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=1).mean())
+    copies = -(-count // len(vertices))
+    verts = np.concatenate([vertices + (rng.normal(scale=0.1 * edge, size=vertices.shape) if k else 0.0)
+                            for k in range(copies)])[:count]
+    tris = np.concatenate([faces + k * len(vertices) for k in range(copies)])
+    return verts, tris[(tris < count).all(axis=1)]
+
+
+def bench_binding(repeats: int = 3) -> str:
+    """Time :func:`bind` of the res3 dragon (and a 50,000-vertex version) to a ~20,000-node grid.
+
+    Returns:
+        One line: node and surface counts, then vertex count and median binding time of each case.
+    """
+    mesh = load_mesh(BENCH_MESH)
+    lo, hi = mesh.bounds
+    mesh = trimesh.Trimesh(mesh.vertices - (lo + hi) / 2, mesh.faces, process=False)
+    vox = voxelize(mesh, nodes_along_longest=BENCH_NODES_ALONG_LONGEST, source=str(BENCH_MESH))
+    grid = NodeGrid(np.asarray(vox.origin), float(vox.spacing), np.asarray(vox.occupied))
+    surface = grid_surface(grid)
+    n = grid.count
+    model = SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool),
+                        pull_groups=np.zeros(n, np.uint8), k_structural=1.0, k_shear=1.0,
+                        damping=0.0, gravity=np.zeros(3))
+    normals = rest_node_normals(model)
+    cases = [(np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+             _jittered_copies(np.asarray(mesh.vertices), np.asarray(mesh.faces), BENCH_LARGE)]
+    parts = []
+    for verts, tris in cases:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            bind(verts, tris, grid.rest_positions, normals, surface, spacing=grid.spacing)
+            times.append(time.perf_counter() - t0)
+        parts.append(f"{len(verts):,} vertices {sorted(times)[len(times) // 2]:.2f} s")
+    return (f"bind {BENCH_MESH.name} to {n:,} nodes ({len(surface.nodes):,} on the surface, "
+            f"{len(surface.triangles):,} triangles), median of {repeats}, {os.cpu_count()} CPUs: "
+            + ", ".join(parts))

@@ -1,0 +1,169 @@
+"""Nodes driven from outside instead of simulated: positions from a ``.npy`` file (one frame or a
+sequence) or an analytic motion (rigid transform, bend, twist), so deformgl's mappings can serve
+any other simulator. Positions are uploaded to a state texture (CPU -> GPU, no read-back) and a
+pass computes their eq. 3 normals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from deformgl.errors import InputError
+from deformgl.sim.backends.foundation import NodeTextures, tile_rectangles
+from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.gl.programs import Program
+
+
+def load_node_frames(path: Path, count: int, offset: np.ndarray) -> np.ndarray:
+    """Read node positions from ``path``: (N, 3) or (F, N, 3), in the mesh's own coordinates.
+
+    Args:
+        path: the ``.npy`` file.
+        count: N, the number of nodes of the grid.
+        offset: (3,) subtracted from every position (the scene's recentring).
+
+    Returns:
+        (F, N, 3) float64 frames.
+
+    Raises:
+        InputError: unreadable file, wrong shape or dtype, or a non-finite coordinate (named by
+            frame and node).
+    """
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read node positions: {exc}") from None
+    if data.ndim == 2:
+        data = data[None]
+    if data.ndim != 3 or data.shape[1:] != (count, 3):
+        raise InputError(f"{path}: node positions must have shape ({count}, 3) or (frames, {count}, 3) "
+                         f"for this grid, got {data.shape}")
+    if not np.issubdtype(data.dtype, np.number):
+        raise InputError(f"{path}: node positions must be numbers, got dtype {data.dtype}")
+    data = data.astype(np.float64)
+    bad = ~np.isfinite(data).all(axis=2)
+    if bad.any():
+        f, n = np.argwhere(bad)[0]
+        raise InputError(f"{path}: frame {f}, node {n} has a non-finite coordinate {tuple(data[f, n])}; "
+                         f"{int(bad.sum())} node positions are bad")
+    return data - offset
+
+
+@dataclass(frozen=True)
+class Motion:
+    """An analytic motion of the nodes, evaluated at ``amount`` in [0, 1] of its full extent.
+
+    Attributes:
+        kind: "rigid" (rotate about an axis through the centre, then translate), "bend" (the
+            grid's extent along ``along`` is wrapped onto an arc of ``angle`` degrees in the plane
+            of ``along`` and ``towards``), "twist" (rotation about ``along`` growing linearly to
+            ``angle`` degrees over the extent).
+        axis: rotation axis index for rigid; along/towards: axis indices for bend and twist.
+        angle: degrees at amount 1.
+        translate: (3,) translation at amount 1 (rigid), world units.
+    """
+
+    kind: str
+    angle: float
+    axis: int = 1
+    along: int = 0
+    towards: int = 1
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def apply(self, rest: np.ndarray, amount: float = 1.0, bounds: np.ndarray | None = None) -> np.ndarray:
+        """Positions (N, 3) of points at ``amount`` of the motion, from rest positions.
+
+        Args:
+            rest: (N, 3) points.
+            amount: fraction of the motion.
+            bounds: (2, 3) box whose centre and extent define the motion (default: the points'
+                own bounding box). Pass the nodes' box to move a detailed mesh exactly as the
+                nodes move.
+        """
+        box = np.array([rest.min(axis=0), rest.max(axis=0)]) if bounds is None else np.asarray(bounds)
+        theta = np.radians(self.angle) * amount
+        centre = (box[0] + box[1]) / 2.0
+        p = rest - centre
+        if self.kind == "rigid":
+            return rotate(p, self.axis, theta) + centre + amount * np.asarray(self.translate)
+        lo, hi = box[0, self.along], box[1, self.along]
+        s = (rest[:, self.along] - lo) / max(hi - lo, 1e-300)  # 0..1 along the extent
+        if self.kind == "twist":
+            return rotate(p, self.along, theta * (s - 0.5)) + centre
+        if self.kind == "bend":
+            if abs(theta) < 1e-12:
+                return rest.copy()
+            length = hi - lo
+            radius = length / theta
+            phi = (s - 0.5) * theta
+            h = p[:, self.towards]
+            out = p.copy()
+            out[:, self.along] = (radius - h) * np.sin(phi)
+            out[:, self.towards] = radius - (radius - h) * np.cos(phi)
+            return out + centre
+        raise ValueError(f"unknown motion kind {self.kind!r}")
+
+
+def rotate(p: np.ndarray, axis: int, angle: float | np.ndarray) -> np.ndarray:
+    """Rotate points (N, 3) about coordinate axis ``axis`` by ``angle`` radians (scalar or (N,))."""
+    a, b = [(1, 2), (2, 0), (0, 1)][axis]
+    c, s = np.cos(angle), np.sin(angle)
+    out = p.copy()
+    out[:, a] = c * p[:, a] - s * p[:, b]
+    out[:, b] = s * p[:, a] + c * p[:, b]
+    return out
+
+
+class DrivenNodes:
+    """Node state for positions given from outside: upload, then the eq. 3 normals pass.
+
+    ``position_texture`` is what the render passes read, like a simulation's.
+
+    Args:
+        ctx: GL context.
+        textures: the node textures (static node data and state) of the grid.
+        grid: the node grid.
+    """
+
+    def __init__(self, ctx: moderngl.Context, textures: NodeTextures, grid: NodeGrid) -> None:
+        self.ctx, self.textures, self.grid = ctx, textures, grid
+        layout = textures.layout
+        compact = isinstance(layout, CompactLayout)
+        vert = "sim/fullscreen.vert" if compact else "sim/node_rects.vert"
+        self.program = Program(ctx, vert, "sim/node_normals.frag", defines=layout.shader_defines())
+        self.program.set(u_position=0, u_node=1, **layout.shader_uniforms())
+        if compact:
+            self.vbo = None
+            self.vao = ctx.vertex_array(self.program.gl, [])
+            self.vertices = 3
+        else:
+            self.program.set(u_target_size=textures.size)
+            self.vbo = ctx.buffer(tile_rectangles(layout, grid.ijk).astype("f4").tobytes())
+            self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")])
+            self.vertices = self.vbo.size // 8
+
+    @property
+    def position_texture(self) -> moderngl.Texture:
+        """The state texture with the latest positions and packed normals."""
+        return self.textures.state[0]
+
+    def set_positions(self, positions: np.ndarray) -> None:
+        """Upload (N, 3) node positions and compute their normals on the GPU."""
+        layout = self.textures.layout
+        image = layout.scatter(self.grid.ijk, np.hstack([positions, np.zeros((len(positions), 1))]))
+        self.textures.state[1].write(image.tobytes())
+        self.textures.state[1].use(0)
+        self.textures.bind_static(1)
+        self.textures.framebuffers[0].use()
+        self.vao.render(moderngl.TRIANGLES, vertices=self.vertices)
+
+    def release(self) -> None:
+        """Release the pass's GL objects (the textures belong to their owner)."""
+        self.vao.release()
+        if self.vbo is not None:
+            self.vbo.release()
+        self.program.release()

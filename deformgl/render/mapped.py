@@ -1,0 +1,200 @@
+"""Drawing a detailed mesh deformed by the nodes (Mosegaard & Sørensen 2005, 3.3) and capturing
+what the vertex shader computed with transform feedback (for mesh export and tests).
+
+Vertex attributes (static buffers, built once from a binding), per vertex of the detailed mesh:
+
+| attribute | type | meaning |
+| --- | --- | --- |
+| in_texel1..3 | ivec2 | state-texture texels of the three nodes of its triangle |
+| in_weights | vec3 | eq. 4 weights |
+| in_offset | vec3 | eq. 7 offset in its basis (constant or curvature, as chosen per vertex) |
+| in_offset_world | vec3 | eq. 5 rest offset (fallback for a degenerate basis) |
+| in_normal, in_normal_world | vec3 | vertex normal in the basis / at rest in world space |
+| in_curvature | float | 1 = curvature basis (eq. 8), 0 = constant (eq. 6); CURVATURE variant only |
+| in_tangent, in_tangent_world, in_uv | vec4, vec3, vec2 | NORMAL_MAP variant only |
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from deformgl.render.camera import View
+from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.gl.programs import Program
+from deformgl.render.passes import FeedbackCapture, Lighting
+
+
+@dataclass(frozen=True, eq=False)
+class MappedVertices:
+    """Per-vertex mapping data of one mode, ready for the GPU (all float64/int64 arrays, V rows).
+
+    Attributes:
+        tri_nodes: (V, 3) node numbers; weights: (V, 3); offset: (V, 3) in the chosen basis;
+        offset_world: (V, 3); normal, normal_world: (V, 3); use_curvature: (V,) bool;
+        tangent: (V, 4) or None; tangent_world: (V, 3) or None; uv: (V, 2) or None.
+    """
+
+    tri_nodes: np.ndarray
+    weights: np.ndarray
+    offset: np.ndarray
+    offset_world: np.ndarray
+    normal: np.ndarray
+    normal_world: np.ndarray
+    use_curvature: np.ndarray
+    tangent: np.ndarray | None = None
+    tangent_world: np.ndarray | None = None
+    uv: np.ndarray | None = None
+
+
+def _f4(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype="f4")
+
+
+class MappedMeshPass:
+    """The detailed mesh drawn through ``shaders/render/mapped_mesh.vert``.
+
+    Args:
+        ctx: GL context.
+        grid: the node grid; layout: where each node lies in the state texture.
+        faces: (F, 3) triangles of the detailed mesh.
+        data: per-vertex mapping data.
+        normal_map: (H, W, 3) uint8 tangent-space normal map, or None (compiles no normal mapping).
+        normal_map_strength: 0..1 scale of the map's perturbation.
+        stages: 1 maps every vertex in the drawing vertex shader (the paper's way: the shader runs
+            once per index on renderers without a post-transform cache); 2 maps each vertex once
+            into a buffer with transform feedback, then draws that buffer as a plain mesh.
+    """
+
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, faces: np.ndarray,
+                 data: MappedVertices, *, normal_map: np.ndarray | None = None,
+                 normal_map_strength: float = 1.0, stages: int = 1) -> None:
+        if stages not in (1, 2):
+            raise ValueError(f"stages must be 1 or 2, got {stages}")
+        self.ctx = ctx
+        self.data = data
+        self.faces = faces
+        self.count = len(data.weights)
+        self.curvature = bool(np.any(data.use_curvature))
+        self.normal_mapped = normal_map is not None
+        self.defines = {"CURVATURE": self.curvature, "NORMAL_MAP": self.normal_mapped}
+        texels = [layout.texel(grid.ijk[data.tri_nodes[:, c]]).astype("i4") for c in range(3)]
+        columns = [("in_texel1", "2i", texels[0]), ("in_texel2", "2i", texels[1]),
+                   ("in_texel3", "2i", texels[2]), ("in_weights", "3f", _f4(data.weights)),
+                   ("in_offset", "3f", _f4(data.offset)), ("in_offset_world", "3f", _f4(data.offset_world)),
+                   ("in_normal", "3f", _f4(data.normal)), ("in_normal_world", "3f", _f4(data.normal_world))]
+        if self.curvature:
+            columns.append(("in_curvature", "1f", _f4(data.use_curvature.astype(np.float64))))
+        if self.normal_mapped:
+            assert data.tangent is not None and data.tangent_world is not None and data.uv is not None
+            columns += [("in_tangent", "4f", _f4(data.tangent)), ("in_tangent_world", "3f", _f4(data.tangent_world)),
+                        ("in_uv", "2f", _f4(data.uv))]
+        self.program: Program | None = None
+        self.vao: moderngl.VertexArray | None = None
+        self.normal_map_texture: moderngl.Texture | None = None
+        self._capture: FeedbackCapture | None = None
+        self.stages = stages
+        self.stage_one: FeedbackCapture | None = None
+        self.cached: Program | None = None
+        self.buffers = [ctx.buffer(arr.tobytes()) for _, _, arr in columns]
+        self.content = [(buf, fmt, name) for buf, (name, fmt, _) in zip(self.buffers, columns)]
+        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
+        try:
+            if normal_map is not None:
+                h, w, _ = normal_map.shape
+                self.normal_map_texture = ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes())
+                self.normal_map_texture.build_mipmaps()
+                self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            map_uniforms = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
+                            if normal_map is not None else {})
+            if stages == 1:
+                self.program = Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag", defines=self.defines)
+                self.vao = ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo,
+                                            index_element_size=4)
+                self.program.set(**map_uniforms)
+            else:
+                names, fmt = ["v_world", "v_normal"], "3f 3f"
+                attrs = ["in_world", "in_normal"]
+                if self.normal_mapped:
+                    names += ["v_tangent", "v_handedness", "v_uv"]
+                    fmt += " 3f 1f 2f"
+                    attrs += ["in_tangent", "in_handedness", "in_uv"]
+                width = 6 + (6 if self.normal_mapped else 0)
+                self.stage_one = FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
+                                                 self.content, width=width)
+                self.mapped = ctx.buffer(reserve=self.count * width * 4)
+                self.cached = Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
+                                      defines={"NORMAL_MAP": self.normal_mapped})
+                self.cached_vao = ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
+                                                   index_buffer=self.ibo, index_element_size=4)
+                self.cached.set(**map_uniforms)
+        except BaseException:
+            self.release()
+            raise
+
+    def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
+        """Draw the mapped mesh with node positions from ``positions``."""
+        if self.normal_map_texture is not None:
+            self.normal_map_texture.use(1)
+        uniforms = dict(u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
+                        u_eye=tuple(view.eye), **lighting.uniforms())
+        if self.stage_one is not None:
+            self.stage_one.run_into(positions, self.count, self.mapped)
+            self.cached.set(**uniforms)
+            self.cached_vao.render(moderngl.TRIANGLES)
+            return
+        positions.use(0)
+        self.program.set(u_position=0, **uniforms)
+        self.vao.render(moderngl.TRIANGLES)
+
+    def capture(self, positions: moderngl.Texture) -> tuple[np.ndarray, np.ndarray]:
+        """The deformed vertices and normals exactly as the vertex shader computes them
+        (transform feedback of the same shader and variant); one read-back.
+
+        Returns:
+            (V, 3) float32 positions and (V, 3) float32 normals (not normalised).
+        """
+        if self._capture is None:
+            self._capture = FeedbackCapture(self.ctx, "render/mapped_mesh.vert", self.defines,
+                                            ("v_world", "v_normal"), self.content)
+        data = self._capture.run(positions, self.count)
+        return data[:, :3], data[:, 3:]
+
+    def release(self) -> None:
+        """Release every GL object (also after a failed construction)."""
+        for obj in (self.vao, self.program, *self.buffers, self.ibo, self.normal_map_texture, self._capture,
+                    self.stage_one):
+            if obj is not None:
+                obj.release()
+        if self.cached is not None:
+            self.cached_vao.release()
+            self.cached.release()
+            self.mapped.release()
+        self.vao = self.program = self.normal_map_texture = self._capture = self.stage_one = self.cached = None
+        self.buffers = []
+
+
+class StaticMeshPass:
+    """A mesh drawn as stored (positions and normals in a static buffer): the speed baseline."""
+
+    def __init__(self, ctx: moderngl.Context, vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> None:
+        self.program = Program(ctx, "render/static_mesh.vert", "render/mapped_mesh.frag")
+        self.vbo = ctx.buffer(np.hstack([_f4(vertices), _f4(normals)]).tobytes())
+        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
+        self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "3f 3f", "in_position", "in_normal")],
+                                    index_buffer=self.ibo, index_element_size=4)
+
+    def draw(self, view: View, lighting: Lighting) -> None:
+        """Draw the mesh."""
+        self.program.set(u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
+                         u_eye=tuple(view.eye), **lighting.uniforms())
+        self.vao.render(moderngl.TRIANGLES)
+
+    def release(self) -> None:
+        """Release every GL object."""
+        self.vao.release()
+        self.vbo.release()
+        self.ibo.release()
+        self.program.release()

@@ -1,0 +1,194 @@
+"""Offscreen rendering: an MSAA target resolved to RGB, and the draw passes that use it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from deformgl.render.camera import View
+from deformgl.errors import GLError
+from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.gl.programs import Program
+from deformgl.grid.surface import grid_surface
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Light and material of the lit passes (colours in [0, 1])."""
+
+    direction: tuple[float, float, float]
+    colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    ambient: float = 0.2
+    material: tuple[float, float, float] = (0.85, 0.6, 0.35)
+    specular: float = 0.3
+    shininess: float = 32.0
+
+    def uniforms(self) -> dict[str, object]:
+        """Uniform values of ``shaders/lib/blinn_phong.glsl``."""
+        d = np.asarray(self.direction, dtype=np.float64)
+        return {"u_light_direction": tuple(d / np.linalg.norm(d)), "u_light_colour": self.colour,
+                "u_ambient": self.ambient, "u_material_colour": self.material,
+                "u_specular": self.specular, "u_shininess": self.shininess}
+
+
+class RenderTarget:
+    """Colour + depth framebuffer, multisampled when ``samples > 1``, resolved for read-back.
+
+    Args:
+        ctx: GL context.
+        size: (width, height) pixels.
+        samples: MSAA samples (0 or 1: none).
+    """
+
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int], samples: int = 4) -> None:
+        self.ctx = ctx
+        self.size = size
+        max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
+        if samples > max_samples:
+            raise GLError(f"{samples}x MSAA requested, the renderer supports at most {max_samples}x")
+        self.samples = samples if samples > 1 else 0
+        self.colour = ctx.renderbuffer(size, 4, samples=self.samples)
+        self.depth = ctx.depth_renderbuffer(size, samples=self.samples)
+        self.fbo = ctx.framebuffer(color_attachments=[self.colour], depth_attachment=self.depth)
+        if self.samples:
+            self.resolved = ctx.renderbuffer(size, 4)
+            self.resolve_fbo = ctx.framebuffer(color_attachments=[self.resolved])
+        else:
+            self.resolved, self.resolve_fbo = None, None
+
+    def begin(self, background: tuple[float, float, float]) -> None:
+        """Bind, clear to ``background`` and enable depth testing."""
+        self.fbo.use()
+        self.ctx.viewport = (0, 0, *self.size)
+        self.fbo.clear(*background, 1.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
+
+    def read_rgb(self) -> np.ndarray:
+        """Resolve (if multisampled) and read the image: (height, width, 3) uint8, top row first."""
+        source = self.fbo
+        if self.samples:
+            self.ctx.copy_framebuffer(self.resolve_fbo, self.fbo)
+            source = self.resolve_fbo
+        data = source.read(components=3, alignment=1)
+        w, h = self.size
+        return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
+
+    def release(self) -> None:
+        """Release every GL object."""
+        for obj in (self.fbo, self.colour, self.depth, self.resolve_fbo, self.resolved):
+            if obj is not None:
+                obj.release()
+
+
+class FeedbackCapture:
+    """Captures a vertex shader's outputs with transform feedback: the same shader file and
+    variant as a draw pass, built with ``varyings``, rasterizer discarded.
+
+    Args:
+        ctx: GL context.
+        vertex: vertex shader file; defines: its variant; varyings: captured outputs (vec3 each).
+        content: the draw pass's vertex array content (attributes feeding no captured output are
+            inactive in the capture program and skipped).
+    """
+
+    def __init__(self, ctx: moderngl.Context, vertex: str, defines: dict[str, object],
+                 varyings: tuple[str, ...], content: list, width: int | None = None) -> None:
+        self.ctx = ctx
+        self.program = Program(ctx, vertex, defines=defines, varyings=varyings)
+        self.vao = ctx.vertex_array(self.program.gl, content, skip_errors=True)
+        self.width = 3 * len(varyings) if width is None else width  # floats per vertex
+        # Mesa skips every draw, transform feedback included, without a complete framebuffer.
+        self.fbo = ctx.simple_framebuffer((1, 1))
+
+    def run_into(self, positions: moderngl.Texture, count: int, out: moderngl.Buffer) -> None:
+        """Write the outputs for node positions from ``positions`` into ``out`` (stays on the GPU)."""
+        previous = self.ctx.fbo
+        self.fbo.use()
+        positions.use(0)
+        self.program.set(u_position=0)
+        self.vao.transform(out, moderngl.POINTS, vertices=count)
+        previous.use()
+
+    def run(self, positions: moderngl.Texture, count: int) -> np.ndarray:
+        """(count, width) float32 outputs for node positions from ``positions`` (one read-back)."""
+        out = self.ctx.buffer(reserve=count * self.width * 4)
+        try:
+            self.run_into(positions, count, out)
+            return np.frombuffer(out.read(), dtype="f4").reshape(count, self.width).copy()
+        finally:
+            out.release()
+
+    def release(self) -> None:
+        """Release every GL object."""
+        self.vao.release()
+        self.fbo.release()
+        self.program.release()
+
+
+class GridSurfacePass:
+    """Draws the node-grid surface with the one-to-one mapping (3.2), optionally with the
+    node/spring overlay (figure 2b). Vertex and index buffers are static, built once.
+
+    Args:
+        ctx: GL context.
+        grid: the node grid.
+        layout: where each node lies in the state texture.
+        overlay: also draw nodes and surface springs as points and lines.
+    """
+
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, *,
+                 overlay: bool = False) -> None:
+        self.ctx = ctx
+        self.surface = grid_surface(grid)
+        texels = layout.texel(grid.ijk[self.surface.nodes]).astype("i4")
+        self.program = Program(ctx, "render/grid_surface.vert", "render/lit_surface.frag")
+        self.vbo = ctx.buffer(texels.tobytes())
+        self.ibo = ctx.buffer(self.surface.triangles.astype("i4").tobytes())
+        self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")],
+                                    index_buffer=self.ibo, index_element_size=4)
+        self._capture: FeedbackCapture | None = None
+        self.overlay = None
+        if overlay:
+            self.overlay = Program(ctx, "render/grid_lines.vert", "render/flat_colour.frag")
+            self.line_ibo = ctx.buffer(self.surface.edges().astype("i4").tobytes())
+            self.line_vao = ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")],
+                                             index_buffer=self.line_ibo, index_element_size=4)
+            self.point_vao = ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")])
+
+    def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
+        """Draw with node positions from ``positions`` (texture unit 0)."""
+        positions.use(0)
+        vp = tuple(view.view_projection.T.astype("f4").ravel())
+        self.program.set(u_position=0, u_view_projection=vp, u_eye=tuple(view.eye), **lighting.uniforms())
+        if len(self.surface.triangles):
+            self.vao.render(moderngl.TRIANGLES)
+        if self.overlay is not None:
+            self.overlay.set(u_position=0, u_view_projection=vp, u_colour=(0.1, 0.1, 0.1))
+            self.line_vao.render(moderngl.LINES)
+            self.overlay.set(u_colour=(0.8, 0.1, 0.1))
+            self.point_vao.render(moderngl.POINTS)
+
+    def capture(self, positions: moderngl.Texture) -> tuple[np.ndarray, np.ndarray]:
+        """Surface vertices (one per node of ``surface.nodes``) and normals as the vertex shader
+        computes them, by transform feedback; one read-back."""
+        if self._capture is None:
+            self._capture = FeedbackCapture(self.ctx, "render/grid_surface.vert", {},
+                                            ("v_world", "v_normal"), [(self.vbo, "2i", "in_texel")])
+        data = self._capture.run(positions, len(self.surface.nodes))
+        return data[:, :3], data[:, 3:]
+
+    def release(self) -> None:
+        """Release every GL object."""
+        self.vao.release()
+        self.vbo.release()
+        self.ibo.release()
+        self.program.release()
+        if self._capture is not None:
+            self._capture.release()
+        if self.overlay is not None:
+            self.line_vao.release()
+            self.point_vao.release()
+            self.line_ibo.release()
+            self.overlay.release()

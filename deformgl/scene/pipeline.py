@@ -1,0 +1,391 @@
+"""From a scene to a PNG: load the mesh, build the grid and model, simulate, render, write.
+
+Positions are recentred on the mesh's bounding-box centre before anything reaches float32 GPU
+memory, so a mesh far from the origin keeps its precision; the offset is kept in
+:attr:`SceneModel.centre`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import moderngl
+import numpy as np
+import trimesh
+
+from deformgl.trilinear.attachments import TubeAttachment
+from deformgl.render.camera import View, frame_box
+from deformgl.scene.obstacles import draw_obstacles
+from deformgl.errors import InputError, SimulationError
+from deformgl.sim.backends.foundation import FragmentSimulation, NodeTextures
+from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.files import write_png_atomic
+from deformgl.render.mapped import MappedMeshPass
+from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image, rest_node_normals
+from deformgl.grid.meshio import load_mesh
+from deformgl.sim.model import MAX_PULLS, SpringModel
+from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
+from deformgl.progress import Progress
+from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
+from deformgl.scene.schema import Physics, Scene
+from deformgl.sim.guards import BlowUpWatch, StepPlan, plan_steps
+from deformgl.scene.run import (SceneBox, SceneRun, bad_limit, needs_integrators, run_scene,
+                        run_with_retries, scene_constraints, scene_system, step_watched)
+from deformgl.trilinear.scenegraph import TrilinearRenderer
+from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
+from deformgl.grid.surface import grid_surface
+from deformgl.grid.voxelize import voxelize
+
+
+@dataclass(frozen=True, eq=False)
+class SceneModel:
+    """Everything a scene builds on the CPU, once: recentred mesh, grid, spring model.
+
+    Attributes:
+        mesh: the detailed mesh, recentred.
+        centre: (3,) the world offset removed from every position.
+        grid: node grid (recentred coordinates).
+        model: the spring model.
+        bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
+    """
+
+    mesh: trimesh.Trimesh
+    centre: np.ndarray
+    grid: NodeGrid
+    model: SpringModel
+    bbox: np.ndarray
+
+
+def build_spring_model(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringModel:
+    """Per-node attributes from the scene's physics: mass, fixed regions, pull groups."""
+    frac = grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
+    fixed = np.zeros(grid.count, bool)
+    for region in physics.fixed:
+        fixed |= region.contains(frac)
+    groups = np.zeros(grid.count, np.uint8)
+    for g, pull in enumerate(physics.pull):
+        groups |= (pull.region.contains(frac).astype(np.uint8) << g)
+    return SpringModel(grid=grid, mass=np.full(grid.count, physics.mass), fixed=fixed,
+                       pull_groups=groups, k_structural=physics.stiffness, k_shear=physics.stiffness,
+                       damping=physics.damping, gravity=np.asarray(physics.gravity, dtype=np.float64),
+                       n_pulls=len(physics.pull))
+
+
+def pull_schedule(physics: Physics):
+    """Callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group."""
+    pulls = physics.pull
+
+    def forces(t: float) -> np.ndarray:
+        out = np.zeros((MAX_PULLS, 3))
+        for g, pull in enumerate(pulls):
+            out[g] = pull.force_at(t)
+        return out
+
+    return forces
+
+
+def build_cloth_model(scene: Scene) -> SceneModel:
+    """A cloth scene: a one-node-thin sheet of nodes centred on the origin in the plane y = 0; its
+    box is the cube of side ``cloth.size`` around it (Movania & Feng 2012, section 5)."""
+    nx, nz = scene.cloth.nodes
+    size = scene.cloth.size
+    spacing = size / (max(nx, nz) - 1)
+    origin = np.array([-(nx - 1) * spacing / 2.0, 0.0, -(nz - 1) * spacing / 2.0])
+    grid = NodeGrid(origin=origin, spacing=spacing, occupied=np.ones((nx, 1, nz), dtype=bool))
+    surface = grid_surface(grid)
+    mesh = trimesh.Trimesh(grid.rest_positions[surface.nodes], surface.triangles, process=False)
+    bbox = np.array([[origin[0], -size / 2.0, origin[2]], [-origin[0], size / 2.0, -origin[2]]])
+    return SceneModel(mesh=mesh, centre=np.zeros(3), grid=grid,
+                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+
+
+def build_scene_model(scene: Scene) -> SceneModel:
+    """Load and recentre the mesh, voxelize it into the node grid, build the spring model (or
+    build the cloth sheet of a cloth scene)."""
+    if scene.cloth is not None:
+        return build_cloth_model(scene)
+    mesh = load_mesh(scene.mesh.path)
+    lo, hi = mesh.bounds
+    centre = (lo + hi) / 2.0
+    mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, visual=mesh.visual, process=False)
+    vox = voxelize(mesh, nodes_along_longest=scene.grid.nodes_along_longest,
+                   spacing=scene.grid.spacing, source=str(scene.mesh.path))
+    grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
+                    occupied=np.asarray(vox.occupied, dtype=bool))
+    if len(grid_surface(grid).triangles) == 0:
+        raise InputError(
+            f"{scene.mesh.path}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
+            f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
+            f"(grid.nodes_along_longest or grid.spacing in {scene.source.name})")
+    bbox = np.array(mesh.bounds, dtype=np.float64)
+    return SceneModel(mesh=mesh, centre=centre, grid=grid,
+                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+
+
+def scene_view(scene: Scene, bbox: np.ndarray) -> View:
+    """The scene's camera framing the rest bounding box."""
+    cam = scene.render.camera
+    w, h = scene.render.size
+    return frame_box(bbox[0], bbox[1], projection=cam.projection, azimuth=cam.azimuth,
+                     elevation=cam.elevation, fov=cam.fov, distance=cam.distance,
+                     target=np.asarray(cam.target), aspect=w / h)
+
+
+def scene_lighting(scene: Scene) -> Lighting:
+    """Light and material uniforms of a scene."""
+    r = scene.render
+    return Lighting(direction=tuple(r.light.direction), colour=tuple(r.light.colour),
+                    ambient=r.light.ambient, material=tuple(r.material.colour),
+                    specular=r.material.specular, shininess=r.material.shininess)
+
+
+def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25,
+             watch: BlowUpWatch | None = None) -> None:
+    """Run ``steps`` steps on the GPU in chunks, showing progress, with the blow-up census of
+    ``watch`` if given; no read-back unless a check fails."""
+    with Progress(steps, "steps", enabled=progress) as bar:
+        step_watched(sim.ctx, sim, steps, bar, watch, chunk=chunk)
+
+
+def run_foundation(ctx: moderngl.Context, scene: Scene, built: SceneModel, plan: StepPlan, *,
+                   progress: bool) -> FragmentSimulation:
+    """The foundation's fragment Verlet pass over ``plan``'s steps, watched by the blow-up census
+    (the final census stands in for reading the state back). The caller owns the result."""
+    sim = FragmentSimulation(ctx, built.model, plan.step_dt, pull_schedule(scene.physics))
+    watch = None
+    try:
+        watch = BlowUpWatch(ctx, sim, every=scene.physics.safety.check_every,
+                            limit=bad_limit(scene.physics, SceneBox(*built.bbox)), grid=built.grid,
+                            source=scene.source, dt=plan.step_dt)
+        simulate(sim, plan.step_count, progress=progress, watch=watch)
+    except BaseException:
+        sim.release()
+        raise
+    finally:
+        if watch is not None:
+            watch.release()
+    return sim
+
+
+def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
+    """The node grid must fit the GL texture limit; the error names the scene key to change."""
+    try:
+        CompactLayout.for_grid(grid, max_size)  # the layout NodeTextures uses by default
+    except ValueError as exc:
+        key = "grid.spacing" if scene.grid.spacing is not None else "grid.nodes_along_longest"
+        raise InputError(f"{scene.source}: {key}: {exc}; use a coarser grid") from None
+
+
+class NodeState:
+    """Where a scene's node positions come from: the simulation, a file or an analytic motion.
+
+    ``position_texture`` is what the draw passes read; ``release`` frees every GL object.
+    """
+
+    def __init__(self, ctx: moderngl.Context, scene: Scene, built: SceneModel, *, progress: bool) -> None:
+        nodes = scene.nodes
+        self.sim: FragmentSimulation | None = None
+        self.driven: DrivenNodes | None = None
+        self.run: SceneRun | None = None  # the five-integrator run, if the scene used one
+        self.notes: list[str] = []  # what the step plan and restarts changed, for the log
+        self.textures: NodeTextures
+        if nodes.source == "simulate":
+            physics = scene.physics
+            system = scene_system(built.grid, built.model, physics)
+            plan = plan_steps(system, physics, scene.source)
+            if needs_integrators(physics):
+                self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress,
+                                     plan=plan, notes=self.notes, system=system)
+                positions = self.run.positions
+            else:
+                if plan.note:
+                    self.notes.append(plan.note)
+                self.sim, _ = run_with_retries(
+                    plan, physics.safety.unstable,
+                    lambda p: run_foundation(ctx, scene, built, p, progress=progress), self.notes)
+                self.textures = self.sim.textures
+                return
+        if nodes.source == "file":
+            frames = load_node_frames(nodes.file, built.grid.count, built.centre)
+            if not -len(frames) <= nodes.frame < len(frames):
+                raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
+                                 f"{len(frames)} frame(s) of {nodes.file}")
+            positions = frames[nodes.frame]
+        elif nodes.source == "motion":
+            m = nodes.motion
+            motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
+            positions = motion.apply(built.grid.rest_positions, m.amount)
+        self.textures = NodeTextures(ctx, built.model)
+        try:
+            self.driven = DrivenNodes(ctx, self.textures, built.grid)
+            self.driven.set_positions(positions)
+        except BaseException:
+            self.release()
+            raise
+
+    @property
+    def position_texture(self) -> moderngl.Texture:
+        """State texture with the node positions and packed normals to draw."""
+        return self.sim.position_texture if self.sim else self.driven.position_texture
+
+    @property
+    def layout(self):
+        """The layout of the node textures (compact or atlas)."""
+        return self.textures.layout
+
+    def release(self) -> None:
+        """Release every GL object."""
+        if self.sim is not None:
+            self.sim.release()
+        else:
+            if self.driven is not None:
+                self.driven.release()
+            self.textures.release()
+
+
+def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layout, *,
+                   log: Callable[[str], None] | None = None):
+    """The pass that draws the scene: the grid surface (one-to-one) or the mapped detailed mesh.
+
+    Args:
+        log: receives the binding's report lines (what it could not do well), if given.
+    """
+    mode = scene.mapping.mode
+    if mode == "one-to-one":
+        return GridSurfacePass(ctx, built.grid, layout, overlay=scene.render.show_grid)
+    surface = grid_surface(built.grid)
+    normal_map = normal_map_image(scene.mapping.normal_map, scene.source)
+    own_uv = mesh_uv(built.mesh)
+    binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache, uv=own_uv)
+    if log is not None:
+        for line in binding.report.lines():
+            log(f"{scene.mesh.path.name}: {line}")
+    data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
+    if normal_map is not None:
+        # the mesh's own UVs as they are; procedural ones (what the tangents were built from)
+        # repeated over the surface
+        uv = binding.uv if own_uv is not None else binding.uv * scene.mapping.normal_map_repeat
+        data = dataclasses.replace(data, uv=uv)
+    return MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data, normal_map=normal_map,
+                          normal_map_strength=scene.mapping.normal_map_strength)
+
+
+def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, deformed: np.ndarray,
+                     view: View, lighting: Lighting) -> None:
+    """Draw the scene's attached tubes on the deformed detailed mesh (Knuth et al., section 5).
+
+    Args:
+        deformed: (V, 3) the detailed mesh's vertices as the mapping shader computed them (the
+            anchors' frames need them on the CPU; the paper composes on the CPU too).
+    """
+    lo, hi = built.bbox
+    diag = float(np.linalg.norm(hi - lo))
+    renderer = TrilinearRenderer(ctx)
+    try:
+        for spec in scene.attach:
+            tube = TubeAttachment.along(built.mesh.vertices, built.mesh.faces, lo + (hi - lo) * np.asarray(spec.start),
+                                        lo + (hi - lo) * np.asarray(spec.end), count=spec.anchors,
+                                        radius=spec.radius * diag, colour=spec.colour)
+            renderer.draw(tube.compose(deformed, built.mesh.faces), view, lighting)
+    finally:
+        renderer.release()
+
+
+@dataclass
+class Rendered:
+    """What one render produced: the image, and on request the deformed mesh and the shader-pack
+    inputs (kept in memory so that files are written only after the PNG)."""
+
+    image: np.ndarray
+    mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # vertices (world), normals, faces
+    pack: dict | None = None
+
+
+def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
+    """Limits a scene can exceed, checked before any work: MSAA samples."""
+    max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
+    if scene.render.msaa > max(max_samples, 1):
+        raise InputError(f"{scene.source}: render.msaa: {scene.render.msaa}x is more than this renderer's "
+                         f"{max_samples}x")
+
+
+def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh: bool = False,
+           pack: bool = False, log: Callable[[str], None] | None = None) -> Rendered:
+    """Simulate (or drive) a scene's nodes and render it.
+
+    Args:
+        mesh: also capture the deformed detailed mesh from the mapping vertex shader.
+        pack: also collect the inputs of the shader pack's example program.
+        log: receives human-readable notes (the binding report), if given.
+    """
+    if (mesh or pack) and scene.mapping.mode == "one-to-one":
+        flag = "--export-mesh" if mesh else "--pack-inputs"
+        raise InputError(f"{scene.source}: {flag} needs a mapping of the detailed mesh "
+                         f"(--mapping constant, curvature or auto), not one-to-one")
+    check_gl_limits(ctx, scene)
+    built = build_scene_model(scene)
+    check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+    state = NodeState(ctx, scene, built, progress=progress)
+    draw_pass = None
+    target = None
+    try:
+        draw_pass = make_draw_pass(ctx, scene, built, state.layout, log=log)
+        target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
+        target.begin(tuple(scene.render.background))
+        view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
+        draw_pass.draw(state.position_texture, view, lighting)
+        if log is not None:
+            for note in state.notes:
+                log(f"{scene.name}: {note}")
+        if state.run is not None:
+            if log is not None:
+                log(f"{scene.name}: {state.run.summary(scene.physics)}")
+            constraints = scene_constraints(scene.physics, SceneBox(*built.bbox))
+            if constraints is not None:
+                target.fbo.use()
+                draw_obstacles(ctx, constraints, state.run.time, built.bbox[0], built.bbox[1],
+                               built.grid.spacing, view, lighting)
+        captured = None
+        if scene.attach or mesh:
+            captured = draw_pass.capture(state.position_texture)
+            if not np.isfinite(captured[0]).all():
+                bad = int(np.argmax(~np.isfinite(captured[0]).all(axis=1)))
+                raise SimulationError(f"{scene.source}: mapped vertex {bad} is non-finite")
+        if scene.attach:
+            target.fbo.use()
+            draw_attachments(ctx, scene, built, captured[0].astype(np.float64), view, lighting)
+        result = Rendered(target.read_rgb())
+        if mesh:
+            result.mesh = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)
+        if pack:
+            result.pack = pack_inputs(state.position_texture, built.grid, state.layout, draw_pass.data,
+                                      built.mesh.faces, view, lighting, scene.render.size,
+                                      tuple(scene.render.background))
+        return result
+    finally:
+        for obj in (target, draw_pass):
+            if obj is not None:
+                obj.release()
+        state.release()
+
+
+def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False) -> np.ndarray:
+    """Simulate (or drive) a scene's nodes and render it: (height, width, 3) uint8 image."""
+    return render(ctx, scene, progress=progress).image
+
+
+def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
+                  export: Path | None = None, pack: Path | None = None,
+                  log: Callable[[str], None] | None = None) -> np.ndarray:
+    """Render a scene and write the PNG, then the optional mesh and shader-pack inputs, each
+    atomically (temporary file, then rename); nothing is written if the render fails."""
+    result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
+    write_png_atomic(out, result.image)
+    if export is not None:
+        export_mesh(export, *result.mesh)
+    if pack is not None:
+        write_pack_inputs(pack, result.pack)
+    return result.image

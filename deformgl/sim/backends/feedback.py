@@ -1,0 +1,424 @@
+"""The transform-feedback backend of the five integrators (Movania & Feng 2012).
+
+Every step stage is a vertex shader in ``shaders/feedback/`` drawn over ``POINTS``, one vertex per
+node, its outputs captured with transform feedback into a buffer (the paper's section 4
+pipeline; nothing is rasterised: the 1x1 framebuffer is only bound because Mesa skips every
+draw, transform feedback included, without a complete one). It computes the same function as
+the float64 reference :func:`deformgl.integrators.step`, in float32.
+
+GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
+
+* Static: ``nodes`` RGBA32I (NODE_ROW x rows): first entry and count of the node's neighbour
+  list, fixed flag, load-group bits; the neighbour list (CSR, each spring once per end) in
+  ``other`` R32I (the other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
+  entries per row.
+* State: a pass writes K vec4 per node, interleaved in varying order (``Program`` captures
+  interleaved). The buffer is then copied GPU to GPU into an RGBA32F texture of K * NODE_ROW x
+  rows texels (``Texture.write(buffer)``: a pixel-unpack-buffer upload, no CPU round trip), in
+  which slot s of node n is texel ``(K * (n % NODE_ROW) + s, n / NODE_ROW)``, so the next pass
+  can fetch any neighbour's state.
+
+Why 2D textures and not ``samplerBuffer``: moderngl 5.13 has no buffer textures (no
+``GL_TEXTURE_BUFFER`` target), so after each pass the output buffer is copied into a 2D texture
+with ``Texture.write(buffer)`` (the buffer bound as ``GL_PIXEL_UNPACK_BUFFER``: the copy stays in
+the GL, nothing crosses to Python). This works on Mesa llvmpipe; it costs one copy of the pass's
+output per pass.
+
+State per integrator (``bytes_per_node`` counts what is allocated, static data included):
+
+* euler, semi-implicit: state texture (x, v) + output buffer (x', v').
+* midpoint: state (x, v), stage texture (x_m, v_m), output buffer (2 vec4).
+* rk4: state (x, v), stage texture (x_s, v_s, sum_x, sum_v), output buffer (4 vec4).
+* verlet: two position textures (x, x_prev, roles swapped each step) + output buffer (x').
+
+Positions carry the node mass in w. The loop never reads anything back to the CPU; only
+:meth:`FeedbackSimulation.positions` and :meth:`FeedbackSimulation.velocities` do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import moderngl
+import numpy as np
+
+from deformgl.errors import GLError
+from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
+from deformgl.gl.programs import Program
+from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+
+__all__ = ["FeedbackSimulation", "NODE_ROW_MAX", "SPRING_ROW_MAX"]
+
+#: Nodes per texture row at most (a 4-slot state texture is then 4096 texels wide).
+NODE_ROW_MAX = 1024
+#: Neighbour-list entries per texture row at most.
+SPRING_ROW_MAX = 4096
+_VEC4 = 16
+
+
+def _row(count: int, limit: int) -> int:
+    """Texels per row: the smallest power of two >= count, at most ``limit``."""
+    width = 1
+    while width < count and width < limit:
+        width *= 2
+    return width
+
+
+def _bytes(obj: moderngl.Buffer | moderngl.Texture) -> int:
+    """Bytes of GPU memory a buffer or a (32-bit per channel) texture holds."""
+    if isinstance(obj, moderngl.Buffer):
+        return int(obj.size)
+    return int(obj.width * obj.height * obj.components * 4)
+
+
+def _array(values: list) -> object:
+    """A uniform array value for moderngl: an array of length 1 is set as its element."""
+    return values[0] if len(values) == 1 else values
+
+
+@dataclass
+class _Pass:
+    """One stage: its program and attribute-less vertex array (one vertex per node)."""
+
+    program: Program
+    vao: moderngl.VertexArray
+    slots: int  # vec4 outputs per node
+
+
+class FeedbackSimulation:
+    """A :class:`SpringSystem` stepped on the GPU by vertex shaders and transform feedback.
+
+    Args:
+        ctx: the GL context.
+        system: the spring system.
+        integrator: one of :data:`deformgl.integrators.INTEGRATORS`.
+        dt: step in s, > 0.
+        constraints: ground plane and (static or moving) spheres, or None.
+        drags: scripted drags (targets evaluated on the CPU at each stage's time, as uniforms).
+        loads: scripted per-node forces (at most ``springs.MAX_LOADS``; forces evaluated on the
+            CPU at each stage's time, as uniforms; group bits per node in ``nodes.w``).
+        state: start state (default :func:`deformgl.integrators.initial_state` at rest); Verlet
+            uses its ``x_prev``.
+        t0: time of the start state.
+    """
+
+    def __init__(self, ctx: moderngl.Context, system: SpringSystem, integrator: str, dt: float,
+                 *, constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
+                 loads: tuple[Load, ...] = (), state: State | None = None,
+                 t0: float = 0.0) -> None:
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {integrator!r}; expected one of "
+                             f"{', '.join(INTEGRATORS)}")
+        if not dt > 0:
+            raise ValueError(f"FeedbackSimulation: dt must be > 0, got {dt}")
+        self.ctx = ctx
+        self.system = system
+        self.integrator = integrator
+        self.dt = float(dt)
+        self.t = float(t0)
+        self.constraints = constraints
+        self.drags = tuple(drags)
+        self.loads = tuple(loads)
+        self.count = system.count
+        if self.count == 0:
+            raise ValueError("FeedbackSimulation: the system has no nodes")
+        self.load_bits = load_groups(self.loads, self.count)
+        for drag in self.drags:
+            if not 0 <= drag.node < self.count:
+                raise ValueError(f"FeedbackSimulation: drag node {drag.node} outside the system")
+        self._objects: list = []  # every GL object this instance owns, released in release()
+        self._passes: dict[str, _Pass] = {}
+        self._released = False
+        try:
+            self._build(state)
+        except BaseException:
+            self.release()
+            raise
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _own(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def _texture(self, width: int, height: int, dtype: str, data: bytes | None = None,
+                 components: int = 4) -> moderngl.Texture:
+        tex = self._own(self.ctx.texture((width, height), components, data, dtype=dtype))
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
+    def _build(self, state: State | None) -> None:
+        system, n = self.system, self.count
+        limit = int(self.ctx.info["GL_MAX_TEXTURE_SIZE"])
+        self.node_row = _row(n, min(NODE_ROW_MAX, limit))
+        self.rows = -(-n // self.node_row)
+        texels = self.node_row * self.rows
+
+        # CSR neighbour lists: every spring once in the list of each of its ends.
+        ends = np.concatenate([system.i, system.j])
+        other = np.concatenate([system.j, system.i])
+        order = np.argsort(ends, kind="stable")
+        counts = np.bincount(ends, minlength=n)
+        first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        params = np.zeros((len(ends), 4), np.float32)
+        params[:, 0] = np.tile(system.rest_length, 2)[order]
+        params[:, 1] = np.tile(system.stiffness, 2)[order]
+        params[:, 2] = np.tile(system.damping, 2)[order]
+        entries = max(len(ends), 1)
+        self.spring_row = _row(entries, min(SPRING_ROW_MAX, limit))
+        spring_rows = -(-entries // self.spring_row)
+        if self.rows > limit or spring_rows > limit:
+            raise GLError(f"FeedbackSimulation: {n} nodes and {entries} spring-list entries need {self.rows} "
+                          f"rows of {self.node_row} and {spring_rows} rows of {self.spring_row} texels, more than "
+                          f"the GL texture limit {limit}; use a coarser grid")
+        spring_texels = self.spring_row * spring_rows
+        nodes = np.zeros((texels, 4), np.int32)
+        nodes[:n, 0] = first
+        nodes[:n, 1] = counts
+        nodes[:n, 2] = system.fixed
+        nodes[:n, 3] = self.load_bits
+        other_img = np.zeros(spring_texels, np.int32)
+        other_img[:len(ends)] = other[order]
+        param_img = np.zeros((spring_texels, 4), np.float32)
+        param_img[:len(ends)] = params
+        self.tex_nodes = self._texture(self.node_row, self.rows, "i4", nodes.tobytes())
+        self.tex_other = self._texture(self.spring_row, spring_rows, "i4", other_img.tobytes(),
+                                       components=1)
+        self.tex_springs = self._texture(self.spring_row, spring_rows, "f4", param_img.tobytes())
+
+        # Start state (float64 on the CPU, uploaded once as float32).
+        s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+             if state is None else state)
+        x = np.asarray(s.x, np.float64)
+        v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
+        if x.shape != (n, 3) or v.shape != (n, 3):
+            raise ValueError(f"FeedbackSimulation: state of shape {x.shape}, expected ({n}, 3)")
+
+        def positions_image(p: np.ndarray) -> np.ndarray:
+            img = np.zeros((texels, 4), np.float32)
+            img[:n, :3] = p
+            img[:n, 3] = system.mass
+            return img
+
+        def velocity_image(w: np.ndarray) -> np.ndarray:
+            img = np.zeros((texels, 4), np.float32)
+            img[:n, :3] = w
+            return img
+
+        def interleave(*images: np.ndarray) -> bytes:
+            # slot s of node m at texel K * (m % NODE_ROW) + s of row m // NODE_ROW
+            return np.stack(images, axis=1).tobytes()
+
+        name = self.integrator
+        if name == "verlet":
+            self.tex_x = [self._texture(self.node_row, self.rows, "f4",
+                                        positions_image(x).tobytes()),
+                          self._texture(self.node_row, self.rows, "f4",
+                                        positions_image(np.asarray(s.x_prev)).tobytes())]
+            self._current = 0
+            out_slots = 1
+        else:
+            self.tex_state = self._texture(2 * self.node_row, self.rows, "f4",
+                                           interleave(positions_image(x), velocity_image(v)))
+            stage_slots = {"midpoint": 2, "rk4": 4}.get(name, 0)
+            self.tex_stage = (self._texture(stage_slots * self.node_row, self.rows, "f4")
+                              if stage_slots else None)
+            out_slots = max(2, stage_slots)
+        self.buffer = self._own(self.ctx.buffer(reserve=out_slots * texels * _VEC4))
+        self.fbo = self._own(self.ctx.simple_framebuffer((1, 1)))
+
+        # Programs: compile only what the system uses.
+        common: dict[str, object] = {"NODE_ROW": self.node_row, "SPRING_ROW": self.spring_row,
+                                     "DRAGS": len(self.drags), "LOADS": len(self.loads)}
+        if system.wind_drag > 0:
+            common["WIND"] = True
+        if np.any(system.damping > 0):
+            common["SPRING_DAMPING"] = True
+        c = self.constraints
+        if c is not None and (c.ground is not None or c.spheres):
+            common["CONSTRAINTS"] = True
+            common["GROUND"] = c.ground is not None
+            common["SPHERES"] = len(c.spheres)
+        else:
+            common["SPHERES"] = 0
+        if name != "verlet":
+            common["VELOCITY"] = True
+        out2 = ("out_x", "out_v")
+        if name == "euler":
+            self._add_pass("step", "feedback/euler.vert", common, out2)
+        elif name == "semi-implicit":
+            self._add_pass("step", "feedback/euler.vert", {**common, "SEMI_IMPLICIT": True}, out2)
+        elif name == "midpoint":
+            self._add_pass("half", "feedback/midpoint_half.vert", common, out2)
+            self._add_pass("step", "feedback/midpoint_full.vert", common, out2)
+        elif name == "rk4":
+            out4 = ("out_x", "out_v", "out_sum_x", "out_sum_v")
+            for k in (1, 2, 3):
+                self._add_pass(f"stage{k}", "feedback/rk4_stage.vert",
+                               {**common, "RK4_STAGE": k}, out4)
+            self._add_pass("step", "feedback/rk4_final.vert", common, out2)
+        else:
+            self._add_pass("step", "feedback/verlet.vert", common, ("out_x",))
+
+        state = [self.buffer, *(self.tex_x if name == "verlet" else
+                                [self.tex_state, *([self.tex_stage] if self.tex_stage else [])])]
+        self.state_bytes = int(sum(_bytes(o) for o in state))
+        self.bytes_allocated = int(sum(_bytes(o) for o in self._objects
+                                       if isinstance(o, (moderngl.Buffer, moderngl.Texture))))
+
+    def _add_pass(self, key: str, vertex: str, defines: dict[str, object],
+                  varyings: tuple[str, ...]) -> None:
+        program = Program(self.ctx, vertex, defines=defines, varyings=varyings)
+        self._own(program)
+        vao = self._own(self.ctx.vertex_array(program.gl, []))
+        self._passes[key] = _Pass(program, vao, len(varyings))
+        system = self.system
+        uniforms: dict[str, object] = {
+            "u_nodes": 0, "u_other": 1, "u_springs": 2, "u_dt": self.dt,
+            "u_gravity": tuple(float(g) for g in system.gravity),
+            "u_velocity_damping": system.velocity_damping}
+        if "WIND" in defines:
+            uniforms.update(u_wind=tuple(float(w) for w in system.wind),
+                            u_wind_drag=system.wind_drag)
+        if self.integrator == "verlet":
+            uniforms.update(u_x=3, u_x_prev=4)
+        else:
+            uniforms["u_state"] = 3
+            if key in ("stage2", "stage3") or (key == "step"
+                                               and self.integrator in ("midpoint", "rk4")):
+                uniforms["u_stage"] = 4
+        if self.drags:
+            uniforms["u_drag_node"] = _array([d.node for d in self.drags])
+            uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+        c = self.constraints
+        if "CONSTRAINTS" in defines and key == "step" and c is not None:
+            if c.ground is not None:
+                uniforms["u_ground"] = float(c.ground)
+        program.set(**uniforms)
+
+    # -- stepping ----------------------------------------------------------------------------
+
+    def _set_time(self, p: _Pass, t: float, *, constrain: bool = False) -> None:
+        """Uniforms that depend on time: loads and drag targets at the stage time t, sphere
+        centres."""
+        if self.loads:
+            forces = [tuple(float(c) for c in np.asarray(load.force(t), float))
+                      for load in self.loads]
+            p.program.set(u_load=_array(forces))
+        if self.drags:
+            targets = [tuple(float(c) for c in np.asarray(d.target(t), float)) for d in self.drags]
+            p.program.set(u_drag_target=_array(targets))
+        c = self.constraints
+        if constrain and c is not None and c.spheres:
+            t0 = self.t
+            spheres, velocities = [], []
+            for sphere in c.spheres:
+                end = sphere.centre_at(t0 + self.dt)
+                spheres.append((*map(float, end), float(sphere.radius)))
+                velocities.append(tuple(map(float, (end - sphere.centre_at(t0)) / self.dt)))
+            values: dict[str, object] = {"u_spheres": _array(spheres)}
+            if self.integrator != "verlet":
+                values["u_sphere_velocity"] = _array(velocities)
+            p.program.set(**values)
+
+    def _run(self, key: str, t: float, into: moderngl.Texture) -> None:
+        p = self._passes[key]
+        self._set_time(p, t, constrain=key == "step")
+        p.vao.transform(self.buffer, moderngl.POINTS, vertices=self.count)
+        into.write(self.buffer)  # GPU to GPU (pixel-unpack buffer), no read-back
+
+    def step(self, n: int = 1) -> None:
+        """``n`` steps of dt; nothing is read back."""
+        if self._released:
+            raise RuntimeError("FeedbackSimulation: released")
+        previous = self.ctx.fbo
+        self.fbo.use()  # Mesa skips draws, transform feedback included, without a framebuffer
+        self.tex_nodes.use(0)
+        self.tex_other.use(1)
+        self.tex_springs.use(2)
+        dt, name = self.dt, self.integrator
+        try:
+            for _ in range(n):
+                t = self.t
+                if name == "verlet":
+                    cur, prev = self.tex_x[self._current], self.tex_x[1 - self._current]
+                    cur.use(3)
+                    prev.use(4)
+                    self._run("step", t, prev)  # x' overwrites x_prev; roles swap
+                    self._current = 1 - self._current
+                else:
+                    self.tex_state.use(3)
+                    if name == "midpoint":
+                        self._run("half", t, self.tex_stage)
+                        self.tex_stage.use(4)
+                        self._run("step", t + 0.5 * dt, self.tex_state)
+                    elif name == "rk4":
+                        self._run("stage1", t, self.tex_stage)
+                        self.tex_stage.use(4)
+                        self._run("stage2", t + 0.5 * dt, self.tex_stage)
+                        self._run("stage3", t + 0.5 * dt, self.tex_stage)
+                        self._run("step", t + dt, self.tex_state)
+                    else:
+                        self._run("step", t, self.tex_state)
+                self.t = t + dt
+        finally:
+            # give the caller its framebuffer back; code elsewhere may have left the context
+            # pointing at a framebuffer it has since released: then bind framebuffer 0
+            if previous is not None and type(previous.mglo).__name__ != "InvalidObject":
+                previous.use()
+            else:
+                self.ctx.detect_framebuffer(0).use()
+
+    # -- read-back (explicit) ----------------------------------------------------------------
+
+    def _read(self, tex: moderngl.Texture, slots: int) -> np.ndarray:
+        data = np.frombuffer(tex.read(), dtype=np.float32)
+        return data.reshape(self.rows * self.node_row, slots, 4)[:self.count]
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 positions (one read-back)."""
+        if self.integrator == "verlet":
+            return self._read(self.tex_x[self._current], 1)[:, 0, :3].copy()
+        return self._read(self.tex_state, 2)[:, 0, :3].copy()
+
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
+        slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
+        if self.integrator == "verlet":
+            return self.tex_x[self._current], self.node_row, 1, 0
+        return self.tex_state, self.node_row, 2, 0
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
+        float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
+        if self.integrator == "verlet":
+            x = self._read(self.tex_x[self._current], 1)[:, 0, :3].astype(np.float64)
+            xp = self._read(self.tex_x[1 - self._current], 1)[:, 0, :3].astype(np.float64)
+            return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
+        return self._read(self.tex_state, 2)[:, 1, :3].copy()
+
+    @property
+    def bytes_per_node(self) -> float:
+        """GPU bytes allocated by this simulation per node (state, buffers, static data; the
+        texture padding of the last row included)."""
+        return self.bytes_allocated / self.count
+
+    @property
+    def state_bytes_per_node(self) -> float:
+        """Bytes of the state textures and the output buffer per node slot (texel of a row),
+        static neighbour data excluded: 16 x the vec4s of integrators.GPU_BUFFERS."""
+        return self.state_bytes / (self.rows * self.node_row)
+
+    def release(self) -> None:
+        """Release every GL object (idempotent)."""
+        fbo = getattr(self, "fbo", None)
+        if fbo is not None and self.ctx.fbo is fbo:
+            # do not leave the context pointing at a released framebuffer: bind framebuffer 0,
+            # the state of a fresh context
+            self.ctx.detect_framebuffer(0).use()
+        for obj in reversed(self._objects):
+            obj.release()
+        self._objects.clear()
+        self._passes.clear()
+        self._released = True

@@ -1,0 +1,433 @@
+"""The five integrators of Movania & Feng 2012 on the fragment backend (grid topology).
+
+Each stage of a step is a fragment pass over the compact node texture (one texel per node,
+Mosegaard & Sørensen 2005, section 3.1; ``grid.CompactLayout``): positions and velocities live in
+RGBA32F textures, a pass that produces both writes them together with multiple render targets,
+and midpoint / RK4 stages go into stage textures. It computes the same function as the float64
+reference :func:`deformgl.integrators.step`, in float32, for systems built by
+:func:`deformgl.springs.from_grid` or :func:`deformgl.springs.cloth` on the given grid.
+
+Topology is implicit: the neighbours come from a neighbour-index texture array (the 18
+``NEIGHBOUR_OFFSETS`` of the compact layout, plus the 6 flexion neighbours at distance 2 along
+an axis when the system has flexion springs; an absent one points at the node itself). Per-class
+stiffness, rest length and spring damping are uniforms (``from_grid`` gives one value per class);
+per-node mass and the fixed flag are a static RGBA32F texture. The constructor checks that the
+system's springs are exactly the grid's.
+
+GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texelFetch``):
+
+* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, B load-group bits),
+  neighbours RGBA32I array of 5 layers (6 with flexion);
+* state (``state_bytes_per_node`` = 16 x the vec4s of :data:`integrators.GPU_BUFFERS`):
+  euler / semi-implicit x, v, x', v'; midpoint x, v, x_m, v_m, x', v'; rk4 x, v and two stage
+  sets (x_s, v_s, sum_x, sum_v) used ping-pong; verlet three rotating positions (no velocity).
+
+Loads (per-node scripted forces) and drags (a stiff spring from one node to a moving target)
+are uniforms set before each pass at the pass's stage time, as on the feedback backend.
+
+Nothing is read back while stepping; only :meth:`FragmentIntegrator.positions` and
+:meth:`FragmentIntegrator.velocities` read.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from deformgl.errors import GLError
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, CompactLayout, NodeGrid
+from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
+from deformgl.gl.programs import Program
+from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+
+__all__ = ["FragmentIntegrator", "grid_neighbours"]
+
+_VEC4 = 16
+#: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
+FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
+                           dtype=np.int64)
+def _array(values: list) -> object:
+    """A uniform array value for moderngl: an array of length 1 is set as its element."""
+    return values[0] if len(values) == 1 else values
+
+
+_SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
+             "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7}
+
+
+def grid_neighbours(grid: NodeGrid, flexion: bool) -> np.ndarray:
+    """(N, 18 or 24) int64 node number of each neighbour, -1 where no spring can be.
+
+    Columns 0-17 are ``grid.neighbours``; with ``flexion`` columns 18-23 are the nodes at
+    ``FLEXION_OFFSETS``, present only where the node between exists too (as ``from_grid``).
+    """
+    nb = grid.neighbours
+    if not flexion:
+        return nb
+    padded = np.pad(grid.index, 2, constant_values=-1)
+    base = grid.ijk + 2
+    cols = []
+    for off in FLEXION_OFFSETS:
+        mid = padded[tuple((base + off // 2).T)]
+        far = padded[tuple((base + off).T)]
+        cols.append(np.where(mid >= 0, far, -1))
+    return np.concatenate([nb, np.stack(cols, axis=1)], axis=1)
+
+
+def _class_values(system: SpringSystem, cls: int, name: str) -> tuple[float, float, float]:
+    """(k, rest length, damping) of a class, checked to be one value each; zeros if absent."""
+    sel = system.spring_class == cls
+    if not np.any(sel):
+        return 0.0, 0.0, 0.0
+    out = []
+    for attr in ("stiffness", "rest_length", "damping"):
+        values = getattr(system, attr)[sel]
+        if np.ptp(values) > 1e-9 * max(abs(float(values.mean())), 1e-300):
+            raise ValueError(f"FragmentIntegrator: {name} springs need one {attr} "
+                             f"(a springs.from_grid system)")
+        out.append(float(values.mean()))
+    return out[0], out[1], out[2]
+
+
+def _check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> None:
+    """The system's springs must be exactly the grid's springs of the classes it has."""
+    n = grid.count
+    if system.count != n:
+        raise ValueError(f"FragmentIntegrator: system has {system.count} nodes, grid {n}")
+    own = np.arange(n)[:, None]
+    col_class = np.array([STRUCTURAL] * 6 + [SHEAR] * 12 + [FLEXION] * (nb.shape[1] - 18))
+    for cls in (STRUCTURAL, SHEAR, FLEXION):
+        rows, cols = np.nonzero((nb > own) & (col_class[None, :] == cls))
+        expected = np.sort(rows * n + nb[rows, cols])
+        sel = system.spring_class == cls
+        if not np.any(sel):
+            continue
+        a, b = np.minimum(system.i[sel], system.j[sel]), np.maximum(system.i[sel], system.j[sel])
+        if not np.array_equal(np.sort(a * n + b), expected):
+            raise ValueError("FragmentIntegrator: the system's springs are not those of the grid "
+                             "(build it with springs.from_grid or springs.cloth on this grid)")
+
+
+class FragmentIntegrator:
+    """A grid :class:`SpringSystem` stepped by fragment passes with one of the five integrators.
+
+    Args:
+        ctx: the GL context.
+        system: spring system from :func:`springs.from_grid` / :func:`springs.cloth` on ``grid``.
+        grid: the node grid (node order of the system).
+        integrator: one of :data:`deformgl.integrators.INTEGRATORS`.
+        dt: step in s, > 0.
+        constraints: ground plane and (static or moving) spheres, or None.
+        drags: scripted drags (targets evaluated at each pass's stage time, as uniforms).
+        loads: scripted per-node forces (at most ``springs.MAX_LOADS``).
+        state: start state (default :func:`integrators.initial_state` at rest); Verlet uses its
+            ``x_prev``.
+        t0: time of the start state.
+
+    Raises:
+        ValueError: unknown integrator, dt <= 0, a drag on a node that does not exist, too many
+            loads, or a system that is not the grid's.
+        GLError: the grid does not fit in a texture.
+    """
+
+    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid,
+                 integrator: str, dt: float, *, constraints: Constraints | None = None,
+                 drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
+                 state: State | None = None, t0: float = 0.0) -> None:
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {integrator!r}; expected one of "
+                             f"{', '.join(INTEGRATORS)}")
+        if not dt > 0:
+            raise ValueError(f"FragmentIntegrator: dt must be > 0, got {dt}")
+        if grid.count == 0:
+            raise ValueError("FragmentIntegrator: the grid has no nodes")
+        self.ctx = ctx
+        self.system = system
+        self.grid = grid
+        self.integrator = integrator
+        self.dt = float(dt)
+        self.t = float(t0)
+        self.constraints = constraints
+        self.count = grid.count
+        self.drags = tuple(drags)
+        self.loads = tuple(loads)
+        self.load_bits = load_groups(self.loads, self.count)
+        for drag in self.drags:
+            if not 0 <= drag.node < self.count:
+                raise ValueError(f"FragmentIntegrator: drag node {drag.node} outside the system")
+        self.flexion = bool(np.any(system.spring_class == FLEXION))
+        self.neighbour_table = grid_neighbours(grid, self.flexion)
+        _check_topology(system, grid, self.neighbour_table)
+        self.classes = [_class_values(system, c, name) for c, name in
+                        ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
+        try:
+            self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+        except ValueError as exc:
+            raise GLError(f"{exc}; use a coarser grid") from None
+        #: every node of the box exists: neighbours by node-number offsets, no index texture
+        self.dense = self.layout.dense
+        offsets = np.concatenate([NEIGHBOUR_OFFSETS, FLEXION_OFFSETS])[: self.neighbour_table.shape[1]]
+        self.neighbour_offsets = [int(v) for v in offsets @ np.array(self.layout.strides)]
+        self._objects: list = []
+        self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
+        self.passes: dict[str, Program] = {}
+        self._released = False
+        try:
+            self._build(state)
+        except BaseException:
+            self.release()
+            raise
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _own(self, obj):
+        self._objects.append(obj)
+        return obj
+
+    def _texture(self, image: np.ndarray | None) -> moderngl.Texture:
+        w, h = self.layout.size
+        data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
+        tex = self._own(self.ctx.texture((w, h), 4, data, dtype="f4"))
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
+    def _image(self, values: np.ndarray) -> np.ndarray:
+        w, h = self.layout.size
+        img = np.zeros((h * w, 4), np.float32)
+        img[: self.count, : values.shape[1]] = values
+        return img.reshape(h, w, 4)
+
+    def _build(self, state: State | None) -> None:
+        system, n = self.system, self.count
+        w, h = self.layout.size
+        nb = self.neighbour_table
+        layers = -(-nb.shape[1] // 4)
+        self.tex_neighbours = None
+        mask = np.zeros(n)
+        if self.dense:
+            # neighbours by arithmetic: bit j of the mask (exact in float32: at most 24 bits)
+            bits = (nb >= 0).astype(np.int64) << np.arange(nb.shape[1])
+            mask = np.bitwise_or.reduce(bits, axis=1).astype(np.float64)
+        else:
+            table = np.where(nb >= 0, nb, np.arange(n)[:, None])
+            table = np.concatenate([table, np.repeat(np.arange(n)[:, None], 4 * layers - nb.shape[1],
+                                                     axis=1)], axis=1)
+            img = np.zeros((layers, h * w, 4), np.int32)
+            img[:, :n, :] = table.reshape(n, layers, 4).transpose(1, 0, 2)
+            self.tex_neighbours = self._own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
+                                                                   dtype="i4"))
+            self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
+        self.tex_node = self._texture(self._image(node))
+
+        s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+             if state is None else state)
+        x = np.asarray(s.x, np.float64)
+        v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
+        if x.shape != (n, 3) or v.shape != (n, 3):
+            raise ValueError(f"FragmentIntegrator: state of shape {x.shape}, expected ({n}, 3)")
+        name = self.integrator
+        if name == "verlet":
+            self.pool = [self._texture(self._image(x)), self._texture(self._image(s.x_prev)),
+                         self._texture(None)]
+        else:
+            extra = {"midpoint": 4, "rk4": 8}.get(name, 2)
+            self.pool = [self._texture(self._image(x)), self._texture(self._image(v)),
+                         *(self._texture(None) for _ in range(extra))]
+        # roles: indices into the pool
+        self.roles = list(range(len(self.pool)))
+
+        common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1], "DENSE": self.dense,
+                                     "SPRING_DAMPING": bool(np.any(system.damping > 0)),
+                                     "SPHERES": 0, "DRAGS": len(self.drags),
+                                     "LOADS": len(self.loads)}
+        if system.wind_drag > 0:
+            common["WIND"] = True
+        if name != "verlet":
+            common["VELOCITY"] = True
+        c = self.constraints
+        final: dict[str, object] = dict(common)
+        if c is not None and (c.ground is not None or c.spheres):
+            final.update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
+        if name == "euler":
+            self._add("step", {**final, "EULER": True})
+        elif name == "semi-implicit":
+            self._add("step", {**final, "SEMI_IMPLICIT": True})
+        elif name == "midpoint":
+            self._add("half", {**common, "MIDPOINT_HALF": True})
+            self._add("step", {**final, "MIDPOINT_FULL": True, "EVAL_STAGE": True})
+        elif name == "rk4":
+            for k in (1, 2, 3):
+                self._add(f"stage{k}", {**common, "RK4_STAGE": k, "WRITE_SUMS": True,
+                                        "EVAL_STAGE": k > 1, "READ_SUMS": k > 1})
+            self._add("step", {**final, "RK4_FINAL": True, "EVAL_STAGE": True,
+                               "READ_SUMS": True})
+        else:
+            self._add("step", {**final, "VERLET": True})
+        self._vaos = {key: self._own(self.ctx.vertex_array(p.gl, []))
+                      for key, p in self.passes.items()}
+        self.state_bytes = len(self.pool) * w * h * _VEC4
+        static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4)
+        self.bytes_allocated = self.state_bytes + static
+
+    def _add(self, key: str, defines: dict[str, object]) -> None:
+        program = self._own(Program(self.ctx, "sim/fullscreen.vert",
+                                    "sim/integrators/step.frag", defines=defines))
+        self.passes[key] = program
+        system = self.system
+        (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
+        members = set(program.gl._members)
+        uniforms: dict[str, object] = {
+            **{s: u for s, u in _SAMPLERS.items() if s in members},
+            "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
+            "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3),
+            "u_gravity": tuple(float(g) for g in system.gravity),
+            "u_velocity_damping": system.velocity_damping}
+        if defines.get("WIND"):
+            uniforms.update(u_wind=tuple(float(g) for g in system.wind),
+                            u_wind_drag=system.wind_drag)
+        if self.drags:
+            uniforms["u_drag_node"] = _array([d.node for d in self.drags])
+            uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+        if defines.get("SPRING_DAMPING"):
+            uniforms["u_c"] = (c1, c2, c3)
+        if defines.get("DENSE"):
+            uniforms["u_offsets"] = self.neighbour_offsets
+        if defines.get("GROUND"):
+            uniforms["u_ground"] = float(self.constraints.ground)
+        program.set(**uniforms)
+
+    # -- stepping ----------------------------------------------------------------------------
+
+    def _fbo(self, targets: tuple[int, ...]) -> moderngl.Framebuffer:
+        fbo = self._fbos.get(targets)
+        if fbo is None:
+            fbo = self._own(self.ctx.framebuffer(color_attachments=[self.pool[i]
+                                                                    for i in targets]))
+            self._fbos[targets] = fbo
+        return fbo
+
+    def _set_spheres(self, program: Program) -> None:
+        c = self.constraints
+        if c is None or not c.spheres:
+            return
+        spheres, velocities = [], []
+        for sphere in c.spheres:
+            end = sphere.centre_at(self.t + self.dt)
+            spheres.append((*map(float, end), float(sphere.radius)))
+            velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
+        values: dict[str, object] = {"u_spheres": _array(spheres)}
+        if self.integrator != "verlet":
+            values["u_sphere_velocity"] = _array(velocities)
+        program.set(**values)
+
+    def _set_time(self, program: Program, t: float) -> None:
+        """Loads and drag targets at the stage time t."""
+        if self.loads:
+            program.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+                                       for load in self.loads]))
+        if self.drags:
+            program.set(u_drag_target=_array([tuple(float(c) for c in
+                                                    np.asarray(d.target(t), float))
+                                              for d in self.drags]))
+
+    def _run(self, key: str, inputs: dict[str, int], targets: tuple[int, ...],
+             t: float) -> None:
+        program = self.passes[key]
+        self._set_time(program, t)
+        if key == "step":
+            self._set_spheres(program)
+        for sampler, index in inputs.items():
+            self.pool[index].use(_SAMPLERS[sampler])
+        self._fbo(targets).use()
+        self._vaos[key].render(moderngl.TRIANGLES, vertices=3)
+
+    def step(self, n: int = 1) -> None:
+        """``n`` steps of dt on the GPU; nothing is read back."""
+        if self._released:
+            raise RuntimeError("FragmentIntegrator: released")
+        previous = self.ctx.fbo
+        self.tex_node.use(_SAMPLERS["u_node"])
+        if self.tex_neighbours is not None:
+            self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
+        name = self.integrator
+        try:
+            for _ in range(n):
+                r = self.roles
+                t, half = self.t, self.t + 0.5 * self.dt
+                if name == "verlet":
+                    self._run("step", {"u_x": r[0], "u_x_prev": r[1]}, (r[2],), t)
+                    self.roles = [r[2], r[0], r[1]]
+                elif name in ("euler", "semi-implicit"):
+                    self._run("step", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
+                    self.roles = [r[2], r[3], r[0], r[1]]
+                elif name == "midpoint":
+                    self._run("half", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
+                    self._run("step", {"u_x": r[0], "u_v": r[1], "u_xs": r[2], "u_vs": r[3]},
+                              (r[4], r[5]), half)
+                    self.roles = [r[4], r[5], r[2], r[3], r[0], r[1]]
+                else:
+                    base = {"u_x": r[0], "u_v": r[1]}
+                    a, b = tuple(r[2:6]), tuple(r[6:10])
+
+                    def stage(s: tuple[int, ...]) -> dict[str, int]:
+                        return {"u_xs": s[0], "u_vs": s[1], "u_sum_x": s[2], "u_sum_v": s[3]}
+                    self._run("stage1", base, a, t)
+                    self._run("stage2", {**base, **stage(a)}, b, half)
+                    self._run("stage3", {**base, **stage(b)}, a, half)
+                    self._run("step", {**base, **stage(a)}, b[:2], t + self.dt)
+                    self.roles = [b[0], b[1], *a, r[0], r[1], b[2], b[3]]
+                self.t += self.dt
+        finally:
+            if previous is not None and type(previous.mglo).__name__ != "InvalidObject":
+                previous.use()
+            else:
+                self.ctx.detect_framebuffer(0).use()
+
+    # -- read-back (explicit) ----------------------------------------------------------------
+
+    def _read(self, index: int) -> np.ndarray:
+        data = np.frombuffer(self.pool[self.roles[index]].read(), dtype=np.float32)
+        return data.reshape(-1, 4)[: self.count, :3].copy()
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 positions (one read-back)."""
+        return self._read(0)
+
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
+        slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
+        return self.pool[self.roles[0]], self.layout.width, 1, 0
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
+        float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
+        if self.integrator == "verlet":
+            x = self._read(0).astype(np.float64)
+            xp = self._read(1).astype(np.float64)
+            return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
+        return self._read(1)
+
+    @property
+    def bytes_per_node(self) -> float:
+        """GPU bytes of all textures (state and static, padding texels included) per node."""
+        return self.bytes_allocated / self.count
+
+    @property
+    def state_bytes_per_node(self) -> float:
+        """Bytes of the state textures per texel: 16 x the vec4s of integrators.GPU_BUFFERS."""
+        w, h = self.layout.size
+        return self.state_bytes / (w * h)
+
+    def release(self) -> None:
+        """Release every GL object (idempotent)."""
+        for fbo in self._fbos.values():
+            if self.ctx.fbo is fbo:
+                self.ctx.detect_framebuffer(0).use()
+        for obj in reversed(self._objects):
+            obj.release()
+        self._objects.clear()
+        self._fbos.clear()
+        self.passes.clear()
+        self._released = True

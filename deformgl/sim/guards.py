@@ -1,0 +1,218 @@
+"""Guards of a scene run: the dt against the integrator's stability limit before the run, and
+a GPU census of blown-up nodes during it.
+
+Before the run (:func:`plan_steps`), the scene's dt is checked against the limit of its
+integrator on its spring system (:func:`deformgl.stability.check_dt`: the Gershgorin bound
+``w_max^2 <= max_i 2 sum_j k_ij / m_i``, the exact spectrum on small systems). Above it the
+scene is refused with the bound and the node and spring that set it, unless
+``physics.safety.unstable`` (``--allow-unstable``, ``--subdivide``) says to run it anyway or to
+split every step into enough substeps to be below the limit.
+
+During the run (:class:`BlowUpWatch`), every ``check_every`` steps a census pass
+(:mod:`deformgl.sim.census`) counts the nodes whose position is NaN, +-Inf or farther than
+``bad_distance`` box lengths from the box centre; only that count crosses to the CPU. A non-zero
+count stops the run with :class:`BlowUp` (the step, a node, how many); on that error path the
+state is read back once to name the node. With ``subdivide`` the run is restarted from the start
+with half the step (twice the steps, the same simulated time), up to ``MAX_SUBSTEPS`` substeps
+per scene step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import moderngl
+import numpy as np
+
+from deformgl.errors import SimulationError
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.stability import check_dt
+
+__all__ = ["MAX_SUBSTEPS", "SAFETY_MARGIN", "BlowUp", "BlowUpWatch", "StepPlan", "bad_nodes", "describe_bad_node",
+           "plan_steps"]
+
+#: The most substeps per scene step that ``subdivide`` uses (before the run and after a blow-up).
+MAX_SUBSTEPS = 16
+#: ``subdivide`` aims at this fraction of the limit (the limit itself is marginally stable).
+SAFETY_MARGIN = 0.9
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """How a scene's steps are run: ``substeps`` steps of ``dt / substeps`` per scene step.
+
+    Attributes:
+        dt: the scene's dt (s); steps: the scene's step count.
+        substeps: >= 1.
+        note: what the plan changed or accepted, for the log ("" when nothing).
+    """
+
+    dt: float
+    steps: int
+    substeps: int = 1
+    note: str = ""
+
+    @property
+    def step_dt(self) -> float:
+        """The dt each GPU step uses (s)."""
+        return self.dt / self.substeps
+
+    @property
+    def step_count(self) -> int:
+        """GPU steps in all."""
+        return self.steps * self.substeps
+
+    def halved(self) -> StepPlan | None:
+        """The plan with twice the substeps (at most :data:`MAX_SUBSTEPS`), None when it already
+        has that many."""
+        if self.substeps >= MAX_SUBSTEPS:
+            return None
+        k = min(2 * self.substeps, MAX_SUBSTEPS)
+        return StepPlan(self.dt, self.steps, k, f"restarted with {k} substeps per step (dt {self.dt / k:.4g} s)")
+
+
+class _Policy(Protocol):
+    @property
+    def unstable(self) -> str: ...
+
+
+class StepSettings(Protocol):
+    """What :func:`plan_steps` reads of a run's settings (a scene's ``Physics`` is one): the step
+    ``dt`` (s), the step count, the integrator's name and ``safety.unstable`` (``"refuse"``,
+    ``"run"`` or ``"subdivide"``)."""
+
+    @property
+    def dt(self) -> float: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def integrator(self) -> str: ...
+    @property
+    def safety(self) -> _Policy: ...
+
+
+def plan_steps(system: SpringSystem, physics: StepSettings, source) -> StepPlan:
+    """Check ``physics.dt`` against the limit of ``physics.integrator`` on ``system``.
+
+    Raises:
+        SimulationError: ``"<file>: physics.dt: dt ... is above the verlet limit ... set by node
+            N (spring S, k = ..., m = ...)"`` when the dt is above the limit and
+            ``physics.safety.unstable`` is "refuse".
+    """
+    dt, policy = physics.dt, physics.safety.unstable
+    refusal = check_dt(system, physics.integrator, dt)
+    if refusal is None:
+        return StepPlan(dt, physics.steps)
+    if policy == "refuse":
+        hint = ""
+        if refusal.limit.bound == "gershgorin":
+            hint = (" (a conservative bound, used above 30,000 free nodes: the exact limit of a volume "
+                    "can be up to twice it; running anyway keeps the blow-up census watching)")
+        raise SimulationError(f"{source}: physics.dt: {refusal.message}{hint}. Pass --allow-unstable to run it "
+                              f"anyway or --subdivide to split each step (physics.safety.unstable)")
+    if policy == "run":
+        return StepPlan(dt, physics.steps, 1, f"running anyway: {refusal.message}")
+    limit = refusal.limit.dt
+    if limit <= 0.0:
+        raise SimulationError(f"{source}: physics.dt: {refusal.message}; no substep is stable, so "
+                              f"--subdivide cannot help")
+    substeps = max(1, math.ceil(dt / (SAFETY_MARGIN * limit)))
+    if substeps > MAX_SUBSTEPS:
+        raise SimulationError(f"{source}: physics.dt: {refusal.message}; it needs {substeps} substeps per "
+                              f"step, more than --subdivide's {MAX_SUBSTEPS}: reduce physics.dt")
+    return StepPlan(dt, physics.steps, substeps,
+                    f"dt {dt:.4g} s is above the {physics.integrator} limit {limit:.4g} s: "
+                    f"{substeps} substeps of {dt / substeps:.4g} s per step")
+
+
+class BlowUp(SimulationError):
+    """Nodes went non-finite or far away: ``step`` (the check that saw it), ``count``, and the
+    message naming a node."""
+
+    def __init__(self, message: str, step: int, count: int) -> None:
+        super().__init__(message)
+        self.step = step
+        self.count = count
+
+    @classmethod
+    def at(cls, source, step: int, dt: float, count: int, node: str, limit: float,
+           last_clean: int | None) -> BlowUp:
+        """The error of a check at ``step`` that found ``count`` bad nodes, ``node`` the first
+        (:func:`describe_bad_node`); ``last_clean``: the step of the last check that found none."""
+        last = f"; none at step {last_clean}" if last_clean is not None else ""
+        return cls(f"{source}: simulation blew up: at step {step} (dt {dt:.4g} s{last}) {count} node(s) are "
+                   f"non-finite or beyond {limit:.4g} from the centre, first {node}; reduce physics.dt or "
+                   f"stiffness, or pass --subdivide", step, count)
+
+
+def bad_nodes(positions: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) bool: the nodes of ``positions`` (N, 3+) with a non-finite coordinate or one beyond
+    ``limit`` (what the census's BAD pass counts on the GPU)."""
+    xyz = np.asarray(positions, np.float64)[:, :3]
+    with np.errstate(invalid="ignore"):
+        return ~np.isfinite(xyz).all(axis=1) | (np.abs(xyz) > limit).any(axis=1)
+
+
+def describe_bad_node(positions: np.ndarray, grid: NodeGrid | None, limit: float) -> str:
+    """``"node 17 (grid (1, 2, 0)) at (nan, 0, 1)"`` for the first node of ``positions`` (N, 3+)
+    that is non-finite or has a component beyond ``limit``; "" when there is none."""
+    xyz = np.asarray(positions, np.float64)[:, :3]
+    bad = bad_nodes(xyz, limit)
+    if not bad.any():
+        return ""
+    i = int(np.argmax(bad))
+    where = f" (grid {tuple(int(v) for v in grid.ijk[i])})" if grid is not None else ""
+    return f"node {i}{where} at ({', '.join(f'{v:.4g}' for v in xyz[i])})"
+
+
+class BlowUpWatch:
+    """Counts the blown-up nodes of a GPU simulation every ``every`` steps.
+
+    The simulation must have ``position_slot() -> (texture, row, slots, slot)``, ``count`` and
+    ``positions()``. One census query per check; nothing is read back unless nodes went bad.
+
+    Args:
+        ctx: the GL context.
+        sim: the simulation.
+        every: steps between checks (0: only when :meth:`check` is called at the end).
+        limit: a node with a coordinate beyond this (world units) counts as blown up.
+        grid: names the bad node's grid index in the message, if given.
+        source: the scene file, for the message.
+        dt: the step, for the message.
+    """
+
+    def __init__(self, ctx: moderngl.Context, sim, *, every: int, limit: float, grid: NodeGrid | None,
+                 source, dt: float) -> None:
+        from deformgl.sim.census import NodeCensus
+
+        _, row, slots, _ = sim.position_slot()
+        self.sim, self.every, self.limit, self.grid, self.source, self.dt = sim, every, limit, grid, source, dt
+        self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
+        self.last_clean: int | None = None  # step of the last check that found nothing
+
+    def due(self, done: int) -> bool:
+        """Whether a check falls at ``done`` steps."""
+        return self.every > 0 and done % self.every == 0
+
+    def next_stop(self, done: int, total: int) -> int:
+        """The step count of the next check after ``done`` (``total`` if none before it)."""
+        if self.every <= 0:
+            return total
+        return min(total, (done // self.every + 1) * self.every)
+
+    def check(self, done: int) -> None:
+        """Count the bad nodes after ``done`` steps; raise :class:`BlowUp` if there are any."""
+        texture, _, _, slot = self.sim.position_slot()
+        count = self.census.bad(texture, self.limit, slot=slot)
+        if count == 0:
+            self.last_clean = done
+            return
+        node = describe_bad_node(self.sim.positions(), self.grid, self.limit)
+        raise BlowUp.at(self.source, done, self.dt, count, node, self.limit, self.last_clean)
+
+    def release(self) -> None:
+        """Release the census."""
+        self.census.release()

@@ -1,0 +1,388 @@
+"""An immutable mass-spring system built from explicit spring lists, and its forces (float64).
+
+The reference backend of the five-integrator milestone (Movania & Feng 2012). Every spring is a
+row of plain arrays (``i``, ``j``, ``rest_length``, ``stiffness``, ``damping``, ``spring_class``)
+and every node a row of ``rest_positions``, ``mass``, ``fixed``, so a GPU backend can upload them
+as buffers or textures one-to-one and evaluate :func:`forces` per node with the same formula.
+
+Spring classes (Movania & Feng 2012, section 3, after Chen & Zhu [20]): structural springs link
+a node to its immediate neighbours along the axes, shear springs the diagonal neighbours,
+flexion (bend) springs a node to the node two steps away along an axis. Only what the scene
+requires is modelled: a class whose stiffness is 0 is not built at all (no zero-force rows for a
+GPU to loop over).
+
+Units: stiffness ``k`` is the physical spring constant in N/m (deformgl's convention, see
+``model.py``: ``k = k_ij / 2`` of Mosegaard & Sørensen 2005 eq. 1), damping in N*s/m, mass kg.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
+
+STRUCTURAL = 0
+SHEAR = 1
+FLEXION = 2
+CLASS_NAMES = ("structural", "shear", "flexion")
+_AXES = np.eye(3, dtype=np.int64)
+
+
+def _frozen(a: ArrayLike, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
+    arr: np.ndarray = np.array(a, dtype=dtype)  # a private copy: the caller's array keeps its flags
+    if arr.shape != shape:
+        raise ValueError(f"SpringSystem.{name}: shape {arr.shape}, expected {shape}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ValueError(f"SpringSystem.{name}: not finite")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class SpringSystem:
+    """What does not change during a run: nodes, springs and the global force constants.
+
+    Attributes:
+        rest_positions: (N, 3) float64 world positions at rest (the initial state).
+        mass: (N,) float64 kg, > 0.
+        fixed: (N,) bool, nodes that keep their position exactly.
+        i: (S,) int64 first node of each spring.
+        j: (S,) int64 second node of each spring (i != j; each spring listed once).
+        rest_length: (S,) float64 rest length L in world units.
+        stiffness: (S,) float64 k in N/m, >= 0.
+        damping: (S,) float64 spring damping c_s along the spring, N*s/m, >= 0.
+        spring_class: (S,) int8, STRUCTURAL, SHEAR or FLEXION (triangle-mesh edges: STRUCTURAL).
+        velocity_damping: global damping c in N*s/m (force -c v on every node).
+        gravity: (3,) float64 m/s^2.
+        wind: (3,) float64 air velocity in m/s.
+        wind_drag: N*s/m, linear drag toward the air velocity: F = wind_drag * (wind - v).
+        spacing: the system's length scale in world units (grid spacing h; the mean edge length
+            of a triangle mesh); the default convergence threshold is 0.001 * spacing.
+    """
+
+    rest_positions: np.ndarray
+    mass: np.ndarray
+    fixed: np.ndarray
+    i: np.ndarray
+    j: np.ndarray
+    rest_length: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+    spring_class: np.ndarray
+    velocity_damping: float = 0.0
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, -9.81, 0.0]))
+    wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    wind_drag: float = 0.0
+    spacing: float = 1.0
+
+    def __post_init__(self) -> None:
+        n = np.shape(self.rest_positions)[0]
+        s = np.shape(self.i)[0]
+        specs = {"rest_positions": (np.float64, (n, 3)), "mass": (np.float64, (n,)),
+                 "fixed": (np.bool_, (n,)), "i": (np.int64, (s,)), "j": (np.int64, (s,)),
+                 "rest_length": (np.float64, (s,)), "stiffness": (np.float64, (s,)),
+                 "damping": (np.float64, (s,)), "spring_class": (np.int8, (s,)),
+                 "gravity": (np.float64, (3,)), "wind": (np.float64, (3,))}
+        for name, (dtype, shape) in specs.items():
+            object.__setattr__(self, name, _frozen(getattr(self, name), dtype, shape, name))
+        if np.any(self.mass <= 0):
+            raise ValueError("SpringSystem.mass: every node needs a positive mass")
+        if s and (min(self.i.min(), self.j.min()) < 0 or max(self.i.max(), self.j.max()) >= n):
+            raise ValueError(f"SpringSystem.i/j: node numbers outside 0..{n - 1}")
+        if np.any(self.i == self.j):
+            raise ValueError("SpringSystem.i/j: a spring connects a node to itself")
+        for name in ("rest_length", "stiffness", "damping"):
+            if np.any(getattr(self, name) < 0):
+                raise ValueError(f"SpringSystem.{name}: negative values")
+        if np.any((self.spring_class < STRUCTURAL) | (self.spring_class > FLEXION)):
+            raise ValueError("SpringSystem.spring_class: values outside 0..2")
+        if min(self.velocity_damping, self.wind_drag) < 0 or not self.spacing > 0:
+            raise ValueError("SpringSystem: velocity_damping and wind_drag >= 0, spacing > 0")
+
+    @property
+    def count(self) -> int:
+        """Number of nodes N."""
+        return int(self.rest_positions.shape[0])
+
+    @property
+    def spring_count(self) -> int:
+        """Number of springs S."""
+        return int(self.i.shape[0])
+
+    def class_counts(self) -> dict[str, int]:
+        """Springs per class, e.g. ``{"structural": 54, "shear": 72, "flexion": 27}``."""
+        counts = np.bincount(self.spring_class, minlength=len(CLASS_NAMES))
+        return {name: int(c) for name, c in zip(CLASS_NAMES, counts)}
+
+
+def _node_array(value: float | ArrayLike, n: int, dtype: type) -> np.ndarray:
+    return np.broadcast_to(np.asarray(value, dtype=dtype), (n,)).copy()
+
+
+def _assemble(x0: np.ndarray, pairs: np.ndarray, classes: np.ndarray,
+              class_k: tuple[float, ...], class_c: tuple[float, ...], *, mass: float | ArrayLike,
+              fixed: ArrayLike | None, spacing: float, velocity_damping: float,
+              gravity: ArrayLike, wind: ArrayLike, wind_drag: float) -> SpringSystem:
+    """A SpringSystem from rest positions and candidate springs; classes with k = 0 are dropped."""
+    k_of_class = np.asarray(class_k, dtype=np.float64)
+    keep = k_of_class[classes] > 0  # model only what the scene requires
+    pairs, classes = pairs[keep], classes[keep]
+    order = np.argsort(classes, kind="stable")  # structural first, then shear, then flexion
+    pairs, classes = pairs[order], classes[order]
+    # Rest length from the rest positions with the same arithmetic as forces(): the rest state
+    # is then an exact equilibrium (L - |d| == 0 bit for bit).
+    rest = np.linalg.norm(x0[pairs[:, 0]] - x0[pairs[:, 1]], axis=1)
+    n = len(x0)
+    return SpringSystem(
+        rest_positions=x0, mass=_node_array(mass, n, np.float64),
+        fixed=np.zeros(n, bool) if fixed is None else _node_array(fixed, n, np.bool_),
+        i=pairs[:, 0], j=pairs[:, 1], rest_length=rest, stiffness=k_of_class[classes],
+        damping=np.asarray(class_c, dtype=np.float64)[classes], spring_class=classes,
+        velocity_damping=float(velocity_damping), gravity=np.asarray(gravity, float),
+        wind=np.asarray(wind, float), wind_drag=float(wind_drag), spacing=float(spacing))
+
+
+def from_grid(grid: NodeGrid, *, k_structural: float, k_shear: float, k_flexion: float = 0.0,
+              damping_structural: float = 0.0, damping_shear: float = 0.0,
+              damping_flexion: float = 0.0, mass: float | ArrayLike = 1.0,
+              fixed: ArrayLike | None = None, velocity_damping: float = 0.0,
+              gravity: ArrayLike = (0.0, -9.81, 0.0), wind: ArrayLike = (0.0, 0.0, 0.0),
+              wind_drag: float = 0.0) -> SpringSystem:
+    """Springs of a node grid, each once: 6 structural (distance h), 12 shear (h*sqrt(2)) and
+    6 flexion (2h along an axis) neighbours per node where they exist.
+
+    Structural and shear springs are the 18 implicit neighbours of Mosegaard & Sørensen 2005
+    (section 3.1, ``grid.NEIGHBOUR_OFFSETS``); flexion springs follow Movania & Feng 2012
+    (section 3: "structural springs connected to the nodes one node away"), so a flexion spring
+    is built only where both ends *and the node between them* exist: it never bridges a hole.
+
+    Args:
+        grid: the node grid (node order and rest positions are the grid's).
+        k_structural, k_shear, k_flexion: N/m per class; a class with 0 is not built.
+        damping_structural, damping_shear, damping_flexion: spring damping per class, N*s/m.
+        mass: kg per node, a scalar or (N,).
+        fixed: (N,) bool or None.
+        velocity_damping, gravity, wind, wind_drag: see :class:`SpringSystem`.
+    """
+    n = grid.count
+    own = np.arange(n)
+    nb = grid.neighbours                                   # (N, 18), -1 where absent
+    rows, cols = np.nonzero(nb > own[:, None])              # each pair once (the larger number)
+    near = np.stack([rows, nb[rows, cols]], axis=1)
+    near_class = np.where(cols < N_STRUCTURAL, STRUCTURAL, SHEAR).astype(np.int8)
+    padded = np.pad(grid.index, 2, constant_values=-1)
+    base = grid.ijk[:, None, :] + 2                         # (N, 1, 3) in the padded grid
+    mid = padded[tuple(np.moveaxis(base + _AXES, -1, 0))]        # (N, 3): node at +1 along axis
+    far = padded[tuple(np.moveaxis(base + 2 * _AXES, -1, 0))]    # (N, 3): node at +2 along axis
+    rows, axes = np.nonzero((mid >= 0) & (far >= 0))
+    flex = np.stack([rows, far[rows, axes]], axis=1)
+    pairs = np.concatenate([near, flex]).astype(np.int64)
+    classes = np.concatenate([near_class, np.full(len(flex), FLEXION, np.int8)])
+    return _assemble(grid.rest_positions.copy(), pairs, classes,
+                     (k_structural, k_shear, k_flexion),
+                     (damping_structural, damping_shear, damping_flexion), mass=mass,
+                     fixed=fixed, spacing=grid.spacing, velocity_damping=velocity_damping,
+                     gravity=gravity, wind=wind, wind_drag=wind_drag)
+
+
+def cloth(nx: int, nz: int, spacing: float, *, k_structural: float, k_shear: float,
+          k_flexion: float = 0.0, origin: ArrayLike = (0.0, 0.0, 0.0),
+          **options: object) -> SpringSystem:
+    """A cloth of nx x nz nodes in the xz-plane (y = origin y): 4 structural, 4 shear diagonal
+    and 4 flexion neighbours per inner node (Movania & Feng 2012, section 3 and section 5).
+
+    Node (a, b) sits at ``origin + spacing * (a, 0, b)`` and has number ``a * nz + b``. Built as a
+    one-node-thick :class:`NodeGrid`, so the springs are exactly those of :func:`from_grid`.
+
+    Args:
+        nx, nz: nodes along x and z (>= 1).
+        spacing: distance of neighbouring nodes.
+        k_structural, k_shear, k_flexion: N/m per class; a class with 0 is not built.
+        origin: position of node (0, 0).
+        **options: the remaining keyword arguments of :func:`from_grid`.
+    """
+    if nx < 1 or nz < 1:
+        raise ValueError(f"cloth: {nx}x{nz} nodes")
+    grid = NodeGrid(np.array(origin, dtype=np.float64), float(spacing),
+                    np.ones((nx, 1, nz), dtype=bool))
+    return from_grid(grid, k_structural=k_structural, k_shear=k_shear, k_flexion=k_flexion,
+                     **options)  # type: ignore[arg-type]
+
+
+def from_triangle_mesh(vertices: ArrayLike, faces: ArrayLike, *, stiffness: float,
+                       damping: float = 0.0, mass: float | ArrayLike = 1.0,
+                       fixed: ArrayLike | None = None, velocity_damping: float = 0.0,
+                       gravity: ArrayLike = (0.0, -9.81, 0.0), wind: ArrayLike = (0.0, 0.0, 0.0),
+                       wind_drag: float = 0.0) -> SpringSystem:
+    """One STRUCTURAL spring along each unique edge of a triangle mesh (the non-grid spring mesh).
+
+    Args:
+        vertices: (N, 3) rest positions.
+        faces: (F, 3) vertex numbers; edges of degenerate faces that join a vertex to itself are
+            dropped.
+        stiffness: N/m of every edge spring (> 0; 0 builds no springs).
+        damping: spring damping, N*s/m.
+        mass, fixed, velocity_damping, gravity, wind, wind_drag: see :func:`from_grid`.
+
+    Raises:
+        ValueError: faces not (F, 3) or naming vertices that do not exist.
+    """
+    x0 = np.array(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"from_triangle_mesh: faces of shape {f.shape}, expected (F, 3)")
+    if f.size and (f.min() < 0 or f.max() >= len(x0)):
+        raise ValueError(f"from_triangle_mesh: faces name vertices outside 0..{len(x0) - 1}")
+    edges = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0).reshape(-1, 2)
+    lengths = np.linalg.norm(x0[edges[:, 0]] - x0[edges[:, 1]], axis=1)
+    spacing = float(lengths.mean()) if len(lengths) and lengths.mean() > 0 else 1.0
+    return _assemble(x0, edges, np.zeros(len(edges), np.int8), (stiffness, 0.0, 0.0),
+                     (damping, 0.0, 0.0), mass=mass, fixed=fixed, spacing=spacing,
+                     velocity_damping=velocity_damping, gravity=gravity, wind=wind,
+                     wind_drag=wind_drag)
+
+
+@dataclass(frozen=True, eq=False)
+class Drag:
+    """A scripted drag: a zero-rest-length spring pulling one node toward a moving target.
+
+    Force on the node: ``stiffness * (target(t) - x_node)`` (the user-intervention external force
+    of Movania & Feng 2012, section 3; section 5 picks and moves a point).
+
+    Attributes:
+        node: node number.
+        target: t (s) -> (3,) target position.
+        stiffness: N/m.
+    """
+
+    node: int
+    target: Callable[[float], ArrayLike]
+    stiffness: float
+
+
+#: Load groups a GPU backend supports (one bit each in the static node data).
+MAX_LOADS = 4
+
+
+@dataclass(frozen=True, eq=False)
+class Load:
+    """A scripted force applied to each node of a set (a scene's ``[[physics.pull]]``).
+
+    Force on every node in ``nodes``: ``force(t)`` in N (the external force of Movania & Feng
+    2012 eq. 1; the foundation's pull groups of Mosegaard & Sørensen 2005, section 3.1).
+
+    Attributes:
+        nodes: (N,) bool, the nodes it acts on.
+        force: t (s) -> (3,) force per node in N.
+    """
+
+    nodes: np.ndarray
+    force: Callable[[float], ArrayLike]
+
+    def __post_init__(self) -> None:
+        mask = np.array(self.nodes, dtype=bool)
+        mask.setflags(write=False)
+        object.__setattr__(self, "nodes", mask)
+
+
+def load_groups(loads: tuple[Load, ...], count: int) -> np.ndarray:
+    """(N,) int32 bit g set where load g acts (what the GPU backends store per node).
+
+    Raises:
+        ValueError: more than :data:`MAX_LOADS` loads, or a mask of the wrong length.
+    """
+    if len(loads) > MAX_LOADS:
+        raise ValueError(f"{len(loads)} loads; the GPU backends support at most {MAX_LOADS}")
+    bits = np.zeros(count, np.int32)
+    for g, load in enumerate(loads):
+        if load.nodes.shape != (count,):
+            raise ValueError(f"load {g}: node mask of shape {load.nodes.shape}, expected ({count},)")
+        bits |= load.nodes.astype(np.int32) << g
+    return bits
+
+
+def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
+           drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = ()) -> np.ndarray:
+    """Total force on every node (fixed nodes included; the integrators ignore theirs).
+
+    Per spring (i, j) with ``d = x_i - x_j``, ``u = d/|d|`` (u = 0 for a zero-length spring, so
+    it pulls nothing and never gives NaN), the force on i (and its negative on j) is
+
+    * elastic: ``k (L - |d|) u`` (Movania & Feng 2012 eq. 2; papers/README.md ``F_j``),
+    * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
+
+    per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
+    (Movania & Feng 2012 eq. 1), each drag's ``k_d (target(t) - x)`` and each load's
+    ``force(t)`` on its nodes.
+
+    Args:
+        system: the spring system.
+        x: (N, 3) positions.
+        v: (N, 3) velocities.
+        t: time in s (the drag targets are evaluated at t).
+        drags: scripted drags.
+        loads: scripted per-node forces.
+
+    Returns:
+        (N, 3) float64 force in N.
+    """
+    d = x[system.i] - x[system.j]
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.where(length > 0, length, 1.0)[:, None]  # d = 0 -> u = 0
+    dv = v[system.i] - v[system.j]
+    scale = (system.stiffness * (system.rest_length - length)
+             - system.damping * np.einsum("sk,sk->s", dv, u))
+    f = scale[:, None] * u                                # force on i of each spring, (S, 3)
+    ends = np.concatenate([system.i, system.j])
+    signed = np.concatenate([f, -f])
+    n = system.count
+    total = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)],
+                     axis=1).astype(np.float64)  # (bincount of no springs gives int64)
+    total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
+              - system.velocity_damping * v)
+    for drag in drags:
+        total[drag.node] += drag.stiffness * (np.asarray(drag.target(t), float) - x[drag.node])
+    for load in loads:
+        total[load.nodes] += np.asarray(load.force(t), dtype=np.float64)
+    return total
+
+
+@dataclass(frozen=True)
+class FrequencyBound:
+    """Bound of the highest angular frequency of the linearised undamped system.
+
+    Attributes:
+        omega: rad/s, w_max <= omega.
+        node: the free node whose ``2 sum_j k_ij / m_i`` is largest (-1 without free nodes).
+        spring: the stiffest spring at that node (-1 if it has none).
+    """
+
+    omega: float
+    node: int
+    spring: int
+
+
+def max_angular_frequency(system: SpringSystem) -> FrequencyBound:
+    """``w_max^2 <= max_i 2 sum_j k_ij / m_i`` over the free nodes (STYLE.md; Gershgorin).
+
+    Proof sketch: ``x^T K x = sum_s k_s ((x_i - x_j) . u_s)^2 <= sum_s 2 k_s (|x_i|^2 + |x_j|^2)``
+    and fixed nodes have x = 0, so the Rayleigh quotient ``x^T K x / x^T M x`` is at most the
+    largest ``2 sum_j k_ij / m_i`` over free nodes. Stretched springs (L < |d|) keep it: their
+    geometric stiffness ``k (1 - L/|d|)`` across the spring is below k. Drags are not included
+    (a drag of stiffness k_d adds ``2 k_d / m`` at its node).
+    """
+    n = system.count
+    ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
+            + np.bincount(system.j, weights=system.stiffness, minlength=n))
+    bound = np.where(system.fixed, -1.0, 2.0 * ksum / system.mass)
+    if n == 0 or bound.max() < 0:
+        return FrequencyBound(0.0, -1, -1)
+    node = int(np.argmax(bound))
+    at_node = np.nonzero((system.i == node) | (system.j == node))[0]
+    spring = int(at_node[np.argmax(system.stiffness[at_node])]) if len(at_node) else -1
+    return FrequencyBound(float(np.sqrt(bound[node])), node, spring)

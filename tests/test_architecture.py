@@ -1,0 +1,73 @@
+"""The package's shape is a fact too: layers point down, no import cycle."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import grimp
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "deformgl"
+
+
+def test_layers_point_down():
+    """The import-linter contract in pyproject.toml: cli -> bench -> scene -> trilinear -> render ->
+    mapping -> sim -> grid -> gl -> base, nothing importing upwards."""
+    exe = shutil.which("lint-imports", path=str(Path(sys.executable).parent)) or shutil.which("lint-imports")
+    assert exe, "lint-imports (import-linter, in the 'test' extra) is not installed"
+    done = subprocess.run([exe, "--no-cache", "--config", str(ROOT / "pyproject.toml")], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
+    assert "KEPT" in done.stdout and "BROKEN" not in done.stdout
+
+
+def _cycle(graph: grimp.ImportGraph) -> list[str] | None:
+    """A module-level import cycle (imports inside functions included), or None."""
+    colour: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(module: str) -> list[str] | None:
+        colour[module] = 1
+        stack.append(module)
+        for nxt in sorted(graph.find_modules_directly_imported_by(module)):
+            if colour.get(nxt) == 1:
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in colour and (found := visit(nxt)):
+                return found
+        stack.pop()
+        colour[module] = 2
+        return None
+
+    for module in sorted(graph.modules):
+        if module not in colour and (found := visit(module)):
+            return found
+    return None
+
+
+def test_no_import_cycle():
+    graph = grimp.build_graph("deformgl", cache_dir=None)
+    cycle = _cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_cycle_finder_finds_a_cycle():
+    graph = grimp.ImportGraph()
+    for name in ("p", "p.a", "p.b", "p.c"):
+        graph.add_module(name)
+    graph.add_import(importer="p.a", imported="p.b")
+    graph.add_import(importer="p.b", imported="p.c")
+    assert _cycle(graph) is None
+    graph.add_import(importer="p.c", imported="p.a")
+    assert _cycle(graph) == ["p.a", "p.b", "p.c", "p.a"]
+
+
+def test_subpackages_mirror_the_shaders():
+    """Every shader folder has the package folder that uses it (shaders/sim -> deformgl/sim, ...)."""
+    shader_dirs = {p.name for p in (ROOT / "shaders").iterdir() if p.is_dir() and p.name != "lib"}
+    homes = {"census": "sim", "feedback": "sim/backends", "profile": "bench"}
+    for name in shader_dirs:
+        assert (PACKAGE / homes.get(name, name)).is_dir(), f"shaders/{name} has no package folder"
