@@ -93,7 +93,7 @@ def amplitude_history(name: str, w_dt: float, steps: int, amplitude: float = 1e-
 @pytest.mark.parametrize("name, bounded, unbounded", [("semi-implicit", 1.9, 2.1),
                                                       ("verlet", 1.9, 2.1), ("rk4", 2.7, 2.9)])
 def test_stability_limit(name, bounded, unbounded):
-    # Limits (STYLE.md, papers/README.md): symplectic Euler and Verlet w dt < 2, RK4 < 2.83.
+    # Limits (STYLE.md, docs/EQUATIONS.md): symplectic Euler and Verlet w dt < 2, RK4 < 2.83.
     calm = amplitude_history(name, bounded, 5000)  # ~1500 periods at w dt = 1.9
     assert len(calm) == 5000 and calm.max() < 10.0, f"{name} at w dt = {bounded}: {calm.max()}"
     wild = amplitude_history(name, unbounded, 2000)

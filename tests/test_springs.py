@@ -124,7 +124,7 @@ def test_forces_on_a_stretched_spring_match_the_formula_term_by_term():
     d = x[0] - x[1]
     length = np.sqrt(d @ d)
     u = d / length
-    elastic = 30.0 * (0.1 - length) * u                       # papers/README.md F_j
+    elastic = 30.0 * (0.1 - length) * u                       # docs/EQUATIONS.md F_j
     spring_damp = -0.4 * ((v[0] - v[1]) @ u) * u
     per_node = (s.mass[:, None] * [0.0, -9.81, 0.0] + 0.07 * (np.array([2.0, 0.0, -1.0]) - v)
                 - 0.05 * v)

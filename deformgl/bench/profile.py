@@ -83,7 +83,7 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
                 uniforms.update(u_strides=layout.strides)
             else:
                 uniforms["u_neighbours"] = NEIGHBOUR_UNIT
-            members = set(program.gl._members)
+            members = program.members
             program.set(**{k: v for k, v in uniforms.items() if k in members})
 
             def run(n: int, vao=vao) -> None:

@@ -43,6 +43,11 @@ class Program:
             return self.fragment_source.explain_log(log)
         return self.vertex_source.explain_log(log)
 
+    @property
+    def members(self) -> frozenset[str]:
+        """Names of the program's active uniforms, uniform blocks and attributes."""
+        return frozenset(self.gl)
+
     def set(self, **uniforms: Any) -> None:
         """Set uniforms by name; an unknown name raises :class:`ShaderError`."""
         for key, value in uniforms.items():

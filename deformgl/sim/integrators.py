@@ -7,7 +7,7 @@ One signature for all (warp.sim style, state in, state out)::
 
 Definitions: Movania & Feng 2012, section 3 (eq. 3 ``a = F/m``, eq. 4-5 explicit Euler, eq. 6
 Verlet, eq. 7 implicit Euler, numbered as the text refers to them; midpoint and RK4 are only
-named). The formulas were lost in extraction; their standard forms are in ``papers/README.md``.
+named). The formulas were lost in extraction; their standard forms are in ``docs/EQUATIONS.md``.
 Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.springs.forces`:
 
 * ``euler`` (explicit/forward): ``x' = x + dt v``, ``v' = v + dt a(x, v)``.
@@ -22,7 +22,7 @@ Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.springs.forces`:
   ``x' = x + (1 - c dt/m)(x - x_prev) + dt^2 a`` for global damping. That velocity is first-order
   accurate, so with velocity-dependent forces Verlet's global order drops from 2 to 1.
 
-Constraints after the step (papers/README.md "Constraints after the step"; Movania & Feng 2012
+Constraints after the step (docs/EQUATIONS.md "Constraints after the step"; Movania & Feng 2012
 section 4): spheres in order, then the ground plane (the ground wins where they conflict), then
 fixed nodes get their old position back exactly and zero velocity. A sphere projects a node
 inside it onto its surface (a node exactly at the centre goes up, +y). The velocity integrators
@@ -155,25 +155,25 @@ _Accel = Callable[[np.ndarray, np.ndarray, float], np.ndarray]
 
 
 def _euler(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.ndarray]:
-    # Movania & Feng eq. 4-5 (lost; papers/README.md): x' = x + dt v, v' = v + dt a(x, v)
+    # Movania & Feng eq. 4-5 (lost; docs/EQUATIONS.md): x' = x + dt v, v' = v + dt a(x, v)
     return s.x + dt * s.v, s.v + dt * acc(s.x, s.v, t)
 
 
 def _semi_implicit(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.ndarray]:
-    # Movania & Feng eq. 7 (lost; papers/README.md): v' = v + dt a(x, v); x' = x + dt v'
+    # Movania & Feng eq. 7 (lost; docs/EQUATIONS.md): v' = v + dt a(x, v); x' = x + dt v'
     v = s.v + dt * acc(s.x, s.v, t)
     return s.x + dt * v, v
 
 
 def _midpoint(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.ndarray]:
-    # papers/README.md: midpoint (RK2) at (x + dt/2 v, v + dt/2 a), then the full step
+    # docs/EQUATIONS.md: midpoint (RK2) at (x + dt/2 v, v + dt/2 a), then the full step
     xm = s.x + 0.5 * dt * s.v
     vm = s.v + 0.5 * dt * acc(s.x, s.v, t)
     return s.x + dt * vm, s.v + dt * acc(xm, vm, t + 0.5 * dt)
 
 
 def _rk4(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.ndarray]:
-    # papers/README.md: classical RK4 on the first-order system y = (x, v), y' = (v, a(x, v, t))
+    # docs/EQUATIONS.md: classical RK4 on the first-order system y = (x, v), y' = (v, a(x, v, t))
     h = 0.5 * dt
     k1x, k1v = s.v, acc(s.x, s.v, t)
     k2x, k2v = s.v + h * k1v, acc(s.x + h * k1x, s.v + h * k1v, t + h)
@@ -184,7 +184,7 @@ def _rk4(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.nda
 
 
 def _verlet(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, None]:
-    # Movania & Feng eq. 6 (lost; papers/README.md): x' = 2x - x_prev + dt^2 a,
+    # Movania & Feng eq. 6 (lost; docs/EQUATIONS.md): x' = 2x - x_prev + dt^2 a,
     # v = (x - x_prev)/dt for the velocity-dependent forces (as reference.py)
     v = (s.x - s.x_prev) / dt
     return 2.0 * s.x - s.x_prev + dt * dt * acc(s.x, v, t), None
@@ -211,7 +211,7 @@ def apply_constraints(constraints: Constraints, x: np.ndarray, v: np.ndarray | N
     """Spheres, then the ground, in place on the new positions x (and velocities v, if any).
 
     Movania & Feng 2012 section 4 ("positivity" ground constraint and sphere collision), in the
-    form of papers/README.md: ``y' = max(y', y_ground)``; ``|x' - s| < r`` ->
+    form of docs/EQUATIONS.md: ``y' = max(y', y_ground)``; ``|x' - s| < r`` ->
     ``x' = s + r (x' - s)/|x' - s|``. ``t`` is the time at the start of the step.
     """
     for sphere in constraints.spheres:

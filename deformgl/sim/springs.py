@@ -313,7 +313,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     Per spring (i, j) with ``d = x_i - x_j``, ``u = d/|d|`` (u = 0 for a zero-length spring, so
     it pulls nothing and never gives NaN), the force on i (and its negative on j) is
 
-    * elastic: ``k (L - |d|) u`` (Movania & Feng 2012 eq. 2; papers/README.md ``F_j``),
+    * elastic: ``k (L - |d|) u`` (Movania & Feng 2012 eq. 2; docs/EQUATIONS.md ``F_j``),
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``

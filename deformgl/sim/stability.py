@@ -2,7 +2,7 @@
 
 Movania & Feng 2012 (section 3) compare explicit Euler, semi-implicit ("implicit") Euler,
 midpoint, RK4 and Verlet; their step-size limits follow from the highest angular frequency w of
-the linearised system (papers/README.md "Stability"; ../shared/STYLE.md):
+the linearised system (docs/EQUATIONS.md, "Stability"):
 
 * semi-implicit Euler and position Verlet: ``dt <= 2/w``;
 * RK4: ``dt <= 2 sqrt(2)/w`` (2.83/w; ``|R(iy)|^2 = 1 - y^6/72 + y^8/576 <= 1 <=> y^2 <= 8``);

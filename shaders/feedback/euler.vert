@@ -1,5 +1,5 @@
 #version 330 core
-// One explicit Euler step per node (Movania & Feng 2012 eq. 4-5, papers/README.md):
+// One explicit Euler step per node (Movania & Feng 2012 eq. 4-5, docs/EQUATIONS.md):
 //   x' = x + dt v,  v' = v + dt a(x, v);
 // with SEMI_IMPLICIT the paper's "implicit Euler" (eq. 7, symplectic):
 //   v' = v + dt a(x, v),  x' = x + dt v'.

@@ -1,5 +1,5 @@
 // Acceleration a = F / m of one node (Movania & Feng 2012 eq. 1-3; the lost formulas as in
-// papers/README.md), the same function as deformgl/springs.py forces() and
+// docs/EQUATIONS.md), the same function as deformgl/springs.py forces() and
 // deformgl/integrators.py acceleration().
 //
 // Per spring to neighbour j (rest length L, stiffness k, spring damping c_s), d = x_i - x_j,

@@ -1,7 +1,7 @@
 #version 330 core
 // Midpoint (RK2) method, second pass: the full step with the midpoint slopes
 //   x' = x + dt v_m,  v' = v + dt a(x_m, v_m, t + dt/2)
-// (papers/README.md, Movania & Feng 2012 section 3), then constraints and fixed nodes.
+// (docs/EQUATIONS.md, Movania & Feng 2012 section 3), then constraints and fixed nodes.
 #include "feedback/state.glsl"
 uniform sampler2D u_state;  // 2 slots per node: x (w mass), v
 uniform sampler2D u_stage;  // 2 slots per node: x_m (w mass), v_m

@@ -1,5 +1,5 @@
 #version 330 core
-// Midpoint (RK2) method, first pass (papers/README.md, Movania & Feng 2012 section 3):
+// Midpoint (RK2) method, first pass (docs/EQUATIONS.md, Movania & Feng 2012 section 3):
 //   x_m = x + dt/2 v,  v_m = v + dt/2 a(x, v, t)
 // into the stage buffer (transform feedback), read by feedback/midpoint_full.vert.
 #include "feedback/state.glsl"

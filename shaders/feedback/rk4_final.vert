@@ -1,5 +1,5 @@
 #version 330 core
-// Classical RK4, last stage (papers/README.md, Movania & Feng 2012 section 3):
+// Classical RK4, last stage (docs/EQUATIONS.md, Movania & Feng 2012 section 3):
 //   k_4 = (v_3, a(x_3, v_3, t + dt)),  (x', v') = (x, v) + dt/6 (k_1 + 2 k_2 + 2 k_3 + k_4),
 // then constraints and fixed nodes.
 #include "feedback/state.glsl"

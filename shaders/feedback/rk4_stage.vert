@@ -1,5 +1,5 @@
 #version 330 core
-// Classical RK4 on the first-order system y = (x, v), y' = (v, a(x, v, t)) (papers/README.md,
+// Classical RK4 on the first-order system y = (x, v), y' = (v, a(x, v, t)) (docs/EQUATIONS.md,
 // Movania & Feng 2012 section 3), stage RK4_STAGE (1, 2 or 3) of 4, h = dt/2:
 //   k_s = (v_s, a(x_s, v_s)) with (x_1, v_1) = (x, v) and (x_s, v_s) the previous stage state;
 //   next stage state (x, v) + c k_s, c = h for stages 1-2, dt for stage 3;

@@ -1,5 +1,5 @@
 #version 330 core
-// Position Verlet (Movania & Feng 2012 eq. 6, papers/README.md): x' = 2x - x_prev + dt^2 a(x, v)
+// Position Verlet (Movania & Feng 2012 eq. 6, docs/EQUATIONS.md): x' = 2x - x_prev + dt^2 a(x, v)
 // with no stored velocity: damping, spring damping and wind see the backward difference
 // v = (x - x_prev)/dt (deformgl/integrators.py). Then the constraints (no velocity rule: the next
 // backward difference contains the projection) and fixed nodes keep x bit for bit.

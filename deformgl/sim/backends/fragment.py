@@ -277,7 +277,7 @@ class FragmentIntegrator:
         self.passes[key] = program
         system = self.system
         (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
-        members = set(program.gl._members)
+        members = program.members
         uniforms: dict[str, object] = {
             **{s: u for s, u in _SAMPLERS.items() if s in members},
             "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,

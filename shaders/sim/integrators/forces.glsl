@@ -1,5 +1,5 @@
 // Acceleration a = F / m of one grid node for the fragment-pass integrators
-// (Movania & Feng 2012 eq. 1-3, the lost formulas in papers/README.md), the same function as
+// (Movania & Feng 2012 eq. 1-3, the lost formulas in docs/EQUATIONS.md), the same function as
 // deformgl/springs.py forces() and deformgl/integrators.py acceleration(), in float32.
 //
 // Topology is implicit on the node grid (Mosegaard & Sorensen 2005, section 3.1): neighbour j of

@@ -1,7 +1,7 @@
 #version 330 core
 // One pass of a fragment-pass integrator on the node grid (Mosegaard & Sorensen 2005, 3.1:
 // one texel per node, state in RGBA32F textures; Movania & Feng 2012, section 3: the five
-// integrators, their lost formulas as in papers/README.md; the float64 reference is
+// integrators, their lost formulas as in docs/EQUATIONS.md; the float64 reference is
 // deformgl/integrators.py). Exactly one method define selects the pass:
 //   EULER          x' = x + dt v,  v' = v + dt a(x, v)                      (eq. 4-5)
 //   SEMI_IMPLICIT  v' = v + dt a(x, v),  x' = x + dt v'                     (eq. 7, "implicit")
