@@ -1,7 +1,7 @@
 #version 330 core
-// One explicit Euler step per node (Movania & Feng 2012 eq. 4-5, docs/EQUATIONS.md):
+// One explicit Euler step per node (Movania & Feng 2012, eq. 4-5; docs/EQUATIONS.md):
 //   x' = x + dt v,  v' = v + dt a(x, v);
-// with SEMI_IMPLICIT the paper's "implicit Euler" (eq. 7, symplectic):
+// with SEMI_IMPLICIT the paper's "implicit Euler" (Movania & Feng 2012, eq. 7; symplectic):
 //   v' = v + dt a(x, v),  x' = x + dt v'.
 // A vertex shader run over POINTS, one vertex per node, its outputs captured with transform
 // feedback (the paper's section 4 pipeline); then the constraints, then fixed nodes keep x.
@@ -19,7 +19,7 @@ void main() {
     ivec4 info = node_info(i);
     vec4 x = eval_x(i);
     vec3 v = eval_v(i);
-    vec3 a = acceleration(i, info, x, v);
+    vec3 a = list_acceleration(i, info, x, v);
 #ifdef SEMI_IMPLICIT
     vec3 v1 = v + u_dt * a;
     vec3 x1 = x.xyz + u_dt * v1;

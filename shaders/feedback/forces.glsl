@@ -1,10 +1,11 @@
-// Acceleration a = F / m of one node (Movania & Feng 2012 eq. 1-3; the lost formulas as in
-// docs/EQUATIONS.md), the same function as deformgl/springs.py forces() and
-// deformgl/integrators.py acceleration().
+// Acceleration a = F / m of one node (Movania & Feng 2012, eq. 1-3; the lost formulas as in
+// docs/EQUATIONS.md), the same function as deformgl/sim/springs.py forces() and
+// deformgl/sim/integrators.py acceleration().
 //
 // Per spring to neighbour j (rest length L, stiffness k, spring damping c_s), d = x_i - x_j,
-// u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u   (eq. 2)
-// per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1) + loads and drags
+// u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u
+// (Movania & Feng 2012, eq. 2; lib/spring_force.glsl)
+// per node: m g + wind_drag (wind - v) (WIND) - c v (Movania & Feng 2012, eq. 1) + loads and drags
 // (lib/node_forces.glsl).
 // Fixed nodes have a = 0.
 //
@@ -23,12 +24,13 @@ uniform isampler2D u_nodes;
 uniform isampler2D u_other;
 uniform sampler2D u_springs;
 #include "lib/node_forces.glsl"
+#include "lib/spring_force.glsl"
 
 ivec4 node_info(int n) {
     return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
 }
 
-vec3 acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
+vec3 list_acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
     if (info.z != 0) {
         return vec3(0.0);
     }
@@ -37,14 +39,11 @@ vec3 acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
         ivec2 st = ivec2(e % SPRING_ROW, e / SPRING_ROW);
         int j = texelFetch(u_other, st, 0).r;
         vec4 s = texelFetch(u_springs, st, 0);
-        vec3 d = xi.xyz - eval_x(j).xyz;
-        float len = length(d);
-        vec3 u = len > 0.0 ? d / len : vec3(0.0);
-        float scale = s.y * (s.x - len);
 #ifdef SPRING_DAMPING
-        scale -= s.z * dot(vi - eval_v(j), u);
+        f += spring_force(xi.xyz - eval_x(j).xyz, s.x, s.y, s.z, vi - eval_v(j));
+#else
+        f += spring_force(xi.xyz - eval_x(j).xyz, s.x, s.y, 0.0, vec3(0.0));
 #endif
-        f += scale * u;
     }
     add_node_forces(f, i, info.w, xi.xyz, vi, xi.w);
     return f / xi.w;

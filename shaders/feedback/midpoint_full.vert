@@ -19,7 +19,7 @@ void main() {
     vec3 v = slot(u_state, 2, i, 1).xyz;
     vec4 xm = eval_x(i);
     vec3 vm = eval_v(i);
-    vec3 a = acceleration(i, info, xm, vm);
+    vec3 a = list_acceleration(i, info, xm, vm);
     vec3 x1 = x.xyz + u_dt * vm;
     vec3 v1 = v + u_dt * a;
 #ifdef CONSTRAINTS

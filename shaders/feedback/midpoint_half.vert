@@ -15,7 +15,7 @@ void main() {
     ivec4 info = node_info(i);
     vec4 x = eval_x(i);
     vec3 v = eval_v(i);
-    vec3 a = acceleration(i, info, x, v);
+    vec3 a = list_acceleration(i, info, x, v);
     float h = 0.5 * u_dt;
     out_x = vec4(x.xyz + h * v, x.w);
     out_v = vec4(v + h * a, 0.0);

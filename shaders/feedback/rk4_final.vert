@@ -19,7 +19,7 @@ void main() {
     vec3 v = slot(u_state, 2, i, 1).xyz;
     vec4 xs = eval_x(i);
     vec3 kx = eval_v(i);
-    vec3 kv = acceleration(i, info, xs, kx);
+    vec3 kv = list_acceleration(i, info, xs, kx);
     float c = u_dt / 6.0;
     vec3 x1 = x.xyz + c * (slot(u_stage, 4, i, 2).xyz + kx);
     vec3 v1 = v + c * (slot(u_stage, 4, i, 3).xyz + kv);

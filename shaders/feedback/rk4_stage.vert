@@ -28,7 +28,7 @@ void main() {
     vec3 v = slot(u_state, 2, i, 1).xyz;
     vec4 xs = eval_x(i);
     vec3 kx = eval_v(i);
-    vec3 kv = acceleration(i, info, xs, kx);
+    vec3 kv = list_acceleration(i, info, xs, kx);
 #if RK4_STAGE == 3
     float c = u_dt;
 #else

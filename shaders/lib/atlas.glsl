@@ -1,4 +1,4 @@
-// Node grid atlas: padded z-slices laid out as tiles in a 2D texture (deformgl/grid.py AtlasLayout).
+// Node grid atlas: padded z-slices laid out as tiles in a 2D texture (deformgl/grid/nodes.py AtlasLayout).
 // Padded slice pz sits at tile (pz % u_tiles_x, pz / u_tiles_x); in a tile, texel (x, y) is padded
 // grid position (x, y). The one-node padding keeps every neighbour fetch inside the texture.
 

@@ -1,6 +1,6 @@
 // Constraints after the step (Movania & Feng 2012 section 4: the "positivity" ground constraint
 // y' = max(y', y_ground) and the sphere collision x' = s + r (x' - s)/|x' - s| when |x' - s| < r;
-// docs/EQUATIONS.md), as deformgl/integrators.py apply_constraints(): spheres in order, then the
+// docs/EQUATIONS.md), as deformgl/sim/integrators.py apply_constraints(): spheres in order, then the
 // ground. Shared by both GPU backends (shaders/feedback/*.vert, shaders/sim/integrators/step.frag).
 // With VELOCITY (every integrator but Verlet) a contact is inelastic and frictionless: the
 // velocity along the contact normal n becomes max(v . n, u . n), u the obstacle's velocity over

@@ -1,5 +1,5 @@
-// The per-node forces of both integrator backends (Movania & Feng 2012 eq. 1 and the
-// user-intervention force of section 3), the same as deformgl/springs.py forces() after the
+// The per-node forces of both integrator backends (Movania & Feng 2012, eq. 1, and the
+// user-intervention force of section 3), the same as deformgl/sim/springs.py forces() after the
 // springs, in the same order:
 //   m g - c v (gravity, global damping), wind_drag (wind - v) (WIND), then
 //   loads: force(t) per node on every node of load group g (bit g of the node's groups; a

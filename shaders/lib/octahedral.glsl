@@ -1,4 +1,4 @@
-// Packed normals (Mosegaard & Sorensen 2005, eq. 3, section 3.2). NumPy twin: deformgl/normals.py.
+// Packed normals (Mosegaard & Sorensen 2005, eq. 3, section 3.2). NumPy twin: deformgl/sim/normals.py.
 // A normal travels in the alpha channel of an RGBA32F position texel as a positive *normal*
 // float (never NaN, Inf or denormal, so any float32 render target carries it exactly): the
 // octahedral coordinates quantised to 46,159 steps each give c = qx * 46159 + qy < 2^31 - 2^24,
@@ -9,7 +9,7 @@ const float OCT_LEVELS = 46158.0;
 const uint OCT_STEPS = 46159u;
 const uint OCT_BIAS = 8388608u;  // 2^23
 const float NO_NORMAL = 0.0;
-const float MIN_SUM_LENGTH = 0.5;  // shorter sums have no reliable direction (normals.py)
+const float MIN_SUM_LENGTH = 0.5;  // shorter sums have no reliable direction (sim/normals.py)
 
 vec2 oct_sign_not_zero(vec2 v) {
     return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);

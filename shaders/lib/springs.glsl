@@ -1,36 +1,34 @@
 // Spring forces and approximate normals over the 18 implicit neighbours
 // (Mosegaard & Sorensen 2005, section 3.1).
 //
-// eq. 1: g_i = sum_j 1/2 k_ij (l_ij - |p_i - p_j|) (p_i - p_j)/|p_i - p_j|, with deformgl's
+// Mosegaard & Sorensen 2005, eq. 1: g_i = sum_j 1/2 k_ij (l_ij - |p_i - p_j|) (p_i - p_j)/|p_i - p_j|, with deformgl's
 // k = k_ij / 2 in N/m. Grouping the 6 springs of rest length h (D1) and the 12 of h*sqrt(2) (D2),
-// each group with one stiffness, gives eq. 2:
+// each group with one stiffness, gives Mosegaard & Sorensen 2005, eq. 2:
 //   g_i = k1 (h S1 - P1) + k2 (sqrt(2) h S2 - P2),
 //   S = sum of unit vectors (p_i - p_j)/|p_i - p_j|, P = sum of (p_i - p_j).
-// S1 + S2 is the unnormalised approximate normal of eq. 3.
+// S1 + S2 is the unnormalised approximate normal of Mosegaard & Sorensen 2005, eq. 3.
 // Neighbour j exists when bit j of the node's mask is set; offsets in the order of
-// deformgl/grid.py NEIGHBOUR_OFFSETS. Without NEIGHBOUR_BRANCH the sum is branchless: an absent
+// deformgl/grid/nodes.py NEIGHBOUR_OFFSETS. Without NEIGHBOUR_BRANCH the sum is branchless: an absent
 // neighbour (an empty, padded atlas texel, or in COMPACT layouts the node itself, both holding a
 // finite position) is weighted by 0.
+
+#include "lib/node_texel.glsl"
 
 uniform float u_spacing;        // h
 uniform float u_k_structural;   // k1, N/m
 uniform float u_k_shear;        // k2, N/m
 
 struct SpringSum {
-    vec3 force;     // g_i (eq. 1/2)
-    vec3 unit_sum;  // S1 + S2 (eq. 3 before normalisation)
+    vec3 force;     // g_i (Mosegaard & Sorensen 2005, eq. 1/2)
+    vec3 unit_sum;  // S1 + S2 (Mosegaard & Sorensen 2005, eq. 3 before normalisation)
 };
 
 // Where neighbour J lies: COMPACT layouts look its node number up in the neighbour-index
-// texture (grid.py CompactLayout); COMPACT_DENSE ones (every node of the box exists) compute it,
+// texture (deformgl/grid/nodes.py CompactLayout); COMPACT_DENSE ones (every node of the box exists) compute it,
 // n + DX sx + DY sy + DZ sz, or take the node itself where mask bit J says the neighbour is
 // absent (as the index texture does: d = 0, so not even a NaN elsewhere can leak in);
 // the z-slice atlas computes it from the tile arithmetic.
 #ifdef COMPACT
-uniform int u_width_log2;              // log2 of the texture width
-ivec2 node_texel(int n) {
-    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
-}
 #ifdef COMPACT_DENSE
 uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
 #define NB_TEXEL(J, DX, DY, DZ) node_texel(((mask >> J) & 1u) != 0u \
@@ -59,7 +57,7 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 
 SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
 #if defined(COMPACT_DENSE)
-    int self_node = (texel.y << u_width_log2) | texel.x;
+    int self_node = texel_node(texel);
 #elif defined(COMPACT)
     ivec4 n0 = texelFetch(u_neighbours, ivec3(texel, 0), 0);
     ivec4 n1 = texelFetch(u_neighbours, ivec3(texel, 1), 0);

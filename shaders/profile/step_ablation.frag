@@ -5,7 +5,7 @@
 //   1  + previous position and node data (the step's own texels)
 //   2  + the 5 neighbour-index texels (compact layouts that are not dense)
 //   3  + the 18 neighbours' positions (summed)
-//   4  + the spring sums of eq. 1/2 (length, unit vector per neighbour)
+//   4  + the spring sums of Mosegaard & Sorensen 2005, eq. 1/2 (length, unit vector per neighbour)
 // Neighbours as in lib/springs.glsl: from u_neighbours, or with DENSE from node-number offsets
 // (the node itself where the mask says the neighbour is absent).
 // The output is meaningless; it only keeps the compiler from removing the work.
@@ -13,7 +13,7 @@
 uniform sampler2D u_position;
 uniform sampler2D u_previous;
 uniform sampler2D u_node;
-uniform int u_width_log2;
+#include "lib/node_texel.glsl"
 #ifdef DENSE
 uniform ivec3 u_strides;
 #else
@@ -28,10 +28,6 @@ const ivec3 OFFSETS[18] = ivec3[18](
     ivec3(1, 0, 1), ivec3(1, 0, -1), ivec3(-1, 0, 1), ivec3(-1, 0, -1),
     ivec3(0, 1, 1), ivec3(0, 1, -1), ivec3(0, -1, 1), ivec3(0, -1, -1));
 
-ivec2 node_texel(int n) {
-    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
-}
-
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     vec4 x = texelFetch(u_position, texel, 0);
@@ -43,7 +39,7 @@ void main() {
 #if STAGE >= 2
     int nb[18];
 #ifdef DENSE
-    int self_node = (texel.y << u_width_log2) | texel.x;
+    int self_node = texel_node(texel);
     uint mask = uint(node.b);
     for (int j = 0; j < 18; ++j) {
         nb[j] = ((mask >> j) & 1u) != 0u ? self_node + OFFSETS[j].x * u_strides.x + OFFSETS[j].y * u_strides.y

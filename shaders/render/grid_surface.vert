@@ -1,6 +1,6 @@
 #version 330 core
 // One-to-one mapping (Mosegaard & Sorensen 2005, section 3.2): every surface vertex is a node;
-// its position and packed eq. 3 normal are fetched from the state texture (vertex texture fetch).
+// its position and packed normal (Mosegaard & Sorensen 2005, eq. 3) are fetched from the state texture (vertex texture fetch).
 #include "lib/octahedral.glsl"
 
 in ivec2 in_texel;              // the node's texel in the atlas

@@ -1,6 +1,6 @@
 #version 330 core
-// Per-pixel Blinn-Phong with the interpolated vertex normals. Where a vertex has no eq. 3 normal
-// (v_has_normal < 1), the flat normal of the triangle (from derivatives) fills in its share.
+// Per-pixel Blinn-Phong with the interpolated vertex normals. Where a vertex has no normal
+// (Mosegaard & Sorensen 2005, eq. 3; v_has_normal < 1), the flat normal of the triangle (from derivatives) fills in its share.
 #include "lib/blinn_phong.glsl"
 
 in vec3 v_world;

@@ -1,25 +1,29 @@
 #version 330 core
 // A detailed mesh deformed by the nodes through its triangle-basis binding
-// (Mosegaard & Sorensen 2005, 3.3.3, eq. 9): three vertex texture fetches give the current
-// p'1, p'2, p'3 (and, in alpha, their packed eq. 3 normals); r' = sum w_i p'_i (eq. 4);
-// v' = r' + basis' * o_t with the constant basis (eq. 6) or, per vertex, the
-// curvature-corrected one (eq. 8). Normals and tangents are rebuilt in the same basis (3.3.4).
-// A degenerate deformed basis keeps the rest offset and vectors in world space.
-// Variants: CURVATURE (compile eq. 8 and the per-vertex choice; without it every vertex uses
-// eq. 6), NORMAL_MAP (carry tangents and UVs for tangent-space normal mapping).
+// (Mosegaard & Sorensen 2005, section 3.3.3, eq. 9): three vertex texture fetches give the
+// current p'1, p'2, p'3 and, in alpha, their packed normals (Mosegaard & Sorensen 2005, eq. 3);
+// r' = sum w_i p'_i (Mosegaard & Sorensen 2005, eq. 4); v' = r' + basis' * o_t with the
+// constant basis (Mosegaard & Sorensen 2005, eq. 6) or, per vertex, the curvature-corrected
+// one (Mosegaard & Sorensen 2005, eq. 8). Normals and tangents are rebuilt in the same basis
+// (section 3.3.4). A degenerate deformed basis keeps the rest offset and vectors in world space.
+// Variants: CURVATURE (compile the curvature-corrected basis, Mosegaard & Sorensen 2005, eq. 8,
+// and the per-vertex choice; without it every vertex uses the constant basis), NORMAL_MAP
+// (carry tangents and UVs for tangent-space normal mapping).
 #include "lib/octahedral.glsl"
 #include "lib/triangle_basis.glsl"
 
 in ivec2 in_texel1;         // atlas texels of the vertex's three nodes
 in ivec2 in_texel2;
 in ivec2 in_texel3;
-in vec3 in_weights;         // eq. 4
-in vec3 in_offset;          // eq. 7: offset in the vertex's basis
-in vec3 in_offset_world;    // eq. 5: rest offset, world space (degenerate fallback)
+in vec3 in_weights;         // Mosegaard & Sorensen 2005, eq. 4
+in vec3 in_offset;          // Mosegaard & Sorensen 2005, eq. 7: offset in the vertex's basis
+in vec3 in_offset_world;    // Mosegaard & Sorensen 2005, eq. 5: rest offset, world space
+                            // (the degenerate fallback)
 in vec3 in_normal;          // vertex normal in the basis
 in vec3 in_normal_world;
 #ifdef CURVATURE
-in float in_curvature;      // 1: curvature-corrected basis (eq. 8), 0: constant (eq. 6)
+in float in_curvature;      // 1: curvature-corrected basis, 0: constant
+                            // (Mosegaard & Sorensen 2005, eq. 8 and eq. 6)
 #endif
 #ifdef NORMAL_MAP
 in vec4 in_tangent;         // xyz in the basis, w handedness

@@ -1,7 +1,7 @@
 #version 330 core
 // One position-Verlet step of the grid spring-mass system (Mosegaard & Sorensen 2005, 3.1;
 // Movania & Feng 2012): x' = 2x - x_prev + dt^2 a, a = (g + m*gravity + pull - c*v)/m,
-// v = (x - x_prev)/dt. Writes the new position and, in alpha, the packed eq. 3 normal at x.
+// v = (x - x_prev)/dt. Writes the new position and, in alpha, the packed normal at x (Mosegaard & Sorensen 2005, eq. 3).
 // Variants: NEIGHBOUR_BRANCH (see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
 // no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code).
 #include "lib/atlas.glsl"
@@ -33,7 +33,7 @@ void main() {
     }
 #endif
     SpringSum s = spring_sum(u_position, texel, x.xyz, uint(node.b));
-    float normal_code = pack_normal(s.unit_sum);  // eq. 3
+    float normal_code = pack_normal(s.unit_sum);  // Mosegaard & Sorensen 2005, eq. 3
     if ((flags & FLAG_FIXED) != 0) {
         o_position = vec4(x.xyz, normal_code);
         return;

@@ -1,8 +1,9 @@
 #version 330 core
-// A leaf drawn with its one composed transform (section 4.1), one instance per leaf; the cost per
+// A leaf drawn with its one composed transform (Knuth, Kohlhammer & Kuijper, section 4.1), one instance per leaf; the cost per
 // vertex is the same whatever the depth of the hierarchy. TRANSFORM_PATH picks the transform:
 //   0 affine: 3 rows of a 3x4 matrix on the local position (the cheap path for linear leaves)
-//   1 one cuboid: eq. 4 (CUBOID_FORM 4, rows of C) or eq. 1 (CUBOID_FORM 1, rows of the corners)
+//   1 one cuboid: Knuth, Kohlhammer & Kuijper, eq. 4 (CUBOID_FORM 4, rows of C) or eq. 1
+//     (CUBOID_FORM 1, rows of the corners)
 //   2 grid: hardware trilinear filtering of the leaf's block in the RGBA32F 3D atlas
 #include "trilinear/cuboid.glsl"
 #include "trilinear/grid.glsl"

@@ -1,18 +1,19 @@
 // Acceleration a = F / m of one grid node for the fragment-pass integrators
-// (Movania & Feng 2012 eq. 1-3, the lost formulas in docs/EQUATIONS.md), the same function as
-// deformgl/springs.py forces() and deformgl/integrators.py acceleration(), in float32.
+// (Movania & Feng 2012, eq. 1-3; the lost formulas in docs/EQUATIONS.md), the same function as
+// deformgl/sim/springs.py forces() and deformgl/sim/integrators.py acceleration(), in float32.
 //
 // Topology is implicit on the node grid (Mosegaard & Sorensen 2005, section 3.1): neighbour j of
 // node i is looked up in u_neighbours, NB_LAYERS RGBA32I layers of node numbers in the order of
-// deformgl/grid.py NEIGHBOUR_OFFSETS (6 structural at h, 12 shear at h*sqrt(2)), followed with
+// deformgl/grid/nodes.py NEIGHBOUR_OFFSETS (6 structural at h, 12 shear at h*sqrt(2)), followed with
 // FLEXION by the 6 flexion neighbours at 2h along +x, -x, +y, -y, +z, -z (Movania & Feng 2012,
 // section 3). An absent neighbour points at the node itself: d = 0 gives u = 0 and no force,
 // exactly as the reference's zero-length rule, so no neighbour mask is needed.
 //
 // Per spring, d = x_i - x_j, u = d/|d| (0 for |d| = 0), class stiffness k, rest length L,
-// spring damping c_s (one value per class, as springs.from_grid builds them):
-//   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (eq. 2, damping only with SPRING_DAMPING)
-// per node: m g + wind_drag (wind - v) (WIND) - c v (eq. 1), loads and drags
+// spring damping c_s (one value per class, as deformgl/sim/springs.py from_grid builds them):
+//   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (Movania & Feng 2012, eq. 2; damping only with
+//                                                      SPRING_DAMPING; lib/spring_force.glsl)
+// per node: m g + wind_drag (wind - v) (WIND) - c v (Movania & Feng 2012, eq. 1), loads and drags
 // (lib/node_forces.glsl). Fixed nodes never call this.
 //
 // DENSE grids (every node of the box exists: blocks, cloth sheets) need no neighbour texture:
@@ -27,38 +28,33 @@ uniform int u_offsets[NB_COUNT];  // node-number offset of each neighbour
 #else
 uniform isampler2DArray u_neighbours;
 #endif
-uniform int u_width_log2;   // log2 of the texture width (node n at texel (n % w, n / w))
 uniform vec3 u_k;           // stiffness of the structural, shear, flexion class, N/m
 uniform vec3 u_rest;        // rest length of each class
 #ifdef SPRING_DAMPING
 uniform vec3 u_c;           // spring damping of each class, N*s/m
 #endif
 #include "lib/node_forces.glsl"
+#include "lib/node_texel.glsl"
+#include "lib/spring_force.glsl"
 
-ivec2 node_texel(int n) {
-    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
-}
-
-vec3 spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
-    vec3 d = xi - EVAL_X(tj);
-    float len = length(d);
-    vec3 u = len > 0.0 ? d / len : vec3(0.0);
-    float scale = u_k[cls] * (u_rest[cls] - len);
+// The spring of class cls to the neighbour at texel tj (lib/spring_force.glsl).
+vec3 class_spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
 #ifdef SPRING_DAMPING
-    scale -= u_c[cls] * dot(vi - EVAL_V(tj), u);
+    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], u_c[cls], vi - EVAL_V(tj));
+#else
+    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], 0.0, vec3(0.0));
 #endif
-    return scale * u;
 }
 
-vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
+vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     vec3 f = vec3(0.0);
 #ifdef DENSE
-    int self_node = (texel.y << u_width_log2) | texel.x;
+    int self_node = texel_node(texel);
     int mask = int(texelFetch(u_node, texel, 0).a);
     for (int j = 0; j < NB_COUNT; ++j) {
         int other = ((mask >> j) & 1) != 0 ? self_node + u_offsets[j] : self_node;
         int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-        f += spring_force(node_texel(other), xi, vi, cls);
+        f += class_spring_force(node_texel(other), xi, vi, cls);
     }
 #else
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
@@ -69,10 +65,10 @@ vec3 acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
                 break;
             }
             int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-            f += spring_force(node_texel(nb[c]), xi, vi, cls);
+            f += class_spring_force(node_texel(nb[c]), xi, vi, cls);
         }
     }
 #endif
-    add_node_forces(f, (texel.y << u_width_log2) + texel.x, groups, xi, vi, m);
+    add_node_forces(f, texel_node(texel), groups, xi, vi, m);
     return f / m;
 }

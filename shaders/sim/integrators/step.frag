@@ -2,16 +2,16 @@
 // One pass of a fragment-pass integrator on the node grid (Mosegaard & Sorensen 2005, 3.1:
 // one texel per node, state in RGBA32F textures; Movania & Feng 2012, section 3: the five
 // integrators, their lost formulas as in docs/EQUATIONS.md; the float64 reference is
-// deformgl/integrators.py). Exactly one method define selects the pass:
-//   EULER          x' = x + dt v,  v' = v + dt a(x, v)                      (eq. 4-5)
-//   SEMI_IMPLICIT  v' = v + dt a(x, v),  x' = x + dt v'                     (eq. 7, "implicit")
+// deformgl/sim/integrators.py). Exactly one method define selects the pass:
+//   EULER          x' = x + dt v,  v' = v + dt a(x, v)                      (Movania & Feng 2012, eq. 4-5)
+//   SEMI_IMPLICIT  v' = v + dt a(x, v),  x' = x + dt v'                     (Movania & Feng 2012, eq. 7: "implicit")
 //   MIDPOINT_HALF  stage (x_m, v_m) = (x + dt/2 v, v + dt/2 a(x, v))
 //   MIDPOINT_FULL  x' = x + dt v_m,  v' = v + dt a(x_m, v_m)
 //   RK4_STAGE k    (k = 1, 2, 3) k_k = (v_s, a(x_s, v_s)) at the previous stage state (stage 1:
 //                  (x, v)); next stage state (x, v) + c k_k, c = dt/2, dt/2, dt; running sum
 //                  k_1 + 2 k_2 + 2 k_3 in two more render targets
 //   RK4_FINAL      k_4 at the stage-3 state; x' = x + dt/6 (sum_x + k4_x), v' likewise
-//   VERLET         x' = 2x - x_prev + dt^2 a(x, v), v = (x - x_prev)/dt           (eq. 6)
+//   VERLET         x' = 2x - x_prev + dt^2 a(x, v), v = (x - x_prev)/dt           (Movania & Feng 2012, eq. 6)
 // Passes that write x and v write both at once (multiple render targets). The last pass of a
 // step applies the constraints (CONSTRAINTS). Fixed nodes and padding texels copy x bit for bit
 // (velocity 0).
@@ -75,13 +75,13 @@ void main() {
     float dt = u_dt;
 #ifdef VERLET
     vec3 v = EVAL_V(texel);
-    vec3 a = acceleration(texel, x.xyz, v, m, groups);
+    vec3 a = grid_acceleration(texel, x.xyz, v, m, groups);
     vec3 x1 = 2.0 * x.xyz - texelFetch(u_x_prev, texel, 0).xyz + (dt * dt) * a;
 #else
     vec3 v = texelFetch(u_v, texel, 0).xyz;
     vec3 xs = EVAL_X(texel);
     vec3 vs = EVAL_V(texel);
-    vec3 a = acceleration(texel, xs, vs, m, groups);
+    vec3 a = grid_acceleration(texel, xs, vs, m, groups);
 #if defined(EULER)
     vec3 x1 = x.xyz + dt * v;
     vec3 v1 = v + dt * a;
