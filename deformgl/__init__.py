@@ -1,3 +1,136 @@
-"""deformgl: GPU soft bodies on a coarse grid, detailed meshes deformed by them, rendered headless."""
+"""deformgl: GPU soft bodies on a coarse grid, detailed meshes deformed by them, rendered headless.
+
+The public API (see docs/API.md; ``deformgl.render`` etc. stay the subpackages); every name is imported on first use, so ``import deformgl``
+starts no GL context and loads neither moderngl nor trimesh::
+
+    import numpy as np
+    import deformgl as dg
+
+    with dg.Body.from_arrays(V, F, resolution=8, fixed=dg.below("y", 0.1)) as body:
+        sim = body.simulate("verlet", "fragment", dt=1e-3)
+        dg.run(sim, 200)                      # the CLI's dt check, blow-up census, subdivision
+        V2, F2 = body.mapped_mesh(sim)        # the deformed detailed mesh, NumPy
+        dg.write_png("out.png", body.render(sim))
+
+Scenes: :func:`load_scene`, :func:`render_scene`, :func:`render_to_png`. Lower levels: the spring
+system builders, :func:`make_simulation`, the trilinear scene graph, the error types.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+# name -> module that defines it; imported on first attribute access (PEP 562)
+_EXPORTS: dict[str, str] = {
+    # bodies, running, images
+    "Body": "deformgl.scene.body",
+    "below": "deformgl.scene.body",
+    "above": "deformgl.scene.body",
+    "inside": "deformgl.scene.body",
+    "write_png": "deformgl.scene.body",
+    "make_simulation": "deformgl.scene.stepping",
+    "Simulation": "deformgl.scene.stepping",
+    "run": "deformgl.scene.stepping",
+    "RunResult": "deformgl.scene.stepping",
+    # scenes
+    "load_scene": "deformgl.scene.schema",
+    "Scene": "deformgl.scene.schema",
+    "Region": "deformgl.scene.schema",
+    "BACKENDS": "deformgl.scene.schema",
+    "render_scene": "deformgl.scene.body",
+    "render_to_png": "deformgl.scene.body",
+    # meshes and grids
+    "load_mesh": "deformgl.grid.meshio",
+    "voxelize": "deformgl.grid.voxelize",
+    "NodeGrid": "deformgl.grid.nodes",
+    # spring systems, integrators, guards
+    "SpringSystem": "deformgl.sim.springs",
+    "from_grid": "deformgl.sim.springs",
+    "cloth": "deformgl.sim.springs",
+    "from_triangle_mesh": "deformgl.sim.springs",
+    "Drag": "deformgl.sim.springs",
+    "Load": "deformgl.sim.springs",
+    "SpringModel": "deformgl.sim.model",
+    "INTEGRATORS": "deformgl.sim.integrators",
+    "Constraints": "deformgl.sim.integrators",
+    "Sphere": "deformgl.sim.integrators",
+    "dt_limit": "deformgl.sim.stability",
+    "check_dt": "deformgl.sim.stability",
+    # GL and rendering
+    "create_context": "deformgl.gl.context",
+    "GLOwner": "deformgl.gl.resources",
+    "View": "deformgl.render.camera",
+    "frame_box": "deformgl.render.camera",
+    "Lighting": "deformgl.render.passes",
+    # the trilinear scene graph (Knuth, Kohlhammer & Kuijper)
+    "Trilinear": "deformgl.trilinear.transforms",
+    "Box": "deformgl.trilinear.transforms",
+    "compose": "deformgl.trilinear.transforms",
+    "Twist": "deformgl.trilinear.transforms",
+    "Taper": "deformgl.trilinear.transforms",
+    "Bend": "deformgl.trilinear.transforms",
+    "Helix": "deformgl.trilinear.transforms",
+    "TorusWrap": "deformgl.trilinear.transforms",
+    "Geometry": "deformgl.trilinear.scenegraph",
+    "Node": "deformgl.trilinear.scenegraph",
+    "GroupNode": "deformgl.trilinear.scenegraph",
+    "TransformNode": "deformgl.trilinear.scenegraph",
+    "GeometryNode": "deformgl.trilinear.scenegraph",
+    "ComposedScene": "deformgl.trilinear.scenegraph",
+    "compose_scene": "deformgl.trilinear.scenegraph",
+    "TrilinearRenderer": "deformgl.trilinear.scenegraph",
+    "TubeAttachment": "deformgl.trilinear.attachments",
+    "uv_sphere": "deformgl.trilinear.shapes",
+    "tube": "deformgl.trilinear.shapes",
+    # errors
+    "DeformglError": "deformgl.errors",
+    "InputError": "deformgl.errors",
+    "SceneError": "deformgl.errors",
+    "GLError": "deformgl.errors",
+    "ShaderError": "deformgl.errors",
+    "SimulationError": "deformgl.errors",
+    "BlowUp": "deformgl.sim.guards",
+}
+
+__all__ = sorted(_EXPORTS)
+
+if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ imports lazily
+    from deformgl.errors import DeformglError, GLError, InputError, SceneError, ShaderError, SimulationError
+    from deformgl.gl.context import create_context
+    from deformgl.gl.resources import GLOwner
+    from deformgl.grid.meshio import load_mesh
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.grid.voxelize import voxelize
+    from deformgl.render.camera import View, frame_box
+    from deformgl.render.passes import Lighting
+    from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
+    from deformgl.scene.schema import BACKENDS, Region, Scene, load_scene
+    from deformgl.scene.stepping import RunResult, Simulation, make_simulation, run
+    from deformgl.sim.guards import BlowUp
+    from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
+    from deformgl.sim.model import SpringModel
+    from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
+    from deformgl.sim.stability import check_dt, dt_limit
+    from deformgl.trilinear.attachments import TubeAttachment
+    from deformgl.trilinear.scenegraph import (ComposedScene, Geometry, GeometryNode, GroupNode, Node, TransformNode,
+                                               TrilinearRenderer, compose_scene)
+    from deformgl.trilinear.shapes import tube, uv_sphere
+    from deformgl.trilinear.transforms import Bend, Box, Helix, Taper, TorusWrap, Trilinear, Twist, compose
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name on first use (PEP 562) and keep it in the module."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'deformgl' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """The public names with the module's own."""
+    return sorted(set(globals()) | set(__all__))
