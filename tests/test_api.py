@@ -207,3 +207,16 @@ def test_scene_file_renders_like_the_cli(ctx, tmp_path):
     out = tmp_path / "cloth.png"
     again = dg.render_to_png(scene_file, out, ctx=ctx)
     assert out.stat().st_size > 0 and np.array_equal(again, image)
+
+
+def test_the_api_example_script(ctx, tmp_path, capsys):
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        import api_cantilever
+    finally:
+        sys.path.pop(0)
+    out = tmp_path / "c.png"
+    assert api_cantilever.main([str(out), "--resolution", "5", "--steps", "50", "--backend", "numpy"]) == 0
+    assert out.stat().st_size > 0 and "nodes" in capsys.readouterr().out
+    assert api_cantilever.main([str(out), "--resolution", "5", "--dt", "0.05"]) == 1
+    assert "<arrays>: physics.dt" in capsys.readouterr().err

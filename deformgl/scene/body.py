@@ -236,6 +236,7 @@ class Body:
         """
         gl_ctx = None if backend == "numpy" else (ctx or self.ctx)
         sim = make_simulation(self.system, integrator, backend, dt=dt, ctx=gl_ctx, grid=self.grid, **options)
+        sim.source = self.source
         if backend != "numpy":
             self.own(sim)
         return sim

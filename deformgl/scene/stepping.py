@@ -64,7 +64,8 @@ class Simulation:
 
     Attributes:
         system, integrator, backend: what runs; dt: the step it runs (s, ``dt / substeps`` after a
-        subdivided :func:`run`); time: simulated seconds; ctx: the GL context (None on numpy).
+        subdivided :func:`run`); time: simulated seconds; ctx: the GL context (None on numpy);
+        source: the name :func:`run`'s errors start with (a body sets its mesh's).
     """
 
     def __init__(self, system: SpringSystem, integrator: str, backend: str, *, dt: float,
@@ -87,6 +88,7 @@ class Simulation:
         self.system, self.integrator, self.backend, self.grid = system, integrator, backend, grid
         self.ctx, self.options, self.dt = ctx, options, float(dt)
         self.base_dt = float(dt)
+        self.source = "<simulation>"
         self._inner: Any = None
         self._steps = 0
         self.restart(self.dt)
@@ -186,7 +188,7 @@ class RunResult:
 
 
 def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: int = 100,
-        bad_distance: float = 1000.0, source: str = "<simulation>", progress: bool = False) -> RunResult:
+        bad_distance: float = 1000.0, source: str | None = None, progress: bool = False) -> RunResult:
     """Run ``steps`` steps of ``sim.dt`` with the CLI's guards.
 
     Args:
@@ -195,7 +197,7 @@ def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: i
             substeps, up to 16); a subdivided run starts again from the rest state.
         check_every: steps between blow-up checks (0: at the end only).
         bad_distance: a node farther than this many rest-box lengths from the origin has blown up.
-        source: the name error messages start with.
+        source: the name error messages start with (default: ``sim.source``).
 
     Raises:
         SimulationError: the dt is above the limit (and ``unstable`` is "refuse"), or the run blew
@@ -203,6 +205,7 @@ def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: i
     """
     if unstable not in UNSTABLE_POLICIES:
         raise InputError(f"unstable must be one of {', '.join(UNSTABLE_POLICIES)}, got {unstable!r}")
+    source = sim.source if source is None else source
     settings = _Settings(sim.base_dt, int(steps), sim.integrator, Safety(unstable, check_every, bad_distance))
     plan = plan_steps(sim.system, settings, source)
     notes: list[str] = [plan.note] if plan.note else []
