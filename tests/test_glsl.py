@@ -101,3 +101,23 @@ def test_every_shader_file_of_the_source_tree_is_in_the_installed_package():
     root = resources.files("deformgl.shaders")
     missing = [name for name in sorted(wanted) if not root.joinpath(*name.split("/")).is_file()]
     assert not missing, f"shader files not shipped in the package: {missing}"
+
+
+@pytest.mark.parametrize("name, defines", [
+    ("sim/integrators/step.frag", {"EULER": True, "NB_LAYERS": 5, "NB_COUNT": 18, "SPRING_DAMPING": True}),
+    ("sim/integrators/step.frag", {"VERLET": True, "DENSE": True, "NB_LAYERS": 5, "NB_COUNT": 18}),
+    ("feedback/euler.vert", {"NODE_ROW": 64, "SPRING_ROW": 64, "SPRING_DAMPING": True}),
+    ("sim/verlet.frag", {"PULLS": 0, "COMPACT": True}),
+    ("profile/step_ablation.frag", {"STAGE": 4, "DENSE": True}),
+])
+def test_shared_helpers_come_from_one_library_file(name, defines):
+    """node_texel and spring_force are defined once, in shaders/lib/, and pasted once per program."""
+    src = glsl.preprocess(name, defines)
+    for helper, lib in (("ivec2 node_texel(", "lib/node_texel.glsl"), ("vec3 spring_force(", "lib/spring_force.glsl")):
+        count = src.text.count(helper)
+        if lib in src.files:
+            assert count == 1, (name, helper)
+            assert helper not in glsl.read_shader_file(name)
+        else:
+            assert count == 0, (name, helper)
+    assert "lib/node_texel.glsl" in src.files or name.startswith("feedback/")
