@@ -277,7 +277,8 @@ class Body:
             raise InputError(f"{self.source}: mapping must be one of {', '.join(MAPPINGS)}, got {mapping!r}")
         if mapping not in self._passes:
             owner = self._gl()
-            self._upload(None) if self._nodes is None else None
+            if self._nodes is None:
+                self._upload(None)
             assert self._nodes is not None
             layout = self._nodes[0].layout
             if mapping == "one-to-one":
@@ -296,10 +297,10 @@ class Body:
         Returns:
             (V, 3) float64 world vertices and (F, 3) int64 faces (the input's).
         """
-        draw = self._pass(mapping)
         if mapping == "one-to-one":
             raise InputError(f"{self.source}: mapped_mesh needs a mapping of the detailed mesh "
                              f"(constant, curvature or auto), not one-to-one")
+        draw = self._pass(mapping)
         vertices, _ = draw.capture(self._upload(sim))
         return vertices.astype(np.float64) + self.centre, np.asarray(self.mesh.faces, dtype=np.int64)
 
