@@ -142,7 +142,8 @@ class Simulation:
         """Where the positions lie on the GPU: (texture, nodes per row, slots per node, slot)."""
         if self.backend == "numpy":
             raise InputError("the numpy backend keeps no positions on the GPU")
-        return self._inner.position_slot()
+        texture, row, slots, slot = self._inner.position_slot()
+        return texture, int(row), int(slots), int(slot)
 
     def release(self) -> None:
         """Release every GL object (and the context it created); idempotent."""
