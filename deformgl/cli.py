@@ -24,9 +24,12 @@ def _parser() -> argparse.ArgumentParser:
                        description="Simulate a scene file (TOML) on the GPU and render it to PNG. "
                                    "The PNG is written to a temporary file and renamed, so a failed "
                                    "run never leaves a partial image.")
-    r.add_argument("scene", type=Path, help="scene file (.toml), e.g. scenes/dragon.toml")
+    r.add_argument("scene", type=Path,
+                   help="scene file (.toml), e.g. scenes/dragon.toml; a file not in the working directory "
+                        "is looked up among the scenes shipped with deformgl by name (dragon.toml)")
     r.add_argument("-o", "--output", type=Path, default=None,
-                   help="output PNG (default: the scene's output.path)")
+                   help="output PNG (default: the scene's output.path; for a shipped scene, its file "
+                        "name in the working directory)")
     r.add_argument("--steps", type=int, default=None, help="override physics.steps")
     r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
     r.add_argument("--mesh", type=Path, default=None,
@@ -101,19 +104,33 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and WHAT.png, "
                         "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
-    b.add_argument("--quick", action="store_true", help="trade, scaling: a smaller, faster study")
+    b.add_argument("--quick", action="store_true",
+                   help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--scene", type=Path, default=None,
-                   help="render: the scene to draw (default scenes/heart.toml); mappings: the scene whose mesh, "
-                        "camera and light are used (default scenes/dragon_bend_constant.toml)")
+                   help="render: the scene to draw (default: the shipped heart.toml); mappings: the scene whose "
+                        "mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
     return p
 
 
+def _scene_file(path: Path, flag: str = "") -> Path:
+    """A scene file as given, else the shipped scene of that name; a one-line error if neither."""
+    from deformgl.data import find_scene, scene_names
+
+    found = find_scene(path)
+    if not found.exists():
+        raise DeformglError(f"{path}: {flag + ': ' if flag else ''}scene file not found (not in "
+                            f"{Path.cwd()} nor among the shipped scenes: {', '.join(scene_names())})")
+    return found
+
+
 def _render(args: argparse.Namespace) -> int:
+    from deformgl.data import is_packaged
     from deformgl.gl.context import create_context
     from deformgl.scene.pipeline import render_to_png
     from deformgl.scene.schema import load_scene, parse_size
 
-    scene = load_scene(args.scene)
+    source = _scene_file(args.scene)
+    scene = load_scene(source)
     size = None
     if args.size is not None:
         try:
@@ -123,7 +140,8 @@ def _render(args: argparse.Namespace) -> int:
     scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
                                  integrator=args.integrator, backend=args.backend, unstable=args.unstable,
                                  check_every=args.check_every)
-    out = args.output or scene.output.path
+    # a shipped scene writes into the working directory, never into the installed package
+    out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
     if out.suffix.lower() != ".png":
         raise DeformglError(f"{out}: the output must be a .png file")
     for path in (out, args.export_mesh, args.pack_inputs):
@@ -189,6 +207,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV, JSON and chart,
     each written atomically."""
     from deformgl.bench.studies import machine_line
+    from deformgl.data import packaged_scene
 
     out = args.out
     if args.what == "trade":
@@ -203,7 +222,8 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     elif args.what == "mappings":
         from deformgl.bench.mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
 
-        rows = mapping_accuracy(ctx, **({"scene_path": args.scene} if args.scene else {}))
+        rows = mapping_accuracy(ctx, scene_path=_scene_file(args.scene, "--scene") if args.scene
+                                else packaged_scene("dragon_bend_constant"))
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
             write_csv(out / "mappings.csv", rows)
@@ -256,12 +276,19 @@ def _bench(args: argparse.Namespace) -> int:
 
             print(trilinear_bench_report(ctx))
         elif args.what == "binding":
-            from deformgl.mapping.binding import bench_binding
+            from deformgl.data import asset
+            from deformgl.mapping import binding
 
+            # bench_binding reads its mesh from this module constant, which it computes from its
+            # own file's location; the shipped mesh is where importlib.resources finds it
+            binding.BENCH_MESH = asset(binding.BENCH_MESH.name)
             print(machine_line(ctx))
-            print(bench_binding())
+            print(binding.bench_binding(repeats=1 if args.quick else 3))
         else:
-            rows, frame_ms, info = bench_render(ctx, args.scene or Path("scenes/heart.toml"))
+            from deformgl.data import packaged_scene
+
+            scene = _scene_file(args.scene, "--scene") if args.scene else packaged_scene("heart")
+            rows, frame_ms, info = bench_render(ctx, scene)
             print(format_render(rows, frame_ms, info, machine_line(ctx)))
     finally:
         ctx.release()

@@ -4,6 +4,12 @@ GL tests use the ``ctx`` fixture. Without a working EGL context they are skipped
 with ``DEFORMGL_REQUIRE_GL=1`` (set by ``.ci/run``) a missing context fails the session, and
 so does any skipped test (except those of an optional extra, whose skip reason says "optional
 extra"): CI must never pass with its GL tests skipped.
+
+Markers (registered in pyproject.toml): every test that uses ``ctx`` — directly or through any
+fixture depending on it — is marked ``gl`` here, as are the tests in ``GL_WITHOUT_CTX`` that make
+their own context (the CLI and the context tests); ``SLOW`` lists the long ones. A test that is
+not marked ``gl`` gets no GL context: creating one raises in the process, and EGL finds no driver
+in its subprocesses, so ``pytest -m "not gl"`` really runs without OpenGL.
 """
 
 from __future__ import annotations
@@ -18,6 +24,43 @@ REQUIRE_GL = os.environ.get("DEFORMGL_REQUIRE_GL") == "1"
 TESTS = Path(__file__).parent
 GOLDEN_DIR = TESTS / "golden"
 OUTPUT_DIR = TESTS / "output"
+
+
+#: Tests that create a GL context without the ctx fixture (node-id prefixes).
+GL_WITHOUT_CTX = (
+    "tests/test_cli.py::",
+    "tests/test_context.py::",
+    "tests/test_api.py::test_a_body_releases_the_context_it_made",
+    "tests/test_installed.py::",
+)
+#: Tests taking more than ~5 s on 2 cores (node-id prefixes; measured with --durations).
+SLOW = (
+    "tests/test_installed.py::",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        nodeid = item.nodeid.replace("\\", "/")
+        if "ctx" in getattr(item, "fixturenames", ()) or nodeid.startswith(GL_WITHOUT_CTX):
+            item.add_marker(pytest.mark.gl)
+        if nodeid.startswith(SLOW):
+            item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(autouse=True)
+def _no_gl_unless_marked(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch):
+    """A test not marked gl cannot create a GL context, here or in a subprocess."""
+    if request.node.get_closest_marker("gl") is None:
+        import moderngl
+
+        def refuse(*args, **kwargs):
+            raise RuntimeError(f"{request.node.nodeid} is not marked gl but creates a GL context: "
+                               "use the ctx fixture or list it in conftest.GL_WITHOUT_CTX")
+
+        monkeypatch.setattr(moderngl, "create_standalone_context", refuse)
+        monkeypatch.setenv("__EGL_VENDOR_LIBRARY_FILENAMES", "/nonexistent/no-gl-for-this-test.json")
+    yield
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -1,0 +1,84 @@
+"""The scenes and meshes shipped with deformgl (package ``deformgl.scenes``, the repository's
+``scenes/`` folder), found through :mod:`importlib.resources` so they work from an installed
+wheel in any working directory as well as from the checkout.
+
+Scene files name their meshes relative to themselves, so a packaged scene loads its packaged
+mesh. A scene given on the command line that does not exist in the working directory is looked
+up among the packaged ones by file name (``deformgl render dragon.toml``).
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from deformgl.errors import DeformglError
+
+__all__ = ["asset", "find_scene", "is_packaged", "packaged_scene", "scene_names", "scenes_dir"]
+
+
+def scenes_dir() -> Path:
+    """The folder of the packaged scenes (its ``assets/`` holds the meshes).
+
+    Raises:
+        DeformglError: If the package data is not on the file system (a zipped install).
+    """
+    root = resources.files("deformgl.scenes")
+    if not isinstance(root, Path) or not root.is_dir():
+        raise DeformglError(f"the packaged scenes are not a folder on disk ({root}); install "
+                            "deformgl unzipped (pip install)")
+    return root
+
+
+def scene_names() -> list[str]:
+    """File names of the packaged scenes, sorted (``cloth_64.toml``, ``dragon.toml``, ...)."""
+    return sorted(p.name for p in scenes_dir().glob("*.toml"))
+
+
+def packaged_scene(name: str) -> Path:
+    """The packaged scene ``name`` (``dragon`` or ``dragon.toml``).
+
+    Raises:
+        DeformglError: If there is none of that name, listing the ones there are.
+    """
+    file = name if name.endswith(".toml") else f"{name}.toml"
+    path = scenes_dir() / file
+    if not path.is_file():
+        raise DeformglError(f"{name}: no packaged scene of that name (there are: "
+                            f"{', '.join(scene_names())})")
+    return path
+
+
+def asset(name: str) -> Path:
+    """The packaged mesh ``scenes/assets/<name>``, e.g. ``dragon_vrip_res3.ply.gz``."""
+    path = scenes_dir() / "assets" / name
+    if not path.is_file():
+        raise DeformglError(f"{name}: no packaged asset of that name in {path.parent}")
+    return path
+
+
+def is_packaged(path: Path) -> bool:
+    """Whether ``path`` lies in the packaged scenes folder."""
+    try:
+        path.resolve().relative_to(scenes_dir().resolve())
+    except (ValueError, DeformglError):
+        return False
+    return True
+
+
+def find_scene(path: str | Path) -> Path:
+    """A scene file as given if it exists, else the packaged scene of that file name.
+
+    ``scenes/dragon.toml`` outside the checkout and plain ``dragon.toml`` both find the packaged
+    dragon. A path that is neither is returned unchanged, so that loading it reports the missing
+    file by the name the user gave.
+    """
+    path = Path(path)
+    if path.exists():
+        return path
+    if len(path.parts) == 1 or (len(path.parts) == 2 and path.parts[0] == "scenes"):
+        try:
+            return packaged_scene(path.name)
+        except DeformglError:
+            pass
+    return path
