@@ -232,12 +232,13 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     else:
         from deformgl.bench.scaling import QUICK_SIZES, bench_scaling
 
-        report = bench_scaling(ctx, progress=note, **({"sizes": QUICK_SIZES} if args.quick else {}))
-        print(report.format())
+        scaling = (bench_scaling(ctx, progress=note, sizes=QUICK_SIZES) if args.quick
+                   else bench_scaling(ctx, progress=note))
+        print(scaling.format())
         if out is not None:
-            report.write_csv(out / "scaling.csv")
-            report.write_json(out / "scaling.json")
-            _chart(lambda: report.write_chart(out / "scaling.png"))
+            scaling.write_csv(out / "scaling.csv")
+            scaling.write_json(out / "scaling.json")
+            _chart(lambda: scaling.write_chart(out / "scaling.png"))
 
 
 def _bench(args: argparse.Namespace) -> int:

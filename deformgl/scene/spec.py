@@ -1,0 +1,384 @@
+"""What a scene file describes: frozen dataclasses of validated values (positions as bounding-box
+fractions, the rest SI), made by :func:`deformgl.scene.schema.load_scene`, and
+:func:`parse_size` for ``WIDTHxHEIGHT`` strings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
+from deformgl.sim.integrators import INTEGRATORS
+
+Vec3 = tuple[float, float, float]
+MAX_SIZE = 16384
+MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
+AXES = ("x", "y", "z")
+#: Where a scene's simulation runs: fragment passes, transform feedback, or the float64 NumPy reference.
+BACKENDS = ("fragment", "feedback", "numpy")
+MAX_SPHERES = 8
+MAX_DRAGS = 8
+UNSTABLE_POLICIES = ("refuse", "run", "subdivide")
+MAPPING_MODES = ("one-to-one", "constant", "curvature", "auto")
+# the checkers the command-line overrides share with the scene file's tables
+_STEPS, _SIZE = _int(lo=0), _vec(2, _int(lo=1, hi=MAX_SIZE))
+_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
+
+
+@dataclass(frozen=True, slots=True)
+class MeshSpec:
+    """The detailed mesh to deform: an absolute path that existed at load time."""
+    path: Path
+
+
+@dataclass(frozen=True, slots=True)
+class ClothSpec:
+    """A cloth instead of a mesh: ``nodes`` (along x, along z) in a square-spaced sheet of
+    ``size`` m along its longer side, centred on the origin in the plane y = 0 (Movania & Feng
+    2012, section 5). Its bounding box for fractions is the cube of side ``size`` around it, so
+    the sheet lies at y fraction 0.5."""
+    nodes: tuple[int, int]
+    size: float
+
+
+@dataclass(frozen=True, slots=True)
+class GridSpec:
+    """Coarse node grid resolution; exactly one field is set."""
+    nodes_along_longest: int | None
+    spacing: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Region:
+    """Space in bounding-box fractions: ``"below"``/``"above"`` ``at`` along ``axis`` (0, 1, 2), or
+    an inclusive ``"box"`` from ``lo`` to ``hi``."""
+    kind: str
+    axis: int | None
+    at: float | None
+    lo: Vec3 | None
+    hi: Vec3 | None
+
+    def contains(self, points_fraction: np.ndarray) -> np.ndarray:
+        """Returns the (N,) bool mask of (N, 3) bounding-box-fraction points inside, boundaries included.
+
+        Raises:
+            ValueError: If ``points_fraction`` is not of shape (N, 3).
+        """
+        p = np.asarray(points_fraction, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {p.shape}")
+        if self.kind == "box":
+            assert self.lo is not None and self.hi is not None
+            return np.all((p >= np.asarray(self.lo)) & (p <= np.asarray(self.hi)), axis=1)
+        assert self.axis is not None and self.at is not None
+        return p[:, self.axis] <= self.at if self.kind == "below" else p[:, self.axis] >= self.at
+
+
+@dataclass(frozen=True, slots=True)
+class Pull:
+    """A scripted force (N per node) on the nodes in ``region``: zero before ``start``, rising
+    linearly to full over ``ramp`` seconds, zero again from ``stop`` (may be ``inf``) on."""
+    region: Region
+    force: Vec3
+    start: float
+    ramp: float
+    stop: float
+
+    def force_at(self, t: float) -> np.ndarray:
+        """Returns the (3,) float64 force per node at simulation time ``t`` seconds."""
+        if t < self.start or t >= self.stop:
+            scale = 0.0
+        else:
+            scale = min(1.0, (t - self.start) / self.ramp) if self.ramp > 0.0 else 1.0
+        return np.asarray(self.force, dtype=np.float64) * scale
+
+
+@dataclass(frozen=True, slots=True)
+class Keyframes:
+    """A piecewise-linear path: ``points`` (bounding-box fractions) at increasing ``times`` (s);
+    before the first time it is at the first point, after the last at the last."""
+    points: tuple[Vec3, ...]
+    times: tuple[float, ...]
+
+    def at(self, t: float) -> np.ndarray:
+        """Returns the (3,) point (box fractions) at time ``t``."""
+        p = np.asarray(self.points, dtype=np.float64)
+        return np.array([np.interp(t, self.times, p[:, c]) for c in range(3)])
+
+
+@dataclass(frozen=True, slots=True)
+class SpringClass:
+    """Stiffness (N/m; None: ``physics.stiffness``) and damping along the spring (N*s/m) of one
+    spring class (Movania & Feng 2012, section 3)."""
+    stiffness: float | None
+    damping: float
+
+
+@dataclass(frozen=True, slots=True)
+class SphereSpec:
+    """A sphere obstacle: fixed ``centre`` or moving along ``path`` (box fractions); ``radius``
+    in units of the bounding box's longest side."""
+    centre: Vec3 | None
+    path: Keyframes | None
+    radius: float
+
+
+@dataclass(frozen=True, slots=True)
+class DragSpec:
+    """A scripted drag: the node nearest to the path's first point is pulled toward the moving
+    point through a zero-rest-length spring of ``stiffness`` N/m."""
+    path: Keyframes
+    stiffness: float
+
+
+@dataclass(frozen=True, slots=True)
+class Converge:
+    """Stop once no node moved more than ``threshold`` grid spacings in a step (checked every
+    ``every`` steps, on the GPU); ``physics.steps`` is the limit."""
+    threshold: float
+    every: int
+
+
+#: What to do with a dt above the integrator's stability limit (``physics.safety.unstable``).
+
+
+@dataclass(frozen=True, slots=True)
+class Safety:
+    """Guards of a run: what a dt above the stability limit does (``refuse`` it, ``run`` anyway,
+    or ``subdivide`` each step into enough substeps; ``subdivide`` also restarts a run that blew
+    up with half the step, up to 16 substeps per step), and how often the GPU counts the
+    non-finite or far-away nodes (every ``check_every`` steps; 0: only at the end); a node
+    farther than ``bad_distance`` box lengths from the box centre counts as blown up."""
+    unstable: str = "refuse"
+    check_every: int = 100
+    bad_distance: float = 1000.0
+
+
+@dataclass(frozen=True, slots=True)
+class Physics:
+    """Time step (s), steps, spring stiffness (N/m), velocity damping (N*s/m), mass per node (kg),
+    gravity (m/s^2), fixed regions and pulls; the integrator and backend; springs by class, wind
+    (air velocity m/s and linear drag N*s/m), ground (box fraction along y), spheres, drags and
+    the convergence stop."""
+    dt: float
+    steps: int
+    stiffness: float
+    damping: float
+    mass: float
+    gravity: Vec3
+    fixed: tuple[Region, ...]
+    pull: tuple[Pull, ...]
+    integrator: str = "verlet"
+    backend: str = "fragment"
+    structural: SpringClass = SpringClass(None, 0.0)
+    shear: SpringClass = SpringClass(None, 0.0)
+    flexion: SpringClass = SpringClass(0.0, 0.0)
+    wind: Vec3 = (0.0, 0.0, 0.0)
+    wind_drag: float = 0.0
+    ground: float | None = None
+    sphere: tuple[SphereSpec, ...] = ()
+    drag: tuple[DragSpec, ...] = ()
+    converge: Converge | None = None
+    safety: Safety = Safety()
+
+    def class_stiffness(self) -> tuple[float, float, float]:
+        """Stiffness of the structural, shear and flexion springs in N/m."""
+        return tuple(self.stiffness if c.stiffness is None else c.stiffness
+                     for c in (self.structural, self.shear, self.flexion))  # type: ignore[return-value]
+
+    @property
+    def extended(self) -> bool:
+        """Uses anything the foundation's fragment Verlet pass does not model (springs by class,
+        spring damping, flexion, wind, obstacles, drags, the convergence stop)."""
+        k1, k2, k3 = self.class_stiffness()
+        return bool(k1 != self.stiffness or k2 != self.stiffness or k3 > 0
+                    or self.structural.damping or self.shear.damping or self.flexion.damping
+                    or self.wind_drag > 0 or self.ground is not None or self.sphere or self.drag
+                    or self.converge is not None)
+
+
+@dataclass(frozen=True, slots=True)
+class Camera:
+    """Angles in degrees, ``distance`` in bounding-box diagonals, ``target`` in box fractions."""
+    projection: str
+    azimuth: float
+    elevation: float
+    fov: float
+    distance: float
+    target: Vec3
+
+
+@dataclass(frozen=True, slots=True)
+class Light:
+    """Directional light; ``direction`` points towards the light and has unit length."""
+    direction: Vec3
+    colour: Vec3
+    ambient: float
+
+
+@dataclass(frozen=True, slots=True)
+class Material:
+    """Surface colour and specular parameters."""
+    colour: Vec3
+    specular: float
+    shininess: float
+
+
+@dataclass(frozen=True, slots=True)
+class Render:
+    """Image (width, height), multisampling, background and what to draw."""
+    size: tuple[int, int]
+    msaa: int
+    background: Vec3
+    show_grid: bool
+    camera: Camera
+    light: Light
+    material: Material
+
+
+@dataclass(frozen=True, slots=True)
+class Mapping:
+    """How the detailed mesh is drawn from the nodes (Mosegaard & Sørensen 3.2-3.3).
+
+    ``mode``: "one-to-one" (the node-grid surface), "constant" (eq. 6), "curvature" (eq. 8) or
+    "auto" (eq. 8 where the node normals are well defined, eq. 6 elsewhere). ``normal_map``:
+    None, "procedural", or an absolute path to a tangent-space normal-map PNG.
+    """
+    mode: str
+    normal_map: str | Path | None
+    normal_map_strength: float
+    normal_map_repeat: float
+    cache: bool
+
+
+@dataclass(frozen=True, slots=True)
+class MotionSpec:
+    """An analytic node motion (see :class:`deformgl.node_drivers.Motion`); axes as 0/1/2."""
+    kind: str
+    angle: float
+    axis: int
+    along: int
+    towards: int
+    translate: Vec3
+    amount: float
+
+
+@dataclass(frozen=True, slots=True)
+class Nodes:
+    """Where node positions come from: "simulate", "file" (``.npy``) or "motion"."""
+    source: str
+    file: Path | None
+    frame: int
+    motion: MotionSpec | None
+
+
+@dataclass(frozen=True, slots=True)
+class Attach:
+    """A tube attached to the deforming detailed mesh (Knuth et al., section 5): anchors at the
+    mesh vertices nearest to a path from ``start`` to ``end`` (bounding-box fractions);
+    ``radius`` in bounding-box diagonals."""
+    start: Vec3
+    end: Vec3
+    anchors: int
+    radius: float
+    colour: Vec3
+
+
+@dataclass(frozen=True, slots=True)
+class Output:
+    """Where the PNG goes (absolute)."""
+    path: Path
+
+
+@dataclass(frozen=True, slots=True)
+class Scene:
+    """A validated scene; ``source`` is the absolute path of its scene file."""
+    source: Path
+    mesh: MeshSpec | None
+    grid: GridSpec
+    physics: Physics
+    render: Render
+    output: Output
+    mapping: Mapping = None  # type: ignore[assignment]  # set by load_scene
+    nodes: Nodes = None  # type: ignore[assignment]
+    attach: tuple[Attach, ...] = ()
+    cloth: ClothSpec | None = None
+
+    @property
+    def name(self) -> str:
+        """What the scene deforms, for messages: the mesh file name or ``cloth NxM``."""
+        if self.mesh is not None:
+            return self.mesh.path.name
+        return f"cloth {self.cloth.nodes[0]}x{self.cloth.nodes[1]}"  # type: ignore[union-attr]
+
+    def with_overrides(
+        self, *, mesh: Path | None = None, steps: int | None = None, size: tuple[int, int] | None = None,
+        mapping: str | None = None, integrator: str | None = None, backend: str | None = None,
+        unstable: str | None = None, check_every: int | None = None,
+    ) -> Scene:
+        """Returns a copy with command-line overrides, validated like the scene file.
+
+        Args:
+            mesh: Replacement mesh file (relative to the working directory); must exist.
+            mapping: Replacement mapping mode.
+            integrator: Replacement ``physics.integrator``.
+            backend: Replacement ``physics.backend``.
+            steps: Replacement step count, >= 0.
+            unstable: Replacement ``physics.safety.unstable`` (refuse, run, subdivide).
+            check_every: Replacement ``physics.safety.check_every``, >= 0.
+            size: Replacement (width, height), each in 1..16384.
+
+        Raises:
+            SceneError: ``"<scene file>: --steps: <what>"`` and so on.
+        """
+        file, scene = str(self.source), self
+        if mesh is not None:
+            if scene.cloth is not None:
+                _fail(file, "--mesh", "a cloth scene has no mesh to replace")
+            scene = dataclasses.replace(scene, mesh=MeshSpec(_existing(file, "--mesh", Path(mesh).resolve())))
+        for flag, key, value, check in (("--integrator", "integrator", integrator, _INTEGRATOR),
+                                        ("--backend", "backend", backend, _BACKEND)):
+            if value is not None:
+                scene = dataclasses.replace(scene, physics=dataclasses.replace(
+                    scene.physics, **{key: check(file, flag, value)}))
+        if steps is not None:
+            scene = dataclasses.replace(
+                scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))
+        safety_overrides: tuple[tuple[str, str, object, Check], ...] = (
+            ("--unstable", "unstable", unstable, _str(UNSTABLE_POLICIES)),
+            ("--check-every", "check_every", check_every, _int(lo=0)))
+        for flag, key, given, check in safety_overrides:
+            if given is not None:
+                safety = dataclasses.replace(scene.physics.safety, **{key: check(file, flag, given)})
+                scene = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, safety=safety))
+        if size is not None:
+            scene = dataclasses.replace(
+                scene, render=dataclasses.replace(scene.render, size=_SIZE(file, "--size", size)))
+        if mapping is not None:
+            scene = dataclasses.replace(
+                scene, mapping=dataclasses.replace(scene.mapping, mode=_MAPPING_MODE(file, "--mapping", mapping)))
+            if scene.attach and mapping == "one-to-one":
+                _fail(file, "--mapping", "one-to-one draws no detailed mesh, which the scene's attach entries need")
+            if scene.cloth is not None and mapping != "one-to-one":
+                _fail(file, "--mapping", "a cloth scene has no detailed mesh: only one-to-one")
+        return scene
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """Parses ``"WIDTHxHEIGHT"``, e.g. ``"800x600"`` -> ``(800, 600)``.
+
+    Raises:
+        ValueError: If the text is not of that form or a side is outside 1..16384.
+    """
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if m is None:
+        raise ValueError(f"invalid size {text!r}: expected WIDTHxHEIGHT, e.g. 800x600")
+    w, h = int(m[1]), int(m[2])
+    if not (1 <= w <= MAX_SIZE and 1 <= h <= MAX_SIZE):
+        raise ValueError(f"invalid size {text!r}: width and height must each be in 1..{MAX_SIZE}")
+    return w, h
