@@ -207,7 +207,6 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV, JSON and chart,
     each written atomically."""
     from deformgl.bench.studies import machine_line
-    from deformgl.data import packaged_scene
 
     out = args.out
     if args.what == "trade":
@@ -220,10 +219,13 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
             report.write_json(out / "trade.json")
             _chart(lambda: report.write_chart(out / "trade.png"))
     elif args.what == "mappings":
-        from deformgl.bench.mapping_accuracy import format_mapping_accuracy, mapping_accuracy, write_chart, write_csv, write_json
+        from deformgl.bench.mapping_accuracy import (DEFAULT_SCENE, format_mapping_accuracy, mapping_accuracy,
+                                                     write_chart, write_csv, write_json)
+        from deformgl.data import find_scene
 
-        rows = mapping_accuracy(ctx, scene_path=_scene_file(args.scene, "--scene") if args.scene
-                                else packaged_scene("dragon_bend_constant"))
+        # the default scene is named relative to the checkout; elsewhere the shipped copy is used
+        scene = _scene_file(args.scene, "--scene") if args.scene else find_scene(DEFAULT_SCENE)
+        rows = mapping_accuracy(ctx, **({"scene_path": scene} if scene != DEFAULT_SCENE else {}))
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
             write_csv(out / "mappings.csv", rows)

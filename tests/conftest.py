@@ -3,7 +3,8 @@
 GL tests use the ``ctx`` fixture. Without a working EGL context they are skipped locally, but
 with ``DEFORMGL_REQUIRE_GL=1`` (set by ``.ci/run``) a missing context fails the session, and
 so does any skipped test (except those of an optional extra, whose skip reason says "optional
-extra"): CI must never pass with its GL tests skipped.
+extra"; with ``DEFORMGL_REQUIRE_EXTRAS=1``, also set by ``.ci/run`` after installing the extras,
+those too): CI must never pass with its GL or extras' tests skipped.
 
 Markers (registered in pyproject.toml): every test that uses ``ctx`` — directly or through any
 fixture depending on it — is marked ``gl`` here, as are the tests in ``GL_WITHOUT_CTX`` that make
@@ -21,6 +22,8 @@ import numpy as np
 import pytest
 
 REQUIRE_GL = os.environ.get("DEFORMGL_REQUIRE_GL") == "1"
+#: Set by .ci/run, which installs the extras: then the extras' tests may not skip either.
+REQUIRE_EXTRAS = os.environ.get("DEFORMGL_REQUIRE_EXTRAS") == "1"
 TESTS = Path(__file__).parent
 GOLDEN_DIR = TESTS / "golden"
 OUTPUT_DIR = TESTS / "output"
@@ -33,9 +36,18 @@ GL_WITHOUT_CTX = (
     "tests/test_api.py::test_a_body_releases_the_context_it_made",
     "tests/test_installed.py::",
 )
-#: Tests taking more than ~5 s on 2 cores (node-id prefixes; measured with --durations).
+#: Tests taking more than ~3 s on 2 cores, with their fixtures' setup (node-id prefixes; measured
+#: with ``pytest --durations=40``).
 SLOW = (
-    "tests/test_installed.py::",
+    "tests/test_installed.py::",  # builds and installs the wheel
+    "tests/test_scene_sim.py::test_finer_cloths_are_the_same_cloth[2048]",
+    "tests/test_golden.py::test_cloth_on_sphere_matches_golden[rk4-feedback]",
+    "tests/test_golden.py::test_cloth_on_sphere_matches_golden[verlet-fragment]",
+    "tests/test_bench.py::test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart",
+)
+#: (test file, fixture): the tests of that file using that fixture are slow (its setup is).
+SLOW_FIXTURES = (
+    ("tests/test_trade.py::", "report"),  # the quick trade study, ~12 s
 )
 
 
@@ -44,7 +56,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         nodeid = item.nodeid.replace("\\", "/")
         if "ctx" in getattr(item, "fixturenames", ()) or nodeid.startswith(GL_WITHOUT_CTX):
             item.add_marker(pytest.mark.gl)
-        if nodeid.startswith(SLOW):
+        if nodeid.startswith(SLOW) or any(nodeid.startswith(file) and fixture in getattr(item, "fixturenames", ())
+                                          for file, fixture in SLOW_FIXTURES):
             item.add_marker(pytest.mark.slow)
 
 
@@ -69,16 +82,17 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
-    if not REQUIRE_GL:
+    if not (REQUIRE_GL or REQUIRE_EXTRAS):
         return
     reporter = session.config.pluginmanager.get_plugin("terminalreporter")
-    # tests of optional extras (the 'peers' benchmark packages) may skip; nothing else may
+    # tests of optional extras (peers, plot) may skip unless DEFORMGL_REQUIRE_EXTRAS=1; nothing else may
     skipped = len([r for r in reporter.stats.get("skipped", [])
-                   if "optional extra" not in str(r.longrepr)]) if reporter else 0
+                   if REQUIRE_EXTRAS or "optional extra" not in str(r.longrepr)]) if reporter else 0
     if skipped:
         if reporter:
-            reporter.write_line(f"DEFORMGL_REQUIRE_GL=1: {skipped} test(s) were skipped; failing",
-                                red=True)
+            flags = " ".join(f for f, on in (("DEFORMGL_REQUIRE_GL=1", REQUIRE_GL),
+                                             ("DEFORMGL_REQUIRE_EXTRAS=1", REQUIRE_EXTRAS)) if on)
+            reporter.write_line(f"{flags}: {skipped} test(s) were skipped; failing", red=True)
         session.exitstatus = 1
 
 
