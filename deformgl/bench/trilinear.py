@@ -15,7 +15,8 @@ import moderngl
 from deformgl.bench.studies import machine_line
 from deformgl.render.camera import View
 from deformgl.render.passes import RenderTarget
-from deformgl.trilinear.scenegraph import ComposedScene, Node, TrilinearRenderer, compose_scene, shader_defines
+from deformgl.trilinear.renderer import TrilinearRenderer, shader_defines
+from deformgl.trilinear.scenegraph import ComposedScene, Node, compose_scene
 from deformgl.trilinear.scenes import BACKGROUND, BuiltScene, LIGHT, depth_scene, helix_scene, scene_view, spheres_scene
 
 

@@ -1,7 +1,7 @@
 """Nodes driven from outside instead of simulated: positions from a ``.npy`` file (one frame or a
 sequence) or an analytic motion (rigid transform, bend, twist), so deformgl's mappings can serve
 any other simulator. Positions are uploaded to a state texture (CPU -> GPU, no read-back) and a
-pass computes their eq. 3 normals.
+pass computes their normals (Mosegaard & Sørensen 2005, eq. 3).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from deformgl.errors import InputError
 from deformgl.sim.backends.foundation import NodeTextures, tile_rectangles
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner
 
 
 def load_node_frames(path: Path, count: int, offset: np.ndarray) -> np.ndarray:
@@ -118,8 +119,8 @@ def rotate(p: np.ndarray, axis: int, angle: float | np.ndarray) -> np.ndarray:
     return out
 
 
-class DrivenNodes:
-    """Node state for positions given from outside: upload, then the eq. 3 normals pass.
+class DrivenNodes(GLOwner):
+    """Node state for positions given from outside: upload, then the normals pass (Mosegaard & Sørensen 2005, eq. 3).
 
     ``position_texture`` is what the render passes read, like a simulation's.
 
@@ -130,21 +131,23 @@ class DrivenNodes:
     """
 
     def __init__(self, ctx: moderngl.Context, textures: NodeTextures, grid: NodeGrid) -> None:
-        self.ctx, self.textures, self.grid = ctx, textures, grid
+        super().__init__(ctx)
+        self.textures, self.grid = textures, grid
         layout = textures.layout
         compact = isinstance(layout, CompactLayout)
         vert = "sim/fullscreen.vert" if compact else "sim/node_rects.vert"
-        self.program = Program(ctx, vert, "sim/node_normals.frag", defines=layout.shader_defines())
-        self.program.set(u_position=0, u_node=1, **layout.shader_uniforms())
-        if compact:
-            self.vbo = None
-            self.vao = ctx.vertex_array(self.program.gl, [])
-            self.vertices = 3
-        else:
-            self.program.set(u_target_size=textures.size)
-            self.vbo = ctx.buffer(tile_rectangles(layout, grid.ijk).astype("f4").tobytes())
-            self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")])
-            self.vertices = self.vbo.size // 8
+        self.vbo: moderngl.Buffer | None = None
+        with self.building():
+            self.program = self.own(Program(ctx, vert, "sim/node_normals.frag", defines=layout.shader_defines()))
+            self.program.set(u_position=0, u_node=1, **layout.shader_uniforms())
+            if compact:
+                self.vao = self.own(ctx.vertex_array(self.program.gl, []))
+                self.vertices = 3
+            else:
+                self.program.set(u_target_size=textures.size)
+                self.vbo = self.own(ctx.buffer(tile_rectangles(layout, grid.ijk).astype("f4").tobytes()))
+                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")]))
+                self.vertices = self.vbo.size // 8
 
     @property
     def position_texture(self) -> moderngl.Texture:
@@ -160,10 +163,3 @@ class DrivenNodes:
         self.textures.bind_static(1)
         self.textures.framebuffers[0].use()
         self.vao.render(moderngl.TRIANGLES, vertices=self.vertices)
-
-    def release(self) -> None:
-        """Release the pass's GL objects (the textures belong to their owner)."""
-        self.vao.release()
-        if self.vbo is not None:
-            self.vbo.release()
-        self.program.release()

@@ -24,6 +24,7 @@ import numpy as np
 from deformgl.render.camera import View
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner
 from deformgl.render.passes import FeedbackCapture, Lighting
 
 
@@ -50,10 +51,11 @@ class MappedVertices:
 
 
 def _f4(a: np.ndarray) -> np.ndarray:
+    """``a`` as contiguous float32 (the vertex buffers' type)."""
     return np.ascontiguousarray(a, dtype="f4")
 
 
-class MappedMeshPass:
+class MappedMeshPass(GLOwner):
     """The detailed mesh drawn through ``shaders/render/mapped_mesh.vert``.
 
     Args:
@@ -73,7 +75,7 @@ class MappedMeshPass:
                  normal_map_strength: float = 1.0, stages: int = 1) -> None:
         if stages not in (1, 2):
             raise ValueError(f"stages must be 1 or 2, got {stages}")
-        self.ctx = ctx
+        super().__init__(ctx)
         self.data = data
         self.faces = faces
         self.count = len(data.weights)
@@ -98,41 +100,48 @@ class MappedMeshPass:
         self.stages = stages
         self.stage_one: FeedbackCapture | None = None
         self.cached: Program | None = None
-        self.buffers = [ctx.buffer(arr.tobytes()) for _, _, arr in columns]
-        self.content = [(buf, fmt, name) for buf, (name, fmt, _) in zip(self.buffers, columns)]
-        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
-        try:
+        self.mapped: moderngl.Buffer | None = None
+        self.cached_vao: moderngl.VertexArray | None = None
+        with self.building():
+            self.buffers = [self.own(ctx.buffer(arr.tobytes())) for _, _, arr in columns]
+            self.content = [(buf, fmt, name) for buf, (name, fmt, _) in zip(self.buffers, columns)]
+            self.ibo = self.own(ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes()))
             if normal_map is not None:
                 h, w, _ = normal_map.shape
-                self.normal_map_texture = ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes())
+                self.normal_map_texture = self.own(
+                    ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes()))
                 self.normal_map_texture.build_mipmaps()
                 self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             map_uniforms = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
                             if normal_map is not None else {})
             if stages == 1:
-                self.program = Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag", defines=self.defines)
-                self.vao = ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo,
-                                            index_element_size=4)
+                self.program = self.own(Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag",
+                                                defines=self.defines))
+                self.vao = self.own(ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo,
+                                                     index_element_size=4))
                 self.program.set(**map_uniforms)
             else:
-                names, fmt = ["v_world", "v_normal"], "3f 3f"
-                attrs = ["in_world", "in_normal"]
-                if self.normal_mapped:
-                    names += ["v_tangent", "v_handedness", "v_uv"]
-                    fmt += " 3f 1f 2f"
-                    attrs += ["in_tangent", "in_handedness", "in_uv"]
-                width = 6 + (6 if self.normal_mapped else 0)
-                self.stage_one = FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
-                                                 self.content, width=width)
-                self.mapped = ctx.buffer(reserve=self.count * width * 4)
-                self.cached = Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
-                                      defines={"NORMAL_MAP": self.normal_mapped})
-                self.cached_vao = ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
-                                                   index_buffer=self.ibo, index_element_size=4)
-                self.cached.set(**map_uniforms)
-        except BaseException:
-            self.release()
-            raise
+                self._build_two_stage(map_uniforms)
+
+    def _build_two_stage(self, map_uniforms: dict[str, object]) -> None:
+        """Stage one maps each vertex once into ``self.mapped`` by transform feedback; stage two
+        draws that buffer as a plain indexed mesh."""
+        ctx = self.ctx
+        names, fmt = ["v_world", "v_normal"], "3f 3f"
+        attrs = ["in_world", "in_normal"]
+        if self.normal_mapped:
+            names += ["v_tangent", "v_handedness", "v_uv"]
+            fmt += " 3f 1f 2f"
+            attrs += ["in_tangent", "in_handedness", "in_uv"]
+        width = 6 + (6 if self.normal_mapped else 0)
+        self.stage_one = self.own(FeedbackCapture(ctx, "render/mapped_mesh.vert", self.defines, tuple(names),
+                                                  self.content, width=width))
+        self.mapped = self.own(ctx.buffer(reserve=self.count * width * 4))
+        self.cached = self.own(Program(ctx, "render/mapped_cached.vert", "render/mapped_mesh.frag",
+                                       defines={"NORMAL_MAP": self.normal_mapped}))
+        self.cached_vao = self.own(ctx.vertex_array(self.cached.gl, [(self.mapped, fmt, *attrs)],
+                                                    index_buffer=self.ibo, index_element_size=4))
+        self.cached.set(**map_uniforms)
 
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw the mapped mesh with node positions from ``positions``."""
@@ -141,10 +150,12 @@ class MappedMeshPass:
         uniforms = dict(u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
                         u_eye=tuple(view.eye), **lighting.uniforms())
         if self.stage_one is not None:
+            assert self.mapped is not None and self.cached is not None and self.cached_vao is not None
             self.stage_one.run_into(positions, self.count, self.mapped)
             self.cached.set(**uniforms)
             self.cached_vao.render(moderngl.TRIANGLES)
             return
+        assert self.program is not None and self.vao is not None
         positions.use(0)
         self.program.set(u_position=0, **uniforms)
         self.vao.render(moderngl.TRIANGLES)
@@ -157,44 +168,26 @@ class MappedMeshPass:
             (V, 3) float32 positions and (V, 3) float32 normals (not normalised).
         """
         if self._capture is None:
-            self._capture = FeedbackCapture(self.ctx, "render/mapped_mesh.vert", self.defines,
-                                            ("v_world", "v_normal"), self.content)
+            self._capture = self.own(FeedbackCapture(self.ctx, "render/mapped_mesh.vert", self.defines,
+                                                     ("v_world", "v_normal"), self.content))
         data = self._capture.run(positions, self.count)
         return data[:, :3], data[:, 3:]
 
-    def release(self) -> None:
-        """Release every GL object (also after a failed construction)."""
-        for obj in (self.vao, self.program, *self.buffers, self.ibo, self.normal_map_texture, self._capture,
-                    self.stage_one):
-            if obj is not None:
-                obj.release()
-        if self.cached is not None:
-            self.cached_vao.release()
-            self.cached.release()
-            self.mapped.release()
-        self.vao = self.program = self.normal_map_texture = self._capture = self.stage_one = self.cached = None
-        self.buffers = []
 
-
-class StaticMeshPass:
+class StaticMeshPass(GLOwner):
     """A mesh drawn as stored (positions and normals in a static buffer): the speed baseline."""
 
     def __init__(self, ctx: moderngl.Context, vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray) -> None:
-        self.program = Program(ctx, "render/static_mesh.vert", "render/mapped_mesh.frag")
-        self.vbo = ctx.buffer(np.hstack([_f4(vertices), _f4(normals)]).tobytes())
-        self.ibo = ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes())
-        self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "3f 3f", "in_position", "in_normal")],
-                                    index_buffer=self.ibo, index_element_size=4)
+        super().__init__(ctx)
+        with self.building():
+            self.program = self.own(Program(ctx, "render/static_mesh.vert", "render/mapped_mesh.frag"))
+            self.vbo = self.own(ctx.buffer(np.hstack([_f4(vertices), _f4(normals)]).tobytes()))
+            self.ibo = self.own(ctx.buffer(np.ascontiguousarray(faces, dtype="i4").tobytes()))
+            self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "3f 3f", "in_position", "in_normal")],
+                                                 index_buffer=self.ibo, index_element_size=4))
 
     def draw(self, view: View, lighting: Lighting) -> None:
         """Draw the mesh."""
         self.program.set(u_view_projection=tuple(view.view_projection.T.astype("f4").ravel()),
                          u_eye=tuple(view.eye), **lighting.uniforms())
         self.vao.render(moderngl.TRIANGLES)
-
-    def release(self) -> None:
-        """Release every GL object."""
-        self.vao.release()
-        self.vbo.release()
-        self.ibo.release()
-        self.program.release()

@@ -11,6 +11,7 @@ from deformgl.render.camera import View
 from deformgl.errors import GLError
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.surface import grid_surface
 
 
@@ -33,7 +34,7 @@ class Lighting:
                 "u_specular": self.specular, "u_shininess": self.shininess}
 
 
-class RenderTarget:
+class RenderTarget(GLOwner):
     """Colour + depth framebuffer, multisampled when ``samples > 1``, resolved for read-back.
 
     Args:
@@ -43,20 +44,21 @@ class RenderTarget:
     """
 
     def __init__(self, ctx: moderngl.Context, size: tuple[int, int], samples: int = 4) -> None:
-        self.ctx = ctx
+        super().__init__(ctx)
         self.size = size
         max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
         if samples > max_samples:
             raise GLError(f"{samples}x MSAA requested, the renderer supports at most {max_samples}x")
         self.samples = samples if samples > 1 else 0
-        self.colour = ctx.renderbuffer(size, 4, samples=self.samples)
-        self.depth = ctx.depth_renderbuffer(size, samples=self.samples)
-        self.fbo = ctx.framebuffer(color_attachments=[self.colour], depth_attachment=self.depth)
-        if self.samples:
-            self.resolved = ctx.renderbuffer(size, 4)
-            self.resolve_fbo = ctx.framebuffer(color_attachments=[self.resolved])
-        else:
-            self.resolved, self.resolve_fbo = None, None
+        self.resolved: moderngl.Renderbuffer | None = None
+        self.resolve_fbo: moderngl.Framebuffer | None = None
+        with self.building():
+            self.colour = self.own(ctx.renderbuffer(size, 4, samples=self.samples))
+            self.depth = self.own(ctx.depth_renderbuffer(size, samples=self.samples))
+            self.fbo = self.own(ctx.framebuffer(color_attachments=[self.colour], depth_attachment=self.depth))
+            if self.samples:
+                self.resolved = self.own(ctx.renderbuffer(size, 4))
+                self.resolve_fbo = self.own(ctx.framebuffer(color_attachments=[self.resolved]))
 
     def begin(self, background: tuple[float, float, float]) -> None:
         """Bind, clear to ``background`` and enable depth testing."""
@@ -75,14 +77,9 @@ class RenderTarget:
         w, h = self.size
         return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
 
-    def release(self) -> None:
-        """Release every GL object."""
-        for obj in (self.fbo, self.colour, self.depth, self.resolve_fbo, self.resolved):
-            if obj is not None:
-                obj.release()
 
 
-class FeedbackCapture:
+class FeedbackCapture(GLOwner):
     """Captures a vertex shader's outputs with transform feedback: the same shader file and
     variant as a draw pass, built with ``varyings``, rasterizer discarded.
 
@@ -95,12 +92,15 @@ class FeedbackCapture:
 
     def __init__(self, ctx: moderngl.Context, vertex: str, defines: dict[str, object],
                  varyings: tuple[str, ...], content: list, width: int | None = None) -> None:
-        self.ctx = ctx
-        self.program = Program(ctx, vertex, defines=defines, varyings=varyings)
-        self.vao = ctx.vertex_array(self.program.gl, content, skip_errors=True)
+        super().__init__(ctx)
         self.width = 3 * len(varyings) if width is None else width  # floats per vertex
-        # Mesa skips every draw, transform feedback included, without a complete framebuffer.
-        self.fbo = ctx.simple_framebuffer((1, 1))
+        with self.building():
+            self.program = self.own(Program(ctx, vertex, defines=defines, varyings=varyings))
+            self.vao = self.own(ctx.vertex_array(self.program.gl, content, skip_errors=True))
+            # Mesa skips every draw, transform feedback included, without a complete framebuffer.
+            # (simple_framebuffer would make renderbuffers that releasing the framebuffer leaves)
+            self.colour = self.own(ctx.renderbuffer((1, 1)))
+            self.fbo = self.own(ctx.framebuffer(color_attachments=[self.colour]))
 
     def run_into(self, positions: moderngl.Texture, count: int, out: moderngl.Buffer) -> None:
         """Write the outputs for node positions from ``positions`` into ``out`` (stays on the GPU)."""
@@ -109,7 +109,7 @@ class FeedbackCapture:
         positions.use(0)
         self.program.set(u_position=0)
         self.vao.transform(out, moderngl.POINTS, vertices=count)
-        previous.use()
+        restore_framebuffer(self.ctx, previous)
 
     def run(self, positions: moderngl.Texture, count: int) -> np.ndarray:
         """(count, width) float32 outputs for node positions from ``positions`` (one read-back)."""
@@ -120,14 +120,9 @@ class FeedbackCapture:
         finally:
             out.release()
 
-    def release(self) -> None:
-        """Release every GL object."""
-        self.vao.release()
-        self.fbo.release()
-        self.program.release()
 
 
-class GridSurfacePass:
+class GridSurfacePass(GLOwner):
     """Draws the node-grid surface with the one-to-one mapping (3.2), optionally with the
     node/spring overlay (figure 2b). Vertex and index buffers are static, built once.
 
@@ -140,22 +135,23 @@ class GridSurfacePass:
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, *,
                  overlay: bool = False) -> None:
-        self.ctx = ctx
+        super().__init__(ctx)
         self.surface = grid_surface(grid)
         texels = layout.texel(grid.ijk[self.surface.nodes]).astype("i4")
-        self.program = Program(ctx, "render/grid_surface.vert", "render/lit_surface.frag")
-        self.vbo = ctx.buffer(texels.tobytes())
-        self.ibo = ctx.buffer(self.surface.triangles.astype("i4").tobytes())
-        self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")],
-                                    index_buffer=self.ibo, index_element_size=4)
         self._capture: FeedbackCapture | None = None
-        self.overlay = None
-        if overlay:
-            self.overlay = Program(ctx, "render/grid_lines.vert", "render/flat_colour.frag")
-            self.line_ibo = ctx.buffer(self.surface.edges().astype("i4").tobytes())
-            self.line_vao = ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")],
-                                             index_buffer=self.line_ibo, index_element_size=4)
-            self.point_vao = ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")])
+        self.overlay: Program | None = None
+        with self.building():
+            self.program = self.own(Program(ctx, "render/grid_surface.vert", "render/lit_surface.frag"))
+            self.vbo = self.own(ctx.buffer(texels.tobytes()))
+            self.ibo = self.own(ctx.buffer(self.surface.triangles.astype("i4").tobytes()))
+            self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")],
+                                                 index_buffer=self.ibo, index_element_size=4))
+            if overlay:
+                self.overlay = self.own(Program(ctx, "render/grid_lines.vert", "render/flat_colour.frag"))
+                self.line_ibo = self.own(ctx.buffer(self.surface.edges().astype("i4").tobytes()))
+                self.line_vao = self.own(ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")],
+                                                          index_buffer=self.line_ibo, index_element_size=4))
+                self.point_vao = self.own(ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")]))
 
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw with node positions from ``positions`` (texture unit 0)."""
@@ -174,21 +170,7 @@ class GridSurfacePass:
         """Surface vertices (one per node of ``surface.nodes``) and normals as the vertex shader
         computes them, by transform feedback; one read-back."""
         if self._capture is None:
-            self._capture = FeedbackCapture(self.ctx, "render/grid_surface.vert", {},
-                                            ("v_world", "v_normal"), [(self.vbo, "2i", "in_texel")])
+            self._capture = self.own(FeedbackCapture(self.ctx, "render/grid_surface.vert", {},
+                                                     ("v_world", "v_normal"), [(self.vbo, "2i", "in_texel")]))
         data = self._capture.run(positions, len(self.surface.nodes))
         return data[:, :3], data[:, 3:]
-
-    def release(self) -> None:
-        """Release every GL object."""
-        self.vao.release()
-        self.vbo.release()
-        self.ibo.release()
-        self.program.release()
-        if self._capture is not None:
-            self._capture.release()
-        if self.overlay is not None:
-            self.line_vao.release()
-            self.point_vao.release()
-            self.line_ibo.release()
-            self.overlay.release()
