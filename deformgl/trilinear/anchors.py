@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.errors import InputError
-from deformgl.trilinear.transforms import Box, Trilinear
+from deformgl.trilinear.cuboid import Box
+from deformgl.trilinear.grid import Trilinear
 
 
 @dataclass(frozen=True)

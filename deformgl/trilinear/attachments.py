@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from deformgl.trilinear.anchors import AnchorArray
 from deformgl.errors import InputError
 from deformgl.trilinear.scenegraph import ComposedScene, GeometryNode, TransformNode, compose_scene
-from deformgl.trilinear.transforms import Box
+from deformgl.trilinear.cuboid import Box
 from deformgl.trilinear.shapes import tube
 
 

@@ -11,7 +11,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deformgl.errors import InputError
-from deformgl.trilinear.transforms import NORMAL_MODES, Box, Trilinear, check_affine
+from deformgl.trilinear.cuboid import Box
+from deformgl.trilinear.grid import Trilinear, check_affine
+from deformgl.trilinear.normals import NORMAL_MODES
 
 DEFAULT_COLOUR = (0.85, 0.6, 0.35)
 

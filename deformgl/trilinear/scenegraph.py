@@ -29,10 +29,10 @@ import numpy as np
 from deformgl.trilinear.batches import PATHS, Batch, ComposedScene
 from deformgl.trilinear.nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.renderer import TrilinearRenderer, atlas_image, instance_data, pack_atlas, shader_defines
-from deformgl.trilinear.transforms import (
-    LINEAR_RTOL, Box, Trilinear, coefficient_matrix, compose, corner_weights, grid_corners,
-    is_linear_coefficients, lattice_matches, unit_lattice,
+from deformgl.trilinear.cuboid import (
+    LINEAR_RTOL, Box, coefficient_matrix, corner_weights, grid_corners, is_linear_coefficients, unit_lattice,
 )
+from deformgl.trilinear.grid import Trilinear, compose, lattice_matches
 
 __all__ = [
     "PATHS", "DEFAULT_COLOUR", "Batch", "ComposedScene", "Geometry", "GeometryNode", "GroupNode", "Node",

@@ -27,7 +27,10 @@ from deformgl.trilinear.scenegraph import (
     ComposedScene, GeometryNode, GroupNode, Node, TransformNode, TrilinearRenderer, compose_scene,
 )
 from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
-from deformgl.trilinear.transforms import NORMAL_MODES, Box, Function, Helix, Taper, TorusWrap, Trilinear, Twist, tangent_affine
+from deformgl.trilinear.cuboid import Box, Function
+from deformgl.trilinear.deformations import Helix, Taper, TorusWrap, Twist, tangent_affine
+from deformgl.trilinear.grid import Trilinear
+from deformgl.trilinear.normals import NORMAL_MODES
 
 MODES = ("linear", "trilinear")
 BACKGROUND = (1.0, 1.0, 1.0)
