@@ -16,16 +16,13 @@ import pytest
 import trimesh
 from trimesh.triangles import closest_point as triangle_closest_point
 
+from deformgl.bench import binding as bench_bd
 from deformgl.mapping import binding as bd
-from deformgl.mapping.binding import (
-    Binding,
-    bind,
-    binding_key,
-    closest_on_triangles,
-    load_binding,
-    rest_node_normals,
-    save_binding,
-)
+from deformgl.mapping import binding_cache as cache
+from deformgl.mapping import closest
+from deformgl.mapping.binding import Binding, bind, rest_node_normals
+from deformgl.mapping.binding_cache import binding_key, load_binding, save_binding
+from deformgl.mapping.closest import closest_on_triangles
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.mapping.bases import map_vertices
@@ -273,9 +270,9 @@ def test_closest_point_is_scale_invariant(scale):
 
 
 def test_blocks_of_candidate_pairs_give_the_same_binding(sphere, monkeypatch):
-    monkeypatch.setattr(bd, "PAIR_BLOCK", 100)
-    assert len(bd._block_bounds(np.full(50, 30), 100)) == 17  # 3 points (90 pairs) per block
-    assert bd._block_bounds(np.array([500, 1, 1]), 100) == [(0, 1), (1, 3)]
+    monkeypatch.setattr(closest, "PAIR_BLOCK", 100)
+    assert len(closest._block_bounds(np.full(50, 30), 100)) == 17  # 3 points (90 pairs) per block
+    assert closest._block_bounds(np.array([500, 1, 1]), 100) == [(0, 1), (1, 3)]
     c = sphere
     b = bind(c.mesh.vertices, c.mesh.faces, c.positions, c.normals, c.surface, spacing=c.grid.spacing)
     assert_bindings_equal(b, c.binding)
@@ -643,7 +640,7 @@ def test_bad_cache_files_give_none(tmp_path, dragon, damage):
         elif damage == "nan":
             arrays["offset_constant"][0, 0] = np.nan
         elif damage == "version":
-            arrays["version"] = np.asarray(bd.BINDING_VERSION + 1)
+            arrays["version"] = np.asarray(cache.BINDING_VERSION + 1)
         with open(path, "wb") as fh:
             np.savez_compressed(fh, **arrays)
     assert load_binding(path, key) is None
@@ -653,7 +650,7 @@ def test_failed_save_leaves_no_temporary_file(tmp_path, dragon, monkeypatch):
     def boom(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(bd.np, "savez_compressed", boom)
+    monkeypatch.setattr(cache.np, "savez_compressed", boom)
     with pytest.raises(OSError, match="disk full"):
         save_binding(tmp_path / "b.npz", dragon.binding, "k")
     assert os.listdir(tmp_path) == []
@@ -668,6 +665,6 @@ def test_binding_arrays_are_read_only(dragon):
 
 
 def test_jittered_copies_has_exact_vertex_count(dragon):
-    v, f = bd._jittered_copies(dragon.mesh.vertices, dragon.mesh.faces, 12_000)
+    v, f = bench_bd._jittered_copies(dragon.mesh.vertices, dragon.mesh.faces, 12_000)
     assert len(v) == 12_000 and f.max() < 12_000 and len(f) > 2 * len(dragon.mesh.faces)
     np.testing.assert_array_equal(v[: len(dragon.mesh.vertices)], dragon.mesh.vertices)

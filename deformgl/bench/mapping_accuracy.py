@@ -38,7 +38,8 @@ import moderngl
 import numpy as np
 
 from deformgl.bench.studies import timed
-from deformgl.mapping.binding import closest_on_triangles, rest_node_normals
+from deformgl.mapping.binding import rest_node_normals
+from deformgl.mapping.closest import closest_on_triangles
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.bench import report_files
 from deformgl.render.mapped import MappedMeshPass

@@ -11,37 +11,27 @@ from the rest node normals exactly as the GPU unpacks them. This is the inverse 
 
 Where the curvature basis is unreliable (paper 3.5: nodes without an eq. 3 normal, such as
 one-node-thin sheets) :attr:`Binding.curvature_ok` is False, and an "auto" mapping uses the
-constant basis there (paper 3.6). Bindings are cached by a hash of their inputs
-(:func:`binding_key`, :func:`save_binding`, :func:`load_binding`).
+constant basis there (paper 3.6). The closest-point search is in :mod:`deformgl.mapping.closest`;
+bindings are cached by a hash of their inputs in :mod:`deformgl.mapping.binding_cache`.
 """
 
 from __future__ import annotations
 
-import hashlib
-import itertools
-import json
+import importlib
 import math
-import os
-import tempfile
-import time
-import zipfile
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trimesh
-from scipy.spatial import cKDTree
 
 from deformgl.errors import InputError
-from deformgl.grid.nodes import NodeGrid
 from deformgl.mapping.bases import constant_basis, curvature_basis
-from deformgl.grid.meshio import load_mesh
+from deformgl.mapping.closest import clean_weights, row_dot, closest_on_triangles
 from deformgl.sim.model import SpringModel
 from deformgl.sim.normals import pack_normals, unpack_normals
 from deformgl.sim.reference import spring_sums
-from deformgl.grid.surface import GridSurface, grid_surface
-from deformgl.grid.voxelize import voxelize
+from deformgl.grid.surface import GridSurface
 from deformgl.mapping.tangents import orthonormalize_tangents, procedural_uv, vertex_normals, vertex_tangents
 
 #: Default far threshold, in grid spacings: a vertex farther than this from the node surface is
@@ -64,11 +54,6 @@ MAX_NC_ANGLE_DEG = 75.0
 MIN_NC_AGREEMENT = 0.7
 #: A node normal shorter than this is "undefined" (unpack_normals gives exactly 0 or unit).
 MIN_NODE_NORMAL = 0.5
-#: Most (vertex, candidate triangle) pairs :func:`closest_on_triangles` handles at once (about
-#: 0.5 KB of temporaries each).
-PAIR_BLOCK = 1 << 20
-#: Bumped whenever the binding's meaning or file layout changes: invalidates cached bindings.
-BINDING_VERSION = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,154 +224,6 @@ def _check_inputs(name: str, vertices: Any, faces: Any, node_positions: Any, nod
 
 
 # --------------------------------------------------------------------------------------------
-# Closest points on the node surface
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _triangle_weights(ap: np.ndarray, ab: np.ndarray, ac: np.ndarray, abab: np.ndarray, abac: np.ndarray,
-                      acac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weights (v, w) of corners b and c of the closest point on non-degenerate triangles.
-
-    Ericson, Real-Time Collision Detection, 5.1.5: the Voronoi region of the point decides
-    between a corner, an edge and the interior (the first region test that holds wins). With
-    ``ap = p - a``, ``ab = b - a``, ``ac = c - a``: ``d1 = ab.ap``, ``d2 = ac.ap``, and the dot
-    products with ``bp = ap - ab`` and ``cp = ap - ac`` follow from ``ab.ab``, ``ab.ac``,
-    ``ac.ac``. Every denominator is a squared edge length or ``|ab x ac|^2``, positive for a
-    non-degenerate triangle. The weight of corner a is ``1 - v - w``.
-    """
-    d1, d2 = _dot(ab, ap), _dot(ac, ap)
-    d3, d4 = d1 - abab, d2 - abac
-    d5, d6 = d1 - abac, d2 - acac
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-
-    def ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-        return np.clip(num / np.where(den > 0, den, 1.0), 0.0, 1.0)
-
-    t_ab, t_ac = ratio(d1, d1 - d3), ratio(d2, d2 - d6)
-    t_bc = ratio(d4 - d3, (d4 - d3) + (d5 - d6))
-    den = va + vb + vc
-    zero, one = np.zeros_like(d1), np.ones_like(d1)
-    regions = [
-        (d1 <= 0) & (d2 <= 0),                           # corner a
-        (d3 >= 0) & (d4 <= d3),                          # corner b
-        (vc <= 0) & (d1 >= 0) & (d3 <= 0),               # edge ab
-        (d6 >= 0) & (d5 <= d6),                          # corner c
-        (vb <= 0) & (d2 >= 0) & (d6 <= 0),               # edge ac
-        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),     # edge bc
-    ]
-    v = np.select(regions, [zero, one, t_ab, zero, zero, 1.0 - t_bc], ratio(vb, den))
-    w = np.select(regions, [zero, zero, zero, one, t_ac, t_bc], ratio(vc, den))
-    w = np.minimum(w, 1.0 - v)                           # interior rounding: keep 1 - v - w >= 0
-    return v, w
-
-
-def _segment_weights(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Weights (M, 3) of the closest point on the three edges of (degenerate) triangles."""
-    corners = (a, b, c)
-    best = np.full(len(p), np.inf)
-    out = np.zeros((len(p), 3))
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        e = corners[j] - corners[i]
-        ee = _dot(e, e)
-        t = np.clip(_dot(p - corners[i], e) / np.where(ee > 0, ee, 1.0), 0.0, 1.0) * (ee > 0)
-        q = corners[i] + t[:, None] * e
-        d2 = _dot(p - q, p - q)
-        better = d2 < best
-        best = np.where(better, d2, best)
-        w = np.zeros((len(p), 3))
-        w[:, i], w[:, j] = 1.0 - t, t
-        out = np.where(better[:, None], w, out)
-    return out
-
-
-def _block_bounds(lengths: np.ndarray, budget: int) -> list[tuple[int, int]]:
-    """Split consecutive points into blocks of at most ``budget`` candidates (>= 1 point each)."""
-    cum = np.cumsum(lengths)
-    out, lo = [], 0
-    while lo < len(lengths):
-        base = int(cum[lo - 1]) if lo else 0
-        hi = max(int(np.searchsorted(cum, base + budget, side="right")), lo + 1)
-        out.append((lo, hi))
-        lo = hi
-    return out
-
-
-def closest_on_triangles(points: np.ndarray, corners: np.ndarray, degenerate: np.ndarray,
-                         node_points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For every point, the closest triangle and the barycentric weights of the closest point.
-
-    Candidates: the distance ``d`` to the nearest node (a triangle corner) bounds the distance
-    to the surface, so the closest triangle has its centroid within ``d + R`` of the point, R
-    its circumradius about the centroid (k-d trees, then an exact per-pair filter). Points are
-    handled in blocks of at most :data:`PAIR_BLOCK` candidate pairs, so memory stays bounded
-    even for points far from the surface (many candidates each). Among equally close triangles
-    the lowest index wins.
-
-    Args:
-        points: (V, 3) query points.
-        corners: (T, 3, 3) triangle corner positions.
-        degenerate: (T,) bool, triangles handled as three segments.
-        node_points: (K, 3) the corner positions as a point set (every corner among them).
-
-    Returns:
-        (V,) int64 triangle index and (V, 3) weights (>= 0, sum 1).
-    """
-    nearest, _ = cKDTree(node_points).query(points, workers=-1)
-    centroid = corners.mean(axis=1)
-    radius = np.linalg.norm(corners - centroid[:, None, :], axis=2).max(axis=1)
-    slack = 1e-9 * (float(radius.max()) + float(np.abs(corners).max()))
-    tree = cKDTree(centroid)
-    reach = nearest + radius.max() + slack
-    lengths = tree.query_ball_point(points, reach, workers=-1, return_length=True)
-    tri_out = np.empty(len(points), dtype=np.int64)
-    w_out = np.empty((len(points), 3))
-    for lo, hi in _block_bounds(lengths, PAIR_BLOCK):
-        lists = tree.query_ball_point(points[lo:hi], reach[lo:hi], workers=-1, return_sorted=False)
-        counts = np.asarray(lengths[lo:hi], dtype=np.int64)
-        tri = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(counts.sum()))
-        pt = np.repeat(np.arange(lo, hi), counts)
-        gap = np.linalg.norm(points[pt] - centroid[tri], axis=1)
-        keep = gap <= nearest[pt] + radius[tri] + slack
-        tri_out[lo:hi], w_out[lo:hi] = _closest_among(points, corners, degenerate, tri[keep], pt[keep] - lo,
-                                                      lo, hi - lo)
-    return tri_out, w_out
-
-
-def _closest_among(points: np.ndarray, corners: np.ndarray, degenerate: np.ndarray, tri: np.ndarray,
-                   pt: np.ndarray, offset: int, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Closest of the candidate pairs (tri, pt) for points ``offset .. offset + count``; pairs are
-    grouped by ``pt`` (0-based in the block), in order."""
-    p, c = points[pt + offset], corners[tri]
-    ap, ab, ac = p - c[:, 0], c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]
-    v, w = _triangle_weights(ap, ab, ac, _dot(ab, ab), _dot(ab, ac), _dot(ac, ac))
-    weights = np.stack([1.0 - v - w, v, w], axis=1)
-    deg = degenerate[tri]
-    if deg.any():
-        weights[deg] = _segment_weights(p[deg], c[deg, 0], c[deg, 1], c[deg, 2])
-        v, w = weights[:, 1], weights[:, 2]
-    gap = ap - v[:, None] * ab - w[:, None] * ac           # p - q, q the closest point
-    d2 = _dot(gap, gap)
-    counts = np.bincount(pt, minlength=count)
-    if (counts == 0).any():  # the bound above makes this impossible; keep the failure loud
-        raise RuntimeError("closest_on_triangles: a point has no candidate triangle")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    best = np.minimum.reduceat(d2, starts)
-    tie = d2 <= best[pt]
-    best_tri = np.minimum.reduceat(np.where(tie, tri, len(corners)), starts)
-    chosen = np.flatnonzero(tie & (tri == best_tri[pt]))
-    return tri[chosen], weights[chosen]
-
-
-def _clean_weights(w: np.ndarray) -> np.ndarray:
-    """Eq. 4 weights: tiny negatives clipped, renormalised to sum 1."""
-    w = np.clip(w, 0.0, None)
-    return w / w.sum(axis=1, keepdims=True)
-
-
-# --------------------------------------------------------------------------------------------
 # Binding
 
 
@@ -453,7 +290,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
     corners = x[tri_all]
     _, tri_valid = constant_basis(corners[:, 0], corners[:, 1], corners[:, 2])
     tri_id, w = closest_on_triangles(v, corners, ~tri_valid, x[surface.nodes])
-    w = _clean_weights(w)                                            # eq. 4
+    w = clean_weights(w)                                            # eq. 4
     tri_nodes = tri_all[tri_id]
     p = x[tri_nodes]                                                 # (V, 3, 3)
     r = np.einsum("vi,vij->vj", w, p)                                # eq. 4, as map_vertices
@@ -483,7 +320,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
     nc_len = np.linalg.norm(nc_raw, axis=1)
     nc = nc_raw / np.where(nc_len > 0, nc_len, 1.0)[:, None]
     sin_t = np.linalg.norm(np.cross(nc, const[:, 0]), axis=1)
-    cos_n = _dot(nc, const[:, 1])
+    cos_n = row_dot(nc, const[:, 1])
     # Reasons, exclusive, in this order (the first that applies counts).
     no_normal = ok_c & ~all_defined
     parallel = ok_c & all_defined & ~(ok_k & (sin_t > MIN_SIN_NC_T) & (nc_len > 0))
@@ -520,160 +357,15 @@ def rest_node_normals(model: SpringModel) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------
-# Cache
+# Transitional: the CLI still runs the benchmark from here (it sets BENCH_MESH, then calls
+# bench_binding); the benchmark itself is deformgl.bench.binding. Remove once the CLI imports that.
 
-
-def binding_key(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray,
-                surface_triangles: np.ndarray, spacing: float, options: dict[str, Any], *,
-                surface_nodes: np.ndarray | None = None, node_normals: np.ndarray | None = None,
-                uv: np.ndarray | None = None, tangents: np.ndarray | None = None) -> str:
-    """sha256 hex digest of everything a binding depends on, and :data:`BINDING_VERSION`.
-
-    Arrays are hashed as float64 / int64 C-order bytes with their shapes, so equal values give
-    equal keys whatever dtype they came in. ``options`` (e.g. far, periodic_u, a format number)
-    must be JSON-serialisable; keys are sorted. The keyword arrays are optional extra inputs
-    (``surface.nodes``, rest node normals, uv, tangents) for callers whose binding depends on
-    more than the rest grid.
-    """
-    h = hashlib.sha256(f"deformgl-binding-{BINDING_VERSION}".encode())
-    arrays = {"vertices": (vertices, np.float64), "faces": (faces, np.int64),
-              "node_positions": (node_positions, np.float64),
-              "surface_triangles": (surface_triangles, np.int64), "surface_nodes": (surface_nodes, np.int64),
-              "node_normals": (node_normals, np.float64), "uv": (uv, np.float64),
-              "tangents": (tangents, np.float64)}
-    for label, (arr, dtype) in arrays.items():
-        if arr is None:
-            h.update(f"|{label}:none".encode())
-            continue
-        a = np.ascontiguousarray(np.asarray(arr, dtype=dtype))
-        h.update(f"|{label}:{a.shape}".encode())
-        h.update(a.tobytes())
-    h.update(f"|spacing:{float(spacing)!r}".encode())
-    h.update(("|options:" + json.dumps(options, sort_keys=True, default=repr)).encode())
-    return h.hexdigest()
-
-
-_ARRAY_FIELDS = tuple(f.name for f in fields(Binding) if f.name != "report")
-_REPORT_ARRAYS = ("far_vertices", "far_distances", "degenerate_triangles", "degenerate_vertices")
-_REPORT_SCALARS = tuple(f.name for f in fields(BindingReport) if f.name not in _REPORT_ARRAYS)
-
-
-def save_binding(path: str | os.PathLike[str], binding: Binding, key: str) -> None:
-    """Write a binding and its key to ``path`` (.npz, compressed), atomically.
-
-    The data goes to a temporary file in the same directory, which then replaces ``path``
-    (``os.replace``), so a reader never sees a half-written file; the temporary file is removed
-    if writing fails.
-
-    Raises:
-        OSError: the directory does not exist or is not writable, or the disk is full.
-    """
-    path = Path(path)
-    data: dict[str, np.ndarray] = {name: getattr(binding, name) for name in _ARRAY_FIELDS}
-    report = binding.report
-    data.update({f"report_{name}": getattr(report, name) for name in _REPORT_ARRAYS})
-    data.update({f"report_{name}": np.asarray(getattr(report, name)) for name in _REPORT_SCALARS})
-    data["key"] = np.asarray(key)
-    data["version"] = np.asarray(BINDING_VERSION)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, **data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-_SHAPES = {"tri_nodes": 3, "weights": 3, "offset_world": 3, "offset_constant": 3,
-           "offset_curvature": 3, "normal_constant": 3, "normal_curvature": 3,
-           "tangent_constant": 4, "tangent_curvature": 4, "normal_world": 3, "tangent_world": 4,
-           "uv": 2, "curvature_ok": 0, "distance": 0}
-
-
-def load_binding(path: str | os.PathLike[str], key: str) -> Binding | None:
-    """The binding cached at ``path`` if it was saved with ``key``, else None.
-
-    Never raises for a bad cache file: missing, unreadable, corrupt, written by another
-    version, for other inputs (key mismatch) or with inconsistent arrays all give None, and the
-    caller binds again.
-    """
-    try:
-        with np.load(Path(path), allow_pickle=False) as npz:
-            if str(npz["key"]) != key or int(npz["version"]) != BINDING_VERSION:
-                return None
-            arrays = {name: np.array(npz[name]) for name in _ARRAY_FIELDS}
-            rep_arrays = {name: np.array(npz[f"report_{name}"]) for name in _REPORT_ARRAYS}
-            rep_scalars = {name: npz[f"report_{name}"].item() for name in _REPORT_SCALARS}
-    except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile):
-        return None
-    count = len(arrays["tri_nodes"])
-    for name, cols in _SHAPES.items():
-        a = arrays[name]
-        if a.shape != ((count,) if cols == 0 else (count, cols)):
-            return None
-        if a.dtype.kind == "f" and not np.isfinite(a).all():
-            return None
-    if arrays["tri_nodes"].dtype != np.int64 or arrays["curvature_ok"].dtype != bool:
-        return None
-    try:
-        report = BindingReport(**rep_arrays, **rep_scalars)
-        return Binding(**arrays, report=report)
-    except TypeError:
-        return None
-
-
-# --------------------------------------------------------------------------------------------
-# Benchmark
-
+#: The mesh :func:`bench_binding` binds (the CLI points it at the shipped asset).
 BENCH_MESH = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res3.ply.gz"
-#: nodes_along_longest giving the res3 dragon a grid of about 20,000 nodes (19,455).
-BENCH_NODES_ALONG_LONGEST = 64
-BENCH_LARGE = 50_000
-
-
-def _jittered_copies(vertices: np.ndarray, faces: np.ndarray, count: int,
-                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A mesh of exactly ``count`` vertices: copies of the mesh, each jittered by a tenth of the
-    mean edge length, the last one cut (faces using only its kept vertices)."""
-    rng = np.random.default_rng(seed)
-    edge = float(np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=1).mean())
-    copies = -(-count // len(vertices))
-    verts = np.concatenate([vertices + (rng.normal(scale=0.1 * edge, size=vertices.shape) if k else 0.0)
-                            for k in range(copies)])[:count]
-    tris = np.concatenate([faces + k * len(vertices) for k in range(copies)])
-    return verts, tris[(tris < count).all(axis=1)]
 
 
 def bench_binding(repeats: int = 3) -> str:
-    """Time :func:`bind` of the res3 dragon (and a 50,000-vertex version) to a ~20,000-node grid.
-
-    Returns:
-        One line: node and surface counts, then vertex count and median binding time of each case.
-    """
-    mesh = load_mesh(BENCH_MESH)
-    lo, hi = mesh.bounds
-    mesh = trimesh.Trimesh(mesh.vertices - (lo + hi) / 2, mesh.faces, process=False)
-    vox = voxelize(mesh, nodes_along_longest=BENCH_NODES_ALONG_LONGEST, source=str(BENCH_MESH))
-    grid = NodeGrid(np.asarray(vox.origin), float(vox.spacing), np.asarray(vox.occupied))
-    surface = grid_surface(grid)
-    n = grid.count
-    model = SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool),
-                        pull_groups=np.zeros(n, np.uint8), k_structural=1.0, k_shear=1.0,
-                        damping=0.0, gravity=np.zeros(3))
-    normals = rest_node_normals(model)
-    cases = [(np.asarray(mesh.vertices), np.asarray(mesh.faces)),
-             _jittered_copies(np.asarray(mesh.vertices), np.asarray(mesh.faces), BENCH_LARGE)]
-    parts = []
-    for verts, tris in cases:
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            bind(verts, tris, grid.rest_positions, normals, surface, spacing=grid.spacing)
-            times.append(time.perf_counter() - t0)
-        parts.append(f"{len(verts):,} vertices {sorted(times)[len(times) // 2]:.2f} s")
-    return (f"bind {BENCH_MESH.name} to {n:,} nodes ({len(surface.nodes):,} on the surface, "
-            f"{len(surface.triangles):,} triangles), median of {repeats}, {os.cpu_count()} CPUs: "
-            + ", ".join(parts))
+    """Forwards to :func:`deformgl.bench.binding.bench_binding` with :data:`BENCH_MESH` (kept for
+    the CLI; the benchmark lives in the bench layer, so it is imported by name at call time)."""
+    bench = importlib.import_module("deformgl.bench.binding")
+    return str(bench.bench_binding(repeats, mesh_path=BENCH_MESH))

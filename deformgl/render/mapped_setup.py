@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from deformgl.mapping.binding import Binding, bind, binding_key, load_binding, rest_node_normals, save_binding
+from deformgl.mapping.binding import Binding, bind, rest_node_normals
+from deformgl.mapping.binding_cache import binding_key, load_binding, save_binding
 from deformgl.errors import InputError
 from deformgl.files import read_png, write_atomic
 from deformgl.render.mapped import MappedVertices

@@ -1,0 +1,74 @@
+"""Benchmark of :func:`deformgl.mapping.binding.bind`: the res3 dragon (and a 50,000-vertex
+version of it) bound to a grid of about 20,000 nodes (``deformgl bench binding``)."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from deformgl.grid.meshio import load_mesh
+from deformgl.grid.nodes import NodeGrid
+from deformgl.grid.surface import grid_surface
+from deformgl.grid.voxelize import voxelize
+from deformgl.mapping.binding import bind, rest_node_normals
+from deformgl.sim.model import SpringModel
+
+#: The mesh the benchmark binds (the shipped res3 dragon).
+BENCH_MESH = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res3.ply.gz"
+#: nodes_along_longest giving the res3 dragon a grid of about 20,000 nodes (19,455).
+BENCH_NODES_ALONG_LONGEST = 64
+BENCH_LARGE = 50_000
+
+
+def _jittered_copies(vertices: np.ndarray, faces: np.ndarray, count: int,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh of exactly ``count`` vertices: copies of the mesh, each jittered by a tenth of the
+    mean edge length, the last one cut (faces using only its kept vertices)."""
+    rng = np.random.default_rng(seed)
+    edge = float(np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=1).mean())
+    copies = -(-count // len(vertices))
+    verts = np.concatenate([vertices + (rng.normal(scale=0.1 * edge, size=vertices.shape) if k else 0.0)
+                            for k in range(copies)])[:count]
+    tris = np.concatenate([faces + k * len(vertices) for k in range(copies)])
+    return verts, tris[(tris < count).all(axis=1)]
+
+
+def bench_binding(repeats: int = 3, *, mesh_path: str | os.PathLike[str] | None = None) -> str:
+    """Time :func:`bind` of the res3 dragon (and a 50,000-vertex version) to a ~20,000-node grid.
+
+    Args:
+        repeats: timings per case (the median is reported).
+        mesh_path: the mesh to bind (default :data:`BENCH_MESH`, read at call time).
+
+    Returns:
+        One line: node and surface counts, then vertex count and median binding time of each case.
+    """
+    source = Path(BENCH_MESH if mesh_path is None else mesh_path)
+    mesh = load_mesh(source)
+    lo, hi = mesh.bounds
+    mesh = trimesh.Trimesh(mesh.vertices - (lo + hi) / 2, mesh.faces, process=False)
+    vox = voxelize(mesh, nodes_along_longest=BENCH_NODES_ALONG_LONGEST, source=str(source))
+    grid = NodeGrid(np.asarray(vox.origin), float(vox.spacing), np.asarray(vox.occupied))
+    surface = grid_surface(grid)
+    n = grid.count
+    model = SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool),
+                        pull_groups=np.zeros(n, np.uint8), k_structural=1.0, k_shear=1.0,
+                        damping=0.0, gravity=np.zeros(3))
+    normals = rest_node_normals(model)
+    cases = [(np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+             _jittered_copies(np.asarray(mesh.vertices), np.asarray(mesh.faces), BENCH_LARGE)]
+    parts = []
+    for verts, tris in cases:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            bind(verts, tris, grid.rest_positions, normals, surface, spacing=grid.spacing)
+            times.append(time.perf_counter() - t0)
+        parts.append(f"{len(verts):,} vertices {sorted(times)[len(times) // 2]:.2f} s")
+    return (f"bind {source.name} to {n:,} nodes ({len(surface.nodes):,} on the surface, "
+            f"{len(surface.triangles):,} triangles), median of {repeats}, {os.cpu_count()} CPUs: "
+            + ", ".join(parts))
