@@ -37,9 +37,9 @@ _EXPORTS: dict[str, str] = {
     "RunResult": "deformgl.scene.stepping",
     # scenes
     "load_scene": "deformgl.scene.schema",
-    "Scene": "deformgl.scene.schema",
-    "Region": "deformgl.scene.schema",
-    "BACKENDS": "deformgl.scene.schema",
+    "Scene": "deformgl.scene.spec",
+    "Region": "deformgl.scene.spec",
+    "BACKENDS": "deformgl.scene.spec",
     "render_scene": "deformgl.scene.body",
     "render_to_png": "deformgl.scene.body",
     # meshes and grids
@@ -66,22 +66,22 @@ _EXPORTS: dict[str, str] = {
     "frame_box": "deformgl.render.camera",
     "Lighting": "deformgl.render.passes",
     # the trilinear scene graph (Knuth, Kohlhammer & Kuijper)
-    "Trilinear": "deformgl.trilinear.transforms",
-    "Box": "deformgl.trilinear.transforms",
-    "compose": "deformgl.trilinear.transforms",
-    "Twist": "deformgl.trilinear.transforms",
-    "Taper": "deformgl.trilinear.transforms",
-    "Bend": "deformgl.trilinear.transforms",
-    "Helix": "deformgl.trilinear.transforms",
-    "TorusWrap": "deformgl.trilinear.transforms",
-    "Geometry": "deformgl.trilinear.scenegraph",
-    "Node": "deformgl.trilinear.scenegraph",
-    "GroupNode": "deformgl.trilinear.scenegraph",
-    "TransformNode": "deformgl.trilinear.scenegraph",
-    "GeometryNode": "deformgl.trilinear.scenegraph",
-    "ComposedScene": "deformgl.trilinear.scenegraph",
+    "Trilinear": "deformgl.trilinear.grid",
+    "Box": "deformgl.trilinear.cuboid",
+    "compose": "deformgl.trilinear.grid",
+    "Twist": "deformgl.trilinear.deformations",
+    "Taper": "deformgl.trilinear.deformations",
+    "Bend": "deformgl.trilinear.deformations",
+    "Helix": "deformgl.trilinear.deformations",
+    "TorusWrap": "deformgl.trilinear.deformations",
+    "Geometry": "deformgl.trilinear.nodes",
+    "Node": "deformgl.trilinear.nodes",
+    "GroupNode": "deformgl.trilinear.nodes",
+    "TransformNode": "deformgl.trilinear.nodes",
+    "GeometryNode": "deformgl.trilinear.nodes",
+    "ComposedScene": "deformgl.trilinear.batches",
     "compose_scene": "deformgl.trilinear.scenegraph",
-    "TrilinearRenderer": "deformgl.trilinear.scenegraph",
+    "TrilinearRenderer": "deformgl.trilinear.renderer",
     "TubeAttachment": "deformgl.trilinear.attachments",
     "uv_sphere": "deformgl.trilinear.shapes",
     "tube": "deformgl.trilinear.shapes",
@@ -107,7 +107,8 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.render.camera import View, frame_box
     from deformgl.render.passes import Lighting
     from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
-    from deformgl.scene.schema import BACKENDS, Region, Scene, load_scene
+    from deformgl.scene.schema import load_scene
+    from deformgl.scene.spec import BACKENDS, Region, Scene
     from deformgl.scene.stepping import RunResult, Simulation, make_simulation, run
     from deformgl.sim.guards import BlowUp
     from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
@@ -115,10 +116,14 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
     from deformgl.sim.stability import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment
-    from deformgl.trilinear.scenegraph import (ComposedScene, Geometry, GeometryNode, GroupNode, Node, TransformNode,
-                                               TrilinearRenderer, compose_scene)
+    from deformgl.trilinear.batches import ComposedScene
+    from deformgl.trilinear.cuboid import Box
+    from deformgl.trilinear.deformations import Bend, Helix, Taper, TorusWrap, Twist
+    from deformgl.trilinear.grid import Trilinear, compose
+    from deformgl.trilinear.nodes import Geometry, GeometryNode, GroupNode, Node, TransformNode
+    from deformgl.trilinear.renderer import TrilinearRenderer
+    from deformgl.trilinear.scenegraph import compose_scene
     from deformgl.trilinear.shapes import tube, uv_sphere
-    from deformgl.trilinear.transforms import Bend, Box, Helix, Taper, TorusWrap, Trilinear, Twist, compose
 
 
 def __getattr__(name: str) -> Any:

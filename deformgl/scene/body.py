@@ -44,7 +44,8 @@ from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene import pipeline
 from deformgl.scene.pipeline import build_spring_model
 from deformgl.scene.run import scene_system
-from deformgl.scene.schema import AXES, Physics, Region, Scene, load_scene
+from deformgl.scene.schema import load_scene
+from deformgl.scene.spec import AXES, Physics, Region, Scene
 from deformgl.scene.stepping import Simulation, make_simulation
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.sim.model import SpringModel
@@ -343,7 +344,7 @@ def render_scene(scene: Scene | str | os.PathLike[str], *, ctx: moderngl.Context
     """Simulate (or drive) a scene and render it as the CLI does: (height, width, 3) uint8.
 
     Args:
-        scene: a :class:`~deformgl.scene.schema.Scene` or the path of a scene file.
+        scene: a :class:`~deformgl.scene.spec.Scene` or the path of a scene file.
         ctx: the GL context (default: one created for the call and released after it).
     """
     loaded = scene if isinstance(scene, Scene) else load_scene(Path(scene))

@@ -24,7 +24,7 @@ from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.progress import Progress
 from deformgl.scene.run import run_with_retries, step_watched
-from deformgl.scene.schema import BACKENDS, UNSTABLE_POLICIES, Safety
+from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
 from deformgl.sim import integrators
 from deformgl.sim.guards import BlowUp, BlowUpWatch, StepPlan, bad_nodes, describe_bad_node, plan_steps
 from deformgl.sim.integrators import INTEGRATORS
