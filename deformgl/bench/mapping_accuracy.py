@@ -2,13 +2,13 @@
 follows a known deformation, and what it costs to draw.
 
 A bend or twist (:class:`~deformgl.node_drivers.Motion`) is applied analytically to the rest
-node grid and uploaded (:class:`~deformgl.node_drivers.DrivenNodes`, GPU eq. 3 normals); the
+node grid and uploaded (:class:`~deformgl.node_drivers.DrivenNodes`, GPU Mosegaard & Sørensen 2005, eq. 3 normals); the
 detailed mesh is captured from the real vertex shader (transform feedback). The truth is the
 same motion, with the same box, applied to the mesh's rest vertices in float64. Errors are in
 grid spacings:
 
-* constant (eq. 6), curvature (eq. 8) and auto (eq. 8 where ``Binding.curvature_ok``, else
-  eq. 6): per-vertex correspondence error ``|v' - truth|`` of the eq. 9 vertex.
+* constant (Mosegaard & Sørensen 2005, eq. 6), curvature (eq. 8) and auto (eq. 8 where ``Binding.curvature_ok``, else
+  Mosegaard & Sørensen 2005, eq. 6): per-vertex correspondence error ``|v' - truth|`` of the eq. 9 vertex.
 * one-to-one (3.2): the grid surface replaces the mesh, so there is no vertex correspondence.
   The figure is a *surface distance*: from each truth vertex to the closest point of the
   deformed grid surface (exact closest points, :func:`deformgl.binding.closest_on_triangles`).
@@ -17,12 +17,12 @@ grid spacings:
 
 The rest columns (nodes at rest) are a self-check for the triangle-basis modes and the
 approximation error for one-to-one. What "exact" means here: a rigid motion rotates the node
-differences that build eq. 6 (translation cancels), so the constant mode is exact to float32;
-the eq. 3 normals behind eq. 8 rotate with the grid too, but they are packed into 15.5-bit
+differences that build Mosegaard & Sørensen 2005, eq. 6 (translation cancels), so the constant mode is exact to float32;
+the Mosegaard & Sørensen 2005, eq. 3 normals behind eq. 8 rotate with the grid too, but they are packed into 15.5-bit
 octahedral codes (<= 0.007 degrees, :mod:`deformgl.sim.normals`) whose rounding does not rotate, so
 the curvature and auto modes are exact only to about 1e-4 x the offset length, at rest as well.
-This study found where that rounding turned eq. 8's basis over (the weighted normal along T, the
-dragon on 16 nodes: 0.7 spacings at rest); curvature mode now keeps eq. 6 there
+This study found where that rounding turned Mosegaard & Sørensen 2005, eq. 8's basis over (the weighted normal along T, the
+dragon on 16 nodes: 0.7 spacings at rest); curvature mode now keeps Mosegaard & Sørensen 2005, eq. 6 there
 (``mapping_setup.MIN_SIN_CURVATURE``), auto excludes more (``Binding.curvature_ok``).
 """
 
@@ -75,7 +75,7 @@ class MappingRow:
         metric: "vertex" (correspondence error) or "surface" (one-to-one surface distance).
         rms, p95, max: error under the motion. rest_rms, rest_max: the same with nodes at rest.
         ms: median ms per draw (ctx.finish() included). bind_ms: one-time binding (None for
-            one-to-one). curvature_share: fraction of vertices on the eq. 8 basis.
+            one-to-one). curvature_share: fraction of vertices on the Mosegaard & Sørensen 2005, eq. 8 basis.
     """
 
     grid: int
@@ -149,7 +149,7 @@ class GridMappings:
             raise
 
     def set_positions(self, positions: np.ndarray) -> None:
-        """Upload (N, 3) node positions (recentred frame); the GPU computes eq. 3 normals."""
+        """Upload (N, 3) node positions (recentred frame); the GPU computes Mosegaard & Sørensen 2005, eq. 3 normals."""
         self.nodes.set_positions(positions)
 
     def capture(self, mode: str) -> np.ndarray:
@@ -164,7 +164,7 @@ class GridMappings:
                 motion.apply(self.built.mesh.vertices, amount, self.bounds))
 
     def errors(self, mode: str, truth: np.ndarray) -> np.ndarray:
-        """Per-vertex error in spacings for the current nodes: ``|v' - truth|`` (eq. 9 modes) or
+        """Per-vertex error in spacings for the current nodes: ``|v' - truth|`` (Mosegaard & Sørensen 2005, eq. 9 modes) or
         the distance from each truth vertex to the drawn grid surface (one-to-one)."""
         drawn = self.capture(mode)
         if mode != "one-to-one":
@@ -249,7 +249,7 @@ def mapping_accuracy(ctx: moderngl.Context, *, scene_path: str | Path = DEFAULT_
     return rows
 
 
-#: A rest-state error above this many spacings is a failed self-check of an eq. 9 mode (the
+#: A rest-state error above this many spacings is a failed self-check of a Mosegaard & Sørensen 2005, eq. 9 mode (the
 #: expected level is float32 and the 0.007 degree octahedral packing of eq. 3 normals: ~1e-4).
 REST_CHECK = 1e-3
 
@@ -260,7 +260,7 @@ def _per_mille(r: MappingRow) -> float:
 
 
 def conclusions(rows: list[MappingRow]) -> list[str]:
-    """Sentences read off the rows: the most accurate eq. 9 mode per motion and grid, how errors
+    """Sentences read off the rows: the most accurate Mosegaard & Sørensen 2005, eq. 9 mode per motion and grid, how errors
     fall with the grid, the draw cost of each mode, one-to-one's approximation, the self-check."""
     out = []
     mapped = [r for r in rows if r.metric == "vertex"]

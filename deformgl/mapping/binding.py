@@ -2,14 +2,14 @@
 
 For every vertex ``v`` of the detailed mesh :func:`bind` finds the closest point ``r`` on the
 node-grid surface (:func:`deformgl.surface.grid_surface` over the rest node positions), the
-triangle of nodes ``(p1, p2, p3)`` it lies on and its barycentric weights (eq. 4), and the
+triangle of nodes ``(p1, p2, p3)`` it lies on and its barycentric weights (Mosegaard & Sørensen 2005, eq. 4), and the
 offset ``o = v - r`` (eq. 5). The offset, the vertex normal and the vertex tangent (3.3.4) are
-then expressed (eq. 7) in the two triangle bases :mod:`deformgl.mapping.bases` rebuilds from the
-deformed nodes: the constant basis (eq. 6) and the curvature-corrected basis (eq. 8), the latter
+then expressed (Mosegaard & Sørensen 2005, eq. 7) in the two triangle bases :mod:`deformgl.mapping.bases` rebuilds from the
+deformed nodes: the constant basis (Mosegaard & Sørensen 2005, eq. 6) and the curvature-corrected basis (eq. 8), the latter
 from the rest node normals exactly as the GPU unpacks them. This is the inverse of
 :func:`deformgl.mapping.map_vertices`: at rest every vertex, normal and tangent maps to itself.
 
-Where the curvature basis is unreliable (paper 3.5: nodes without an eq. 3 normal, such as
+Where the curvature basis is unreliable (paper 3.5: nodes without an Mosegaard & Sørensen 2005, eq. 3 normal, such as
 one-node-thin sheets) :attr:`Binding.curvature_ok` is False, and an "auto" mapping uses the
 constant basis there (paper 3.6). The closest-point search is in :mod:`deformgl.mapping.closest`;
 bindings are cached by a hash of their inputs in :mod:`deformgl.mapping.binding_cache`.
@@ -38,10 +38,10 @@ from deformgl.mapping.tangents import orthonormalize_tangents, procedural_uv, ve
 #: reported (its offset is long, so it swings with every rotation of its triangle).
 FAR_SPACINGS = 1.5
 #: curvature_ok needs ``|Nc x T| > MIN_SIN_NC_T`` with Nc the normalised weighted node normal
-#: and T the triangle tangent (eq. 8): below it (about 5.7 degrees) ``Bc = Nc x T`` is a
+#: and T the triangle tangent (Mosegaard & Sørensen 2005, eq. 8): below it (about 5.7 degrees) ``Bc = Nc x T`` is a
 #: difference of nearly parallel vectors and turns erratically as the nodes move.
 MIN_SIN_NC_T = 0.1
-#: curvature_ok needs Nc within this angle of the constant-basis normal N (eq. 6). Beyond it the
+#: curvature_ok needs Nc within this angle of the constant-basis normal N (Mosegaard & Sørensen 2005, eq. 6). Beyond it the
 #: node normals disagree with the triangle (a sheet wound the other way, a groove, a corner
 #: node whose normal points along an edge) and the offset would be rotated far off. At rest T is
 #: perpendicular to N, so this test alone already keeps Nc at least 15 degrees off T
@@ -68,10 +68,10 @@ class BindingReport:
         far_vertices: (K,) int64 vertices farther than ``far * spacing`` from the node surface.
         far_distances: (K,) float64 their distances.
         degenerate_triangles: (D,) int64 indices into the surface triangles whose nodes are
-            repeated or collinear at rest (the constant basis, eq. 6, cannot be built).
+            repeated or collinear at rest (the constant basis, Mosegaard & Sørensen 2005, eq. 6, cannot be built).
         degenerate_vertices: (M,) int64 vertices bound to such a triangle (they keep their
             world-space offset while it stays degenerate).
-        no_normal: vertices whose triangle has a node without an eq. 3 normal.
+        no_normal: vertices whose triangle has a node without an Mosegaard & Sørensen 2005, eq. 3 normal.
         parallel: vertices whose interpolated normal Nc is near-parallel to T (or zero).
         disagree: vertices whose node normals disagree (weighted sum shorter than MIN_NC_AGREEMENT).
         flipped: vertices whose Nc is more than MAX_NC_ANGLE_DEG from the triangle normal N.
@@ -130,11 +130,11 @@ class Binding:
     Attributes:
         tri_nodes: (V, 3) int64 node numbers (p1, p2, p3) of each vertex's node triangle (a
             triangle of the GridSurface, its winding kept).
-        weights: (V, 3) float64 eq. 4 weights of the reference point r: sum 1, each in [0, 1].
-        offset_world: (V, 3) eq. 5 offset ``o = v - r`` at rest, world space.
-        offset_constant: (V, 3) o in the constant basis (T, N, B) of eq. 6/7 (x along T, y along
+        weights: (V, 3) float64 Mosegaard & Sørensen 2005, eq. 4 weights of the reference point r: sum 1, each in [0, 1].
+        offset_world: (V, 3) Mosegaard & Sørensen 2005, eq. 5 offset ``o = v - r`` at rest, world space.
+        offset_constant: (V, 3) o in the constant basis (T, N, B) of Mosegaard & Sørensen 2005, eq. 6/7 (x along T, y along
             N, z along B).
-        offset_curvature: (V, 3) o in the curvature basis (Tc, Nc, Bc) of eq. 8 built from the
+        offset_curvature: (V, 3) o in the curvature basis (Tc, Nc, Bc) of Mosegaard & Sørensen 2005, eq. 8 built from the
             rest node normals passed to :func:`bind`. Where that basis cannot be built at rest it
             holds the constant-basis values (finite; the mapping falls back to world space).
         normal_constant, normal_curvature: (V, 3) the vertex normal in each basis (3.3.4).
@@ -228,7 +228,7 @@ def _check_inputs(name: str, vertices: Any, faces: Any, node_positions: Any, nod
 
 
 def _in_basis(frame: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """Eq. 7: components of world vectors (V, 3) along the rows of orthonormal frames (V, 3, 3)."""
+    """Mosegaard & Sørensen 2005, Eq. 7: components of world vectors (V, 3) along the rows of orthonormal frames (V, 3, 3)."""
     return np.einsum("vkj,vj->vk", frame, vec)
 
 
@@ -264,7 +264,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
         vertices: (V, 3) rest positions of the detailed mesh (same frame as the nodes).
         faces: (F, 3) its triangles (for vertex normals and tangents).
         node_positions: (N, 3) rest node positions.
-        node_normals: (N, 3) rest eq. 3 node normals as the GPU sees them (unit, or zero where
+        node_normals: (N, 3) rest Mosegaard & Sørensen 2005, eq. 3 node normals as the GPU sees them (unit, or zero where
             undefined): ``unpack_normals(pack_normals(unit sums))``, see :func:`rest_node_normals`.
         surface: the node surface (triangles over ``surface.nodes``).
         spacing: grid spacing h (for the far test).
@@ -290,13 +290,13 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
     corners = x[tri_all]
     _, tri_valid = constant_basis(corners[:, 0], corners[:, 1], corners[:, 2])
     tri_id, w = closest_on_triangles(v, corners, ~tri_valid, x[surface.nodes])
-    w = clean_weights(w)                                            # eq. 4
+    w = clean_weights(w)                                            # Mosegaard & Sørensen 2005, eq. 4
     tri_nodes = tri_all[tri_id]
     p = x[tri_nodes]                                                 # (V, 3, 3)
-    r = np.einsum("vi,vij->vj", w, p)                                # eq. 4, as map_vertices
+    r = np.einsum("vi,vij->vj", w, p)                                # Mosegaard & Sørensen 2005, eq. 4, as map_vertices
     o = v - r                                                        # eq. 5
 
-    const, ok_c = constant_basis(p[:, 0], p[:, 1], p[:, 2])          # eq. 6
+    const, ok_c = constant_basis(p[:, 0], p[:, 1], p[:, 2])          # Mosegaard & Sørensen 2005, eq. 6
     curv, ok_k = curvature_basis(p[:, 0], p[:, 1], p[:, 2], w, node_n[tri_nodes])  # eq. 8
 
     normal, has_normal = vertex_normals(v, f)
@@ -305,7 +305,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
     tangent, uv_used = _tangents(v, f, normal, name, tangents, uv, periodic_u)
 
     def constant_local(vec: np.ndarray) -> np.ndarray:
-        return np.where(ok_c[:, None], _in_basis(const, vec), vec)  # eq. 7 (world if degenerate)
+        return np.where(ok_c[:, None], _in_basis(const, vec), vec)  # Mosegaard & Sørensen 2005, eq. 7 (world if degenerate)
 
     def curvature_local(vec: np.ndarray, fallback: np.ndarray) -> np.ndarray:
         return np.where(ok_k[:, None], _in_basis(curv, vec), fallback)
@@ -351,7 +351,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
 
 
 def rest_node_normals(model: SpringModel) -> np.ndarray:
-    """(N, 3) rest eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
+    """(N, 3) rest Mosegaard & Sørensen 2005, eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
     the unit-vector sums of the rest positions, packed and unpacked (deformgl.sim.normals)."""
     return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
 

@@ -155,6 +155,6 @@ def _closest_among(points: np.ndarray, corners: np.ndarray, degenerate: np.ndarr
 
 
 def clean_weights(w: np.ndarray) -> np.ndarray:
-    """Eq. 4 weights: tiny negatives clipped, renormalised to sum 1."""
+    """Mosegaard & Sørensen 2005, Eq. 4 weights: tiny negatives clipped, renormalised to sum 1."""
     w = np.clip(w, 0.0, None)
     return w / w.sum(axis=1, keepdims=True)

@@ -2,7 +2,7 @@
 
 Mosegaard & Sørensen 2005, 3.3.4: normal mapping on the deformed mesh needs, per vertex, a
 normal and a tangent expressed in the triangle basis; this module computes them at rest, in
-world space (:mod:`deformgl.mapping.binding` then expresses them in the bases of eq. 6 and eq. 8).
+world space (:mod:`deformgl.mapping.binding` then expresses them in the bases of Mosegaard & Sørensen 2005, eq. 6 and eq. 8).
 
 * :func:`vertex_normals`: area-weighted vertex normals.
 * :func:`vertex_tangents`: Lengyel's per-vertex tangents from texture coordinates (derivative

@@ -6,11 +6,11 @@ Vertex attributes (static buffers, built once from a binding), per vertex of the
 | attribute | type | meaning |
 | --- | --- | --- |
 | in_texel1..3 | ivec2 | state-texture texels of the three nodes of its triangle |
-| in_weights | vec3 | eq. 4 weights |
+| in_weights | vec3 | Mosegaard & Sørensen 2005, eq. 4 weights |
 | in_offset | vec3 | eq. 7 offset in its basis (constant or curvature, as chosen per vertex) |
-| in_offset_world | vec3 | eq. 5 rest offset (fallback for a degenerate basis) |
+| in_offset_world | vec3 | Mosegaard & Sørensen 2005, eq. 5 rest offset (fallback for a degenerate basis) |
 | in_normal, in_normal_world | vec3 | vertex normal in the basis / at rest in world space |
-| in_curvature | float | 1 = curvature basis (eq. 8), 0 = constant (eq. 6); CURVATURE variant only |
+| in_curvature | float | 1 = curvature basis (Mosegaard & Sørensen 2005, eq. 8), 0 = constant (eq. 6); CURVATURE variant only |
 | in_tangent, in_tangent_world, in_uv | vec4, vec3, vec2 | NORMAL_MAP variant only |
 """
 

@@ -58,7 +58,7 @@ def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: n
     return binding
 
 
-#: "curvature" mode uses eq. 8 only where ``|Nc x T|`` exceeds this (a conditioning bound, far
+#: "curvature" mode uses Mosegaard & Sørensen 2005, eq. 8 only where ``|Nc x T|`` exceeds this (a conditioning bound, far
 #: below auto's :data:`deformgl.binding.MIN_SIN_NC_T`).
 MIN_SIN_CURVATURE = 1e-2
 
@@ -66,8 +66,8 @@ MIN_SIN_CURVATURE = 1e-2
 def mapped_vertices(binding: Binding, mode: str, rest_positions: np.ndarray, rest_normals: np.ndarray) -> MappedVertices:
     """Per-vertex data for ``mode``: which basis each vertex uses and its vectors in that basis.
 
-    "constant": eq. 6 everywhere. "curvature": eq. 8 wherever the rest curvature basis can be
-    built well conditioned (``|Nc x T| > MIN_SIN_CURVATURE``), eq. 6 where it cannot (nodes
+    "constant": Mosegaard & Sørensen 2005, eq. 6 everywhere. "curvature": eq. 8 wherever the rest curvature basis can be
+    built well conditioned (``|Nc x T| > MIN_SIN_CURVATURE``), Mosegaard & Sørensen 2005, eq. 6 where it cannot (nodes
     without normals summing to zero, Nc along T). "auto": eq. 8
     only where the binding judged the node normals well defined (``curvature_ok``, paper 3.6).
     """

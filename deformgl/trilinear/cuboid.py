@@ -5,7 +5,7 @@ A trilinear transformation maps the unit cube onto a cuboid given by eight corne
 order of Knuth, Kohlhammer & Kuijper, eq. 1. Two equal forms:
 
 * their eq. 1: ``T(u) = sum_i w_i(u) p_i`` with the eight product weights :func:`corner_weights`;
-* their eq. 2-4: ``T(u) = C v(u)`` with the 3x8 coefficient matrix ``C``
+* their Knuth, Kohlhammer & Kuijper, eq. 2-4: ``T(u) = C v(u)`` with the 3x8 coefficient matrix ``C``
   (:func:`coefficient_matrix`) and the parameter vector ``v = (xyz, yz, xz, xy, z, y, x, 1)``
   (:func:`parameter_vector`).
 
@@ -28,7 +28,7 @@ from deformgl.errors import InputError
 CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
 
 #: Rows of Knuth, Kohlhammer & Kuijper, eq. 2: C^T = EQ2 @ (p0 ... p7), one row per entry of v
-#: (their eq. 3).
+#: (their Knuth, Kohlhammer & Kuijper, eq. 3).
 EQ2 = np.array([
     [-1, 1, 1, -1, 1, -1, -1, 1],   # xyz: p7 - p6 - p5 + p4 - p3 + p2 + p1 - p0
     [1, 0, -1, 0, -1, 0, 1, 0],     # yz:  p6 - p4 - p2 + p0
@@ -50,13 +50,13 @@ Function = Callable[[np.ndarray], np.ndarray]
 
 
 def corner_weights(u: np.ndarray) -> np.ndarray:
-    """Eq. 1 weights ``(1-x)(1-y)(1-z), x(1-y)(1-z), ..., xyz``.
+    """Knuth, Kohlhammer & Kuijper, Eq. 1 weights ``(1-x)(1-y)(1-z), x(1-y)(1-z), ..., xyz``.
 
     Args:
         u: (..., 3) unit-cube coordinates.
 
     Returns:
-        (..., 8) weights, one per corner in eq. 1 order.
+        (..., 8) weights, one per corner in Knuth, Kohlhammer & Kuijper, eq. 1 order.
     """
     u = np.asarray(u, dtype=np.float64)
     x, y, z = u[..., 0], u[..., 1], u[..., 2]
@@ -70,7 +70,7 @@ def corner_weights(u: np.ndarray) -> np.ndarray:
 
 
 def corner_weight_gradients(u: np.ndarray) -> np.ndarray:
-    """Derivatives of the eq. 1 weights: (..., 3, 8), row a = d w / d u_a."""
+    """Derivatives of the Knuth, Kohlhammer & Kuijper, eq. 1 weights: (..., 3, 8), row a = d w / d u_a."""
     u = np.asarray(u, dtype=np.float64)
     x, y, z = u[..., 0], u[..., 1], u[..., 2]
     ox, oy, oz = 1.0 - x, 1.0 - y, 1.0 - z
@@ -86,10 +86,10 @@ def corner_weight_gradients(u: np.ndarray) -> np.ndarray:
 
 
 def trilinear_corners(corners: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Eq. 1: transform unit-cube points by the cuboid ``corners``.
+    """Knuth, Kohlhammer & Kuijper, Eq. 1: transform unit-cube points by the cuboid ``corners``.
 
     Args:
-        corners: (8, 3) or (k, 8, 3) corner points in eq. 1 order.
+        corners: (8, 3) or (k, 8, 3) corner points in Knuth, Kohlhammer & Kuijper, eq. 1 order.
         u: (N, 3) unit-cube points (for stacked corners: (k, N, 3) or shared (N, 3)).
 
     Returns:
@@ -99,10 +99,10 @@ def trilinear_corners(corners: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def coefficient_matrix(corners: np.ndarray) -> np.ndarray:
-    """Eq. 2: the 3x8 coefficient matrix ``C`` of a cuboid (vectorized over leading axes).
+    """Knuth, Kohlhammer & Kuijper, Eq. 2: the 3x8 coefficient matrix ``C`` of a cuboid (vectorized over leading axes).
 
     Args:
-        corners: (..., 8, 3) corner points in eq. 1 order.
+        corners: (..., 8, 3) corner points in Knuth, Kohlhammer & Kuijper, eq. 1 order.
 
     Returns:
         (..., 3, 8): column j multiplies entry j of the parameter vector (eq. 3).
@@ -111,14 +111,14 @@ def coefficient_matrix(corners: np.ndarray) -> np.ndarray:
 
 
 def parameter_vector(u: np.ndarray) -> np.ndarray:
-    """Eq. 3: ``v = (xyz, yz, xz, xy, z, y, x, 1)`` for (..., 3) points, shape (..., 8)."""
+    """Knuth, Kohlhammer & Kuijper, Eq. 3: ``v = (xyz, yz, xz, xy, z, y, x, 1)`` for (..., 3) points, shape (..., 8)."""
     u = np.asarray(u, dtype=np.float64)
     x, y, z = u[..., 0], u[..., 1], u[..., 2]
     return np.stack([x * y * z, y * z, x * z, x * y, z, y, x, np.ones_like(x)], -1)
 
 
 def apply_coefficients(coefficients: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Eq. 4: ``v' = C v`` for (N, 3) unit-cube points and a (3, 8) matrix; returns (N, 3)."""
+    """Knuth, Kohlhammer & Kuijper, Eq. 4: ``v' = C v`` for (N, 3) unit-cube points and a (3, 8) matrix; returns (N, 3)."""
     return parameter_vector(u) @ np.asarray(coefficients, dtype=np.float64).T
 
 
@@ -131,7 +131,7 @@ def is_linear_coefficients(coefficients: np.ndarray, rtol: float = LINEAR_RTOL) 
     tiny parallelepiped far from the origin linear.
 
     Args:
-        coefficients: (..., 3, 8) coefficient matrices (eq. 2).
+        coefficients: (..., 3, 8) coefficient matrices (Knuth, Kohlhammer & Kuijper, eq. 2).
         rtol: tolerance relative to the size.
 
     Returns:
@@ -189,7 +189,7 @@ class Box:
         return self.lo + np.asarray(u, dtype=np.float64) * self.size
 
     def corners(self) -> np.ndarray:
-        """(8, 3) corners in eq. 1 order."""
+        """(8, 3) corners in Knuth, Kohlhammer & Kuijper, eq. 1 order."""
         return self.from_unit(CORNERS)
 
 
@@ -200,6 +200,6 @@ def unit_lattice(cells: tuple[int, int, int]) -> np.ndarray:
 
 
 def grid_corners(points: np.ndarray) -> np.ndarray:
-    """(..., 8, 3) outer corners, in eq. 1 order, of (..., nx+1, ny+1, nz+1, 3) lattices."""
+    """(..., 8, 3) outer corners, in Knuth, Kohlhammer & Kuijper, eq. 1 order, of (..., nx+1, ny+1, nz+1, 3) lattices."""
     p = np.asarray(points)
     return np.stack([p[..., -(i & 1), -((i >> 1) & 1), -((i >> 2) & 1), :] for i in range(8)], -2)

@@ -55,7 +55,7 @@ class Trilinear:
     # ---- construction -------------------------------------------------------------------------
     @classmethod
     def from_corners(cls, box: Box, corners: np.ndarray) -> Trilinear:
-        """One cell from its (8, 3) corners in eq. 1 order."""
+        """One cell from its (8, 3) corners in Knuth, Kohlhammer & Kuijper, eq. 1 order."""
         c = np.asarray(corners, dtype=np.float64)
         if c.shape != (8, 3):
             raise InputError(f"a cuboid needs (8, 3) corners, got {c.shape}")
@@ -101,11 +101,11 @@ class Trilinear:
 
     @property
     def corners(self) -> np.ndarray:
-        """(8, 3) outer corners of the grid in eq. 1 order."""
+        """(8, 3) outer corners of the grid in Knuth, Kohlhammer & Kuijper, eq. 1 order."""
         return grid_corners(self.points)
 
     def coefficients(self) -> np.ndarray:
-        """Eq. 2 for every cell: (nx, ny, nz, 3, 8)."""
+        """Knuth, Kohlhammer & Kuijper, Eq. 2 for every cell: (nx, ny, nz, 3, 8)."""
         p = self.points
         cell = np.stack([p[(i & 1):p.shape[0] - 1 + (i & 1), ((i >> 1) & 1):p.shape[1] - 1 + ((i >> 1) & 1),
                            ((i >> 2) & 1):p.shape[2] - 1 + ((i >> 2) & 1)] for i in range(8)], -2)
@@ -149,11 +149,11 @@ class Trilinear:
         return np.take(self.points.reshape(-1, 3), flat[:, None] + offsets.astype(np.intp), axis=0)
 
     def at_unit(self, u: np.ndarray) -> np.ndarray:
-        """Evaluate at (N, 3) unit-cube coordinates: eq. 1 in the containing cell. Points outside
+        """Evaluate at (N, 3) unit-cube coordinates: Knuth, Kohlhammer & Kuijper, eq. 1 in the containing cell. Points outside
         the box use the polynomial of the nearest boundary cell (eq. 4 extrapolates likewise)."""
         u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
         cell, f = self._locate(u)
-        if self.points.shape[:3] == (2, 2, 2):  # one cuboid: eq. 4 with C of eq. 2
+        if self.points.shape[:3] == (2, 2, 2):  # one cuboid: Knuth, Kohlhammer & Kuijper, eq. 4 with C of eq. 2
             return apply_coefficients(coefficient_matrix(self.corners), f)
         return (corner_weights(f)[:, None, :] @ self._cell_corners(cell))[:, 0]
 
