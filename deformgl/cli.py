@@ -279,14 +279,12 @@ def _bench(args: argparse.Namespace) -> int:
 
             print(trilinear_bench_report(ctx))
         elif args.what == "binding":
+            from deformgl.bench.binding import BENCH_MESH, bench_binding
             from deformgl.data import asset
-            from deformgl.mapping import binding
 
-            # bench_binding reads its mesh from this module constant, which it computes from its
-            # own file's location; the shipped mesh is where importlib.resources finds it
-            binding.BENCH_MESH = asset(binding.BENCH_MESH.name)
             print(machine_line(ctx))
-            print(binding.bench_binding(repeats=1 if args.quick else 3))
+            # the shipped mesh, where importlib.resources finds it (installed or in the checkout)
+            print(bench_binding(repeats=1 if args.quick else 3, mesh_path=asset(Path(BENCH_MESH).name)))
         else:
             from deformgl.data import packaged_scene
 

@@ -200,3 +200,37 @@ def test_msaa_beyond_the_renderer_is_an_early_scene_error(ctx, jelly, tmp_path, 
 def test_bench_rejects_zero_steps(capsys):
     code, _, err = run_cli(capsys, "bench", "sim", "--steps", "0")
     assert code == 1 and "--steps: must be >= 1" in err
+
+
+def test_a_scene_not_in_the_working_folder_is_the_shipped_one(ctx, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    for given in ("jelly.toml", "scenes/jelly.toml", "jelly"):
+        code, stdout, err = run_cli(capsys, "render", given, "--steps", "2", "--size", "32x24", "--quiet")
+        assert code == 0, err
+        # a shipped scene writes into the working folder, never into the package
+        assert read_png(tmp_path / "jelly.png").shape == (24, 32, 3)
+        (tmp_path / "jelly.png").unlink()
+    assert not (SCENES / "jelly.png").exists()
+
+
+def test_a_scene_found_nowhere_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    for given in ("nope.toml", "some/where/dragon.toml"):
+        code, stdout, err = run_cli(capsys, "render", given)
+        lines = err.strip().splitlines()
+        assert code == 1 and len(lines) == 1, err
+        assert f"{given}: scene file not found" in lines[0] and "dragon.toml" in lines[0]
+    code, _, err = run_cli(capsys, "bench", "render", "--scene", "nope.toml")
+    assert code == 1 and "--scene: scene file not found" in err
+
+
+def test_shipped_scenes_and_assets_are_the_repository_folder():
+    from deformgl import data
+
+    assert data.scenes_dir().resolve() == SCENES.resolve()
+    assert set(data.scene_names()) == {p.name for p in SCENES.glob("*.toml")}
+    assert data.asset("dragon_vrip_res3.ply.gz").is_file()
+    assert data.find_scene("scenes/heart.toml") in (Path("scenes/heart.toml"), SCENES / "heart.toml")
+    assert data.is_packaged(data.packaged_scene("heart")) and not data.is_packaged(Path("elsewhere.toml"))
+    with pytest.raises(data.DeformglError, match=r"no packaged scene .*there are: .*dragon.toml"):
+        data.packaged_scene("nope")

@@ -2,8 +2,10 @@
 and run from a folder outside the checkout, its shipped scenes and meshes are found.
 
 The fresh environment reuses this one's dependencies (a ``.pth`` line naming this environment's
-site-packages, which does not run its editable-install hook), so the test needs no network
-beyond what building the wheel needs (setuptools and wheel, from the package index).
+site-packages, which does not run its editable-install hook; the wheel is installed with
+``--ignore-installed`` and comes first on the path, so a deformgl installed there is not used),
+so the test needs no network beyond what building the wheel needs (setuptools and wheel, from
+the package index).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dic
     purelib = Path(_run([str(bindir / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                         base, env).stdout.strip())
     (purelib / "_deformgl_test_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    _run([sys.executable, "-m", "pip", "--python", str(bindir / "python"), "install", "--quiet", "--no-deps",
+    _run([sys.executable, "-m", "pip", "--python", str(bindir / "python"), "install", "--quiet", "--no-deps", "--ignore-installed",
           "--no-index", str(wheel)], base, env, timeout=300)
     work = base / "work"
     work.mkdir()

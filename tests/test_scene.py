@@ -458,3 +458,16 @@ def test_cloth_scene_rules(scene_dir: Path) -> None:
     with pytest.raises(SceneError, match="--backend: must be one of"):
         scene.with_overrides(backend="gpu")
     assert scene.with_overrides(integrator="midpoint", backend="numpy").physics.backend == "numpy"
+
+
+def test_schema_keeps_every_name_after_its_split():
+    """scene.schema is the loader; the dataclasses (scene.spec) and the checkers (scene.checks)
+    are importable from it as before the split."""
+    import deformgl.scene.checks as checks
+    import deformgl.scene.schema as schema
+    import deformgl.scene.spec as spec
+
+    for name in schema.__all__ + ["AXES", "MAPPING_MODES", "MAX_SIZE", "Attach", "Mapping", "MotionSpec",
+                                  "Nodes", "Vec3", "REQUIRED"]:
+        assert hasattr(schema, name), name
+    assert schema.Scene is spec.Scene and schema.REQUIRED is checks.REQUIRED
