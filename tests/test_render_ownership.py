@@ -109,3 +109,56 @@ def test_render_target_failing_half_way_releases_what_it_made(ctx, monkeypatch):
     with pytest.raises(RuntimeError, match="resolve framebuffer fails"):
         RenderTarget(ctx, (8, 8), samples=4)
     assert len(created.objects) >= 3 and all(is_released(obj) for obj in created.objects)
+
+
+def test_trilinear_renderer_releases_everything_it_made_and_binds_back_the_callers_framebuffer(ctx, monkeypatch):
+    from deformgl.render.camera import frame_box
+    from deformgl.render.passes import Lighting
+    from deformgl.trilinear.cuboid import Box
+    from deformgl.trilinear.deformations import Twist
+    from deformgl.trilinear.grid import Trilinear
+    from deformgl.trilinear.shapes import uv_sphere
+    from deformgl.trilinear.scenegraph import GeometryNode, GroupNode, TransformNode, compose_scene
+
+    sphere = uv_sphere(0.4, 8, 6)
+    box = Box(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))
+    twisted = Trilinear.from_function(Twist(0.8), box, (2, 2, 2))
+    shifted = np.identity(4)
+    shifted[0, 3] = 0.3
+    root = GroupNode([TransformNode(shifted, [GeometryNode(sphere)]),
+                      TransformNode(twisted, [GeometryNode(sphere)])])
+    scene = compose_scene(root)
+    created = _Created(ctx, monkeypatch)
+    target = RenderTarget(ctx, (32, 32), samples=0)
+    with TrilinearRenderer(ctx) as renderer:
+        target.begin((1.0, 1.0, 1.0))
+        lo, hi = scene.bounds()
+        renderer.draw(scene, frame_box(lo, hi, projection="perspective", azimuth=20.0, elevation=20.0,
+                                       fov=40.0, distance=3.0, target=np.full(3, 0.5), aspect=1.0), Lighting((0.3, 0.5, 1.0)))
+        renderer.capture(scene)
+        assert ctx.fbo.glo == target.fbo.glo  # the caller's framebuffer is bound again
+        made = [obj for obj in created.objects if obj not in (target.fbo, target.colour, target.depth)]
+    assert made and all(is_released(obj) for obj in made)
+    assert not is_released(target.fbo)
+    target.release()
+    renderer.release()
+
+
+def test_driven_nodes_release_their_pass_not_the_textures(ctx):
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.sim.backends.foundation import NodeTextures
+    from deformgl.sim.model import SpringModel
+
+    grid = NodeGrid(np.zeros(3), 1.0, np.ones((2, 2, 2), bool))
+    n = grid.count
+    model = SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool), pull_groups=np.zeros(n, np.uint8),
+                        k_structural=1.0, k_shear=1.0, damping=0.0, gravity=np.zeros(3))
+    textures = NodeTextures(ctx, model)
+    nodes = DrivenNodes(ctx, textures, grid)
+    nodes.set_positions(grid.rest_positions)
+    program = nodes.program
+    nodes.release()
+    nodes.release()
+    assert is_released(program.gl) and nodes.owned_count == 0
+    assert not is_released(textures.state[0])
+    textures.release()

@@ -114,6 +114,7 @@ class TransformNode(Node):
 
     @transform.setter
     def transform(self, value) -> None:
+        """Set a 4x4 affine matrix (checked) or a :class:`Trilinear`."""
         self._transform = value if isinstance(value, Trilinear) else check_affine(value)
 
 
