@@ -81,7 +81,7 @@ class MappedMeshPass(GLOwner):
         self.count = len(data.weights)
         self.curvature = bool(np.any(data.use_curvature))
         self.normal_mapped = normal_map is not None
-        self.defines = {"CURVATURE": self.curvature, "NORMAL_MAP": self.normal_mapped}
+        self.defines: dict[str, object] = {"CURVATURE": self.curvature, "NORMAL_MAP": self.normal_mapped}
         texels = [layout.texel(grid.ijk[data.tri_nodes[:, c]]).astype("i4") for c in range(3)]
         columns = [("in_texel1", "2i", texels[0]), ("in_texel2", "2i", texels[1]),
                    ("in_texel3", "2i", texels[2]), ("in_weights", "3f", _f4(data.weights)),
@@ -112,7 +112,7 @@ class MappedMeshPass(GLOwner):
                     ctx.texture((w, h), 3, np.ascontiguousarray(normal_map[::-1]).tobytes()))
                 self.normal_map_texture.build_mipmaps()
                 self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-            map_uniforms = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
+            map_uniforms: dict[str, object] = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
                             if normal_map is not None else {})
             if stages == 1:
                 self.program = self.own(Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag",

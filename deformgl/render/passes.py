@@ -70,7 +70,7 @@ class RenderTarget(GLOwner):
     def read_rgb(self) -> np.ndarray:
         """Resolve (if multisampled) and read the image: (height, width, 3) uint8, top row first."""
         source = self.fbo
-        if self.samples:
+        if self.resolve_fbo is not None:
             self.ctx.copy_framebuffer(self.resolve_fbo, self.fbo)
             source = self.resolve_fbo
         data = source.read(components=3, alignment=1)
