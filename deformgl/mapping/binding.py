@@ -17,10 +17,8 @@ bindings are cached by a hash of their inputs in :mod:`deformgl.mapping.binding_
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -354,18 +352,3 @@ def rest_node_normals(model: SpringModel) -> np.ndarray:
     """(N, 3) rest Mosegaard & Sørensen 2005, eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
     the unit-vector sums of the rest positions, packed and unpacked (deformgl.sim.normals)."""
     return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))
-
-
-# --------------------------------------------------------------------------------------------
-# Transitional: the CLI still runs the benchmark from here (it sets BENCH_MESH, then calls
-# bench_binding); the benchmark itself is deformgl.bench.binding. Remove once the CLI imports that.
-
-#: The mesh :func:`bench_binding` binds (the CLI points it at the shipped asset).
-BENCH_MESH = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res3.ply.gz"
-
-
-def bench_binding(repeats: int = 3) -> str:
-    """Forwards to :func:`deformgl.bench.binding.bench_binding` with :data:`BENCH_MESH` (kept for
-    the CLI; the benchmark lives in the bench layer, so it is imported by name at call time)."""
-    bench = importlib.import_module("deformgl.bench.binding")
-    return str(bench.bench_binding(repeats, mesh_path=BENCH_MESH))
