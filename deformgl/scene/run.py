@@ -6,9 +6,12 @@ units of its longest side. The foundation's fragment Verlet pass (``fragment_sim
 running scenes that use none of the extended physics (:attr:`scene.Physics.extended`) with the
 default integrator and backend; everything else runs here:
 
-* ``fragment``: :class:`~deformgl.fragment_integrators.FragmentIntegrator` (grid topology);
-* ``feedback``: :class:`~deformgl.feedback_sim.FeedbackSimulation` (explicit neighbour lists);
-* ``numpy``: the float64 reference :func:`deformgl.integrators.step`.
+* ``fragment``: :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` (grid topology);
+* ``feedback``: :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (explicit neighbour lists);
+* ``numpy``: the float64 reference, :class:`~deformgl.sim.simulation.NumpySimulation`.
+
+All three are built by :func:`~deformgl.sim.simulation.make_simulation` and run by the one run
+loop :func:`deformgl.sim.run.run`.
 
 The convergence stop (Movania & Feng 2012, section 4) is measured on the GPU: every ``every``
 steps the positions are copied before the last step (a GPU pass) and the nodes that moved more
@@ -25,13 +28,15 @@ from typing import TypeVar
 import moderngl
 import numpy as np
 
-from deformgl.sim import integrators
 from deformgl.errors import SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.model import SpringModel
 from deformgl.progress import Progress
-from deformgl.sim.guards import BlowUp, BlowUpWatch, StepPlan, bad_nodes, describe_bad_node, plan_steps
+from deformgl.sim.guards import BlowUp, BlowUpWatch, StepPlan, plan_steps
+from deformgl.sim.run import make_watch
+from deformgl.sim.run import run as run_simulation
+from deformgl.sim.simulation import make_simulation
 from deformgl.scene.schema import Keyframes, Physics, Scene
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
@@ -137,87 +142,14 @@ def bad_limit(physics: Physics, box: SceneBox) -> float:
 
 def step_watched(ctx: moderngl.Context, sim, steps: int, bar: Progress, watch: BlowUpWatch | None = None, *,
                  chunk: int = 25, converge: tuple[float, int] | None = None) -> tuple[int, bool | None]:
-    """``steps`` steps on the GPU in chunks of at most ``chunk`` (the progress bar moves between
-    them), with the blow-up census every ``watch.every`` steps and once at the end, and the
-    convergence stop ``converge = (threshold, every)`` if given. Nothing is read back unless a
-    check fails.
-
-    Returns:
-        (steps done, converged: True/False, None without a convergence stop).
+    """:func:`deformgl.sim.run.run` as (steps done, converged: True/False, None without a
+    convergence stop); kept for the callers that step a simulation they built themselves.
 
     Raises:
         BlowUp: a check counted bad nodes.
     """
-    census = None
-    if converge is not None:
-        from deformgl.sim.census import NodeCensus
-
-        _, row, slots, _ = sim.position_slot()
-        census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
-    try:
-        done = 0
-        while done < steps:
-            target = min(done + chunk, steps, watch.next_stop(done, steps) if watch else steps)
-            check_convergence = False
-            if converge is not None:
-                at = (done // converge[1] + 1) * converge[1]
-                if at <= target:
-                    target, check_convergence = at, True
-            if check_convergence:
-                if target - done > 1:
-                    sim.step(target - done - 1)
-                texture, _, _, slot = sim.position_slot()
-                before = census.snapshot(texture, slot=slot)
-                sim.step(1)
-            else:
-                sim.step(target - done)
-            ctx.finish()
-            done = target
-            bar.update(done)
-            if watch is not None and (watch.due(done) or done == steps):
-                watch.check(done)
-            if check_convergence:
-                now, _, _, slot = sim.position_slot()
-                if census.moved(now, before, converge[0], slot=slot, before_slots=1) == 0:
-                    if watch is not None and not watch.due(done):
-                        watch.check(done)
-                    return done, True
-        return steps, None if converge is None else False
-    finally:
-        if census is not None:
-            census.release()
-
-
-def _run_numpy(system: SpringSystem, physics: Physics, plan: StepPlan, constraints, drags, loads, bar: Progress,
-               converge: tuple[float, int] | None, limit: float, grid: NodeGrid, source) -> tuple[np.ndarray, int, bool | None]:
-    dt, name, every = plan.step_dt, physics.integrator, physics.safety.check_every
-    s = integrators.initial_state(system, dt, drags=drags, loads=loads)
-    total, last_clean = plan.step_count, None
-    for n in range(total):
-        new = integrators.step(system, name, s, dt, n * dt, constraints=constraints, drags=drags, loads=loads)
-        moved = float(np.max(np.linalg.norm(new.x - s.x, axis=1), initial=0.0))
-        s = new
-        bar.update(n + 1)
-        if not np.isfinite(moved) or (every and (n + 1) % every == 0) or n + 1 == total:
-            count = int(bad_nodes(s.x, limit).sum())
-            if count:
-                raise BlowUp.at(source, n + 1, dt, count, describe_bad_node(s.x, grid, limit), limit, last_clean)
-            last_clean = n + 1
-        if converge is not None and (n + 1) % converge[1] == 0 and moved <= converge[0]:
-            return s.x, n + 1, True
-    return s.x, total, None if converge is None else False
-
-
-def _gpu_simulation(ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, physics: Physics, dt: float,
-                    constraints, drags, loads):
-    if physics.backend == "fragment":
-        from deformgl.sim.backends.fragment import FragmentIntegrator
-
-        return FragmentIntegrator(ctx, system, grid, physics.integrator, dt,
-                                  constraints=constraints, drags=drags, loads=loads)
-    from deformgl.sim.backends.feedback import FeedbackSimulation
-
-    return FeedbackSimulation(ctx, system, physics.integrator, dt, constraints=constraints, drags=drags, loads=loads)
+    result = run_simulation(sim, steps, ctx=ctx, watch=watch, converge=converge, progress=bar, chunk=chunk)
+    return result.steps, result.converged
 
 
 def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T],
@@ -264,18 +196,15 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: Spring
         if physics.converge is not None:  # per scene step: over a substep a node moves 1/substeps as far
             converge = (physics.converge.threshold * grid.spacing / p.substeps, physics.converge.every * p.substeps)
         with Progress(p.step_count, "steps", enabled=progress) as bar:
-            if physics.backend == "numpy":
-                x, steps, converged = _run_numpy(system, physics, p, constraints, drags, loads, bar, converge,
-                                                 limit, grid, scene.source)
-                return SceneRun(np.asarray(x, np.float64), steps, converged, 0.0, steps * p.step_dt, p.substeps)
-            sim = _gpu_simulation(ctx, system, grid, physics, p.step_dt, constraints, drags, loads)
+            sim = make_simulation(system, physics.integrator, physics.backend, dt=p.step_dt, ctx=ctx, grid=grid,
+                                  constraints=constraints, drags=drags, loads=loads)
             watch = None
             try:
-                watch = BlowUpWatch(ctx, sim, every=physics.safety.check_every, limit=limit, grid=grid,
-                                    source=scene.source, dt=p.step_dt)
-                steps, converged = step_watched(ctx, sim, p.step_count, bar, watch, converge=converge)
-                return SceneRun(sim.positions().astype(np.float64), steps, converged, sim.bytes_per_node,
-                                steps * p.step_dt, p.substeps)
+                watch = make_watch(ctx, sim, every=physics.safety.check_every, limit=limit, grid=grid,
+                                   source=scene.source, dt=p.step_dt)
+                result = run_simulation(sim, p.step_count, ctx=ctx, watch=watch, converge=converge, progress=bar)
+                return SceneRun(np.asarray(sim.positions(), np.float64), result.steps, result.converged,
+                                sim.bytes_per_node, result.steps * p.step_dt, p.substeps)
             finally:
                 if watch is not None:
                     watch.release()

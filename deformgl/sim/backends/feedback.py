@@ -42,6 +42,8 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from deformgl.sim.base import SimulationBase
+
 from deformgl.errors import GLError
 from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
@@ -85,7 +87,7 @@ class _Pass:
     slots: int  # vec4 outputs per node
 
 
-class FeedbackSimulation:
+class FeedbackSimulation(SimulationBase):
     """A :class:`SpringSystem` stepped on the GPU by vertex shaders and transform feedback.
 
     Args:
@@ -101,6 +103,8 @@ class FeedbackSimulation:
             uses its ``x_prev``.
         t0: time of the start state.
     """
+
+    backend = "feedback"
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, integrator: str, dt: float,
                  *, constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),

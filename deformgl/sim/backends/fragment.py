@@ -34,6 +34,8 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from deformgl.sim.base import SimulationBase
+
 from deformgl.errors import GLError
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, CompactLayout, NodeGrid
 from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
@@ -108,7 +110,7 @@ def _check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> Non
                              "(build it with springs.from_grid or springs.cloth on this grid)")
 
 
-class FragmentIntegrator:
+class FragmentIntegrator(SimulationBase):
     """A grid :class:`SpringSystem` stepped by fragment passes with one of the five integrators.
 
     Args:
@@ -129,6 +131,8 @@ class FragmentIntegrator:
             loads, or a system that is not the grid's.
         GLError: the grid does not fit in a texture.
     """
+
+    backend = "fragment"
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid,
                  integrator: str, dt: float, *, constraints: Constraints | None = None,

@@ -1,0 +1,165 @@
+"""One interface for every simulation backend, and one constructor.
+
+:class:`Simulation` is what the run loop (:func:`deformgl.sim.run.run`), the renderers and the
+benchmarks use; the fragment backend (:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`,
+Mosegaard & Sørensen 2005, section 3.1), the transform-feedback backend
+(:class:`~deformgl.sim.backends.feedback.FeedbackSimulation`) and the float64 NumPy reference
+(:class:`NumpySimulation`, Movania & Feng 2012, eq. 3-9) all implement it. Positions and
+velocities cross to the CPU only when asked for.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from deformgl.errors import InputError
+from deformgl.sim import integrators
+from deformgl.sim.base import SimulationBase
+from deformgl.sim.integrators import INTEGRATORS, Constraints, State
+from deformgl.sim.springs import Drag, Load, SpringSystem
+
+__all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
+
+BACKENDS = ("fragment", "feedback", "numpy")
+
+
+class SimulationSetupError(InputError, ValueError):
+    """An unknown integrator or backend, or options a backend does not take."""
+
+
+@runtime_checkable
+class Simulation(Protocol):
+    """A spring system stepped by one integrator on one backend.
+
+    Attributes:
+        system: the spring system.
+        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
+        backend: one of :data:`BACKENDS`.
+        dt: step in s.
+        time: simulated time in s.
+        bytes_per_node: GPU bytes per node (0 on the NumPy backend).
+        count: number of nodes.
+    """
+
+    system: SpringSystem
+    integrator: str
+    backend: str
+    dt: float
+    count: int
+
+    @property
+    def time(self) -> float: ...
+
+    @property
+    def bytes_per_node(self) -> float: ...
+
+    def step(self, n: int = 1) -> None: ...
+
+    def positions(self) -> np.ndarray: ...
+
+    def velocities(self) -> np.ndarray: ...
+
+    def position_slot(self) -> Any: ...
+
+    def release(self) -> None: ...
+
+    def __enter__(self) -> Simulation: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class NumpySimulation(SimulationBase):
+    """The float64 reference (:func:`deformgl.sim.integrators.step`) behind the
+    :class:`Simulation` interface. Holds no GL objects: ``position_slot()`` is None.
+
+    Args: as :class:`~deformgl.sim.backends.feedback.FeedbackSimulation`, without the context.
+    """
+
+    backend = "numpy"
+
+    def __init__(self, system: SpringSystem, integrator: str, dt: float, *,
+                 constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
+                 loads: tuple[Load, ...] = (), state: State | None = None, t0: float = 0.0) -> None:
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+        if not dt > 0:
+            raise ValueError(f"NumpySimulation: dt must be > 0, got {dt}")
+        self.system, self.integrator, self.dt, self.t = system, integrator, float(dt), float(t0)
+        self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
+        self.count = system.count
+        self._steps = 0
+        self.state = (integrators.initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+                      if state is None else state)
+        #: largest node displacement of the last step (the convergence test of the run loop)
+        self.last_moved = float("inf")
+
+    def step(self, n: int = 1) -> None:
+        """``n`` steps; time is ``t0 + steps * dt`` (no accumulated rounding)."""
+        t0 = self.t - self._steps * self.dt
+        for _ in range(n):
+            new = integrators.step(self.system, self.integrator, self.state, self.dt, t0 + self._steps * self.dt,
+                                   constraints=self.constraints, drags=self.drags, loads=self.loads)
+            self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
+            self.state = new
+            self._steps += 1
+        self.t = t0 + self._steps * self.dt
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float64 positions (a copy)."""
+        return self.state.x.copy()
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) float64 velocities (Verlet: the backward difference)."""
+        return self.state.v.copy()
+
+    def position_slot(self) -> None:
+        """No GPU texture on the NumPy backend."""
+        return None
+
+    @property
+    def bytes_per_node(self) -> float:
+        return 0.0
+
+    def release(self) -> None:
+        """Nothing to release."""
+
+
+def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *,
+                    dt: float, ctx=None, grid=None, **options) -> Simulation:
+    """The one constructor of a :class:`Simulation`.
+
+    Args:
+        system: the spring system.
+        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
+        backend: "fragment" (needs ``grid``, the node grid of the system), "feedback" or "numpy".
+        dt: step in s, > 0.
+        ctx: the GL context (the GPU backends).
+        grid: the node grid (the fragment backend).
+        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``.
+
+    Raises:
+        SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
+            fragment backend without ``grid``, or an unknown option.
+    """
+    if integrator not in INTEGRATORS:
+        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+    if backend not in BACKENDS:
+        raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    unknown = set(options) - {"constraints", "drags", "loads", "state", "t0"}
+    if unknown:
+        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))}")
+    if backend == "numpy":
+        return NumpySimulation(system, integrator, dt, **options)
+    if ctx is None:
+        raise SimulationSetupError(f"the {backend} backend needs a GL context (ctx=...)")
+    if backend == "fragment":
+        if grid is None:
+            raise SimulationSetupError("the fragment backend needs the node grid of the system (grid=...)")
+        from deformgl.sim.backends.fragment import FragmentIntegrator
+
+        return FragmentIntegrator(ctx, system, grid, integrator, dt, **options)
+    from deformgl.sim.backends.feedback import FeedbackSimulation
+
+    return FeedbackSimulation(ctx, system, integrator, dt, **options)
