@@ -93,6 +93,7 @@ _EXPORTS: dict[str, str] = {
     "ShaderError": "deformgl.errors",
     "SimulationError": "deformgl.errors",
     "BlowUp": "deformgl.sim.guards",
+    "SimulationSetupError": "deformgl.sim.simulation",
 }
 
 __all__ = sorted(_EXPORTS)
@@ -113,6 +114,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.sim.guards import BlowUp
     from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
     from deformgl.sim.model import SpringModel
+    from deformgl.sim.simulation import SimulationSetupError
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
     from deformgl.sim.stability import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment

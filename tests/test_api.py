@@ -120,6 +120,16 @@ def test_bad_arrays_are_input_errors():
         dg.Body.from_arrays(V * [1.0, 0.001, 0.001], F, resolution=3)
 
 
+def test_bad_simulation_settings_are_input_errors(ctx):
+    with dg.Body.from_arrays(V, F, resolution=4, ctx=ctx) as body:
+        with pytest.raises(dg.SimulationSetupError, match="unknown backend"):
+            body.simulate("verlet", "cuda", dt=1e-3)
+        with pytest.raises(dg.InputError, match="unknown integrator"):
+            body.simulate("leapfrog", "numpy", dt=1e-3)
+        with pytest.raises(dg.InputError, match="unstable must be"):
+            dg.run(body.simulate("verlet", "numpy", dt=1e-3), 1, unstable="maybe")
+
+
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the run that blows up overflows on purpose
 def test_dt_above_the_limit_is_refused_unless_allowed(ctx):
     with dg.Body.from_arrays(V, F, resolution=5, stiffness=200.0, fixed=dg.below("x", 0.05), ctx=ctx) as body:

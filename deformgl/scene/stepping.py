@@ -1,15 +1,12 @@
-"""Simulations of a spring system on any integrator and backend, and one guarded run loop.
+"""A restartable, guarded simulation for the public API, and the guarded run of it.
 
-:func:`make_simulation` wraps the three backends (fragment passes
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, transform feedback
-:class:`~deformgl.sim.backends.feedback.FeedbackSimulation`, the float64 NumPy reference
-:func:`deformgl.sim.integrators.step`) behind one :class:`Simulation`. :func:`run` steps one with
-the guards of the CLI: the dt against the integrator's stability limit first
+:class:`Simulation` holds one :func:`deformgl.sim.simulation.make_simulation` backend (fragment,
+feedback or the NumPy reference) and can start it again with a smaller step. :func:`run` steps it
+with the guards of the CLI: the dt against the integrator's stability limit first
 (:func:`~deformgl.sim.guards.plan_steps`: refuse, run anyway, or subdivide), the blow-up census
-every ``check_every`` steps and at the end (:class:`~deformgl.sim.guards.BlowUpWatch` through the
-scene run's :func:`~deformgl.scene.run.step_watched`; the NumPy check on the numpy backend), and
-with ``unstable="subdivide"`` a restart with twice the substeps after a blow-up
-(:func:`~deformgl.scene.run.run_with_retries`).
+every ``check_every`` steps and at the end (:func:`deformgl.sim.run.run` with
+:func:`~deformgl.sim.run.make_watch`), and with ``unstable="subdivide"`` a restart with twice the
+substeps after a blow-up (:func:`~deformgl.scene.run.run_with_retries`).
 """
 
 from __future__ import annotations
@@ -23,40 +20,18 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.progress import Progress
-from deformgl.scene.run import run_with_retries, step_watched
+from deformgl.scene.run import run_with_retries
 from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
-from deformgl.sim import integrators
-from deformgl.sim.guards import BlowUp, BlowUpWatch, StepPlan, bad_nodes, describe_bad_node, plan_steps
+from deformgl.sim.guards import StepPlan, plan_steps
 from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.run import make_watch
+from deformgl.sim.run import run as step_run
+from deformgl.sim.simulation import Simulation as BackendSimulation
+from deformgl.sim.simulation import SimulationSetupError
+from deformgl.sim.simulation import make_simulation as make_backend
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["RunResult", "Simulation", "make_simulation", "run"]
-
-
-class _NumpyStepper:
-    """The float64 reference behind the GPU backends' interface (no GL)."""
-
-    def __init__(self, system: SpringSystem, integrator: str, dt: float, **options: Any) -> None:
-        self.system, self.integrator, self.dt, self.options = system, integrator, dt, options
-        forces = {k: v for k, v in options.items() if k in ("drags", "loads")}
-        self.state = integrators.initial_state(system, dt, **forces)
-        self.t = 0.0
-        self.count = system.count
-        self.bytes_per_node = 0.0
-
-    def step(self, n: int = 1) -> None:
-        for _ in range(n):
-            self.state = integrators.step(self.system, self.integrator, self.state, self.dt, self.t, **self.options)
-            self.t += self.dt
-
-    def positions(self) -> np.ndarray:
-        return self.state.x.copy()
-
-    def velocities(self) -> np.ndarray:
-        return self.state.v.copy()
-
-    def release(self) -> None:
-        pass
 
 
 class Simulation:
@@ -71,13 +46,11 @@ class Simulation:
     def __init__(self, system: SpringSystem, integrator: str, backend: str, *, dt: float,
                  ctx: moderngl.Context | None, grid: NodeGrid | None, **options: Any) -> None:
         if integrator not in INTEGRATORS:
-            raise InputError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {integrator!r}")
+            raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
         if backend not in BACKENDS:
-            raise InputError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+            raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
         if not dt > 0.0:
-            raise InputError(f"dt must be > 0, got {dt}")
-        if backend == "fragment" and grid is None:
-            raise InputError("the fragment backend needs the node grid of the system (grid=...)")
+            raise SimulationSetupError(f"dt must be > 0, got {dt}")
         if backend != "numpy" and ctx is None:
             from deformgl.gl.context import create_context
 
@@ -89,8 +62,7 @@ class Simulation:
         self.ctx, self.options, self.dt = ctx, options, float(dt)
         self.base_dt = float(dt)
         self.source = "<simulation>"
-        self._inner: Any = None
-        self._steps = 0
+        self._inner: BackendSimulation | None = None
         self.restart(self.dt)
 
     def restart(self, dt: float) -> None:
@@ -98,17 +70,15 @@ class Simulation:
         if self._inner is not None:
             self._inner.release()
             self._inner = None
-        if self.backend == "numpy" or self.ctx is None:
-            self._inner = _NumpyStepper(self.system, self.integrator, dt, **self.options)
-        elif self.backend == "fragment" and self.grid is not None:
-            from deformgl.sim.backends.fragment import FragmentIntegrator
+        self._inner = make_backend(self.system, self.integrator, self.backend, dt=dt, ctx=self.ctx, grid=self.grid,
+                                   **self.options)
+        self.dt = float(dt)
 
-            self._inner = FragmentIntegrator(self.ctx, self.system, self.grid, self.integrator, dt, **self.options)
-        else:
-            from deformgl.sim.backends.feedback import FeedbackSimulation
-
-            self._inner = FeedbackSimulation(self.ctx, self.system, self.integrator, dt, **self.options)
-        self.dt, self._steps = float(dt), 0
+    @property
+    def _live(self) -> BackendSimulation:
+        if self._inner is None:
+            raise RuntimeError("the simulation is released")
+        return self._inner
 
     @property
     def count(self) -> int:
@@ -118,31 +88,37 @@ class Simulation:
     @property
     def time(self) -> float:
         """Simulated seconds since the start."""
-        return self._steps * self.dt
+        return float(self._live.time)
 
     @property
     def bytes_per_node(self) -> float:
         """GPU bytes allocated per node (0 on numpy)."""
-        return float(getattr(self._inner, "bytes_per_node", 0.0))
+        return float(self._live.bytes_per_node)
 
     def step(self, n: int = 1) -> None:
         """``n`` steps, unguarded (see :func:`run`); nothing is read back."""
-        self._inner.step(n)
-        self._steps += n
+        self._live.step(n)
 
     def positions(self) -> np.ndarray:
         """(N, 3) node positions (one read-back on the GPU backends)."""
-        return np.asarray(self._inner.positions())[:, :3]
+        return np.asarray(self._live.positions())[:, :3]
 
     def velocities(self) -> np.ndarray:
         """(N, 3) node velocities (one read-back on the GPU backends)."""
-        return np.asarray(self._inner.velocities())[:, :3]
+        return np.asarray(self._live.velocities())[:, :3]
 
-    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
-        """Where the positions lie on the GPU: (texture, nodes per row, slots per node, slot)."""
-        if self.backend == "numpy":
-            raise InputError("the numpy backend keeps no positions on the GPU")
-        texture, row, slots, slot = self._inner.position_slot()
+    @property
+    def backend_simulation(self) -> BackendSimulation:
+        """The backend simulation it runs now (replaced by a subdivided :func:`run`)."""
+        return self._live
+
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int] | None:
+        """Where the positions lie on the GPU: (texture, nodes per row, slots per node, slot);
+        None on the numpy backend."""
+        where = self._live.position_slot()
+        if where is None:
+            return None
+        texture, row, slots, slot = where
         return texture, int(row), int(slots), int(slot)
 
     def release(self) -> None:
@@ -163,7 +139,13 @@ class Simulation:
 
 def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *, dt: float,
                     ctx: moderngl.Context | None = None, grid: NodeGrid | None = None, **options: Any) -> Simulation:
-    """A :class:`Simulation` of ``system`` (``options``: constraints, drags, loads)."""
+    """A :class:`Simulation` of ``system`` on :func:`deformgl.sim.simulation.make_simulation`'s
+    backend (``options``: constraints, drags, loads, state, t0); a GPU backend without ``ctx``
+    gets a context of its own, released with it.
+
+    Raises:
+        SimulationSetupError: an unknown integrator, backend or option (an :class:`InputError`).
+    """
     return Simulation(system, integrator, backend, dt=dt, ctx=ctx, grid=grid, **options)
 
 
@@ -216,27 +198,13 @@ def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: i
     def attempt(p: StepPlan) -> None:
         if p.step_dt != sim.dt or (p is not plan and sim.time > 0):
             sim.restart(p.step_dt)
-        with Progress(p.step_count, "steps", enabled=progress) as bar:
-            if sim.backend == "numpy":
-                last = None
-                for n in range(p.step_count):
-                    sim.step(1)
-                    bar.update(n + 1)
-                    if (check_every and (n + 1) % check_every == 0) or n + 1 == p.step_count:
-                        x = sim.positions()
-                        count = int(bad_nodes(x, limit).sum())
-                        if count:
-                            raise BlowUp.at(source, n + 1, p.step_dt, count, describe_bad_node(x, sim.grid, limit),
-                                            limit, last)
-                        last = n + 1
-                return
-            assert sim.ctx is not None
-            watch = BlowUpWatch(sim.ctx, sim, every=check_every, limit=limit, grid=sim.grid, source=source,
-                                dt=p.step_dt)
-            try:
-                step_watched(sim.ctx, sim, p.step_count, bar, watch)
-            finally:
-                watch.release()
+        watch = make_watch(sim.ctx, sim.backend_simulation, every=check_every, limit=limit, grid=sim.grid,
+                           source=source, dt=p.step_dt)
+        try:
+            with Progress(p.step_count, "steps", enabled=progress) as bar:
+                step_run(sim.backend_simulation, p.step_count, ctx=sim.ctx, watch=watch, progress=bar)
+        finally:
+            watch.release()
 
     _, used = run_with_retries(plan, unstable, attempt, notes)
     return RunResult(int(steps), used.substeps, sim.time, tuple(notes))
