@@ -113,3 +113,37 @@ def test_the_run_loop_stops_each_backend_at_the_same_converged_step(ctx, backend
     with make_simulation(system, "semi-implicit", backend, dt=1e-3, ctx=ctx, grid=grid) as sim:
         assert run(sim, 40, converge=(0.0, 20)) == RunResult(40, False)
         assert sim.time == pytest.approx(0.04)
+
+
+def test_the_stage_table_describes_every_integrator_once():
+    from deformgl.sim.stages import SPECS, spec
+
+    assert tuple(SPECS) == INTEGRATORS
+    for name, s in SPECS.items():
+        assert s.bytes_per_node == I.memory_per_node(name)
+        for stage in s.stages:
+            assert not set(stage.reads) & set(stage.writes), (name, stage)  # ping-pong
+            assert set(stage.reads) | set(stage.writes) <= set(s.buffers)
+    assert spec("rk4").limit_factor == pytest.approx(2.83, abs=0.01)
+    with pytest.raises(ValueError, match="unknown integrator"):
+        spec("leapfrog")
+
+
+@pytest.mark.parametrize("backend", ["fragment", "feedback"])
+def test_a_constructor_failing_half_way_releases_what_it_made(ctx, backend, monkeypatch):
+    import moderngl
+
+    made = []
+    real = moderngl.Context.texture
+
+    def counting(self, *a, **k):
+        t = real(self, *a, **k)
+        made.append(t)
+        if len(made) == 2:
+            raise RuntimeError("out of texture memory")
+        return t
+
+    monkeypatch.setattr(moderngl.Context, "texture", counting)
+    with pytest.raises(RuntimeError, match="out of texture memory"):
+        build(ctx, backend)
+    assert made and type(made[0].mglo).__name__ == "InvalidObject"  # released
