@@ -57,8 +57,8 @@ _EXPORTS: dict[str, str] = {
     "INTEGRATORS": "deformgl.sim.integrators",
     "Constraints": "deformgl.sim.integrators",
     "Sphere": "deformgl.sim.integrators",
-    "dt_limit": "deformgl.sim.stability",
-    "check_dt": "deformgl.sim.stability",
+    "dt_limit": "deformgl.sim.limits",
+    "check_dt": "deformgl.sim.limits",
     # GL and rendering
     "create_context": "deformgl.gl.context",
     "GLOwner": "deformgl.gl.resources",
@@ -116,7 +116,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.sim.model import SpringModel
     from deformgl.sim.simulation import SimulationSetupError
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
-    from deformgl.sim.stability import check_dt, dt_limit
+    from deformgl.sim.limits import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment
     from deformgl.trilinear.batches import ComposedScene
     from deformgl.trilinear.cuboid import Box
