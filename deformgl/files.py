@@ -49,9 +49,10 @@ def write_png_atomic(path: str | os.PathLike[str], array: np.ndarray) -> None:
     write_atomic(path, lambda stream: image.save(stream, format="PNG"))
 
 
-def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], None]) -> None:
+def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> None:
     """Write a file so that ``path`` never holds a partial one: ``write(stream)`` fills a
-    temporary file in the same directory, which is flushed to disk and renamed over ``path``.
+    temporary file in the same directory (its return value is ignored), which is flushed to
+    disk and renamed over ``path``.
     On any failure the temporary file is removed and an existing ``path`` is left as it was. The
     new file gets the usual permissions for a new file (``0o666`` less the umask).
 
@@ -110,6 +111,7 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
     """
     with Image.open(path) as image:
         image.load()
+        converted: Image.Image
         if image.mode in ("RGB", "RGBA"):
             converted = image
         elif "A" in image.getbands() or "transparency" in image.info:

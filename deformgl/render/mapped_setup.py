@@ -122,4 +122,10 @@ def export_mesh(path: Path, vertices: np.ndarray, normals: np.ndarray, faces: np
     mesh = trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), faces,
                            vertex_normals=normals / np.where(lengths > 0, lengths, 1.0), process=False)
     data = mesh.export(file_type=suffix[1:])
-    write_atomic(path, lambda stream: stream.write(data if isinstance(data, bytes) else data.encode()))
+    if isinstance(data, bytes):
+        payload = data
+    elif isinstance(data, str):
+        payload = data.encode()
+    else:  # trimesh returns a dict only for its "dict" export types, never for these suffixes
+        raise InputError(f"{path}: trimesh exported a {type(data).__name__} for {suffix}, not bytes or text")
+    write_atomic(path, lambda stream: stream.write(payload))
