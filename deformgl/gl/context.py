@@ -51,7 +51,8 @@ def create_context(device: int | None = None) -> moderngl.Context:
     if index is not None:
         kwargs["device_index"] = index
     try:
-        ctx = moderngl.create_standalone_context(**kwargs)
+        # moderngl's stub annotates **settings as Dict[str, Any] per keyword, not the values' types
+        ctx = moderngl.create_standalone_context(**kwargs)  # type: ignore[arg-type]
     except Exception as exc:  # glcontext raises plain Exception subclasses with its own text
         where = f"EGL device {index}" if index is not None else "the default EGL device"
         detail = " ".join(str(exc).split()) or type(exc).__name__

@@ -34,7 +34,7 @@ class Program:
             self.gl = ctx.program(
                 vertex_shader=self.vertex_source.text,
                 fragment_shader=self.fragment_source.text if self.fragment_source else None,
-                varyings=list(varyings))
+                varyings=tuple(varyings))
         except moderngl.Error as exc:
             raise ShaderError(f"program {self.name} failed to build:\n{self._explain(str(exc))}") from None
 
@@ -55,6 +55,8 @@ class Program:
                 member = self.gl[key]
             except KeyError:
                 raise ShaderError(f"program {self.name} has no active uniform {key!r}") from None
+            if not isinstance(member, (moderngl.Uniform, moderngl.UniformBlock, moderngl.StorageBlock)):
+                raise ShaderError(f"program {self.name}: {key!r} is a {type(member).__name__}, not a uniform")
             member.value = value
 
     def release(self) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 
@@ -120,11 +121,20 @@ class NodeGrid:
         return (points - lo) / extent
 
 
+class _TexelLayout(Protocol):
+    """What :class:`TexelImages` needs of the layout class it is mixed into."""
+
+    @property
+    def size(self) -> tuple[int, int]: ...
+
+    def texel(self, ijk: np.ndarray) -> np.ndarray: ...
+
+
 class TexelImages:
     """Mixin moving per-node values between node order and texture images; the layout class
     provides ``size`` (width, height) and ``texel(ijk)``."""
 
-    def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
+    def scatter(self: _TexelLayout, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """Place per-node ``values`` (N, C) into a (height, width, C) float32 texture image."""
         w, h = self.size
         img = np.full((h, w, values.shape[1]), fill, dtype=np.float32)
@@ -132,7 +142,7 @@ class TexelImages:
         img[t[:, 1], t[:, 0]] = values
         return img
 
-    def gather(self, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
+    def gather(self: _TexelLayout, ijk: np.ndarray, image: np.ndarray) -> np.ndarray:
         """Read per-node values (N, C) back out of a (height, width, C) texture image."""
         t = self.texel(ijk)
         return image[t[:, 1], t[:, 0]]
