@@ -117,6 +117,7 @@ def _parse(data: bytes, file_type: str, file_path: Path, name: str) -> trimesh.p
 def _flatten(loaded: object, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Return (vertices, faces, per-vertex UVs or None) of a loaded Trimesh, or of all meshes of
     a Scene concatenated (UVs only when every part has them)."""
+    found: list[object]
     if isinstance(loaded, trimesh.Scene):
         # dump() applies each instance's scene-graph transform (and fixes winding on mirrors).
         found = list(loaded.dump())
@@ -140,7 +141,8 @@ def _flatten(loaded: object, name: str) -> tuple[np.ndarray, np.ndarray, np.ndar
         uv = getattr(getattr(part, "visual", None), "uv", None)
         ok = uv is not None and np.shape(uv) == (len(vertices[-1]), 2) and np.isfinite(uv).all()
         uvs.append(np.asarray(uv, dtype=np.float64) if ok else None)
-    uv_all = np.concatenate(uvs) if all(u is not None for u in uvs) else None
+    present = [u for u in uvs if u is not None]
+    uv_all = np.concatenate(present) if len(present) == len(uvs) else None
     return np.concatenate(vertices), np.concatenate(faces), uv_all
 
 

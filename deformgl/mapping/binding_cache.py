@@ -76,7 +76,8 @@ def save_binding(path: str | os.PathLike[str], binding: Binding, key: str) -> No
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, **data)
+            # allow_pickle=True is numpy's default, named so that mypy knows ``data`` cannot hold it
+            np.savez_compressed(fh, allow_pickle=True, **data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -103,7 +104,8 @@ def load_binding(path: str | os.PathLike[str], key: str) -> Binding | None:
             if str(npz["key"]) != key or int(npz["version"]) != BINDING_VERSION:
                 return None
             arrays = {name: np.array(npz[name]) for name in _ARRAY_FIELDS}
-            rep_arrays = {name: np.array(npz[f"report_{name}"]) for name in _REPORT_ARRAYS}
+            # Any: what the file holds; BindingReport(...) below raises TypeError on a mismatch
+            rep_arrays: dict[str, Any] = {name: np.array(npz[f"report_{name}"]) for name in _REPORT_ARRAYS}
             rep_scalars = {name: npz[f"report_{name}"].item() for name in _REPORT_SCALARS}
     except (OSError, ValueError, KeyError, EOFError, TypeError, zipfile.BadZipFile):
         return None

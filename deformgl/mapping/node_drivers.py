@@ -140,7 +140,7 @@ class DrivenNodes(GLOwner):
         with self.building():
             self.program = self.own(Program(ctx, vert, "sim/node_normals.frag", defines=layout.shader_defines()))
             self.program.set(u_position=0, u_node=1, **layout.shader_uniforms())
-            if compact:
+            if isinstance(layout, CompactLayout):
                 self.vao = self.own(ctx.vertex_array(self.program.gl, []))
                 self.vertices = 3
             else:
