@@ -16,7 +16,9 @@ import trimesh
 from deformgl.render.camera import View
 from deformgl.sim.integrators import Constraints
 from deformgl.render.passes import Lighting
-from deformgl.trilinear.scenegraph import Geometry, GeometryNode, GroupNode, TransformNode, TrilinearRenderer, compose_scene
+from deformgl.trilinear.scenegraph import (
+    Geometry, GeometryNode, GroupNode, Node, TransformNode, TrilinearRenderer, compose_scene,
+)
 
 __all__ = ["OBSTACLE_COLOUR", "obstacle_scene", "draw_obstacles"]
 
@@ -40,7 +42,7 @@ def obstacle_scene(constraints: Constraints, t: float, lo: np.ndarray, hi: np.nd
         lo, hi: the scene box, for the ground's extent.
         spacing: grid spacing; spheres are drawn half of it smaller.
     """
-    leaves = []
+    leaves: list[Node] = []
     if constraints.spheres:
         ball = Geometry.from_trimesh(trimesh.creation.icosphere(subdivisions=4, radius=1.0), "sphere")
         for sphere in constraints.spheres:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -86,19 +87,22 @@ class AnchorArray:
     @classmethod
     def of(cls, anchors: Sequence[Anchor] | Sequence[Sequence[Anchor]]) -> AnchorArray:
         """From a list (1D) or a list of equal-length lists (2D) of :class:`Anchor`."""
-        rows = list(anchors)
+        rows: list[Anchor | Sequence[Anchor]] = list(anchors)
+        shape: tuple[int, ...]
+        flat: Sequence[object]
         if rows and not isinstance(rows[0], Anchor):
-            table = [list(r) for r in rows]
+            table = [list(cast("Sequence[Anchor]", r)) for r in rows]
             if len({len(r) for r in table}) != 1:
                 raise InputError("a 2D anchor array needs rows of equal length")
             flat, shape = [x for r in table for x in r], (len(table), len(table[0]))
         else:
             flat, shape = rows, (len(rows),)
-        if not all(isinstance(x, Anchor) for x in flat):
+        items = [x for x in flat if isinstance(x, Anchor)]
+        if len(items) != len(flat):
             raise InputError("an anchor array needs Anchor items")
-        return cls(np.array([x.triangle for x in flat], dtype=np.int64).reshape(shape),
-                   np.array([x.point for x in flat], dtype=np.float64).reshape(shape + (3,)),
-                   np.array([x.tangent_point for x in flat], dtype=np.float64).reshape(shape + (3,)))
+        return cls(np.array([x.triangle for x in items], dtype=np.int64).reshape(shape),
+                   np.array([x.point for x in items], dtype=np.float64).reshape(shape + (3,)),
+                   np.array([x.tangent_point for x in items], dtype=np.float64).reshape(shape + (3,)))
 
     @classmethod
     def on_mesh(cls, vertices: np.ndarray, triangles: np.ndarray, positions: np.ndarray,

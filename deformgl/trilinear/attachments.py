@@ -61,7 +61,10 @@ class TubeAttachment:
         anchors = AnchorArray.on_mesh(vertices, faces, positions, ahead)
         length = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
         box = Box(np.array([0.0, -radius, 0.0]), np.array([length, radius, 2.0 * radius]))
-        return cls(anchors, box, float(radius), tuple(float(c) for c in colour))
+        rgb = tuple(float(c) for c in colour)
+        if len(rgb) != 3:
+            raise InputError(f"attach: colour must be RGB (3 values), got {len(rgb)}")
+        return cls(anchors, box, float(radius), rgb)
 
     def compose(self, vertices: np.ndarray, faces: np.ndarray, *, rings: int = 48) -> ComposedScene:
         """The scene graph of the tube on the mesh's current ``vertices``, composed."""

@@ -39,6 +39,16 @@ class Batch:
     corners: np.ndarray | None = None
     grids: list[np.ndarray] = field(default_factory=list)
 
+    def need(self, name: str, value: np.ndarray | None) -> np.ndarray:
+        """``value``, the array ``name`` of this batch, which its path must have set.
+
+        Raises:
+            InputError: it is None (a batch built without the arrays of its path).
+        """
+        if value is None:
+            raise InputError(f"a batch on the {self.path!r} path needs {name}, which is not set")
+        return value
+
     @property
     def count(self) -> int:
         """Number of leaves (instances)."""
@@ -48,14 +58,15 @@ class Batch:
         """Per leaf: a 4x4 matrix (affine) or a :class:`Trilinear` over the leaf's box."""
         if self.path == "affine":
             out = []
-            for m in self.affine:
+            for m in self.need("affine", self.affine):
                 full = np.identity(4)
                 full[:3] = m
                 out.append(full)
             return out
-        boxes = [Box(lo, lo + s) for lo, s in zip(self.box_lo, self.box_size)]
+        boxes = [Box(lo, lo + s) for lo, s in zip(self.need("box_lo", self.box_lo),
+                                                    self.need("box_size", self.box_size))]
         if self.path == "cuboid":
-            return [Trilinear.from_corners(b, c) for b, c in zip(boxes, self.corners)]
+            return [Trilinear.from_corners(b, c) for b, c in zip(boxes, self.need("corners", self.corners))]
         lattices = [p for stack in self.grids for p in stack]
         return [Trilinear(b, p) for b, p in zip(boxes, lattices)]
 
@@ -79,9 +90,10 @@ class Batch:
         """(lo, hi) of the drawn leaves in world space."""
         if self.path == "affine":
             corners = self.geometry.box.corners()
-            pts = np.einsum("kij,mj->kmi", self.affine[:, :, :3], corners) + self.affine[:, None, :, 3]
+            affine = self.need("affine", self.affine)
+            pts = np.einsum("kij,mj->kmi", affine[:, :, :3], corners) + affine[:, None, :, 3]
         elif self.path == "cuboid":
-            pts = self.corners
+            pts = self.need("corners", self.corners)
         else:
             pts = np.concatenate([g.reshape(-1, 3) for g in self.grids])
         pts = pts.reshape(-1, 3)

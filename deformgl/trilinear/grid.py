@@ -215,7 +215,7 @@ def _check_cells(cells: tuple[int, int, int]) -> tuple[int, int, int]:
     out = tuple(int(n) for n in cells)
     if len(out) != 3 or min(out) < 1:
         raise InputError(f"a grid needs three cell counts >= 1, got {cells}")
-    return out  # type: ignore[return-value]
+    return out
 
 
 def sample_lattice(cells: tuple[int, int, int], samples_per_cell: int) -> np.ndarray:

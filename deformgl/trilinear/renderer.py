@@ -92,12 +92,13 @@ def instance_data(batch: Batch, *, cuboid_form: int = 4, origins: np.ndarray | N
     """
     k = batch.count
     if batch.path == "affine":
-        return batch.affine.reshape(k, 12).astype(np.float32)
+        return batch.need("affine", batch.affine).reshape(k, 12).astype(np.float32)
     out = np.zeros((k, 4 * len(_INSTANCE_ATTRIBUTES[batch.path])), dtype=np.float32)
     if batch.path == "cuboid":
+        corners = batch.need("corners", batch.corners)
         out[:, 0:3] = batch.box_lo
-        out[:, 4:7] = 1.0 / batch.box_size
-        rows = coefficient_matrix(batch.corners) if cuboid_form == 4 else np.swapaxes(batch.corners, 1, 2)
+        out[:, 4:7] = 1.0 / batch.need("box_size", batch.box_size)
+        rows = coefficient_matrix(corners) if cuboid_form == 4 else np.swapaxes(corners, 1, 2)
         out[:, 8:] = rows.reshape(k, 24)
         return out
     cells = np.concatenate([np.repeat(np.array(s.shape[1:4])[None] - 1, len(s), 0) for s in batch.grids])
@@ -177,7 +178,7 @@ class TrilinearRenderer(GLOwner):
         if not grid_batches:
             return {}
         grids = [s for b in grid_batches for s in b.grids]
-        shapes = [tuple(int(v) for v in s.shape[1:4]) for s in grids for _ in range(len(s))]
+        shapes = [(int(s.shape[1]), int(s.shape[2]), int(s.shape[3])) for s in grids for _ in range(len(s))]
         offsets, size = pack_atlas(shapes, self.max_3d)
         image = atlas_image(grids, offsets, size)
         if self.atlas is None or self.atlas_size != size:

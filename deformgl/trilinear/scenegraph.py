@@ -51,7 +51,7 @@ def _collect(root: Node) -> list[tuple[GeometryNode, Trilinear | None, np.ndarra
     The composed transform of a leaf is ``grid * affine``; affine nodes multiply into
     ``affine`` exactly, trilinear nodes are composed into a new grid (:func:`compose`).
     """
-    leaves = []
+    leaves: list[tuple[GeometryNode, Trilinear | None, np.ndarray, str]] = []
     append = leaves.append
     stack: list[tuple[Node, Trilinear | None, np.ndarray, str]] = [(root, None, np.identity(4), "direct")]
     pop, push = stack.pop, stack.append
@@ -90,7 +90,8 @@ def _leaf_lattices(grid: Trilinear, mats: np.ndarray, box: Box) -> Iterator[tupl
     key = (n[:, 0] * base + n[:, 1]) * base + n[:, 2]
     for value in np.unique(key):
         sel = np.flatnonzero(key == value)
-        c = tuple(int(v) for v in n[sel[0]])
+        cx, cy, cz = (int(v) for v in n[sel[0]])
+        c = (cx, cy, cz)
         lattice = box.from_unit(unit_lattice(c)).reshape(-1, 3)
         pre = lattice @ lin[sel].transpose(0, 2, 1) + off[sel, None, :]
         pts = grid(pre.reshape(-1, 3)).reshape(len(sel), *(v + 1 for v in c), 3)

@@ -77,6 +77,7 @@ def tubes_scene(mode: str, *, along: int = 10, around: int = 12) -> BuiltScene:
     box = Box(np.zeros(3), np.array([along, around, 1.0]))
     root = TransformNode(Z_UP_TO_Y_UP, name="z up to y up")
     grids = {}
+    parent: Node
     if mode == "trilinear":
         parent, grids["torus wrap"] = _torus_root(wrap, box, (4 * along, 2 * around, 1))
         root.add(parent)
@@ -140,6 +141,7 @@ def spheres_scene(mode: str, *, along: int = 37, around: int = 5, segments: int 
     box = Box(np.zeros(3), np.array([along, around, 1.0]))
     root = TransformNode(Z_UP_TO_Y_UP)
     grids = {}
+    parent: Node
     if mode == "trilinear":
         parent, grids["torus wrap"] = _torus_root(wrap, box, (2 * along, 6 * around, 1))
         root.add(parent)

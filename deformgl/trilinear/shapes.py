@@ -6,6 +6,7 @@ grooved hall tile of Knuth, Kohlhammer & Kuijper, figure 9, each as a scene-grap
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import trimesh
 
 from deformgl.trilinear.scenegraph import Geometry
@@ -27,8 +28,8 @@ def uv_sphere(radius: float, segments: int, rings: int, name: str = "sphere") ->
     last = len(unit) - 1
     base = 1 + (rings - 2) * s
     tris += [[last, base + j, base + (j + 1) % s] for j in range(s)]
-    tris = np.array(tris)[:, [0, 2, 1]]  # counter-clockwise seen from outside
-    return Geometry(unit * radius, unit, tris, name)
+    faces = np.array(tris)[:, [0, 2, 1]]  # counter-clockwise seen from outside
+    return Geometry(unit * radius, unit, faces, name)
 
 
 def tube(length: float, radius: float, *, sections: int = 12, rings: int = 16, name: str = "tube") -> Geometry:
@@ -44,7 +45,8 @@ def tube(length: float, radius: float, *, sections: int = 12, rings: int = 16, n
         for j in range(sections):
             p, q = i * sections + j, i * sections + (j + 1) % sections
             tris += [[p, q, p + sections], [q, q + sections, p + sections]]
-    verts, norms = [side_v], [side_n]
+    verts: list[npt.ArrayLike] = [side_v]
+    norms = [side_n]
     start = len(side_v)
     for end, sign in ((0.0, -1.0), (length, 1.0)):
         ring = np.stack([np.full(sections, end), radius * np.cos(a), radius * np.sin(a)], -1)
