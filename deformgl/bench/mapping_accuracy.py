@@ -125,8 +125,10 @@ class GridMappings:
         self.bounds = np.array([self.rest.min(axis=0), self.rest.max(axis=0)])
         self.spacing = built.grid.spacing
         self.surface = grid_surface(built.grid)
-        self.textures = NodeTextures(ctx, built.model)
-        self.nodes = DrivenNodes(ctx, self.textures, built.grid)
+        # None once released
+        self.textures: NodeTextures | None = NodeTextures(ctx, built.model)
+        self.nodes: DrivenNodes | None = DrivenNodes(ctx, self.textures, built.grid)
+        layout = self.textures.layout
         self.passes: dict[str, GridSurfacePass | MappedMeshPass] = {}
         self.bind_ms: float | None = None
         self.curvature_share: dict[str, float] = {"one-to-one": 0.0}
@@ -139,23 +141,29 @@ class GridMappings:
                 normals = rest_node_normals(built.model)
             for mode in modes:
                 if mode == "one-to-one":
-                    self.passes[mode] = GridSurfacePass(ctx, built.grid, self.textures.layout)
+                    self.passes[mode] = GridSurfacePass(ctx, built.grid, layout)
                     continue
                 data = mapped_vertices(binding, mode, self.rest, normals)
                 self.curvature_share[mode] = float(data.use_curvature.mean())
-                self.passes[mode] = MappedMeshPass(ctx, built.grid, self.textures.layout, built.mesh.faces, data)
+                self.passes[mode] = MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data)
         except BaseException:
             self.release()
             raise
 
+    def _driven(self) -> DrivenNodes:
+        """The driven nodes; raises RuntimeError after :meth:`release`."""
+        if self.nodes is None:
+            raise RuntimeError("GridMappings: used after release()")
+        return self.nodes
+
     def set_positions(self, positions: np.ndarray) -> None:
         """Upload (N, 3) node positions (recentred frame); the GPU computes Mosegaard & Sørensen 2005, eq. 3 normals."""
-        self.nodes.set_positions(positions)
+        self._driven().set_positions(positions)
 
     def capture(self, mode: str) -> np.ndarray:
         """(V, 3) float64 vertices the vertex shader of ``mode`` computes for the current nodes
         (for one-to-one: the grid-surface vertices, one per ``surface.nodes`` entry)."""
-        vertices, _ = self.passes[mode].capture(self.nodes.position_texture)
+        vertices, _ = self.passes[mode].capture(self._driven().position_texture)
         return vertices.astype(np.float64)
 
     def moved(self, motion: Motion, amount: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -178,11 +186,12 @@ class GridMappings:
     def draw_ms(self, mode: str, target: RenderTarget, repeats: int) -> float:
         """Median ms of one draw of ``mode`` into ``target`` (with ctx.finish()), current nodes."""
         view, lighting = scene_view(self.scene, self.built.bbox), scene_lighting(self.scene)
-        background = tuple(self.scene.render.background)
+        r, g, b = self.scene.render.background  # a list or tuple of 3 (the schema checks it)
+        background = (r, g, b)
 
         def draw() -> None:
             target.begin(background)
-            self.passes[mode].draw(self.nodes.position_texture, view, lighting)
+            self.passes[mode].draw(self._driven().position_texture, view, lighting)
             self.ctx.finish()
 
         draw()  # warm-up: shader compile and first upload
@@ -193,11 +202,13 @@ class GridMappings:
         for p in self.passes.values():
             p.release()
         self.passes = {}
-        if getattr(self, "nodes", None) is not None:
-            self.nodes.release()
+        nodes = getattr(self, "nodes", None)  # absent when __init__ failed before setting it
+        if nodes is not None:
+            nodes.release()
             self.nodes = None
-        if getattr(self, "textures", None) is not None:
-            self.textures.release()
+        textures = getattr(self, "textures", None)
+        if textures is not None:
+            textures.release()
             self.textures = None
 
 
@@ -220,9 +231,10 @@ def mapping_accuracy(ctx: moderngl.Context, *, scene_path: str | Path = DEFAULT_
     Returns:
         One row per grid x motion x mode, in that order.
     """
-    scene = load_scene(scene_path).with_overrides(size=tuple(size))
+    width, height = size
+    scene = load_scene(scene_path).with_overrides(size=(width, height))
     rows: list[MappingRow] = []
-    target = RenderTarget(ctx, tuple(size), samples)
+    target = RenderTarget(ctx, (width, height), samples)
     try:
         for n in grids:
             g = GridMappings(ctx, scene, n, tuple(modes), use_cache=use_cache)
