@@ -1,4 +1,4 @@
-"""The package's shape is a fact too: layers point down, no import cycle."""
+"""The package's shape is a fact too: layers point down, no import cycle, no oversized module."""
 
 from __future__ import annotations
 
@@ -8,9 +8,11 @@ import sys
 from pathlib import Path
 
 import grimp
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "deformgl"
+MAX_LINES = 550  # "no module over ~500 lines"
 
 
 def test_layers_point_down():
@@ -62,6 +64,12 @@ def test_cycle_finder_finds_a_cycle():
     assert _cycle(graph) is None
     graph.add_import(importer="p.c", imported="p.a")
     assert _cycle(graph) == ["p.a", "p.b", "p.c", "p.a"]
+
+
+@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_module_size(path: Path):
+    lines = len(path.read_text(encoding="utf-8").splitlines())
+    assert lines <= MAX_LINES, f"{path.relative_to(ROOT)} has {lines} lines; split it by what it does"
 
 
 def test_subpackages_mirror_the_shaders():
