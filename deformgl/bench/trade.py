@@ -154,8 +154,13 @@ class TradeRow:
         return self.rms
 
 
+def _first_two(p: Any) -> tuple[float, float]:
+    """The default key of :func:`pareto_front`: a point's first two items."""
+    return (p[0], p[1])
+
+
 def pareto_front(points: Iterable[P],
-                 key: Callable[[P], tuple[float, float]] = lambda p: (p[0], p[1])) -> list[P]:
+                 key: Callable[[P], tuple[float, float]] = _first_two) -> list[P]:
     """The non-dominated points, cheapest first (so error falls along the list).
 
     A point is dominated when another is no worse in cost and error and better in one. Points
@@ -179,10 +184,12 @@ _FIELDS = [f.name for f in dataclasses.fields(TradeRow)]
 
 
 def _row(d: dict[str, Any]) -> TradeRow:
-    types = {f.name: f.type for f in dataclasses.fields(TradeRow)}
-    conv = {"int": int, "float": float, "str": str}
-    return TradeRow(**{k: (math.nan if d[k] in (None, "") else conv[types[k]](d[k]))
-                       for k in _FIELDS})
+    # The field types are strings (``from __future__ import annotations``): "int", "float", ...
+    types = {f.name: str(f.type) for f in dataclasses.fields(TradeRow)}
+    conv: dict[str, Callable[[Any], Any]] = {"int": int, "float": float, "str": str}
+    values: dict[str, Any] = {k: (math.nan if d[k] in (None, "") else conv[types[k]](d[k]))
+                              for k in _FIELDS}
+    return TradeRow(**values)
 
 
 def read_csv(path: str | os.PathLike) -> list[TradeRow]:
@@ -289,8 +296,10 @@ class TradeReport:
         """A report written by :meth:`write_json`."""
         with open(path, encoding="utf-8") as f:
             d = json.load(f)
-        refs = [Reference(**{k: (math.nan if v is None else v) for k, v in r.items()})
-                for r in d["references"]]
+        def reference(r: dict[str, Any]) -> Reference:
+            values: dict[str, Any] = {k: (math.nan if v is None else v) for k, v in r.items()}
+            return Reference(**values)
+        refs = [reference(r) for r in d["references"]]
         return cls([_row(r) for r in d["rows"]], d["machine"], d["date"], d["sim_time"], refs)
 
     def write_csv(self, path: str | os.PathLike) -> None:
@@ -356,9 +365,10 @@ def _errors(w: Workload, x: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
 
 def _reference(w: Workload, rk4_limit: float, divisor: float) -> tuple[np.ndarray, Reference]:
     steps = math.ceil(w.time * divisor / rk4_limit)
-    kw = dict(constraints=w.constraints, drags=w.drags)
-    coarse = simulate(w.system, "rk4", w.time / steps, steps, **kw).x
-    fine = simulate(w.system, "rk4", w.time / (2 * steps), 2 * steps, **kw).x
+    coarse = simulate(w.system, "rk4", w.time / steps, steps, constraints=w.constraints,
+                      drags=w.drags).x
+    fine = simulate(w.system, "rk4", w.time / (2 * steps), 2 * steps,
+                    constraints=w.constraints, drags=w.drags).x
     error = float(np.linalg.norm(coarse - fine, axis=1).max() / w.system.spacing)
     return fine, Reference(w.name, w.system.count, w.system.spacing, w.time / (2 * steps),
                            2 * steps, error)
@@ -368,25 +378,33 @@ def _run(ctx: moderngl.Context, w: Workload, backend: str, name: str, dt: float,
          batch: int, repeats: int) -> tuple[np.ndarray, float]:
     """Final positions after ``steps`` steps and the median ms/step of ``batch`` more."""
     state = initial_state(w.system, dt, drags=w.drags)
-    kw = dict(constraints=w.constraints, drags=w.drags)
+    cons, drags = w.constraints, w.drags
     if backend == "numpy":
         with np.errstate(all="ignore"):
-            holder = [simulate(w.system, name, dt, steps, state=state, **kw)]
+            holder = [simulate(w.system, name, dt, steps, state=state, constraints=cons,
+                               drags=drags)]
             x = holder[0].x.copy()
 
             def more() -> None:
-                holder[0] = simulate(w.system, name, dt, batch, state=holder[0], **kw)
+                holder[0] = simulate(w.system, name, dt, batch, state=holder[0],
+                                     constraints=cons, drags=drags)
             return x, timed(more, repeats) / batch * 1e3
     if backend == "fragment":
         from deformgl.sim.backends.fragment import FragmentIntegrator
-        sim: Any = FragmentIntegrator(ctx, w.system, w.grid, name, dt, state=state, **kw)
+        sim: Any = FragmentIntegrator(ctx, w.system, w.grid, name, dt, state=state,
+                                      constraints=cons, drags=drags)
     else:
         from deformgl.sim.backends.feedback import FeedbackSimulation
-        sim = FeedbackSimulation(ctx, w.system, name, dt, state=state, **kw)
+        sim = FeedbackSimulation(ctx, w.system, name, dt, state=state, constraints=cons,
+                                 drags=drags)
     try:
         sim.step(steps)
         x = sim.positions().astype(np.float64)
-        return x, timed(lambda: (sim.step(batch), ctx.finish()), repeats) / batch * 1e3
+
+        def more_gl() -> None:
+            sim.step(batch)
+            ctx.finish()
+        return x, timed(more_gl, repeats) / batch * 1e3
     finally:
         sim.release()
 
@@ -434,7 +452,8 @@ def trade_study(ctx: moderngl.Context, *, backends: Sequence[str] = BACKENDS,
                 limit = limits[name]
                 if limit <= 0:
                     rows.append(TradeRow(w.name, backend, name, math.nan, math.nan, 0, 0.0,
-                                         *[math.nan] * 5, status="no stable dt"))
+                                         math.nan, math.nan, math.nan, math.nan, math.nan,
+                                         status="no stable dt"))
                     continue
                 for f in sorted(set(fractions)):
                     steps = math.ceil(w.time / (f * limit))
