@@ -31,6 +31,7 @@ from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
 from deformgl.progress import Progress
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene.schema import Physics, Scene
+from deformgl.scene.spec import ClothSpec, MeshSpec, Vec3
 from deformgl.sim.guards import BlowUpWatch, StepPlan, plan_steps
 from deformgl.scene.run import (SceneBox, SceneRun, bad_limit, needs_integrators, run_scene,
                         run_with_retries, scene_constraints, scene_system, step_watched)
@@ -57,6 +58,26 @@ class SceneModel:
     grid: NodeGrid
     model: SpringModel
     bbox: np.ndarray
+
+
+def _vec3(v: Vec3) -> Vec3:
+    """``tuple(v)`` of a 3-vector of the scene (a list or tuple of 3: the schema checks it)."""
+    x, y, z = v
+    return (x, y, z)
+
+
+def _cloth(scene: Scene) -> ClothSpec:
+    """The scene's cloth; only called on a cloth scene."""
+    if scene.cloth is None:
+        raise ValueError(f"{scene.source}: not a cloth scene")
+    return scene.cloth
+
+
+def _mesh(scene: Scene) -> MeshSpec:
+    """The scene's detailed mesh; the schema sets it on every scene that is not a cloth."""
+    if scene.mesh is None:
+        raise ValueError(f"{scene.source}: a cloth scene has no detailed mesh")
+    return scene.mesh
 
 
 def build_spring_model(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringModel:
@@ -90,8 +111,9 @@ def pull_schedule(physics: Physics):
 def build_cloth_model(scene: Scene) -> SceneModel:
     """A cloth scene: a one-node-thin sheet of nodes centred on the origin in the plane y = 0; its
     box is the cube of side ``cloth.size`` around it (Movania & Feng 2012, section 5)."""
-    nx, nz = scene.cloth.nodes
-    size = scene.cloth.size
+    cloth = _cloth(scene)
+    nx, nz = cloth.nodes
+    size = cloth.size
     spacing = size / (max(nx, nz) - 1)
     origin = np.array([-(nx - 1) * spacing / 2.0, 0.0, -(nz - 1) * spacing / 2.0])
     grid = NodeGrid(origin=origin, spacing=spacing, occupied=np.ones((nx, 1, nz), dtype=bool))
@@ -107,17 +129,18 @@ def build_scene_model(scene: Scene) -> SceneModel:
     build the cloth sheet of a cloth scene)."""
     if scene.cloth is not None:
         return build_cloth_model(scene)
-    mesh = load_mesh(scene.mesh.path)
+    mesh_spec = _mesh(scene)
+    mesh = load_mesh(mesh_spec.path)
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2.0
     mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, visual=mesh.visual, process=False)
     vox = voxelize(mesh, nodes_along_longest=scene.grid.nodes_along_longest,
-                   spacing=scene.grid.spacing, source=str(scene.mesh.path))
+                   spacing=scene.grid.spacing, source=str(mesh_spec.path))
     grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
                     occupied=np.asarray(vox.occupied, dtype=bool))
     if len(grid_surface(grid).triangles) == 0:
         raise InputError(
-            f"{scene.mesh.path}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
+            f"{mesh_spec.path}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
             f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
             f"(grid.nodes_along_longest or grid.spacing in {scene.source.name})")
     bbox = np.array(mesh.bounds, dtype=np.float64)
@@ -137,8 +160,8 @@ def scene_view(scene: Scene, bbox: np.ndarray) -> View:
 def scene_lighting(scene: Scene) -> Lighting:
     """Light and material uniforms of a scene."""
     r = scene.render
-    return Lighting(direction=tuple(r.light.direction), colour=tuple(r.light.colour),
-                    ambient=r.light.ambient, material=tuple(r.material.colour),
+    return Lighting(direction=_vec3(r.light.direction), colour=_vec3(r.light.colour),
+                    ambient=r.light.ambient, material=_vec3(r.material.colour),
                     specular=r.material.specular, shininess=r.material.shininess)
 
 
@@ -203,12 +226,15 @@ class NodeState:
             else:
                 if plan.note:
                     self.notes.append(plan.note)
-                self.sim, _ = run_with_retries(
+                sim, _ = run_with_retries(
                     plan, physics.safety.unstable,
                     lambda p: run_foundation(ctx, scene, built, p, progress=progress), self.notes)
-                self.textures = self.sim.textures
+                self.sim = sim
+                self.textures = sim.textures
                 return
         if nodes.source == "file":
+            if nodes.file is None:
+                raise ValueError(f"{scene.source}: nodes.file is not set")  # the schema sets it
             frames = load_node_frames(nodes.file, built.grid.count, built.centre)
             if not -len(frames) <= nodes.frame < len(frames):
                 raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
@@ -216,6 +242,8 @@ class NodeState:
             positions = frames[nodes.frame]
         elif nodes.source == "motion":
             m = nodes.motion
+            if m is None:
+                raise ValueError(f"{scene.source}: nodes.motion is not set")  # the schema sets it
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
         self.textures = NodeTextures(ctx, built.model)
@@ -229,7 +257,11 @@ class NodeState:
     @property
     def position_texture(self) -> moderngl.Texture:
         """State texture with the node positions and packed normals to draw."""
-        return self.sim.position_texture if self.sim else self.driven.position_texture
+        if self.sim:
+            return self.sim.position_texture
+        if self.driven is None:
+            raise RuntimeError("NodeState: no node positions (not built, or released)")
+        return self.driven.position_texture
 
     @property
     def layout(self):
@@ -262,7 +294,7 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
     binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache, uv=own_uv)
     if log is not None:
         for line in binding.report.lines():
-            log(f"{scene.mesh.path.name}: {line}")
+            log(f"{_mesh(scene).path.name}: {line}")
     data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
     if normal_map is not None:
         # the mesh's own UVs as they are; procedural ones (what the tangents were built from)
@@ -301,7 +333,7 @@ class Rendered:
 
     image: np.ndarray
     mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # vertices (world), normals, faces
-    pack: dict | None = None
+    pack: dict[str, np.ndarray | np.float32] | None = None
 
 
 def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
@@ -334,7 +366,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
     try:
         draw_pass = make_draw_pass(ctx, scene, built, state.layout, log=log)
         target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
-        target.begin(tuple(scene.render.background))
+        target.begin(_vec3(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)
         if log is not None:
@@ -348,22 +380,22 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
                 target.fbo.use()
                 draw_obstacles(ctx, constraints, state.run.time, built.bbox[0], built.bbox[1],
                                built.grid.spacing, view, lighting)
-        captured = None
+        captured: tuple[np.ndarray, np.ndarray] | None = None
         if scene.attach or mesh:
             captured = draw_pass.capture(state.position_texture)
             if not np.isfinite(captured[0]).all():
                 bad = int(np.argmax(~np.isfinite(captured[0]).all(axis=1)))
                 raise SimulationError(f"{scene.source}: mapped vertex {bad} is non-finite")
-        if scene.attach:
+        if scene.attach and captured is not None:  # (captured whenever scene.attach)
             target.fbo.use()
             draw_attachments(ctx, scene, built, captured[0].astype(np.float64), view, lighting)
         result = Rendered(target.read_rgb())
-        if mesh:
+        if mesh and captured is not None:  # (captured whenever mesh)
             result.mesh = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)
         if pack:
             result.pack = pack_inputs(state.position_texture, built.grid, state.layout, draw_pass.data,
                                       built.mesh.faces, view, lighting, scene.render.size,
-                                      tuple(scene.render.background))
+                                      _vec3(scene.render.background))
         return result
     finally:
         for obj in (target, draw_pass):
@@ -385,7 +417,11 @@ def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: b
     result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
     write_png_atomic(out, result.image)
     if export is not None:
+        if result.mesh is None:
+            raise RuntimeError("render() returned no mesh for --export-mesh")  # it always does
         export_mesh(export, *result.mesh)
     if pack is not None:
+        if result.pack is None:
+            raise RuntimeError("render() returned no inputs for --pack-inputs")  # it always does
         write_pack_inputs(pack, result.pack)
     return result.image
