@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -200,8 +201,8 @@ def standard_systems(damping_ratio: float = 0.1) -> dict[str, SpringSystem]:
     undamped, and with global damping ``c = 2 zeta m w_max`` (zeta = ``damping_ratio`` on the
     top mode, w_max exact).
     """
-    opts = dict(k_structural=100.0, k_shear=50.0, k_flexion=20.0, mass=0.01,
-                gravity=(0.0, 0.0, 0.0))
+    opts: dict[str, Any] = dict(k_structural=100.0, k_shear=50.0, k_flexion=20.0, mass=0.01,
+                                gravity=(0.0, 0.0, 0.0))
     block = from_grid(NodeGrid(np.zeros(3), 0.1, np.ones((4, 4, 4), bool)), **opts)
     sheet = cloth(10, 10, 0.1, **opts)
     out = {}
