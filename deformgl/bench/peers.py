@@ -51,7 +51,7 @@ def peer_import_errors() -> dict[str, str]:
 
 
 def _probe() -> dict[str, tuple[str | None, str | None]]:
-    out = {}
+    out: dict[str, tuple[str | None, str | None]] = {}
     for name, module in (("taichi", "taichi"), ("warp", "warp")):
         try:
             mod = __import__(module)
@@ -217,7 +217,9 @@ class TaichiStepper(PeerStepper):
         vec3 = ti.math.vec3
 
         @ti.kernel
-        def verlet(phase: ti.i32):
+        # (taichi takes a kernel's argument types as annotations read at run time; ``ti`` is a
+        # local module object here, which mypy cannot read as a type)
+        def verlet(phase: ti.i32):  # type: ignore[name-defined]
             cur, prev, new = phase, (phase + 2) % 3, (phase + 1) % 3
             gravity = vec3(gx, gy, gz)
             for i in range(n):
@@ -305,14 +307,18 @@ def _warp():
         return _WP["wp"], _WP["kernel"]
     import warp as wp
 
-    wp.config.quiet = True
+    # warp 1.19's typed config module no longer declares ``quiet`` (older releases read it);
+    # the assignment is kept as it was
+    wp.config.quiet = True  # type: ignore[attr-defined]
     wp.init()
     sqrt2 = float(np.sqrt(2.0))
 
     @wp.kernel(enable_backward=False, module="unique")
-    def verlet(x: wp.array(dtype=wp.vec3), xp: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3),
-               nb: wp.array2d(dtype=wp.int32), mask: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
-               dense: wp.int32, mass: wp.array(dtype=wp.float32), flags: wp.array(dtype=wp.int32),
+    # (warp's kernel API declares argument types as calls such as ``wp.array(dtype=...)``, read at
+    # run time; mypy accepts no call in an annotation)
+    def verlet(x: wp.array(dtype=wp.vec3), xp: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3),  # type: ignore[valid-type]
+               nb: wp.array2d(dtype=wp.int32), mask: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),  # type: ignore[valid-type]
+               dense: wp.int32, mass: wp.array(dtype=wp.float32), flags: wp.array(dtype=wp.int32),  # type: ignore[valid-type]
                h: wp.float32, k1: wp.float32, k2: wp.float32, c: wp.float32, dt: wp.float32,
                gravity: wp.vec3, pull0: wp.vec3, pull1: wp.vec3, pull2: wp.vec3, pull3: wp.vec3):
         i = wp.tid()
@@ -457,7 +463,8 @@ def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, r
     versions = available_peers()
     out = {}
     for peer in peers or PEERS:
-        if versions.get(peer) is None:
+        version = versions.get(peer)
+        if version is None:
             continue
         t0 = time.perf_counter()
         stepper = make_stepper(peer, model, dt, pull_force)
@@ -474,6 +481,6 @@ def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, r
             wall += w
             best = min(best, w)
         ms = best / steps * 1e3
-        out[peer] = PeerTiming(peer, versions[peer], model.grid.count, ms, model.grid.count / (ms * 1e-3),
+        out[peer] = PeerTiming(peer, version, model.grid.count, ms, model.grid.count / (ms * 1e-3),
                                t1 - t0, t2 - t1, stepper.threads, cpu / wall)
     return out
