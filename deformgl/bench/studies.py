@@ -158,7 +158,7 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
     binding = get_binding(built.mesh, built.model, surface, use_cache=True, uv=None)
     rest_normals = rest_node_normals(built.model)
     mesh = built.mesh
-    passes = {
+    passes: dict[str, StaticMeshPass | GridSurfacePass | MappedMeshPass] = {
         "static mesh": StaticMeshPass(ctx, mesh.vertices, mesh.vertex_normals, mesh.faces),
         "one-to-one": GridSurfacePass(ctx, built.grid, sim.textures.layout),
     }
@@ -184,13 +184,16 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
             draw()
             rows.append(RenderRow(name, timed(draw, repeats) * 1e3))
         frame_ms = {}
+        curvature = passes["curvature"]
+        if not isinstance(curvature, MappedMeshPass):
+            raise TypeError("bench_render: the curvature pass is not a MappedMeshPass")
         for frame_samples in (samples, 0):
             small = RenderTarget(ctx, (frame_size, frame_size), frame_samples)
             try:
                 def frame() -> None:
                     sim.step(frame_steps)
                     small.begin((1.0, 1.0, 1.0))
-                    passes["curvature"].draw(sim.position_texture, view, lighting)
+                    curvature.draw(sim.position_texture, view, lighting)
                     ctx.finish()
                 frame()
                 frame_ms[frame_samples] = timed(frame, repeats) * 1e3
@@ -296,7 +299,11 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
         try:
             base.step(2)
             ctx.finish()
-            baseline = timed(lambda: (base.step(n_steps), ctx.finish()), 3) / n_steps * 1e3
+
+            def run_base() -> None:
+                base.step(n_steps)
+                ctx.finish()
+            baseline = timed(run_base, 3) / n_steps * 1e3
         finally:
             base.release()
         ms, per_node = {}, {}
@@ -312,6 +319,7 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
                             holder[0] = numpy_step(system, integrator, holder[0], dt, i * dt)
                     ms[backend, integrator] = timed(run_numpy, 1 if grid.count > 3e5 else 3) / k * 1e3
                     continue
+                sim: FragmentIntegrator | FeedbackSimulation
                 if backend == "fragment":
                     sim = FragmentIntegrator(ctx, system, grid, integrator, dt, state=state)
                 else:
@@ -319,7 +327,11 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
                 try:
                     sim.step(2)
                     ctx.finish()
-                    ms[backend, integrator] = timed(lambda: (sim.step(n_steps), ctx.finish()), 3) / n_steps * 1e3
+
+                    def run_gl() -> None:
+                        sim.step(n_steps)
+                        ctx.finish()
+                    ms[backend, integrator] = timed(run_gl, 3) / n_steps * 1e3
                     per_node[backend, integrator] = sim.bytes_per_node
                 finally:
                     sim.release()
@@ -351,7 +363,12 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
     are built and warmed up first; then ``rounds`` rounds time ``steps`` steps of each in turn,
     so load from other processes hits all alike. Best and median of the rounds; ratios are
     fragment throughput / peer throughput, of the medians."""
-    from deformgl.bench.peers import available_peers, make_stepper, peer_import_errors
+    from deformgl.bench.peers import PeerStepper, available_peers, make_stepper, peer_import_errors
+
+    def peer_run(st: PeerStepper) -> Callable[[], None]:
+        def run() -> None:
+            st.step(steps)
+        return run
 
     lines = [machine_line(ctx), "same 18-neighbour position-Verlet step (eq. 1/2, damping, gravity, fixed "
              f"nodes) in float32; {rounds} alternating rounds of {steps} steps, best / median ms per step; "
@@ -365,12 +382,16 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
         model = block_model(spec)
         dt = 0.2 / model.max_angular_frequency()
         sim = FragmentSimulation(ctx, model, dt)
-        steppers = {}
+        steppers: dict[str, PeerStepper] = {}
         try:
             for peer in versions:
                 steppers[peer] = make_stepper(peer, model, dt)
-            runs: dict[str, Callable[[], None]] = {"fragment": lambda: (sim.step(steps), ctx.finish())}
-            runs.update({peer: (lambda st=st: st.step(steps)) for peer, st in steppers.items()})
+
+            def run_fragment() -> None:
+                sim.step(steps)
+                ctx.finish()
+            runs: dict[str, Callable[[], None]] = {"fragment": run_fragment}
+            runs.update({peer: peer_run(st) for peer, st in steppers.items()})
             for run in runs.values():  # JIT and warm-up
                 run()
             times: dict[str, list[float]] = {name: [] for name in runs}
