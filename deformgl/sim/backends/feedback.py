@@ -265,9 +265,12 @@ class FeedbackSimulation(SimulationBase):
         else:
             self._add_pass("step", "feedback/verlet.vert", common, ("out_x",))
 
-        state = [self.buffer, *(self.tex_x if name == "verlet" else
-                                [self.tex_state, *([self.tex_stage] if self.tex_stage else [])])]
-        self.state_bytes = int(sum(_bytes(o) for o in state))
+        state_objects: list[moderngl.Buffer | moderngl.Texture] = [self.buffer]
+        if name == "verlet":  # (tex_stage is set only when the integrator is not verlet)
+            state_objects += self.tex_x
+        else:
+            state_objects += [self.tex_state, *([self.tex_stage] if self.tex_stage else [])]
+        self.state_bytes = int(sum(_bytes(o) for o in state_objects))
         self.bytes_allocated = int(sum(_bytes(o) for o in self._objects
                                        if isinstance(o, (moderngl.Buffer, moderngl.Texture))))
 
@@ -332,6 +335,12 @@ class FeedbackSimulation(SimulationBase):
         p.vao.transform(self.buffer, moderngl.POINTS, vertices=self.count)
         into.write(self.buffer)  # GPU to GPU (pixel-unpack buffer), no read-back
 
+    def _stage_texture(self) -> moderngl.Texture:
+        """The stage texture (midpoint and RK4 have one)."""
+        if self.tex_stage is None:
+            raise RuntimeError(f"FeedbackSimulation: {self.integrator} has no stage texture")
+        return self.tex_stage
+
     def step(self, n: int = 1) -> None:
         """``n`` steps of dt; nothing is read back."""
         if self._released:
@@ -354,14 +363,16 @@ class FeedbackSimulation(SimulationBase):
                 else:
                     self.tex_state.use(3)
                     if name == "midpoint":
-                        self._run("half", t, self.tex_stage)
-                        self.tex_stage.use(4)
+                        stage = self._stage_texture()
+                        self._run("half", t, stage)
+                        stage.use(4)
                         self._run("step", t + 0.5 * dt, self.tex_state)
                     elif name == "rk4":
-                        self._run("stage1", t, self.tex_stage)
-                        self.tex_stage.use(4)
-                        self._run("stage2", t + 0.5 * dt, self.tex_stage)
-                        self._run("stage3", t + 0.5 * dt, self.tex_stage)
+                        stage = self._stage_texture()
+                        self._run("stage1", t, stage)
+                        stage.use(4)
+                        self._run("stage2", t + 0.5 * dt, stage)
+                        self._run("stage3", t + 0.5 * dt, stage)
                         self._run("step", t + dt, self.tex_state)
                     else:
                         self._run("step", t, self.tex_state)
