@@ -115,7 +115,7 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
                 if at <= target:
                     target, check_convergence = at, True
             before = None
-            if check_convergence and gpu:
+            if check_convergence and census is not None:  # (census: converging on the GPU)
                 if target - done > 1:
                     sim.step(target - done - 1)
                 texture, _, _, slot = sim.position_slot()
@@ -130,8 +130,8 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
             blown = not gpu and not np.isfinite(sim.last_moved)
             if watch is not None and (watch.due(done) or done == steps or blown):
                 watch.check(done)
-            if check_convergence:
-                if gpu:
+            if check_convergence and converge is not None:  # (checks only when converging)
+                if census is not None and before is not None:  # (both set on the GPU path)
                     now, _, _, slot = sim.position_slot()
                     still = census.moved(now, before, converge[0], slot=slot, before_slots=1) == 0
                 else:
