@@ -16,7 +16,7 @@ import moderngl
 
 from deformgl.bench.studies import block_model, machine_line, timed
 from deformgl.sim.backends.foundation import FragmentSimulation, NodeTextures
-from deformgl.grid.nodes import NEIGHBOUR_UNIT
+from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
 
 __all__ = ["STAGES", "ProfileRow", "format_profile", "profile_step"]
@@ -42,7 +42,11 @@ def _median_ms(ctx: moderngl.Context, run, passes: int, repeats: int) -> float:
     """Median ms per pass of ``run(passes)`` (finished), after a warm-up of 3 passes."""
     run(3)
     ctx.finish()
-    return timed(lambda: (run(passes), ctx.finish()), repeats) / passes * 1e3
+
+    def batch() -> None:
+        run(passes)
+        ctx.finish()
+    return timed(batch, repeats) / passes * 1e3
 
 
 def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), passes: int = 30,
@@ -68,6 +72,8 @@ def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), p
 def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int, lookup: str,
             passes: int, repeats: int) -> list[ProfileRow]:
     layout = textures.layout
+    if not isinstance(layout, CompactLayout):  # profile_step builds compact and indexed only
+        raise TypeError(f"_stages needs a compact layout, got {type(layout).__name__}")
     dense = lookup == "offsets"
     rows = []
     for stage, what in enumerate(STAGES):
@@ -77,8 +83,8 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
                           defines={"STAGE": stage, "DENSE": dense})
         vao = ctx.vertex_array(program.gl, [])
         try:
-            uniforms = {"u_position": 0, "u_previous": 1, "u_node": 2,
-                        "u_width_log2": int(layout.width).bit_length() - 1}
+            uniforms: dict[str, object] = {"u_position": 0, "u_previous": 1, "u_node": 2,
+                                           "u_width_log2": int(layout.width).bit_length() - 1}
             if dense:
                 uniforms.update(u_strides=layout.strides)
             else:
