@@ -137,6 +137,7 @@ class VerletPass:
                          u_spacing=model.grid.spacing, u_k_structural=model.k_structural,
                          u_k_shear=model.k_shear, u_damping=model.damping,
                          u_gravity=tuple(model.gravity), u_position=0, u_previous=1, u_node=2)
+        self.vbo: moderngl.Buffer | None
         if draw == "points":
             self.program.set(u_target_size=textures.size)
             texels = layout.texel(model.grid.ijk).astype("i4")
@@ -144,7 +145,7 @@ class VerletPass:
             self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")])
             self.vertices = len(texels)
             self.mode = moderngl.POINTS
-        elif draw == "rects":
+        elif draw == "rects" and isinstance(layout, AtlasLayout):  # (compact: "quad", above)
             self.program.set(u_target_size=textures.size)
             corners = tile_rectangles(layout, model.grid.ijk)
             self.vbo = ctx.buffer(corners.astype("f4").tobytes())
@@ -165,6 +166,8 @@ class VerletPass:
             self.program.set(u_dt=dt)
             self._dt = dt
         if self.n_pulls:
+            if pull is None:
+                raise TypeError(f"VerletPass.run: {self.n_pulls} pull group(s) need pull forces")
             forces = [tuple(map(float, f)) for f in pull[: self.n_pulls]]
             # moderngl takes a length-1 uniform array as a plain value
             self.program.set(u_pull_force=forces if self.n_pulls > 1 else forces[0])
