@@ -130,7 +130,7 @@ class ScalingReport:
             pts = [(r.nodes, ms) for r in self.rows if r.backend == b and r.nodes >= min_nodes
                    and (ms := r.ms_min if fastest else r.ms_per_step) is not None]
             ok = len({n for n, _ in pts}) >= 2
-            out[b] = fit_power_law(*zip(*pts)) if ok else None  # type: ignore[arg-type]
+            out[b] = fit_power_law(*zip(*pts)) if ok else None
         return out
 
     def to_records(self) -> list[dict[str, object]]:
@@ -242,10 +242,10 @@ def _make(ctx: moderngl.Context, backend: str, model, system, integrator: str, d
     from deformgl.sim.backends.foundation import FragmentSimulation
 
     if backend == "foundation":  # counted from its textures (it has no bytes_per_node)
-        sim = FragmentSimulation(ctx, model, dt)
-        t = sim.textures
-        return sim, sum(gl_bytes(o) for o in [t.node, t.neighbours, *t.state, sim.verlet.vbo])
-    sim = (FragmentIntegrator(ctx, system, model.grid, integrator, dt) if backend == "fragment"
+        base = FragmentSimulation(ctx, model, dt)
+        t = base.textures
+        return base, sum(gl_bytes(o) for o in [t.node, t.neighbours, *t.state, base.verlet.vbo])
+    sim: FragmentIntegrator | FeedbackSimulation = (FragmentIntegrator(ctx, system, model.grid, integrator, dt) if backend == "fragment"
            else FeedbackSimulation(ctx, system, integrator, dt))
     return sim, sim.bytes_per_node * model.grid.count
 
