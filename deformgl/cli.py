@@ -279,12 +279,10 @@ def _bench(args: argparse.Namespace) -> int:
 
             print(trilinear_bench_report(ctx))
         elif args.what == "binding":
-            from deformgl.bench.binding import BENCH_MESH, bench_binding
-            from deformgl.data import asset
+            from deformgl.bench.binding import bench_binding
 
             print(machine_line(ctx))
-            # the shipped mesh, where importlib.resources finds it (installed or in the checkout)
-            print(bench_binding(repeats=1 if args.quick else 3, mesh_path=asset(Path(BENCH_MESH).name)))
+            print(bench_binding(repeats=1 if args.quick else 3))  # the shipped mesh, installed or not
         else:
             from deformgl.data import packaged_scene
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from deformgl.data import asset
 from deformgl.grid.meshio import load_mesh
 from deformgl.grid.nodes import NodeGrid
 from deformgl.grid.surface import grid_surface
@@ -18,7 +19,8 @@ from deformgl.mapping.binding import bind, rest_node_normals
 from deformgl.sim.model import SpringModel
 
 #: The mesh the benchmark binds (the shipped res3 dragon).
-BENCH_MESH = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "dragon_vrip_res3.ply.gz"
+BENCH_MESH = "dragon_vrip_res3.ply.gz"
+"""The shipped mesh the binding benchmark binds by default (:func:`deformgl.data.asset`)."""
 #: nodes_along_longest giving the res3 dragon a grid of about 20,000 nodes (19,455).
 BENCH_NODES_ALONG_LONGEST = 64
 BENCH_LARGE = 50_000
@@ -42,12 +44,12 @@ def bench_binding(repeats: int = 3, *, mesh_path: str | os.PathLike[str] | None 
 
     Args:
         repeats: timings per case (the median is reported).
-        mesh_path: the mesh to bind (default :data:`BENCH_MESH`, read at call time).
+        mesh_path: the mesh to bind (default: the shipped :data:`BENCH_MESH`).
 
     Returns:
         One line: node and surface counts, then vertex count and median binding time of each case.
     """
-    source = Path(BENCH_MESH if mesh_path is None else mesh_path)
+    source = asset(BENCH_MESH) if mesh_path is None else Path(mesh_path)
     mesh = load_mesh(source)
     lo, hi = mesh.bounds
     mesh = trimesh.Trimesh(mesh.vertices - (lo + hi) / 2, mesh.faces, process=False)

@@ -38,6 +38,7 @@ import moderngl
 import numpy as np
 
 from deformgl.bench.studies import timed
+from deformgl.data import packaged_scene
 from deformgl.mapping.binding import rest_node_normals
 from deformgl.mapping.closest import closest_on_triangles
 from deformgl.sim.backends.foundation import NodeTextures
@@ -54,7 +55,7 @@ from deformgl.grid.surface import grid_surface
 MODES = ("one-to-one", "constant", "curvature", "auto")
 #: The dragon of the paper's figure 6 (relative to the working directory, like ``bench render``'s
 #: scene: the scenes are in the repository, not the wheel).
-DEFAULT_SCENE = Path("scenes") / "dragon_bend_constant.toml"
+DEFAULT_SCENE = packaged_scene("dragon_bend_constant")
 DEFAULT_GRIDS = (4, 8, 16)
 DEFAULT_MOTIONS = (Motion("bend", 80.0, along=0, towards=1), Motion("twist", 90.0, along=0))
 
