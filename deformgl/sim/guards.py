@@ -153,7 +153,8 @@ def bad_nodes(positions: np.ndarray, limit: float) -> np.ndarray:
     ``limit`` (what the census's BAD pass counts on the GPU)."""
     xyz = np.asarray(positions, np.float64)[:, :3]
     with np.errstate(invalid="ignore"):
-        return ~np.isfinite(xyz).all(axis=1) | (np.abs(xyz) > limit).any(axis=1)
+        # (asarray: the same array; NumPy's stubs type ``~`` and ``|`` of arrays as bool | array)
+        return np.asarray(~np.isfinite(xyz).all(axis=1) | (np.abs(xyz) > limit).any(axis=1))
 
 
 def describe_bad_node(positions: np.ndarray, grid: NodeGrid | None, limit: float) -> str:

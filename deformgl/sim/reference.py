@@ -8,6 +8,7 @@ Fixed nodes keep their position exactly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,7 +69,7 @@ class ReferenceVerlet:
 
     model: SpringModel
     dt: float
-    pull_force: object = None  # callable t -> (MAX_PULLS, 3) or None
+    pull_force: Callable[[float], np.ndarray] | None = None  # t -> (MAX_PULLS, 3)
     x: np.ndarray = field(init=False)
     x_prev: np.ndarray = field(init=False)
     normals: np.ndarray = field(init=False)

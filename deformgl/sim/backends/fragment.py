@@ -298,8 +298,11 @@ class FragmentIntegrator(SimulationBase):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("DENSE"):
             uniforms["u_offsets"] = self.neighbour_offsets
-        if defines.get("GROUND"):
-            uniforms["u_ground"] = float(self.constraints.ground)
+        if defines.get("GROUND"):  # (set only with a ground plane)
+            c = self.constraints
+            if c is None or c.ground is None:
+                raise RuntimeError("FragmentIntegrator: GROUND defined without a ground plane")
+            uniforms["u_ground"] = float(c.ground)
         program.set(**uniforms)
 
     # -- stepping ----------------------------------------------------------------------------
