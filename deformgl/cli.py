@@ -221,11 +221,8 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     elif args.what == "mappings":
         from deformgl.bench.mapping_accuracy import (DEFAULT_SCENE, format_mapping_accuracy, mapping_accuracy,
                                                      write_chart, write_csv, write_json)
-        from deformgl.data import find_scene
-
-        # the default scene is named relative to the checkout; elsewhere the shipped copy is used
-        scene = _scene_file(args.scene, "--scene") if args.scene else find_scene(DEFAULT_SCENE)
-        rows = mapping_accuracy(ctx, **({"scene_path": scene} if scene != DEFAULT_SCENE else {}))
+        scene = _scene_file(args.scene, "--scene") if args.scene else DEFAULT_SCENE  # the shipped scene
+        rows = mapping_accuracy(ctx, scene_path=scene)
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
             write_csv(out / "mappings.csv", rows)

@@ -48,7 +48,7 @@ def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, 
     monkeypatch.setattr(trade, "trade_study", lambda ctx, **kw: study(ctx, workloads=volume, **kw))
     accuracy = mapping_accuracy.mapping_accuracy
     monkeypatch.setattr(mapping_accuracy, "mapping_accuracy",
-                        lambda ctx: accuracy(ctx, scene_path=SCENES / "dragon_bend_constant.toml", grids=(4,), repeats=1))
+                        lambda ctx, **kw: accuracy(ctx, **kw, grids=(4,), repeats=1))
     for what, words in (("trade", "Pareto front"), ("mappings", "one-to-one"), ("scaling", "ns/node-step")):
         assert main(["bench", what, "--quick", "--quiet", "--out", str(tmp_path)]) == 0
         out = capsys.readouterr().out
