@@ -225,7 +225,7 @@ def test_release_is_idempotent_and_checks_arguments(ctx):
         census.bad(small, 1.0)
     with pytest.raises(ValueError, match="before is 8x3 texels, 16x3 needed"):
         census.moved(tex, tex, 0.0, before_slots=4)
-    owned = list(census._objects)
+    owned = list(census._owned)
     assert owned
     census.release()
     assert all(type(o.gl.mglo if hasattr(o, "gl") else o.mglo).__name__ == "InvalidObject"

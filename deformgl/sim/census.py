@@ -20,11 +20,12 @@ from __future__ import annotations
 import moderngl
 
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, is_released
 
 __all__ = ["NodeCensus"]
 
 
-class NodeCensus:
+class NodeCensus(GLOwner):
     """Counts of nodes moved or gone bad, and GPU snapshots of one slot, for one node layout.
 
     Args:
@@ -40,29 +41,15 @@ class NodeCensus:
         self.ctx = ctx
         self.count, self.row, self.slots = int(count), int(row), int(slots)
         self.rows = -(-self.count // self.row)
-        self._objects: list = []
+        GLOwner.__init__(self, ctx)
         self._passes: dict[str, tuple[Program, moderngl.VertexArray]] = {}
         self._snapshot: moderngl.Texture | None = None
         self._snapshot_fbo: moderngl.Framebuffer | None = None
-        self._released = False
-        try:
-            marks = self._own(ctx.renderbuffer((self.row, self.rows), 1, dtype="f1"))
-            self._fbo = self._own(ctx.framebuffer(color_attachments=[marks]))
+        with self.building():
+            marks = self.own(ctx.renderbuffer((self.row, self.rows), 1, dtype="f1"))
+            self._fbo = self.own(ctx.framebuffer(color_attachments=[marks]))
             # moderngl 5.13 queries have no release(); one per census, freed with the context
             self._query = ctx.query(samples=True)
-        except BaseException:
-            self.release()
-            raise
-
-    def _own(self, obj):
-        self._objects.append(obj)
-        return obj
-
-    def __enter__(self) -> NodeCensus:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
 
     def _check(self, tex: moderngl.Texture, slots: int, slot: int, name: str) -> None:
         if not 0 <= slot < slots:
@@ -79,16 +66,16 @@ class NodeCensus:
         if self._released:
             raise RuntimeError("NodeCensus: released")
         if mode not in self._passes:
-            program = self._own(Program(self.ctx, "sim/fullscreen.vert", "census/census.frag",
-                                        defines={mode: True}))
-            self._passes[mode] = (program, self._own(self.ctx.vertex_array(program.gl, [])))
+            program = self.own(Program(self.ctx, "sim/fullscreen.vert", "census/census.frag",
+                                       defines={mode: True}))
+            self._passes[mode] = (program, self.own(self.ctx.vertex_array(program.gl, [])))
         program, vao = self._passes[mode]
         for unit, (sampler, tex) in enumerate(textures.items()):
             tex.use(unit)
             uniforms[sampler] = unit
         program.set(u_row=self.row, u_count=self.count, **uniforms)
         previous = self.ctx.fbo
-        if previous is None or type(previous.mglo).__name__ == "InvalidObject":
+        if previous is None or is_released(previous):
             # the caller's framebuffer was released: leave framebuffer 0 bound afterwards
             self.ctx.detect_framebuffer(0).use()
         scope = self.ctx.scope(fbo, enable_only=moderngl.NOTHING)
@@ -137,10 +124,10 @@ class NodeCensus:
         read back. The same texture is returned, overwritten, on every call."""
         self._check(state, self.slots, slot, "state")
         if self._snapshot is None:
-            tex = self._own(self.ctx.texture((self.row, self.rows), 4, dtype="f4"))
+            tex = self.own(self.ctx.texture((self.row, self.rows), 4, dtype="f4"))
             tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
             tex.repeat_x = tex.repeat_y = False
-            self._snapshot_fbo = self._own(self.ctx.framebuffer(color_attachments=[tex]))
+            self._snapshot_fbo = self.own(self.ctx.framebuffer(color_attachments=[tex]))
             self._snapshot = tex
         assert self._snapshot_fbo is not None
         self._run("COPY", self._snapshot_fbo, {"u_state": state},
@@ -149,9 +136,6 @@ class NodeCensus:
 
     def release(self) -> None:
         """Release every GL object this census owns (idempotent)."""
-        for obj in reversed(self._objects):
-            obj.release()
-        self._objects.clear()
+        GLOwner.release(self)
         self._passes.clear()
         self._snapshot = self._snapshot_fbo = None
-        self._released = True

@@ -47,6 +47,7 @@ from deformgl.sim.base import SimulationBase
 from deformgl.errors import GLError
 from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 
 __all__ = ["FeedbackSimulation", "NODE_ROW_MAX", "SPRING_ROW_MAX"]
@@ -87,7 +88,7 @@ class _Pass:
     slots: int  # vec4 outputs per node
 
 
-class FeedbackSimulation(SimulationBase):
+class FeedbackSimulation(SimulationBase, GLOwner):
     """A :class:`SpringSystem` stepped on the GPU by vertex shaders and transform feedback.
 
     Args:
@@ -130,24 +131,17 @@ class FeedbackSimulation(SimulationBase):
         for drag in self.drags:
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FeedbackSimulation: drag node {drag.node} outside the system")
-        self._objects: list = []  # every GL object this instance owns, released in release()
+        GLOwner.__init__(self, ctx)
         self._passes: dict[str, _Pass] = {}
-        self._released = False
-        try:
+        with self.building():
             self._build(state)
-        except BaseException:
-            self.release()
-            raise
 
     # -- construction ------------------------------------------------------------------------
 
-    def _own(self, obj):
-        self._objects.append(obj)
-        return obj
 
     def _texture(self, width: int, height: int, dtype: str, data: bytes | None = None,
                  components: int = 4) -> moderngl.Texture:
-        tex = self._own(self.ctx.texture((width, height), components, data, dtype=dtype))
+        tex = self.own(self.ctx.texture((width, height), components, data, dtype=dtype))
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         tex.repeat_x = tex.repeat_y = False
         return tex
@@ -229,8 +223,8 @@ class FeedbackSimulation(SimulationBase):
             self.tex_stage = (self._texture(stage_slots * self.node_row, self.rows, "f4")
                               if stage_slots else None)
             out_slots = max(2, stage_slots)
-        self.buffer = self._own(self.ctx.buffer(reserve=out_slots * texels * _VEC4))
-        self.fbo = self._own(self.ctx.simple_framebuffer((1, 1)))
+        self.buffer = self.own(self.ctx.buffer(reserve=out_slots * texels * _VEC4))
+        self.fbo = self.own(self.ctx.simple_framebuffer((1, 1)))
 
         # Programs: compile only what the system uses.
         common: dict[str, object] = {"NODE_ROW": self.node_row, "SPRING_ROW": self.spring_row,
@@ -271,14 +265,14 @@ class FeedbackSimulation(SimulationBase):
         else:
             state_objects += [self.tex_state, *([self.tex_stage] if self.tex_stage else [])]
         self.state_bytes = int(sum(_bytes(o) for o in state_objects))
-        self.bytes_allocated = int(sum(_bytes(o) for o in self._objects
+        self.bytes_allocated = int(sum(_bytes(o) for o in self._owned
                                        if isinstance(o, (moderngl.Buffer, moderngl.Texture))))
 
     def _add_pass(self, key: str, vertex: str, defines: dict[str, object],
                   varyings: tuple[str, ...]) -> None:
         program = Program(self.ctx, vertex, defines=defines, varyings=varyings)
-        self._own(program)
-        vao = self._own(self.ctx.vertex_array(program.gl, []))
+        self.own(program)
+        vao = self.own(self.ctx.vertex_array(program.gl, []))
         self._passes[key] = _Pass(program, vao, len(varyings))
         system = self.system
         uniforms: dict[str, object] = {
@@ -380,10 +374,7 @@ class FeedbackSimulation(SimulationBase):
         finally:
             # give the caller its framebuffer back; code elsewhere may have left the context
             # pointing at a framebuffer it has since released: then bind framebuffer 0
-            if previous is not None and type(previous.mglo).__name__ != "InvalidObject":
-                previous.use()
-            else:
-                self.ctx.detect_framebuffer(0).use()
+            restore_framebuffer(self.ctx, previous)
 
     # -- read-back (explicit) ----------------------------------------------------------------
 
@@ -432,8 +423,5 @@ class FeedbackSimulation(SimulationBase):
             # do not leave the context pointing at a released framebuffer: bind framebuffer 0,
             # the state of a fresh context
             self.ctx.detect_framebuffer(0).use()
-        for obj in reversed(self._objects):
-            obj.release()
-        self._objects.clear()
+        GLOwner.release(self)
         self._passes.clear()
-        self._released = True

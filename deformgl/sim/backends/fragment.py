@@ -40,6 +40,7 @@ from deformgl.errors import GLError
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, CompactLayout, NodeGrid
 from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
 
 __all__ = ["FragmentIntegrator", "grid_neighbours"]
@@ -110,7 +111,7 @@ def _check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> Non
                              "(build it with springs.from_grid or springs.cloth on this grid)")
 
 
-class FragmentIntegrator(SimulationBase):
+class FragmentIntegrator(SimulationBase, GLOwner):
     """A grid :class:`SpringSystem` stepped by fragment passes with one of the five integrators.
 
     Args:
@@ -172,26 +173,19 @@ class FragmentIntegrator(SimulationBase):
         self.dense = self.layout.dense
         offsets = np.concatenate([NEIGHBOUR_OFFSETS, FLEXION_OFFSETS])[: self.neighbour_table.shape[1]]
         self.neighbour_offsets = [int(v) for v in offsets @ np.array(self.layout.strides)]
-        self._objects: list = []
+        GLOwner.__init__(self, ctx)
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.passes: dict[str, Program] = {}
-        self._released = False
-        try:
+        with self.building():
             self._build(state)
-        except BaseException:
-            self.release()
-            raise
 
     # -- construction ------------------------------------------------------------------------
 
-    def _own(self, obj):
-        self._objects.append(obj)
-        return obj
 
     def _texture(self, image: np.ndarray | None) -> moderngl.Texture:
         w, h = self.layout.size
         data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
-        tex = self._own(self.ctx.texture((w, h), 4, data, dtype="f4"))
+        tex = self.own(self.ctx.texture((w, h), 4, data, dtype="f4"))
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         tex.repeat_x = tex.repeat_y = False
         return tex
@@ -219,7 +213,7 @@ class FragmentIntegrator(SimulationBase):
                                                      axis=1)], axis=1)
             img = np.zeros((layers, h * w, 4), np.int32)
             img[:, :n, :] = table.reshape(n, layers, 4).transpose(1, 0, 2)
-            self.tex_neighbours = self._own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
+            self.tex_neighbours = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
                                                                    dtype="i4"))
             self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
@@ -269,14 +263,14 @@ class FragmentIntegrator(SimulationBase):
                                "READ_SUMS": True})
         else:
             self._add("step", {**final, "VERLET": True})
-        self._vaos = {key: self._own(self.ctx.vertex_array(p.gl, []))
+        self._vaos = {key: self.own(self.ctx.vertex_array(p.gl, []))
                       for key, p in self.passes.items()}
         self.state_bytes = len(self.pool) * w * h * _VEC4
         static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
-        program = self._own(Program(self.ctx, "sim/fullscreen.vert",
+        program = self.own(Program(self.ctx, "sim/fullscreen.vert",
                                     "sim/integrators/step.frag", defines=defines))
         self.passes[key] = program
         system = self.system
@@ -310,7 +304,7 @@ class FragmentIntegrator(SimulationBase):
     def _fbo(self, targets: tuple[int, ...]) -> moderngl.Framebuffer:
         fbo = self._fbos.get(targets)
         if fbo is None:
-            fbo = self._own(self.ctx.framebuffer(color_attachments=[self.pool[i]
+            fbo = self.own(self.ctx.framebuffer(color_attachments=[self.pool[i]
                                                                     for i in targets]))
             self._fbos[targets] = fbo
         return fbo
@@ -387,10 +381,7 @@ class FragmentIntegrator(SimulationBase):
                     self.roles = [b[0], b[1], *a, r[0], r[1], b[2], b[3]]
                 self.t += self.dt
         finally:
-            if previous is not None and type(previous.mglo).__name__ != "InvalidObject":
-                previous.use()
-            else:
-                self.ctx.detect_framebuffer(0).use()
+            restore_framebuffer(self.ctx, previous)
 
     # -- read-back (explicit) ----------------------------------------------------------------
 
@@ -432,9 +423,6 @@ class FragmentIntegrator(SimulationBase):
         for fbo in self._fbos.values():
             if self.ctx.fbo is fbo:
                 self.ctx.detect_framebuffer(0).use()
-        for obj in reversed(self._objects):
-            obj.release()
-        self._objects.clear()
+        GLOwner.release(self)
         self._fbos.clear()
         self.passes.clear()
-        self._released = True
