@@ -169,15 +169,12 @@ def describe_bad_node(positions: np.ndarray, grid: NodeGrid | None, limit: float
     return f"node {i}{where} at ({', '.join(f'{v:.4g}' for v in xyz[i])})"
 
 
-class BlowUpWatch:
-    """Counts the blown-up nodes of a GPU simulation every ``every`` steps.
-
-    The simulation must have ``position_slot() -> (texture, row, slots, slot)``, ``count`` and
-    ``positions()``. One census query per check; nothing is read back unless nodes went bad.
+class Watch:
+    """The blow-up check of a run, every ``every`` steps and once at the end: the schedule, the
+    count and the :class:`BlowUp` message. Subclasses count the bad nodes (:meth:`count_bad`).
 
     Args:
-        ctx: the GL context.
-        sim: the simulation.
+        sim: the simulation (``positions()``, ``count``).
         every: steps between checks (0: only when :meth:`check` is called at the end).
         limit: a node with a coordinate beyond this (world units) counts as blown up.
         grid: names the bad node's grid index in the message, if given.
@@ -185,13 +182,8 @@ class BlowUpWatch:
         dt: the step, for the message.
     """
 
-    def __init__(self, ctx: moderngl.Context, sim, *, every: int, limit: float, grid: NodeGrid | None,
-                 source, dt: float) -> None:
-        from deformgl.sim.census import NodeCensus
-
-        _, row, slots, _ = sim.position_slot()
+    def __init__(self, sim, *, every: int, limit: float, grid: NodeGrid | None, source, dt: float) -> None:
         self.sim, self.every, self.limit, self.grid, self.source, self.dt = sim, every, limit, grid, source, dt
-        self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
         self.last_clean: int | None = None  # step of the last check that found nothing
 
     def due(self, done: int) -> bool:
@@ -204,15 +196,42 @@ class BlowUpWatch:
             return total
         return min(total, (done // self.every + 1) * self.every)
 
+    def count_bad(self) -> int:
+        """How many nodes are non-finite or beyond :attr:`limit` now."""
+        return int(bad_nodes(self.sim.positions(), self.limit).sum())
+
     def check(self, done: int) -> None:
         """Count the bad nodes after ``done`` steps; raise :class:`BlowUp` if there are any."""
-        texture, _, _, slot = self.sim.position_slot()
-        count = self.census.bad(texture, self.limit, slot=slot)
+        count = self.count_bad()
         if count == 0:
             self.last_clean = done
             return
         node = describe_bad_node(self.sim.positions(), self.grid, self.limit)
         raise BlowUp.at(self.source, done, self.dt, count, node, self.limit, self.last_clean)
+
+    def release(self) -> None:
+        """Release what the count holds (nothing here)."""
+
+
+class BlowUpWatch(Watch):
+    """:class:`Watch` of a GPU simulation: one census query per check, nothing read back unless
+    nodes went bad. The simulation must have ``position_slot() -> (texture, row, slots, slot)``.
+
+    Args:
+        ctx: the GL context; the other arguments as :class:`Watch`.
+    """
+
+    def __init__(self, ctx: moderngl.Context, sim, *, every: int, limit: float, grid: NodeGrid | None,
+                 source, dt: float) -> None:
+        from deformgl.sim.census import NodeCensus
+
+        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=dt)
+        _, row, slots, _ = sim.position_slot()
+        self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
+
+    def count_bad(self) -> int:
+        texture, _, _, slot = self.sim.position_slot()
+        return self.census.bad(texture, self.limit, slot=slot)
 
     def release(self) -> None:
         """Release the census."""

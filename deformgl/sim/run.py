@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.sim.guards import BlowUp, BlowUpWatch, bad_nodes, describe_bad_node
+from deformgl.sim.guards import BlowUpWatch, Watch
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "run"]
 
@@ -33,34 +33,12 @@ class RunResult:
     converged: bool | None
 
 
-class NumpyWatch:
-    """:class:`~deformgl.sim.guards.BlowUpWatch` for a simulation without GPU state: the same
-    schedule and message, counted on ``sim.positions()``."""
+class NumpyWatch(Watch):
+    """:class:`~deformgl.sim.guards.Watch` for a simulation without GPU state: the same schedule
+    and message, counted on ``sim.positions()``."""
 
     def __init__(self, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None) -> None:
-        self.sim, self.every, self.limit, self.grid, self.source = sim, every, limit, grid, source
-        self.dt = sim.dt if dt is None else dt
-        self.last_clean: int | None = None
-
-    def due(self, done: int) -> bool:
-        return self.every > 0 and done % self.every == 0
-
-    def next_stop(self, done: int, total: int) -> int:
-        if self.every <= 0:
-            return total
-        return min(total, (done // self.every + 1) * self.every)
-
-    def check(self, done: int) -> None:
-        x = self.sim.positions()
-        count = int(bad_nodes(x, self.limit).sum())
-        if count == 0:
-            self.last_clean = done
-            return
-        raise BlowUp.at(self.source, done, self.dt, count, describe_bad_node(x, self.grid, self.limit),
-                        self.limit, self.last_clean)
-
-    def release(self) -> None:
-        """Nothing to release."""
+        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=sim.dt if dt is None else dt)
 
 
 def make_watch(ctx, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None):
