@@ -13,7 +13,8 @@ starts no GL context and loads neither moderngl nor trimesh::
         dg.write_png("out.png", body.render(sim))
 
 Scenes: :func:`load_scene`, :func:`render_scene`, :func:`render_to_png`. Lower levels: the spring
-system builders, :func:`make_simulation`, the trilinear scene graph, the error types.
+system builders, :func:`make_simulation` (a :class:`GuardedSimulation`, which implements the
+:class:`Simulation` protocol of every backend), the trilinear scene graph, the error types.
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ _EXPORTS: dict[str, str] = {
     "inside": "deformgl.scene.body",
     "write_png": "deformgl.scene.body",
     "make_simulation": "deformgl.scene.stepping",
-    "Simulation": "deformgl.scene.stepping",
+    "GuardedSimulation": "deformgl.scene.stepping",
+    "Simulation": "deformgl.sim.simulation",
     "run": "deformgl.scene.stepping",
-    "RunResult": "deformgl.scene.stepping",
+    "RunResult": "deformgl.sim.run",
     # scenes
     "load_scene": "deformgl.scene.schema",
     "Scene": "deformgl.scene.spec",
@@ -53,7 +55,6 @@ _EXPORTS: dict[str, str] = {
     "from_triangle_mesh": "deformgl.sim.springs",
     "Drag": "deformgl.sim.springs",
     "Load": "deformgl.sim.springs",
-    "SpringModel": "deformgl.sim.model",
     "INTEGRATORS": "deformgl.sim.integrators",
     "Constraints": "deformgl.sim.integrators",
     "Sphere": "deformgl.sim.integrators",
@@ -110,11 +111,11 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
     from deformgl.scene.schema import load_scene
     from deformgl.scene.spec import BACKENDS, Region, Scene
-    from deformgl.scene.stepping import RunResult, Simulation, make_simulation, run
+    from deformgl.scene.stepping import GuardedSimulation, make_simulation, run
     from deformgl.sim.guards import BlowUp
     from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
-    from deformgl.sim.model import SpringModel
-    from deformgl.sim.simulation import SimulationSetupError
+    from deformgl.sim.run import RunResult
+    from deformgl.sim.simulation import Simulation, SimulationSetupError
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
     from deformgl.sim.limits import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment

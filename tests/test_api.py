@@ -65,6 +65,27 @@ def test_import_is_lazy():
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
+def test_one_simulation_protocol_and_one_run_result(ctx):
+    from deformgl.scene import stepping
+    from deformgl.sim import run as sim_run
+    from deformgl.sim import simulation
+
+    assert dg.Simulation is simulation.Simulation and dg.RunResult is sim_run.RunResult
+    assert dg.GuardedSimulation is stepping.GuardedSimulation
+    assert not hasattr(stepping, "RunResult") or stepping.RunResult is sim_run.RunResult
+    assert "Simulation" not in stepping.__all__ and "RunResult" not in stepping.__all__
+    with dg.Body.from_arrays(V, F, resolution=4, ctx=ctx) as body:
+        for backend in ("fragment", "numpy"):
+            sim = body.simulate("verlet", backend, dt=1e-3)
+            assert isinstance(sim, dg.GuardedSimulation) and isinstance(sim, dg.Simulation)
+            assert isinstance(sim.backend_simulation, dg.Simulation)
+            result = dg.run(sim, 10)
+            assert isinstance(result, dg.RunResult)
+            assert (result.steps, result.converged, result.substeps, result.notes) == (10, None, 1, ())
+            assert result.dt == sim.dt == 1e-3 and result.time == pytest.approx(0.01)
+            assert dg.run(sim, 10).time == pytest.approx(0.02)  # a run at the same step goes on
+
+
 def test_public_errors_are_the_packages():
     from deformgl import errors
     from deformgl.sim import guards
@@ -135,8 +156,12 @@ def test_dt_above_the_limit_is_refused_unless_allowed(ctx):
     with dg.Body.from_arrays(V, F, resolution=5, stiffness=200.0, fixed=dg.below("x", 0.05), ctx=ctx) as body:
         limit = dg.dt_limit(body.system, "verlet").dt
         sim = body.simulate("verlet", "fragment", dt=1.5 * limit)
-        with pytest.raises(dg.SimulationError, match="physics.dt: dt .* is above the verlet limit"):
+        with pytest.raises(dg.SimulationError) as err:
             dg.run(sim, 10)
+        text = str(err.value)  # worded for the Python API: no scene key, no CLI flag
+        assert text.startswith(f"{body.source}: dt ") and "is above the verlet limit" in text
+        assert 'Pass unstable="run" to run it anyway or unstable="subdivide" to split each step' in text
+        assert "physics." not in text and "--" not in text
         assert sim.time == 0.0  # refused before any step
         result = dg.run(sim, 1, unstable="run")
         assert result.substeps == 1 and "running anyway" in result.notes[0]
@@ -144,9 +169,12 @@ def test_dt_above_the_limit_is_refused_unless_allowed(ctx):
         result = dg.run(sub, 20, unstable="subdivide")
         assert result.substeps == 2 and sub.dt == pytest.approx(0.75 * limit)
         assert result.time == pytest.approx(20 * 1.5 * limit)
+        assert result.steps == 40 and result.dt == pytest.approx(0.75 * limit)  # steps of dt / substeps
         blow = body.simulate("verlet", "numpy", dt=30 * limit)
-        with pytest.raises(dg.BlowUp, match="blew up"):
+        with pytest.raises(dg.BlowUp, match="blew up") as err:
             dg.run(blow, 400, unstable="run", check_every=50)
+        assert 'reduce dt or stiffness, or pass unstable="subdivide"' in str(err.value)
+        assert "physics." not in str(err.value) and "--subdivide" not in str(err.value)
 
 
 def _recording(ctx, monkeypatch) -> list:
@@ -229,4 +257,5 @@ def test_the_api_example_script(ctx, tmp_path, capsys):
     assert api_cantilever.main([str(out), "--resolution", "5", "--steps", "50", "--backend", "numpy"]) == 0
     assert out.stat().st_size > 0 and "nodes" in capsys.readouterr().out
     assert api_cantilever.main([str(out), "--resolution", "5", "--dt", "0.05"]) == 1
-    assert "<arrays>: physics.dt" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "<arrays>: dt 0.05 s is above" in err and 'unstable="subdivide"' in err

@@ -12,7 +12,8 @@ import pytest
 
 from deformgl.errors import SceneError, SimulationError
 from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
-from deformgl.sim.guards import MAX_SUBSTEPS, SAFETY_MARGIN, BlowUp, StepPlan, describe_bad_node, plan_steps
+from deformgl.sim.guards import (API_WORDING, MAX_SUBSTEPS, SAFETY_MARGIN, SCENE_WORDING, BlowUp, StepPlan,
+                                 describe_bad_node, plan_steps)
 from deformgl.scene.schema import Safety, load_scene
 from deformgl.scene.run import SceneBox, run_scene, run_with_retries, scene_system
 from deformgl.sim.stability import check_dt, dt_limit
@@ -78,6 +79,38 @@ def test_undamped_forward_euler_cannot_be_subdivided(jelly):
     system = scene_system(built.grid, built.model, physics)
     with pytest.raises(SimulationError, match="every dt.*no substep is stable"):
         plan_steps(system, physics, "s.toml")
+
+
+def test_plan_messages_are_worded_for_the_python_api_when_asked(jelly):
+    """The same checks, the same numbers; the API's words (``dt``, ``unstable="..."``) where a scene's
+    are its keys and the CLI's flags (the default, :data:`SCENE_WORDING`)."""
+    scene, _, system = jelly
+    limit = check_dt(system, "verlet", 1.0).limit.dt
+    over = with_physics(scene, dt=1.2 * limit).physics
+    with pytest.raises(SimulationError) as cli:
+        plan_steps(system, over, scene.source, wording=SCENE_WORDING)
+    with pytest.raises(SimulationError) as default:
+        plan_steps(system, over, scene.source)
+    assert str(cli.value) == str(default.value)
+    with pytest.raises(SimulationError) as api:
+        plan_steps(system, over, "<arrays>", wording=API_WORDING)
+    text = str(api.value)
+    assert text.startswith("<arrays>: dt ") and f"verlet limit {limit:.4g} s" in text
+    assert text.endswith('Pass unstable="run" to run it anyway or unstable="subdivide" to split each step')
+    assert "physics." not in text and "--" not in text
+    with pytest.raises(SimulationError, match=f'more than the {MAX_SUBSTEPS} that unstable="subdivide" uses: '
+                                              f"reduce dt$"):
+        plan_steps(system, with_physics(scene, dt=20 * limit, safety=Safety("subdivide")).physics, "<arrays>",
+                   wording=API_WORDING)
+    physics = with_physics(scene, damping=0.0, integrator="euler", safety=Safety("subdivide")).physics
+    built = build_scene_model(with_physics(scene, damping=0.0))
+    undamped = scene_system(built.grid, built.model, physics)
+    with pytest.raises(SimulationError, match='no substep is stable, so unstable="subdivide" cannot help'):
+        plan_steps(undamped, physics, "<arrays>", wording=API_WORDING)
+    plan = plan_steps(system, with_physics(scene, dt=1.2 * limit, safety=Safety("subdivide")).physics, "<arrays>",
+                      wording=API_WORDING)
+    assert plan == plan_steps(system, with_physics(scene, dt=1.2 * limit, safety=Safety("subdivide")).physics,
+                              "<arrays>")  # the wording changes no plan
 
 
 def test_retries_double_the_substeps_up_to_the_cap():

@@ -1,12 +1,13 @@
 """A restartable, guarded simulation for the public API, and the guarded run of it.
 
-:class:`Simulation` holds one :func:`deformgl.sim.simulation.make_simulation` backend (fragment,
-feedback or the NumPy reference) and can start it again with a smaller step. :func:`run` steps it
-with the guards of the CLI: the dt against the integrator's stability limit first
-(:func:`~deformgl.sim.guards.plan_steps`: refuse, run anyway, or subdivide), the blow-up census
-every ``check_every`` steps and at the end (:func:`deformgl.sim.run.run` with
-:func:`~deformgl.sim.run.make_watch`), and with ``unstable="subdivide"`` a restart with twice the
-substeps after a blow-up (:func:`~deformgl.scene.run.run_with_retries`).
+:class:`GuardedSimulation` holds one :func:`deformgl.sim.simulation.make_simulation` backend
+(fragment, feedback or the NumPy reference), implements the
+:class:`deformgl.sim.simulation.Simulation` protocol, and can start again with a smaller step.
+:func:`run` steps it with the guards of the CLI, worded for the Python API
+(:data:`~deformgl.sim.guards.API_WORDING`): it is :func:`deformgl.sim.run.run_guarded`, the one
+guarded run (the dt against the integrator's stability limit first, refuse, run anyway or
+subdivide; the blow-up census every ``check_every`` steps and at the end; with
+``unstable="subdivide"`` a restart with twice the substeps after a blow-up).
 """
 
 from __future__ import annotations
@@ -19,23 +20,21 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
-from deformgl.progress import Progress
-from deformgl.scene.run import run_with_retries
 from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
-from deformgl.sim.guards import StepPlan, plan_steps
+from deformgl.sim.guards import API_WORDING
 from deformgl.sim.integrators import INTEGRATORS
-from deformgl.sim.run import make_watch
-from deformgl.sim.run import run as step_run
+from deformgl.sim.run import RunResult, run_guarded
 from deformgl.sim.simulation import Simulation as BackendSimulation
 from deformgl.sim.simulation import SimulationSetupError
 from deformgl.sim.simulation import make_simulation as make_backend
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["RunResult", "Simulation", "make_simulation", "run"]
+__all__ = ["GuardedSimulation", "make_simulation", "run"]
 
 
-class Simulation:
-    """One spring system stepped by one integrator on one backend.
+class GuardedSimulation:
+    """One spring system stepped by one integrator on one backend, restartable with another step:
+    a :class:`deformgl.sim.simulation.Simulation` around the backend's, which :func:`run` guards.
 
     Attributes:
         system, integrator, backend: what runs; dt: the step it runs (s, ``dt / substeps`` after a
@@ -130,7 +129,7 @@ class Simulation:
             self._own_ctx.release()
             self._own_ctx = None
 
-    def __enter__(self) -> Simulation:
+    def __enter__(self) -> GuardedSimulation:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -138,15 +137,21 @@ class Simulation:
 
 
 def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *, dt: float,
-                    ctx: moderngl.Context | None = None, grid: NodeGrid | None = None, **options: Any) -> Simulation:
-    """A :class:`Simulation` of ``system`` on :func:`deformgl.sim.simulation.make_simulation`'s
+                    ctx: moderngl.Context | None = None, grid: NodeGrid | None = None,
+                    **options: Any) -> GuardedSimulation:
+    """A :class:`GuardedSimulation` of ``system`` on :func:`deformgl.sim.simulation.make_simulation`'s
     backend (``options``: constraints, drags, loads, state, t0); a GPU backend without ``ctx``
     gets a context of its own, released with it.
 
     Raises:
         SimulationSetupError: an unknown integrator, backend or option (an :class:`InputError`).
     """
-    return Simulation(system, integrator, backend, dt=dt, ctx=ctx, grid=grid, **options)
+    return GuardedSimulation(system, integrator, backend, dt=dt, ctx=ctx, grid=grid, **options)
+
+
+#: The wrapper's former name (:mod:`deformgl.scene.body` imports it); ``deformgl.Simulation`` is the
+#: protocol, :class:`deformgl.sim.simulation.Simulation`.
+Simulation = GuardedSimulation
 
 
 @dataclass(frozen=True)
@@ -159,28 +164,26 @@ class _Settings:
     safety: Safety = field(default_factory=Safety)
 
 
-@dataclass(frozen=True)
-class RunResult:
-    """What :func:`run` did: the steps asked for, the substeps per step it used, the simulated time,
-    and notes (what the plan and restarts changed) for a log."""
-
-    steps: int
-    substeps: int
-    time: float
-    notes: tuple[str, ...] = ()
-
-
-def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: int = 100,
+def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_every: int = 100,
         bad_distance: float = 1000.0, source: str | None = None, progress: bool = False) -> RunResult:
-    """Run ``steps`` steps of ``sim.dt`` with the CLI's guards.
+    """Run ``steps`` steps of the dt ``sim`` was made with, with the CLI's guards
+    (:func:`deformgl.sim.run.run_guarded`; messages name ``dt`` and ``unstable=``).
+
+    A run at the step ``sim`` has goes on from where it is; a subdivided one (or a restart after
+    a blow-up) starts again from the rest state with the smaller step, which ``sim.dt`` then is.
 
     Args:
         unstable: a dt above the stability limit is refused ("refuse"), run anyway ("run") or
             split into substeps ("subdivide", which also restarts after a blow-up with twice the
-            substeps, up to 16); a subdivided run starts again from the rest state.
+            substeps, up to 16).
         check_every: steps between blow-up checks (0: at the end only).
         bad_distance: a node farther than this many rest-box lengths from the origin has blown up.
         source: the name error messages start with (default: ``sim.source``).
+        progress: show a progress bar on stderr.
+
+    Returns:
+        :class:`~deformgl.sim.run.RunResult`: the steps done (of ``result.dt``: ``substeps`` per
+        step asked for), the substeps, the step, ``sim.time`` at the end, the notes.
 
     Raises:
         SimulationError: the dt is above the limit (and ``unstable`` is "refuse"), or the run blew
@@ -190,21 +193,16 @@ def run(sim: Simulation, steps: int, *, unstable: str = "refuse", check_every: i
         raise InputError(f"unstable must be one of {', '.join(UNSTABLE_POLICIES)}, got {unstable!r}")
     source = sim.source if source is None else source
     settings = _Settings(sim.base_dt, int(steps), sim.integrator, Safety(unstable, check_every, bad_distance))
-    plan = plan_steps(sim.system, settings, source)
-    notes: list[str] = [plan.note] if plan.note else []
     rest = sim.system.rest_positions
     limit = bad_distance * float(np.max(rest.max(axis=0) - rest.min(axis=0), initial=0.0) or sim.system.spacing)
+    attempts = [0]
 
-    def attempt(p: StepPlan) -> None:
-        if p.step_dt != sim.dt or (p is not plan and sim.time > 0):
-            sim.restart(p.step_dt)
-        watch = make_watch(sim.ctx, sim.backend_simulation, every=check_every, limit=limit, grid=sim.grid,
-                           source=source, dt=p.step_dt)
-        try:
-            with Progress(p.step_count, "steps", enabled=progress) as bar:
-                step_run(sim.backend_simulation, p.step_count, ctx=sim.ctx, watch=watch, progress=bar)
-        finally:
-            watch.release()
+    def make(dt: float) -> BackendSimulation:
+        # the first attempt at the step sim has goes on; any other starts from the rest state
+        if dt != sim.dt or (attempts[0] > 0 and sim.time > 0):
+            sim.restart(dt)
+        attempts[0] += 1
+        return sim.backend_simulation
 
-    _, used = run_with_retries(plan, unstable, attempt, notes)
-    return RunResult(int(steps), used.substeps, sim.time, tuple(notes))
+    return run_guarded(sim.system, settings, make, source=source, limit=limit, check_every=check_every,
+                       ctx=sim.ctx, grid=sim.grid, progress=progress, wording=API_WORDING)

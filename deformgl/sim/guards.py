@@ -6,7 +6,9 @@ integrator on its spring system (:func:`deformgl.stability.check_dt`: the Gershg
 ``w_max^2 <= max_i 2 sum_j k_ij / m_i``, the exact spectrum on small systems). Above it the
 scene is refused with the bound and the node and spring that set it, unless
 ``physics.safety.unstable`` (``--allow-unstable``, ``--subdivide``) says to run it anyway or to
-split every step into enough substeps to be below the limit.
+split every step into enough substeps to be below the limit. The messages name the settings the
+way the caller's user sets them (:class:`Wording`): a scene's keys and the CLI's flags
+(:data:`SCENE_WORDING`, the default), or the Python API's arguments (:data:`API_WORDING`).
 
 During the run (:class:`BlowUpWatch`), every ``check_every`` steps a census pass
 (:mod:`deformgl.sim.census`) counts the nodes whose position is NaN, +-Inf or farther than
@@ -14,7 +16,7 @@ During the run (:class:`BlowUpWatch`), every ``check_every`` steps a census pass
 count stops the run with :class:`BlowUp` (the step, a node, how many); on that error path the
 state is read back once to name the node. With ``subdivide`` the run is restarted from the start
 with half the step (twice the steps, the same simulated time), up to ``MAX_SUBSTEPS`` substeps
-per scene step.
+per scene step (:func:`deformgl.sim.run.run_with_retries`, :func:`deformgl.sim.run.run_guarded`).
 """
 
 from __future__ import annotations
@@ -31,8 +33,8 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.stability import check_dt
 
-__all__ = ["MAX_SUBSTEPS", "SAFETY_MARGIN", "BlowUp", "BlowUpWatch", "StepPlan", "bad_nodes", "describe_bad_node",
-           "plan_steps"]
+__all__ = ["API_WORDING", "MAX_SUBSTEPS", "SAFETY_MARGIN", "SCENE_WORDING", "BlowUp", "BlowUpWatch", "StepPlan",
+           "StepSettings", "Watch", "Wording", "bad_nodes", "describe_bad_node", "plan_steps"]
 
 #: The most substeps per scene step that ``subdivide`` uses (before the run and after a blow-up).
 MAX_SUBSTEPS = 16
@@ -74,6 +76,38 @@ class StepPlan:
         return StepPlan(self.dt, self.steps, k, f"restarted with {k} substeps per step (dt {self.dt / k:.4g} s)")
 
 
+@dataclass(frozen=True)
+class Wording:
+    """How the guards' messages name the dt and the ``unstable`` policy, so that a user reads the
+    names they set them by.
+
+    Attributes:
+        where: what follows ``"<source>: "`` in a dt refusal ("physics.dt: " names the scene key;
+            "" when the message itself is enough).
+        dt: the dt's name in "reduce <dt>".
+        run_anyway: how to run an unstable dt anyway.
+        subdivide: how to ask for substeps.
+        policy: the setting behind both, in parentheses after them ("" for none).
+        cap: the substep cap, as "more than <cap>" says it.
+    """
+
+    where: str
+    dt: str
+    run_anyway: str
+    subdivide: str
+    policy: str
+    cap: str
+
+
+#: A scene file and the CLI: ``[physics] dt``, ``physics.safety.unstable``, ``--subdivide``.
+SCENE_WORDING = Wording(where="physics.dt: ", dt="physics.dt", run_anyway="--allow-unstable",
+                        subdivide="--subdivide", policy="physics.safety.unstable",
+                        cap=f"--subdivide's {MAX_SUBSTEPS}")
+#: The Python API (:func:`deformgl.run`): ``dt=``, ``unstable="run"``, ``unstable="subdivide"``.
+API_WORDING = Wording(where="", dt="dt", run_anyway='unstable="run"', subdivide='unstable="subdivide"',
+                      policy="", cap=f'the {MAX_SUBSTEPS} that unstable="subdivide" uses')
+
+
 class _Policy(Protocol):
     @property
     def unstable(self) -> str: ...
@@ -82,7 +116,8 @@ class _Policy(Protocol):
 class StepSettings(Protocol):
     """What :func:`plan_steps` reads of a run's settings (a scene's ``Physics`` is one): the step
     ``dt`` (s), the step count, the integrator's name and ``safety.unstable`` (``"refuse"``,
-    ``"run"`` or ``"subdivide"``)."""
+    ``"run"`` or ``"subdivide"``). How the messages name them comes with the call
+    (``plan_steps(..., wording=...)``, :class:`Wording`): a scene's keys by default."""
 
     @property
     def dt(self) -> float: ...
@@ -94,35 +129,42 @@ class StepSettings(Protocol):
     def safety(self) -> _Policy: ...
 
 
-def plan_steps(system: SpringSystem, physics: StepSettings, source) -> StepPlan:
+def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
+               wording: Wording = SCENE_WORDING) -> StepPlan:
     """Check ``physics.dt`` against the limit of ``physics.integrator`` on ``system``.
+
+    Args:
+        wording: how the messages name the dt and the policy (:data:`SCENE_WORDING`: the scene
+            keys and CLI flags; :data:`API_WORDING`: the arguments of :func:`deformgl.run`).
 
     Raises:
         SimulationError: ``"<file>: physics.dt: dt ... is above the verlet limit ... set by node
             N (spring S, k = ..., m = ...)"`` when the dt is above the limit and
-            ``physics.safety.unstable`` is "refuse".
+            ``physics.safety.unstable`` is "refuse" (with :data:`API_WORDING`: ``"<source>: dt
+            ... Pass unstable="run" ..."``).
     """
-    dt, policy = physics.dt, physics.safety.unstable
+    dt, policy, w = physics.dt, physics.safety.unstable, wording
     refusal = check_dt(system, physics.integrator, dt)
     if refusal is None:
         return StepPlan(dt, physics.steps)
+    where = f"{source}: {w.where}{refusal.message}"
     if policy == "refuse":
         hint = ""
         if refusal.limit.bound == "gershgorin":
             hint = (" (a conservative bound, used above 30,000 free nodes: the exact limit of a volume "
                     "can be up to twice it; running anyway keeps the blow-up census watching)")
-        raise SimulationError(f"{source}: physics.dt: {refusal.message}{hint}. Pass --allow-unstable to run it "
-                              f"anyway or --subdivide to split each step (physics.safety.unstable)")
+        setting = f" ({w.policy})" if w.policy else ""
+        raise SimulationError(f"{where}{hint}. Pass {w.run_anyway} to run it anyway or {w.subdivide} to split "
+                              f"each step{setting}")
     if policy == "run":
         return StepPlan(dt, physics.steps, 1, f"running anyway: {refusal.message}")
     limit = refusal.limit.dt
     if limit <= 0.0:
-        raise SimulationError(f"{source}: physics.dt: {refusal.message}; no substep is stable, so "
-                              f"--subdivide cannot help")
+        raise SimulationError(f"{where}; no substep is stable, so {w.subdivide} cannot help")
     substeps = max(1, math.ceil(dt / (SAFETY_MARGIN * limit)))
     if substeps > MAX_SUBSTEPS:
-        raise SimulationError(f"{source}: physics.dt: {refusal.message}; it needs {substeps} substeps per "
-                              f"step, more than --subdivide's {MAX_SUBSTEPS}: reduce physics.dt")
+        raise SimulationError(f"{where}; it needs {substeps} substeps per step, more than {w.cap}: "
+                              f"reduce {w.dt}")
     return StepPlan(dt, physics.steps, substeps,
                     f"dt {dt:.4g} s is above the {physics.integrator} limit {limit:.4g} s: "
                     f"{substeps} substeps of {dt / substeps:.4g} s per step")
@@ -139,13 +181,14 @@ class BlowUp(SimulationError):
 
     @classmethod
     def at(cls, source, step: int, dt: float, count: int, node: str, limit: float,
-           last_clean: int | None) -> BlowUp:
+           last_clean: int | None, wording: Wording = SCENE_WORDING) -> BlowUp:
         """The error of a check at ``step`` that found ``count`` bad nodes, ``node`` the first
-        (:func:`describe_bad_node`); ``last_clean``: the step of the last check that found none."""
+        (:func:`describe_bad_node`); ``last_clean``: the step of the last check that found none;
+        ``wording``: how the advice names the dt and the subdivision."""
         last = f"; none at step {last_clean}" if last_clean is not None else ""
         return cls(f"{source}: simulation blew up: at step {step} (dt {dt:.4g} s{last}) {count} node(s) are "
-                   f"non-finite or beyond {limit:.4g} from the centre, first {node}; reduce physics.dt or "
-                   f"stiffness, or pass --subdivide", step, count)
+                   f"non-finite or beyond {limit:.4g} from the centre, first {node}; reduce {wording.dt} or "
+                   f"stiffness, or pass {wording.subdivide}", step, count)
 
 
 def bad_nodes(positions: np.ndarray, limit: float) -> np.ndarray:
@@ -180,10 +223,16 @@ class Watch:
         grid: names the bad node's grid index in the message, if given.
         source: the scene file, for the message.
         dt: the step, for the message.
+        wording: how the message's advice names the dt and the subdivision.
     """
 
-    def __init__(self, sim, *, every: int, limit: float, grid: NodeGrid | None, source, dt: float) -> None:
+    #: the class default, so a watch built without ``__init__`` words its message for a scene
+    wording: Wording = SCENE_WORDING
+
+    def __init__(self, sim, *, every: int, limit: float, grid: NodeGrid | None, source, dt: float,
+                 wording: Wording = SCENE_WORDING) -> None:
         self.sim, self.every, self.limit, self.grid, self.source, self.dt = sim, every, limit, grid, source, dt
+        self.wording = wording
         self.last_clean: int | None = None  # step of the last check that found nothing
 
     def due(self, done: int) -> bool:
@@ -207,7 +256,7 @@ class Watch:
             self.last_clean = done
             return
         node = describe_bad_node(self.sim.positions(), self.grid, self.limit)
-        raise BlowUp.at(self.source, done, self.dt, count, node, self.limit, self.last_clean)
+        raise BlowUp.at(self.source, done, self.dt, count, node, self.limit, self.last_clean, self.wording)
 
     def release(self) -> None:
         """Release what the count holds (nothing here)."""
@@ -222,10 +271,10 @@ class BlowUpWatch(Watch):
     """
 
     def __init__(self, ctx: moderngl.Context, sim, *, every: int, limit: float, grid: NodeGrid | None,
-                 source, dt: float) -> None:
+                 source, dt: float, wording: Wording = SCENE_WORDING) -> None:
         from deformgl.sim.census import NodeCensus
 
-        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=dt)
+        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=dt, wording=wording)
         _, row, slots, _ = sim.position_slot()
         self.census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
 

@@ -7,46 +7,77 @@ the GPU backends the checks are census queries (:class:`~deformgl.sim.guards.Blo
 :class:`~deformgl.sim.census.NodeCensus`), nothing is read back unless a check fails; on the
 NumPy backend they are the same tests on the float64 arrays. Converged means "every node moved
 <= threshold" on every backend.
+
+:func:`run_guarded` is the whole guarded run on top of it, the one the CLI's scenes and the Python
+API (:func:`deformgl.run`) both use: the dt against the integrator's stability limit first
+(:func:`~deformgl.sim.guards.plan_steps`: refuse, run anyway, or subdivide), a simulation built
+for the plan's step, :func:`run` with the blow-up watch and the convergence stop, and under the
+"subdivide" policy a restart with twice the substeps after a :class:`~deformgl.sim.guards.BlowUp`
+(:func:`run_with_retries`). Both return the one :class:`RunResult`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 
-from deformgl.sim.guards import BlowUpWatch, Watch
+from deformgl.errors import SimulationError
+from deformgl.grid.nodes import NodeGrid
+from deformgl.progress import Progress
+from deformgl.sim.guards import (SCENE_WORDING, BlowUp, BlowUpWatch, StepPlan, StepSettings, Watch, Wording,
+                                 plan_steps)
+from deformgl.sim.simulation import Simulation
+from deformgl.sim.springs import SpringSystem
 
-__all__ = ["RunResult", "NumpyWatch", "make_watch", "run"]
+__all__ = ["RunResult", "NumpyWatch", "make_watch", "run", "run_guarded", "run_with_retries"]
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
 class RunResult:
-    """What :func:`run` did.
+    """What :func:`run` or :func:`run_guarded` did.
 
     Attributes:
-        steps: steps done.
+        steps: steps done, each of ``dt`` (under a plan of ``substeps`` substeps, ``substeps``
+            steps per step asked for).
         converged: True/False; None without a convergence stop.
+        substeps: substeps per step asked for that the run used (1 unless subdivided).
+        dt: the step the simulation ran (s); None when not recorded (:func:`run` leaves it to
+            its caller).
+        time: the simulation's clock at the end (s); None when not recorded.
+        notes: what the plan and the restarts changed, for a log.
     """
 
     steps: int
     converged: bool | None
+    substeps: int = 1
+    dt: float | None = None
+    time: float | None = None
+    notes: tuple[str, ...] = ()
 
 
 class NumpyWatch(Watch):
     """:class:`~deformgl.sim.guards.Watch` for a simulation without GPU state: the same schedule
     and message, counted on ``sim.positions()``."""
 
-    def __init__(self, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None) -> None:
-        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=sim.dt if dt is None else dt)
+    def __init__(self, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None,
+                 wording: Wording = SCENE_WORDING) -> None:
+        super().__init__(sim, every=every, limit=limit, grid=grid, source=source, dt=sim.dt if dt is None else dt,
+                         wording=wording)
 
 
-def make_watch(ctx, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None):
-    """The blow-up watch that fits ``sim``: census queries on the GPU, NumPy otherwise."""
+def make_watch(ctx, sim, *, every: int, limit: float, grid=None, source=None, dt: float | None = None,
+               wording: Wording = SCENE_WORDING) -> Watch:
+    """The blow-up watch that fits ``sim``: census queries on the GPU, NumPy otherwise;
+    ``wording``: how its :class:`~deformgl.sim.guards.BlowUp` advice names the settings."""
     dt = sim.dt if dt is None else dt
     if sim.position_slot() is None:
-        return NumpyWatch(sim, every=every, limit=limit, grid=grid, source=source, dt=dt)
-    return BlowUpWatch(ctx, sim, every=every, limit=limit, grid=grid, source=source, dt=dt)
+        return NumpyWatch(sim, every=every, limit=limit, grid=grid, source=source, dt=dt, wording=wording)
+    return BlowUpWatch(ctx, sim, every=every, limit=limit, grid=grid, source=source, dt=dt, wording=wording)
 
 
 class _NoBar:
@@ -122,3 +153,91 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
     finally:
         if census is not None:
             census.release()
+
+
+def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T],
+                     notes: list[str], *, wording: Wording = SCENE_WORDING) -> tuple[T, StepPlan]:
+    """``attempt(plan)``; with the "subdivide" policy a :class:`~deformgl.sim.guards.BlowUp`
+    restarts it with twice the substeps (up to :data:`~deformgl.sim.guards.MAX_SUBSTEPS`), each
+    restart noted in ``notes``. Returns what the last attempt returned and its plan.
+
+    Raises:
+        BlowUp: under any other policy.
+        SimulationError: a blow-up at :data:`~deformgl.sim.guards.MAX_SUBSTEPS` substeps.
+    """
+    while True:
+        try:
+            return attempt(plan), plan
+        except BlowUp as exc:
+            if policy != "subdivide":
+                raise
+            finer = plan.halved()
+            if finer is None:
+                raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "
+                                      f"{wording.subdivide} uses)") from None
+            notes.append(f"{exc}; {finer.note}")
+            plan = finer
+
+
+def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[float], Simulation], *,
+                source: object, limit: float, check_every: int, ctx=None, grid: NodeGrid | None = None,
+                converge: tuple[float, int] | None = None, progress: bool = False, plan: StepPlan | None = None,
+                notes: list[str] | None = None, wording: Wording = SCENE_WORDING) -> RunResult:
+    """The guarded run of ``settings.steps`` steps of ``settings.dt`` of ``system``.
+
+    1. ``plan``, or :func:`~deformgl.sim.guards.plan_steps` of ``settings`` (refuses a dt above
+       the integrator's limit unless ``settings.safety.unstable`` is "run" or "subdivide");
+    2. ``make(plan.step_dt)``: the simulation to run at that step;
+    3. :func:`run` of ``plan.step_count`` steps with a :func:`make_watch` watch every
+       ``check_every`` steps (and at the end) and the convergence stop;
+    4. under "subdivide", a :class:`~deformgl.sim.guards.BlowUp` starts again at 2. with twice the
+       substeps (:func:`run_with_retries`).
+
+    Args:
+        make: ``make(dt) -> Simulation``, called once per attempt, at the start state (a retry
+            needs a fresh one). What it returns stays the caller's: ``run_guarded`` releases none
+            of them (``make`` may release the previous one, and the caller the last).
+        source: the name messages start with (a scene file, ``"<arrays>"``).
+        limit: a node farther than this from the origin (world units) counts as blown up.
+        check_every: steps between blow-up checks (0: at the end only).
+        ctx: the GL context of the watch and the loop (default: the simulation's ``ctx``).
+        grid: names a blown-up node's grid index in the message, if given.
+        converge: ``(threshold, every)`` per step asked for: stop when no node moved more than
+            ``threshold`` in a step ending at a multiple of ``every`` steps (Movania & Feng 2012,
+            section 4); with substeps, ``threshold / substeps`` per substep every
+            ``every * substeps`` substeps.
+        progress: show a progress bar on stderr.
+        plan: a plan checked already (its note is noted, as :func:`plan_steps`' would be).
+        notes: receives the plan's note and each restart's as they happen, if given (the result
+            carries them too).
+        wording: how the messages name the dt and the policy
+            (:data:`~deformgl.sim.guards.SCENE_WORDING` or :data:`~deformgl.sim.guards.API_WORDING`).
+
+    Returns:
+        :class:`RunResult`: steps done (of ``dt``), converged, the substeps used, the step ``dt``,
+        the simulation's ``time`` at the end and the notes.
+
+    Raises:
+        SimulationError: the dt is refused, or a blow-up at the most substeps.
+        BlowUp: a blow-up under "refuse" or "run".
+    """
+    plan = plan_steps(system, settings, source, wording=wording) if plan is None else plan
+    noted: list[str] = [] if notes is None else notes
+    first = len(noted)
+    if plan.note:
+        noted.append(plan.note)
+
+    def attempt(p: StepPlan) -> tuple[RunResult, Simulation]:
+        sim = make(p.step_dt)
+        gl = getattr(sim, "ctx", None) if ctx is None else ctx
+        stop = None if converge is None else (converge[0] / p.substeps, converge[1] * p.substeps)
+        watch = make_watch(gl, sim, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
+                           wording=wording)
+        try:
+            with Progress(p.step_count, "steps", enabled=progress) as bar:
+                return run(sim, p.step_count, ctx=gl, watch=watch, converge=stop, progress=bar), sim
+        finally:
+            watch.release()
+
+    (result, sim), used = run_with_retries(plan, settings.safety.unstable, attempt, noted, wording=wording)
+    return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]))
