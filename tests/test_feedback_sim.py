@@ -329,3 +329,40 @@ def test_mesh_springs_example_drops_a_shell_on_the_obstacles(ctx, tmp_path):
         np.linalg.norm(x - sphere.centre_at(0.0), axis=1).min() < sphere.radius + system.spacing  # it landed
     image = np.asarray(Image.open(tmp_path / "shell.png"))
     assert image.shape == (360, 480, 3) and len(np.unique(image.reshape(-1, 3), axis=0)) > 50
+
+
+@pytest.mark.parametrize("name", ["euler", "verlet"])
+def test_release_leaves_no_renderbuffer_or_framebuffer(ctx, monkeypatch, name):
+    from deformgl.gl.resources import is_released
+
+    made: list = []
+    for method in ("renderbuffer", "depth_renderbuffer", "framebuffer"):
+        original = getattr(moderngl.Context, method)
+
+        def spy(self, *args, _original=original, **kwargs):
+            made.append(_original(self, *args, **kwargs))
+            return made[-1]
+        monkeypatch.setattr(moderngl.Context, method, spy)
+    sim = FeedbackSimulation(ctx, damped_grid(3), name, 1e-3)
+    sim.step(2)
+    assert any(isinstance(o, moderngl.Renderbuffer) for o in made)
+    assert all(any(o is owned for owned in sim._owned) for o in made)  # every one is owned
+    sim.release()
+    assert made and all(is_released(o) for o in made)
+
+
+@pytest.mark.parametrize("name", INTEGRATORS)
+def test_passes_come_from_the_stage_table(ctx, name):
+    from deformgl.sim.stages import spec
+
+    s = spec(name)
+    sim = FeedbackSimulation(ctx, damped_grid(3), name, 1e-3)
+    try:
+        assert list(sim._passes) == [st.name for st in s.stages]
+        for st in s.stages:
+            p = sim._passes[st.name]
+            assert p.slots == len(st.writes)
+            assert p.program.vertex_source.files[0] == st.vertex
+            assert ("#define VELOCITY" in p.program.vertex_source.text) == s.velocity
+    finally:
+        sim.release()

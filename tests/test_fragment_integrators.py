@@ -373,3 +373,24 @@ def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, mon
         assert not sim.dense and sim.tex_neighbours is not None
     finally:
         sim.release()
+
+
+@pytest.mark.parametrize("name", INTEGRATORS)
+def test_passes_and_rotation_come_from_the_stage_table(ctx, name):
+    from deformgl.sim.stages import spec
+
+    s = spec(name)
+    system, grid = damped_grid(3)
+    sim = FragmentIntegrator(ctx, system, grid, name, 1e-3)
+    try:
+        assert list(sim.passes) == [st.name for st in s.stages]
+        assert len(sim.pool) == len(s.buffers)
+        roles = list(sim.roles)
+        sim.step(1)
+        assert sim.roles == s.rotate(roles)
+        sim.step(1)
+        assert sim.roles == s.rotate(s.rotate(roles))
+        # what plays x is what the last stage wrote its positions into
+        assert sim.position_slot()[0] is sim.pool[sim.roles[s.buffers.index("x")]]
+    finally:
+        sim.release()

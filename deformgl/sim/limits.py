@@ -14,6 +14,7 @@ from deformgl.sim.spectrum import (
     DENSE_MAX_NODES, ExactFrequency, ModalDamping, _FORMULA, _RADIUS_TOL, _RK_POLY, _Y_MAX, _Y_MIN,
     _describe, _mass_normalised, exact_frequency, modal_damping)
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
+from deformgl.sim.stages import spec
 
 
 
@@ -77,7 +78,7 @@ def mode_limit(integrator: str, omega: np.ndarray | float,
         unstable = spectral_radius(integrator, wl[mid], gl[mid], c) > 1.0 + _RADIUS_TOL
         hi, lo = np.where(unstable, c, hi), np.where(unstable, lo, c)
     limit[mid] = lo
-    if integrator in ("euler", "midpoint"):  # |R(iy)| > 1 for every y > 0 (closed form)
+    if spec(integrator).limit_factor is None:  # |R(iy)| > 1 for every y > 0 (closed form)
         limit[(gl == 0.0) & (wl > 0.0)] = 0.0
     out[live] = limit
     return out

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.sim.springs import SpringSystem
+from deformgl.sim.stages import SPECS
 
 
 #: Largest number of free nodes whose spectrum is computed densely (3N x 3N ``eigh``).
@@ -24,7 +25,10 @@ _Y_MIN, _Y_MAX = 1e-3, 20.0
 _BLOW_UP = 1e3
 _RK_POLY = {"euler": (1.0, 1.0), "midpoint": (1.0, 1.0, 0.5),
             "rk4": (1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0)}
-_FORMULA = {"verlet": "2/w", "semi-implicit": "2/w", "rk4": "2.83/w"}
+#: The undamped limit of each integrator stable without damping, as messages write it
+#: ("2/w", "2.83/w"; from the limit factors of :data:`deformgl.sim.stages.SPECS`).
+_FORMULA: dict[str, str] = {name: s.limit_formula for name, s in SPECS.items()
+                            if s.limit_formula is not None}
 
 
 

@@ -31,6 +31,10 @@ State per integrator (``bytes_per_node`` counts what is allocated, static data i
 * rk4: state (x, v), stage texture (x_s, v_s, sum_x, sum_v), output buffer (4 vec4).
 * verlet: two position textures (x, x_prev, roles swapped each step) + output buffer (x').
 
+The passes (one per stage of :func:`deformgl.sim.stages.spec`: its vertex shader, defines and
+stage time) and the layout come from the stage table; the layout is checked to implement the
+spec's buffer rotation.
+
 Positions carry the node mass in w. The loop never reads anything back to the CPU; only
 :meth:`FeedbackSimulation.positions` and :meth:`FeedbackSimulation.velocities` do.
 """
@@ -49,6 +53,7 @@ from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_st
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+from deformgl.sim.stages import BUFFERS, IntegratorSpec, Stage, spec
 
 __all__ = ["FeedbackSimulation", "NODE_ROW_MAX", "SPRING_ROW_MAX"]
 
@@ -74,9 +79,39 @@ def _bytes(obj: moderngl.Buffer | moderngl.Texture) -> int:
     return int(obj.width * obj.height * obj.components * 4)
 
 
+def _varying(buffer: str) -> str:
+    """The captured output a buffer is written to (``stages.BUFFERS``: kind, quantity)."""
+    kind, quantity = BUFFERS[buffer]
+    return f"out_sum_{quantity}" if kind == "sum" else f"out_{quantity}"
+
+
+def _check_layout(sp: IntegratorSpec) -> None:
+    """The buffer rotation this backend implements, checked against the spec's.
+
+    With velocity as state, the final stage writes the next (x, v) and the step copies it over
+    the state texture; the other stages write the stage texture. Without (Verlet), x' overwrites
+    x_prev's texture and the two position textures swap roles: x <- x', x_prev <- x.
+    """
+    out = sp.final.writes
+    if not sp.velocity and len(sp.stages) != 1:
+        raise ValueError(f"FeedbackSimulation: {sp.name}: without velocity one stage only")
+    if sp.velocity:
+        expected = {"x": out[0], "v": out[1]}
+    else:
+        expected = {"x": out[0], "x_prev": "x"}
+    if any(sp.before(role) != old for role, old in expected.items()):
+        raise ValueError(f"FeedbackSimulation: {sp.name}'s buffer rotation {sp.rotation} is not "
+                         f"one this backend implements")
+
+
 def _array(values: list) -> object:
     """A uniform array value for moderngl: an array of length 1 is set as its element."""
     return values[0] if len(values) == 1 else values
+
+
+def _reads_stage(stage: Stage) -> bool:
+    """Whether a stage samples the stage texture (stage states or RK4's running sums)."""
+    return stage.eval_stage or stage.read_sums
 
 
 @dataclass
@@ -114,6 +149,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
                              f"{', '.join(INTEGRATORS)}")
+        #: the integrator's stages, buffers and role rotation (``deformgl.sim.stages``)
+        self.spec = spec(integrator)
+        _check_layout(self.spec)
         if not dt > 0:
             raise ValueError(f"FeedbackSimulation: dt must be > 0, got {dt}")
         self.ctx = ctx
@@ -208,23 +246,26 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             # slot s of node m at texel K * (m % NODE_ROW) + s of row m // NODE_ROW
             return np.stack(images, axis=1).tobytes()
 
-        name = self.integrator
-        if name == "verlet":
+        sp = self.spec
+        # vec4 slots per node of the stage texture: what the non-final stages write
+        stage_slots = max((len(st.writes) for st in sp.stages if not st.final), default=0)
+        if not sp.velocity:
             self.tex_x = [self._texture(self.node_row, self.rows, "f4",
                                         positions_image(x).tobytes()),
                           self._texture(self.node_row, self.rows, "f4",
                                         positions_image(np.asarray(s.x_prev)).tobytes())]
             self._current = 0
-            out_slots = 1
         else:
             self.tex_state = self._texture(2 * self.node_row, self.rows, "f4",
                                            interleave(positions_image(x), velocity_image(v)))
-            stage_slots = {"midpoint": 2, "rk4": 4}.get(name, 0)
             self.tex_stage = (self._texture(stage_slots * self.node_row, self.rows, "f4")
                               if stage_slots else None)
-            out_slots = max(2, stage_slots)
+        out_slots = max(len(st.writes) for st in sp.stages)
         self.buffer = self.own(self.ctx.buffer(reserve=out_slots * texels * _VEC4))
-        self.fbo = self.own(self.ctx.simple_framebuffer((1, 1)))
+        # Mesa skips draws without a complete framebuffer; a renderbuffer of our own, since
+        # releasing a simple_framebuffer would leave its renderbuffers behind
+        self.colour = self.own(self.ctx.renderbuffer((1, 1)))
+        self.fbo = self.own(self.ctx.framebuffer(color_attachments=[self.colour]))
 
         # Programs: compile only what the system uses.
         common: dict[str, object] = {"NODE_ROW": self.node_row, "SPRING_ROW": self.spring_row,
@@ -240,27 +281,13 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             common["SPHERES"] = len(c.spheres)
         else:
             common["SPHERES"] = 0
-        if name != "verlet":
+        if sp.velocity:
             common["VELOCITY"] = True
-        out2 = ("out_x", "out_v")
-        if name == "euler":
-            self._add_pass("step", "feedback/euler.vert", common, out2)
-        elif name == "semi-implicit":
-            self._add_pass("step", "feedback/euler.vert", {**common, "SEMI_IMPLICIT": True}, out2)
-        elif name == "midpoint":
-            self._add_pass("half", "feedback/midpoint_half.vert", common, out2)
-            self._add_pass("step", "feedback/midpoint_full.vert", common, out2)
-        elif name == "rk4":
-            out4 = ("out_x", "out_v", "out_sum_x", "out_sum_v")
-            for k in (1, 2, 3):
-                self._add_pass(f"stage{k}", "feedback/rk4_stage.vert",
-                               {**common, "RK4_STAGE": k}, out4)
-            self._add_pass("step", "feedback/rk4_final.vert", common, out2)
-        else:
-            self._add_pass("step", "feedback/verlet.vert", common, ("out_x",))
+        for stage in sp.stages:
+            self._add_pass(stage, {**common, **stage.feedback_defines()})
 
         state_objects: list[moderngl.Buffer | moderngl.Texture] = [self.buffer]
-        if name == "verlet":  # (tex_stage is set only when the integrator is not verlet)
+        if not sp.velocity:  # (tex_stage is set only with velocity as state)
             state_objects += self.tex_x
         else:
             state_objects += [self.tex_state, *([self.tex_stage] if self.tex_stage else [])]
@@ -268,12 +295,12 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.bytes_allocated = int(sum(_bytes(o) for o in self._owned
                                        if isinstance(o, (moderngl.Buffer, moderngl.Texture))))
 
-    def _add_pass(self, key: str, vertex: str, defines: dict[str, object],
-                  varyings: tuple[str, ...]) -> None:
-        program = Program(self.ctx, vertex, defines=defines, varyings=varyings)
+    def _add_pass(self, stage: Stage, defines: dict[str, object]) -> None:
+        varyings = tuple(_varying(b) for b in stage.writes)
+        program = Program(self.ctx, stage.vertex, defines=defines, varyings=varyings)
         self.own(program)
         vao = self.own(self.ctx.vertex_array(program.gl, []))
-        self._passes[key] = _Pass(program, vao, len(varyings))
+        self._passes[stage.name] = _Pass(program, vao, len(varyings))
         system = self.system
         uniforms: dict[str, object] = {
             "u_nodes": 0, "u_other": 1, "u_springs": 2, "u_dt": self.dt,
@@ -282,18 +309,17 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if "WIND" in defines:
             uniforms.update(u_wind=tuple(float(w) for w in system.wind),
                             u_wind_drag=system.wind_drag)
-        if self.integrator == "verlet":
+        if not self.spec.velocity:
             uniforms.update(u_x=3, u_x_prev=4)
         else:
             uniforms["u_state"] = 3
-            if key in ("stage2", "stage3") or (key == "step"
-                                               and self.integrator in ("midpoint", "rk4")):
+            if _reads_stage(stage):
                 uniforms["u_stage"] = 4
         if self.drags:
             uniforms["u_drag_node"] = _array([d.node for d in self.drags])
             uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
         c = self.constraints
-        if "CONSTRAINTS" in defines and key == "step" and c is not None:
+        if "CONSTRAINTS" in defines and stage.final and c is not None:
             if c.ground is not None:
                 uniforms["u_ground"] = float(c.ground)
         program.set(**uniforms)
@@ -319,13 +345,13 @@ class FeedbackSimulation(SimulationBase, GLOwner):
                 spheres.append((*map(float, end), float(sphere.radius)))
                 velocities.append(tuple(map(float, (end - sphere.centre_at(t0)) / self.dt)))
             values: dict[str, object] = {"u_spheres": _array(spheres)}
-            if self.integrator != "verlet":
+            if self.spec.velocity:
                 values["u_sphere_velocity"] = _array(velocities)
             p.program.set(**values)
 
-    def _run(self, key: str, t: float, into: moderngl.Texture) -> None:
-        p = self._passes[key]
-        self._set_time(p, t, constrain=key == "step")
+    def _run(self, stage: Stage, t: float, into: moderngl.Texture) -> None:
+        p = self._passes[stage.name]
+        self._set_time(p, t, constrain=stage.final)
         p.vao.transform(self.buffer, moderngl.POINTS, vertices=self.count)
         into.write(self.buffer)  # GPU to GPU (pixel-unpack buffer), no read-back
 
@@ -344,32 +370,26 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.tex_nodes.use(0)
         self.tex_other.use(1)
         self.tex_springs.use(2)
-        dt, name = self.dt, self.integrator
+        dt, sp = self.dt, self.spec
         try:
             for _ in range(n):
                 t = self.t
-                if name == "verlet":
+                if not sp.velocity:
                     cur, prev = self.tex_x[self._current], self.tex_x[1 - self._current]
                     cur.use(3)
                     prev.use(4)
-                    self._run("step", t, prev)  # x' overwrites x_prev; roles swap
+                    for stage in sp.stages:  # (one: x' overwrites x_prev; roles swap)
+                        self._run(stage, stage.at(t, dt), prev)
                     self._current = 1 - self._current
                 else:
                     self.tex_state.use(3)
-                    if name == "midpoint":
-                        stage = self._stage_texture()
-                        self._run("half", t, stage)
-                        stage.use(4)
-                        self._run("step", t + 0.5 * dt, self.tex_state)
-                    elif name == "rk4":
-                        stage = self._stage_texture()
-                        self._run("stage1", t, stage)
-                        stage.use(4)
-                        self._run("stage2", t + 0.5 * dt, stage)
-                        self._run("stage3", t + 0.5 * dt, stage)
-                        self._run("step", t + dt, self.tex_state)
-                    else:
-                        self._run("step", t, self.tex_state)
+                    bound = False  # the stage texture on unit 4 once a stage reads it
+                    for stage in sp.stages:
+                        if _reads_stage(stage) and not bound:
+                            self._stage_texture().use(4)
+                            bound = True
+                        into = self.tex_state if stage.final else self._stage_texture()
+                        self._run(stage, stage.at(t, dt), into)
                 self.t = t + dt
         finally:
             # give the caller its framebuffer back; code elsewhere may have left the context
@@ -384,21 +404,21 @@ class FeedbackSimulation(SimulationBase, GLOwner):
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 positions (one read-back)."""
-        if self.integrator == "verlet":
+        if not self.spec.velocity:
             return self._read(self.tex_x[self._current], 1)[:, 0, :3].copy()
         return self._read(self.tex_state, 2)[:, 0, :3].copy()
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
         """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
         slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
-        if self.integrator == "verlet":
+        if not self.spec.velocity:
             return self.tex_x[self._current], self.node_row, 1, 0
         return self.tex_state, self.node_row, 2, 0
 
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
-        if self.integrator == "verlet":
+        if not self.spec.velocity:
             x = self._read(self.tex_x[self._current], 1)[:, 0, :3].astype(np.float64)
             xp = self._read(self.tex_x[1 - self._current], 1)[:, 0, :3].astype(np.float64)
             return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)

@@ -22,6 +22,10 @@ GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texe
   euler / semi-implicit x, v, x', v'; midpoint x, v, x_m, v_m, x', v'; rk4 x, v and two stage
   sets (x_s, v_s, sum_x, sum_v) used ping-pong; verlet three rotating positions (no velocity).
 
+The passes, the buffers and their rotation after a step come from the integrator's
+:func:`deformgl.sim.stages.spec` (one pass per stage, the pool in ``spec.buffers`` order,
+``roles[i]`` the pool index playing ``spec.buffers[i]``).
+
 Loads (per-node scripted forces) and drags (a stiff spring from one node to a moving target)
 are uniforms set before each pass at the pass's stage time, as on the feedback backend.
 
@@ -42,6 +46,7 @@ from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_st
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.stages import BUFFERS, Stage, spec
 
 __all__ = ["FragmentIntegrator", "grid_neighbours"]
 
@@ -56,6 +61,12 @@ def _array(values: list) -> object:
 
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7}
+
+
+def _sampler(buffer: str) -> str:
+    """The ``step.frag`` sampler a buffer is read with (``stages.BUFFERS``: kind, quantity)."""
+    kind, quantity = BUFFERS[buffer]
+    return {"state": f"u_{quantity}", "stage": f"u_{quantity}s", "sum": f"u_sum_{quantity}"}[kind]
 
 
 def grid_neighbours(grid: NodeGrid, flexion: bool) -> np.ndarray:
@@ -142,6 +153,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         if integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
                              f"{', '.join(INTEGRATORS)}")
+        #: the integrator's stages, buffers and role rotation (``deformgl.sim.stages``)
+        self.spec = spec(integrator)
         if not dt > 0:
             raise ValueError(f"FragmentIntegrator: dt must be > 0, got {dt}")
         if grid.count == 0:
@@ -225,16 +238,13 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
         if x.shape != (n, 3) or v.shape != (n, 3):
             raise ValueError(f"FragmentIntegrator: state of shape {x.shape}, expected ({n}, 3)")
-        name = self.integrator
-        if name == "verlet":
-            self.pool = [self._texture(self._image(x)), self._texture(self._image(s.x_prev)),
-                         self._texture(None)]
-        else:
-            extra = {"midpoint": 4, "rk4": 8}.get(name, 2)
-            self.pool = [self._texture(self._image(x)), self._texture(self._image(v)),
-                         *(self._texture(None) for _ in range(extra))]
-        # roles: indices into the pool
+        sp = self.spec
+        start = {"x": x, "v": v, "x_prev": s.x_prev}
+        # one texture per buffer of the spec; roles[i]: the pool index playing sp.buffers[i]
+        self.pool = [self._texture(self._image(start[b]) if b in sp.state else None)
+                     for b in sp.buffers]
         self.roles = list(range(len(self.pool)))
+        self._index = {b: i for i, b in enumerate(sp.buffers)}
 
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1], "DENSE": self.dense,
                                      "SPRING_DAMPING": bool(np.any(system.damping > 0)),
@@ -242,27 +252,14 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                      "LOADS": len(self.loads)}
         if system.wind_drag > 0:
             common["WIND"] = True
-        if name != "verlet":
+        if sp.velocity:
             common["VELOCITY"] = True
         c = self.constraints
         final: dict[str, object] = dict(common)
         if c is not None and (c.ground is not None or c.spheres):
             final.update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
-        if name == "euler":
-            self._add("step", {**final, "EULER": True})
-        elif name == "semi-implicit":
-            self._add("step", {**final, "SEMI_IMPLICIT": True})
-        elif name == "midpoint":
-            self._add("half", {**common, "MIDPOINT_HALF": True})
-            self._add("step", {**final, "MIDPOINT_FULL": True, "EVAL_STAGE": True})
-        elif name == "rk4":
-            for k in (1, 2, 3):
-                self._add(f"stage{k}", {**common, "RK4_STAGE": k, "WRITE_SUMS": True,
-                                        "EVAL_STAGE": k > 1, "READ_SUMS": k > 1})
-            self._add("step", {**final, "RK4_FINAL": True, "EVAL_STAGE": True,
-                               "READ_SUMS": True})
-        else:
-            self._add("step", {**final, "VERLET": True})
+        for stage in sp.stages:
+            self._add(stage.name, {**(final if stage.final else common), **stage.fragment_defines()})
         self._vaos = {key: self.own(self.ctx.vertex_array(p.gl, []))
                       for key, p in self.passes.items()}
         self.state_bytes = len(self.pool) * w * h * _VEC4
@@ -319,7 +316,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             spheres.append((*map(float, end), float(sphere.radius)))
             velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
         values: dict[str, object] = {"u_spheres": _array(spheres)}
-        if self.integrator != "verlet":
+        if self.spec.velocity:
             values["u_sphere_velocity"] = _array(velocities)
         program.set(**values)
 
@@ -333,16 +330,17 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                                     np.asarray(d.target(t), float))
                                               for d in self.drags]))
 
-    def _run(self, key: str, inputs: dict[str, int], targets: tuple[int, ...],
-             t: float) -> None:
-        program = self.passes[key]
+    def _run(self, stage: Stage, t: float) -> None:
+        """One pass: ``stage.reads`` sampled, ``stage.writes`` rendered (current roles)."""
+        program = self.passes[stage.name]
+        r, index = self.roles, self._index
         self._set_time(program, t)
-        if key == "step":
+        if stage.final:
             self._set_spheres(program)
-        for sampler, index in inputs.items():
-            self.pool[index].use(_SAMPLERS[sampler])
-        self._fbo(targets).use()
-        self._vaos[key].render(moderngl.TRIANGLES, vertices=3)
+        for buffer in stage.reads:
+            self.pool[r[index[buffer]]].use(_SAMPLERS[_sampler(buffer)])
+        self._fbo(tuple(r[index[b]] for b in stage.writes)).use()
+        self._vaos[stage.name].render(moderngl.TRIANGLES, vertices=3)
 
     def step(self, n: int = 1) -> None:
         """``n`` steps of dt on the GPU; nothing is read back."""
@@ -352,33 +350,11 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.tex_node.use(_SAMPLERS["u_node"])
         if self.tex_neighbours is not None:
             self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
-        name = self.integrator
         try:
             for _ in range(n):
-                r = self.roles
-                t, half = self.t, self.t + 0.5 * self.dt
-                if name == "verlet":
-                    self._run("step", {"u_x": r[0], "u_x_prev": r[1]}, (r[2],), t)
-                    self.roles = [r[2], r[0], r[1]]
-                elif name in ("euler", "semi-implicit"):
-                    self._run("step", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
-                    self.roles = [r[2], r[3], r[0], r[1]]
-                elif name == "midpoint":
-                    self._run("half", {"u_x": r[0], "u_v": r[1]}, (r[2], r[3]), t)
-                    self._run("step", {"u_x": r[0], "u_v": r[1], "u_xs": r[2], "u_vs": r[3]},
-                              (r[4], r[5]), half)
-                    self.roles = [r[4], r[5], r[2], r[3], r[0], r[1]]
-                else:
-                    base = {"u_x": r[0], "u_v": r[1]}
-                    a, b = tuple(r[2:6]), tuple(r[6:10])
-
-                    def stage(s: tuple[int, ...]) -> dict[str, int]:
-                        return {"u_xs": s[0], "u_vs": s[1], "u_sum_x": s[2], "u_sum_v": s[3]}
-                    self._run("stage1", base, a, t)
-                    self._run("stage2", {**base, **stage(a)}, b, half)
-                    self._run("stage3", {**base, **stage(b)}, a, half)
-                    self._run("step", {**base, **stage(a)}, b[:2], t + self.dt)
-                    self.roles = [b[0], b[1], *a, r[0], r[1], b[2], b[3]]
+                for stage in self.spec.stages:
+                    self._run(stage, stage.at(self.t, self.dt))
+                self.roles = self.spec.rotate(self.roles)
                 self.t += self.dt
         finally:
             restore_framebuffer(self.ctx, previous)
@@ -391,21 +367,21 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 positions (one read-back)."""
-        return self._read(0)
+        return self._read(self._index["x"])
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
         """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
         slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
-        return self.pool[self.roles[0]], self.layout.width, 1, 0
+        return self.pool[self.roles[self._index["x"]]], self.layout.width, 1, 0
 
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
-        if self.integrator == "verlet":
-            x = self._read(0).astype(np.float64)
-            xp = self._read(1).astype(np.float64)
+        if not self.spec.velocity:
+            x = self._read(self._index["x"]).astype(np.float64)
+            xp = self._read(self._index["x_prev"]).astype(np.float64)
             return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
-        return self._read(1)
+        return self._read(self._index["v"])
 
     @property
     def bytes_per_node(self) -> float:
