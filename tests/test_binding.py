@@ -20,14 +20,14 @@ from deformgl.bench import binding as bench_bd
 from deformgl.mapping import binding as bd
 from deformgl.mapping import binding_cache as cache
 from deformgl.mapping import closest
-from deformgl.mapping.binding import Binding, bind, rest_node_normals
+from deformgl.mapping.binding import Binding, bind
+from deformgl.sim.normals import rest_normals
 from deformgl.mapping.binding_cache import binding_key, load_binding, save_binding
 from deformgl.mapping.closest import closest_on_triangles
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.mapping.bases import map_vertices
 from deformgl.grid.meshio import load_mesh
-from deformgl.sim.model import SpringModel
 from deformgl.grid.surface import GridSurface, grid_surface
 from deformgl.mapping.tangents import procedural_uv, vertex_tangents
 from deformgl.grid.voxelize import voxelize
@@ -54,18 +54,11 @@ class Case:
         return self.grid.rest_positions
 
 
-def spring_model(grid: NodeGrid) -> SpringModel:
-    n = grid.count
-    return SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool),
-                       pull_groups=np.zeros(n, np.uint8), k_structural=1.0, k_shear=1.0,
-                       damping=0.0, gravity=np.zeros(3))
-
-
 def make_case(mesh: trimesh.Trimesh, nodes_along_longest: int) -> Case:
     vox = voxelize(mesh, nodes_along_longest=nodes_along_longest)
     grid = NodeGrid(np.asarray(vox.origin), float(vox.spacing), np.asarray(vox.occupied))
     surface = grid_surface(grid)
-    normals = rest_node_normals(spring_model(grid))
+    normals = rest_normals(grid)
     b = bind(mesh.vertices, mesh.faces, grid.rest_positions, normals, surface, spacing=grid.spacing)
     return Case(mesh, grid, surface, normals, b)
 

@@ -175,8 +175,7 @@ def test_every_backend_runs_at_the_texture_limit_and_refuses_beyond_it(ctx, monk
     naming the limit: for the fragment backends 64x64 nodes fill the node texture exactly; for
     transform feedback the spring lists (2 entries per spring) fill their 64x64 texture first."""
     from deformgl.errors import GLError
-    from deformgl.sim.backends.foundation import FragmentSimulation
-    from deformgl.sim.model import SpringModel
+    from deformgl.sim.simulation import make_simulation
 
     real = dict(ctx.info)
     monkeypatch.setattr(type(ctx), "info", property(lambda self: {**real, "GL_MAX_TEXTURE_SIZE": 64}))
@@ -190,13 +189,11 @@ def test_every_backend_runs_at_the_texture_limit_and_refuses_beyond_it(ctx, monk
         system = from_grid(grid, k_structural=10.0, k_shear=10.0, mass=1e-3, fixed=fixed,
                            gravity=(0.0, -9.81, 0.0), velocity_damping=1e-3)
         dt = 0.5 * dt_limit(system, "verlet", exact=False).dt
-        if backend == "foundation":
-            model = SpringModel(grid=grid, mass=np.full(grid.count, 1e-3), fixed=fixed,
-                                pull_groups=np.zeros(grid.count, np.uint8), k_structural=10.0, k_shear=10.0,
-                                damping=1e-3, gravity=np.array([0.0, -9.81, 0.0]))
-            return system, dt, lambda: FragmentSimulation(ctx, model, dt)
+        if backend == "foundation":  # the fragment backend's Verlet fast path
+            return system, dt, lambda: make_simulation(system, "verlet", "fragment", ctx=ctx, dt=dt,
+                                                       path="foundation")
         if backend == "fragment":
-            return system, dt, lambda: FragmentIntegrator(ctx, system, grid, "verlet", dt)
+            return system, dt, lambda: FragmentIntegrator(ctx, system, grid, "verlet", dt, path="general")
         return system, dt, lambda: FeedbackSimulation(ctx, system, "verlet", dt)
 
     fits = 64
@@ -211,9 +208,8 @@ def test_every_backend_runs_at_the_texture_limit_and_refuses_beyond_it(ctx, monk
     finally:
         sim.release()
     assert np.isfinite(x).all() and np.abs(x - system.rest_positions).max() > 0
-    if backend != "foundation":  # (the foundation starts from x_prev = x, the reference from Taylor)
-        ref = I.simulate(system, "verlet", dt, 20).x
-        assert np.abs(x - ref).max() <= 1e-4 * 0.05
+    ref = I.simulate(system, "verlet", dt, 20).x  # every path starts from the same (Taylor) state
+    assert np.abs(x - ref).max() <= 1e-4 * 0.05
     _, _, build = make(fits + 1)
     with pytest.raises(GLError, match="texture limit"):
         build()
@@ -306,21 +302,18 @@ def test_a_grid_spacing_of_1e_4_runs_the_same_scene_scaled(ctx, jelly_image, tmp
 def test_a_nan_node_spreads_only_to_its_springs_on_dense_and_indexed_grids(ctx, layout):
     """Absent neighbours read the node itself (d = 0), never an unrelated node across a row
     wrap, so a NaN reaches exactly the nodes connected to it, the same on both lookups."""
-    from deformgl.sim.backends.foundation import FragmentSimulation
-    from deformgl.sim.model import SpringModel
+    from deformgl.sim.simulation import make_simulation
 
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((3, 4, 3), bool))
-    model = SpringModel(grid=grid, mass=np.full(grid.count, 0.01), fixed=np.zeros(grid.count, bool),
-                        pull_groups=np.zeros(grid.count, np.uint8), k_structural=10.0, k_shear=10.0,
-                        damping=0.0, gravity=np.zeros(3))
-    sim = FragmentSimulation(ctx, model, 1e-3, layout=layout)
+    system = from_grid(grid, k_structural=10.0, k_shear=10.0, mass=0.01, gravity=(0.0, 0.0, 0.0))
+    sim = make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-3, path="foundation", layout=layout)
     try:
         bad = int(grid.index[1, 0, 1])
-        state = sim.read_state()
+        state = sim.fast.read_state()
         state[bad, 0] = np.nan
-        w, h = sim.textures.size
-        image = sim.textures.layout.scatter(grid.ijk, state)
-        for t in sim.textures.state[:2]:
+        textures = sim.fast.textures
+        image = textures.layout.scatter(grid.ijk, state)
+        for t in textures.state[:2]:
             t.write(np.ascontiguousarray(image, np.float32).tobytes())
         sim.step(1)
         nan = ~np.isfinite(sim.positions()).all(axis=1)

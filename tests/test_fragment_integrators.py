@@ -368,7 +368,8 @@ def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, mon
     holed = NodeGrid(np.zeros(3), 0.1, occupied)
     from deformgl.sim.springs import from_grid
 
-    sim = FragmentIntegrator(ctx, from_grid(holed, k_structural=10.0, k_shear=10.0, mass=0.01), holed, name, 1e-3)
+    sim = FragmentIntegrator(ctx, from_grid(holed, k_structural=10.0, k_shear=10.0, mass=0.01), holed, name, 1e-3,
+                             path="general")
     try:
         assert not sim.dense and sim.tex_neighbours is not None
     finally:

@@ -12,7 +12,6 @@ import trimesh
 
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.mapping.bases import map_vertices
-from deformgl.render.mapped_setup import mapped_vertices, rest_node_normals
 from deformgl.mapping.node_drivers import DrivenNodes, Motion
 from deformgl.sim.normals import unpack_normals
 from deformgl.scene.pipeline import build_scene_model, make_draw_pass
@@ -39,7 +38,7 @@ class Mapped:
         self.built = build_scene_model(scene)
         self.rest = self.built.grid.rest_positions
         self.bounds = np.array([self.rest.min(0), self.rest.max(0)])
-        self.textures = NodeTextures(ctx, self.built.model)
+        self.textures = NodeTextures(ctx, self.built.grid)
         self.nodes = DrivenNodes(ctx, self.textures, self.built.grid)
         self.draw = make_draw_pass(ctx, scene, self.built, self.textures.layout)
         self.diag = float(np.linalg.norm(np.ptp(self.built.mesh.vertices, axis=0)))
@@ -325,7 +324,7 @@ def test_two_stage_draw_equals_one_stage_draw(ctx, normal_map):
     scene = load_scene(SCENES / "dragon_bend_curvature.toml").with_overrides(size=(200, 150))
     scene = dc.replace(scene, mapping=dc.replace(scene.mapping, normal_map=normal_map))
     built = build_scene_model(scene)
-    textures = NodeTextures(ctx, built.model)
+    textures = NodeTextures(ctx, built.grid)
     nodes = DrivenNodes(ctx, textures, built.grid)
     m = scene.nodes.motion
     nodes.set_positions(Motion(m.kind, m.angle, m.axis, m.along, m.towards).apply(built.grid.rest_positions))

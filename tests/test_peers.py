@@ -8,13 +8,29 @@ import pytest
 
 from deformgl.bench import peers
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.model import MAX_PULLS, SpringModel
-from deformgl.sim.reference import ReferenceVerlet
+from deformgl.sim.backends.foundation import MAX_PULLS
+from deformgl.sim.integrators import State
+from deformgl.sim.simulation import NumpySimulation
+from deformgl.sim.springs import Load, from_grid
 
 H = 0.05
 #: float32 peers after 50 steps of the jelly block below: max |x - x_ref| <= TOL * spacing
 #: (measured ~3.5e-5 on both peers, with the nodes moving ~0.3 spacing).
 TOL = 2e-4
+
+
+class Jelly:
+    """A test body: its spring system, two loads, fixed nodes."""
+
+    def __init__(self, system, loads):
+        self.system, self.loads = system, loads
+        self.grid, self.fixed = system.grid, system.fixed
+
+    def reference(self, dt, loads=True, x0=None, x_prev=None):
+        """The float64 reference, started as the peers are: at rest, x_prev = x (or given)."""
+        x = self.grid.rest_positions.copy() if x0 is None else x0
+        state = State(x, np.zeros_like(x), x.copy() if x_prev is None else x_prev)
+        return NumpySimulation(self.system, "verlet", dt, loads=self.loads if loads else (), state=state)
 
 
 def jelly(shape=(6, 5, 4), k=(60.0, 15.0), damping=0.02, origin=(0.2, -0.1, 0.3), hole=False):
@@ -24,11 +40,11 @@ def jelly(shape=(6, 5, 4), k=(60.0, 15.0), damping=0.02, origin=(0.2, -0.1, 0.3)
     occupied[2, 2, 2] = not hole
     grid = NodeGrid(np.array(origin, float), H, occupied)
     ijk = grid.ijk
-    groups = ((ijk[:, 0] == 0) * 1 + (ijk[:, 2] == shape[2] - 1) * 2).astype(np.uint8)
-    n = grid.count
-    return SpringModel(grid=grid, mass=np.full(n, 0.01), fixed=ijk[:, 1] == shape[1] - 1,
-                       pull_groups=groups, k_structural=k[0], k_shear=k[1], damping=damping,
-                       gravity=np.array([0.0, -9.81, 0.0]), n_pulls=2)
+    system = from_grid(grid, k_structural=k[0], k_shear=k[1], mass=0.01, fixed=ijk[:, 1] == shape[1] - 1,
+                       velocity_damping=damping)
+    loads = (Load(ijk[:, 0] == 0, lambda t: pull_schedule(t)[0]),
+             Load(ijk[:, 2] == shape[2] - 1, lambda t: pull_schedule(t)[1]))
+    return Jelly(system, loads)
 
 
 def pull_schedule(t):
@@ -43,16 +59,16 @@ def need(peer):
     pytest.importorskip(peer, reason=f"optional extra 'peers': {peer} is not installed")
 
 
-def stepper(peer, model, dt=1e-3, pull=pull_schedule):
+def stepper(peer, model, dt=1e-3, pull=True):
     need(peer)
-    return peers.make_stepper(peer, model, dt, pull)
+    return peers.make_stepper(peer, model.system, dt, model.loads if pull else ())
 
 
 @pytest.mark.parametrize("hole", [False, True], ids=["dense", "holed"])
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_fifty_steps_match_reference(peer, hole):
     model = jelly(hole=hole)
-    ref = ReferenceVerlet(model, 1e-3, pull_schedule)
+    ref = model.reference(1e-3)
     sim = stepper(peer, model)
     try:
         assert sim.dense is not hole
@@ -60,8 +76,8 @@ def test_fifty_steps_match_reference(peer, hole):
         sim.step(50)
         x = sim.positions()
         assert x.dtype == np.float32 and x.shape == (model.grid.count, 3)
-        assert np.abs(ref.x - model.grid.rest_positions).max() > 0.2 * H  # really deforms
-        assert np.abs(x - ref.x).max() <= TOL * H
+        assert np.abs(ref.positions() - model.grid.rest_positions).max() > 0.2 * H  # really deforms
+        assert np.abs(x - ref.positions()).max() <= TOL * H
         assert sim.steps_done == 50 and sim.time == pytest.approx(0.05)
     finally:
         sim.release()
@@ -76,16 +92,16 @@ def test_one_step_from_random_deformation(peer):
     x0[model.fixed] = model.grid.rest_positions[model.fixed]
     xp = x0 + rng.normal(scale=0.01 * H, size=x0.shape)
     xp[model.fixed] = x0[model.fixed]
-    ref = ReferenceVerlet(model, 1e-3, pull_schedule)
-    ref.x, ref.x_prev, ref.steps_done = x0.copy(), xp.copy(), 30
+    ref = NumpySimulation(model.system, "verlet", 1e-3, loads=model.loads,
+                          state=State(x0.copy(), np.zeros_like(x0), xp.copy()), t0=0.03)
     sim = stepper(peer, model)
     try:
         sim.set_state(x0, xp)
         sim.steps_done = 30
         ref.step(1)
         sim.step(1)
-        extent = np.ptp(ref.x, axis=0).max()
-        assert np.abs(sim.positions() - ref.x).max() / extent <= 1e-5
+        extent = np.ptp(ref.positions(), axis=0).max()
+        assert np.abs(sim.positions() - ref.positions()).max() / extent <= 1e-5
     finally:
         sim.release()
 
@@ -109,23 +125,23 @@ def test_two_models_in_one_process(peer):
     """Two steppers of different sizes, stepped interleaved, each matches its own reference."""
     a, b = jelly(), jelly(shape=(4, 7, 3), k=(40.0, 40.0), damping=0.05, origin=(0.0, 0.0, 0.0))
     sa = stepper(peer, a)
-    sb = stepper(peer, b, dt=5e-4, pull=None)
-    ra, rb = ReferenceVerlet(a, 1e-3, pull_schedule), ReferenceVerlet(b, 5e-4)
+    sb = stepper(peer, b, dt=5e-4, pull=False)
+    ra, rb = a.reference(1e-3), b.reference(5e-4, loads=False)
     try:
         for _ in range(5):
             sa.step(10)
             sb.step(10)
         ra.step(50)
         rb.step(50)
-        assert np.abs(rb.x - b.grid.rest_positions).max() > 1e-3 * H  # b sags under gravity
-        assert np.abs(sa.positions() - ra.x).max() <= TOL * H
-        assert np.abs(sb.positions() - rb.x).max() <= TOL * H
+        assert np.abs(rb.positions() - b.grid.rest_positions).max() > 1e-3 * H  # b sags under gravity
+        assert np.abs(sa.positions() - ra.positions()).max() <= TOL * H
+        assert np.abs(sb.positions() - rb.positions()).max() <= TOL * H
         sa.release()
         sc = stepper(peer, jelly(shape=(3, 3, 3)))  # a model after one was freed
         sc.step(5)
         sb.step(1)
         rb.step(1)
-        assert np.abs(sb.positions() - rb.x).max() <= TOL * H
+        assert np.abs(sb.positions() - rb.positions()).max() <= TOL * H
         sc.release()
     finally:
         sa.release()
@@ -136,7 +152,7 @@ def test_two_models_in_one_process(peer):
 def test_bench_peers_reports_a_timing(peer):
     need(peer)
     model = jelly(shape=(5, 4, 3))
-    timing = peers.bench_peers(model, 1e-3, steps=3, peers=[peer], repeats=2)[peer]
+    timing = peers.bench_peers(model.system, 1e-3, steps=3, peers=[peer], repeats=2)[peer]
     assert timing.nodes == model.grid.count
     assert timing.ms_per_step > 0 and timing.jit_s >= 0 and timing.setup_s >= 0
     assert timing.nodes_per_s == pytest.approx(model.grid.count / (timing.ms_per_step * 1e-3))

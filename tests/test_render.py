@@ -7,33 +7,28 @@ import numpy as np
 import pytest
 
 from deformgl.render.camera import frame_box, look_at, orthographic, perspective
-from deformgl.sim.backends.foundation import FragmentSimulation
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.model import SpringModel
+from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.progress import Progress
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 
 
-def block_model():
-    grid = NodeGrid(np.array([-0.2, -0.1, -0.15]), 0.1, np.ones((5, 3, 4), bool))
-    n = grid.count
-    return SpringModel(grid=grid, mass=np.full(n, 0.01), fixed=np.zeros(n, bool),
-                       pull_groups=np.zeros(n, np.uint8), k_structural=10.0, k_shear=10.0,
-                       damping=0.0, gravity=np.zeros(3))
+def block_grid():
+    return NodeGrid(np.array([-0.2, -0.1, -0.15]), 0.1, np.ones((5, 3, 4), bool))
 
 
 def render(ctx, *, projection="perspective", azimuth=30.0, elevation=20.0, samples=4, size=(160, 120),
            overlay=False, background=(1.0, 1.0, 1.0)):
-    model = block_model()
-    sim = FragmentSimulation(ctx, model, 1e-3)
+    grid = block_grid()
+    sim = NodeTextures(ctx, grid)  # the rest state and its packed normals
     target = RenderTarget(ctx, size, samples)
-    surface = GridSurfacePass(ctx, model.grid, sim.textures.layout, overlay=overlay)
+    surface = GridSurfacePass(ctx, grid, sim.layout, overlay=overlay)
     try:
-        lo, hi = model.grid.rest_positions.min(0), model.grid.rest_positions.max(0)
+        lo, hi = grid.rest_positions.min(0), grid.rest_positions.max(0)
         view = frame_box(lo, hi, projection=projection, azimuth=azimuth, elevation=elevation, fov=35.0,
                          distance=1.6, target=np.full(3, 0.5), aspect=size[0] / size[1])
         target.begin(background)
-        surface.draw(sim.position_texture, view, Lighting(direction=(0.2, 0.5, 1.0)))
+        surface.draw(sim.state[0], view, Lighting(direction=(0.2, 0.5, 1.0)))
         return target.read_rgb()
     finally:
         surface.release()

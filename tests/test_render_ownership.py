@@ -147,13 +147,9 @@ def test_trilinear_renderer_releases_everything_it_made_and_binds_back_the_calle
 def test_driven_nodes_release_their_pass_not_the_textures(ctx):
     from deformgl.grid.nodes import NodeGrid
     from deformgl.sim.backends.foundation import NodeTextures
-    from deformgl.sim.model import SpringModel
 
     grid = NodeGrid(np.zeros(3), 1.0, np.ones((2, 2, 2), bool))
-    n = grid.count
-    model = SpringModel(grid=grid, mass=np.ones(n), fixed=np.zeros(n, bool), pull_groups=np.zeros(n, np.uint8),
-                        k_structural=1.0, k_shear=1.0, damping=0.0, gravity=np.zeros(3))
-    textures = NodeTextures(ctx, model)
+    textures = NodeTextures(ctx, grid)
     nodes = DrivenNodes(ctx, textures, grid)
     nodes.set_positions(grid.rest_positions)
     program = nodes.program

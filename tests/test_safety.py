@@ -15,7 +15,8 @@ from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
 from deformgl.sim.guards import (API_WORDING, MAX_SUBSTEPS, SAFETY_MARGIN, SCENE_WORDING, BlowUp, StepPlan,
                                  describe_bad_node, plan_steps)
 from deformgl.scene.schema import Safety, load_scene
-from deformgl.scene.run import SceneBox, run_scene, run_with_retries, scene_system
+from deformgl.scene.run import SceneBox, run_scene, scene_system
+from deformgl.sim.run import run_with_retries
 from deformgl.sim.stability import check_dt, dt_limit
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
@@ -25,7 +26,7 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 def jelly():
     scene = load_scene(SCENES / "jelly.toml")
     built = build_scene_model(scene)
-    return scene, built, scene_system(built.grid, built.model, scene.physics)
+    return scene, built, scene_system(built.grid, scene.physics, built.bbox)
 
 
 def with_physics(scene, **physics):
@@ -76,7 +77,7 @@ def test_undamped_forward_euler_cannot_be_subdivided(jelly):
     scene, _, _ = jelly
     physics = with_physics(scene, damping=0.0, integrator="euler", safety=Safety("subdivide")).physics
     built = build_scene_model(with_physics(scene, damping=0.0))
-    system = scene_system(built.grid, built.model, physics)
+    system = scene_system(built.grid, physics, built.bbox)
     with pytest.raises(SimulationError, match="every dt.*no substep is stable"):
         plan_steps(system, physics, "s.toml")
 
@@ -104,7 +105,7 @@ def test_plan_messages_are_worded_for_the_python_api_when_asked(jelly):
                    wording=API_WORDING)
     physics = with_physics(scene, damping=0.0, integrator="euler", safety=Safety("subdivide")).physics
     built = build_scene_model(with_physics(scene, damping=0.0))
-    undamped = scene_system(built.grid, built.model, physics)
+    undamped = scene_system(built.grid, physics, built.bbox)
     with pytest.raises(SimulationError, match='no substep is stable, so unstable="subdivide" cannot help'):
         plan_steps(undamped, physics, "<arrays>", wording=API_WORDING)
     plan = plan_steps(system, with_physics(scene, dt=1.2 * limit, safety=Safety("subdivide")).physics, "<arrays>",
@@ -142,8 +143,8 @@ def test_a_blow_up_the_dt_check_missed_restarts_with_smaller_steps(ctx, jelly, b
     scene = with_physics(scene, dt=4 * limit, steps=60, integrator="semi-implicit", backend=backend,
                          safety=Safety("subdivide", check_every=20))
     notes: list[str] = []
-    out = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=False,
-                    plan=StepPlan(scene.physics.dt, 60), notes=notes)
+    out = run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
+                    SceneBox(*built.bbox), progress=False, plan=StepPlan(scene.physics.dt, 60), notes=notes)
     k = len(notes)  # at 4x the (conservative) Gershgorin limit: 2 restarts, maybe 3
     assert 2 <= k <= 3, notes
     assert [n.split("; ")[-1].split(" per step")[0] for n in notes] == [
@@ -180,7 +181,8 @@ def test_a_far_away_finite_node_counts_as_blown_up(ctx, jelly):
     scene = with_physics(scene, drag=(drag,), steps=200, backend="feedback",
                          safety=Safety("run", check_every=50, bad_distance=10.0))
     with pytest.raises(BlowUp) as err:
-        run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=False)
+        run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
+                  SceneBox(*built.bbox), progress=False)
     assert "beyond 10 from the centre" not in str(err.value)  # box lengths, not world units
     assert "beyond" in str(err.value) and "nan" not in str(err.value) and "inf" not in str(err.value)
 

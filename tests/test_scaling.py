@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from deformgl.grid import nodes as grid_module
-from deformgl.bench.studies import block_model
+from deformgl.bench.studies import block_system
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.bench.scaling import UPPER_NODES, ScalingReport, ScalingRow, bench_scaling, fit_power_law
-from deformgl.sim.springs import from_grid
 
 
 def test_fit_recovers_an_exact_power_law():
@@ -68,8 +67,7 @@ def test_tiny_study_times_every_backend_and_counts_its_memory(ctx):
     assert foundation[216] == pytest.approx(16 * 14 * 4 * 16 / 216)
     assert foundation[60] == pytest.approx(16 * 4 * 4 * 16 / 60)
     # the integrator backends report what they allocate; bench_scaling records exactly that
-    model = block_model((6, 6, 6))
-    system = from_grid(model.grid, k_structural=10.0, k_shear=10.0, mass=model.mass, fixed=model.fixed)
+    system = block_system((6, 6, 6))
     sim = FeedbackSimulation(ctx, system, "verlet", 1e-3)
     try:
         expected = sim.bytes_per_node

@@ -13,7 +13,7 @@ from deformgl.errors import SimulationError
 from deformgl.sim.integrators import INTEGRATORS
 from deformgl.scene.pipeline import NodeState, build_scene_model
 from deformgl.scene.schema import Converge, Safety, load_scene
-from deformgl.scene.run import SceneBox, needs_integrators, run_scene, scene_constraints, scene_drags
+from deformgl.scene.run import SceneBox, run_scene, scene_constraints, scene_drags, scene_loads, scene_system
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -57,13 +57,14 @@ def run(ctx, scene, built, **physics):
     set to run anyway (test_safety.py tests the check)."""
     physics.setdefault("safety", Safety(unstable="run"))
     scene = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, **physics))
-    return run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=False)
+    return run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox),
+                     scene_loads(built.grid, scene.physics, built.bbox), SceneBox(*built.bbox), progress=False)
 
 
 @pytest.mark.parametrize("name", INTEGRATORS)
 def test_every_backend_runs_the_same_scene(ctx, extended_scene, name):
     scene, built = extended_scene
-    assert needs_integrators(scene.physics)
+    assert scene.physics.extended
     ref = run(ctx, scene, built, integrator=name, backend="numpy")
     h = built.grid.spacing
     moved = np.abs(ref.positions - built.grid.rest_positions).max()
@@ -81,7 +82,7 @@ def test_constraints_fixed_nodes_and_drag_hold_in_the_scene(ctx, extended_scene)
     constraints = scene_constraints(scene.physics, box)
     for backend in ("fragment", "feedback"):
         out = run(ctx, scene, built, integrator="semi-implicit", backend=backend)
-        fixed = built.model.fixed
+        fixed = built.system.fixed
         x = out.positions
         assert x[~fixed, 1].min() >= constraints.ground - 1e-6  # fixed nodes stay where they are
         assert x[fixed, 1].min() < constraints.ground  # (some start below the ground)
@@ -122,56 +123,65 @@ def test_divergence_is_an_error_naming_a_node(ctx, extended_scene):
         run(ctx, scene, built, integrator="euler", backend="feedback", dt=0.05, steps=200)
 
 
-def test_plain_scenes_keep_the_foundation_pass(ctx):
+def test_plain_scenes_draw_from_the_verlet_fast_path(ctx, monkeypatch):
+    """A scene the foundation pass models runs on it by itself and is drawn from its state
+    texture (packed normals): nothing is read back. Any other integrator or backend reads the
+    positions once and drives the node textures."""
+    import moderngl
+
     scene = load_scene(SCENES / "jelly.toml").with_overrides(steps=3)
-    assert not needs_integrators(scene.physics)
+    assert not scene.physics.extended
     built = build_scene_model(scene)
+    reads = []
+    original = moderngl.Texture.read
+    monkeypatch.setattr(moderngl.Texture, "read", lambda self, *a, **k: reads.append(self) or original(self, *a, **k))
     state = NodeState(ctx, scene, built, progress=False)
     try:
-        assert state.sim is not None and state.run is None
+        assert state.sim is not None and state.sim.fast is not None and state.sim.packed_normals
+        assert state.run is not None and state.run.positions is None and state.run.steps == 3
+        assert state.position_texture is state.sim.fast.position_texture
+        assert reads == []
     finally:
         state.release()
     for override in (dict(integrator="rk4"), dict(backend="feedback"), dict(backend="numpy")):
-        assert needs_integrators(scene.with_overrides(**override).physics)
+        state = NodeState(ctx, scene.with_overrides(**override), built, progress=False)
+        try:
+            assert state.sim is None and state.driven is not None and state.run.positions is not None
+        finally:
+            state.release()
 
 
-def test_foundation_pass_and_integrator_verlet_are_the_same_function(ctx):
-    """From the same start (x_prev = x: the foundation starts at rest that way; the integrator
-    backends start from the second-order Taylor x_prev) the two compute the same steps."""
-    from deformgl.sim.backends.fragment import FragmentIntegrator
-    from deformgl.sim.backends.foundation import FragmentSimulation
-    from deformgl.scene.pipeline import pull_schedule
-    from deformgl.scene.run import scene_loads, scene_system
+def test_verlet_fast_path_and_the_general_verlet_stage_are_the_same_function(ctx):
+    """On the jelly scene (pull loads, fixed nodes, damping) the fragment backend's two Verlet
+    paths compute the same steps from the same state (the default: the reference's Taylor start)."""
+    from deformgl.sim.simulation import make_simulation
 
     scene = load_scene(SCENES / "jelly.toml")
     built = build_scene_model(scene)
     ph = scene.physics
-    base = FragmentSimulation(ctx, built.model, ph.dt, pull_schedule(ph))
-    try:
-        base.step(100)
-        x_base = base.positions().astype(np.float64)
-    finally:
-        base.release()
-    system = scene_system(built.grid, built.model, ph)
+    x = {}
+    for path in ("foundation", "general"):
+        sim = make_simulation(built.system, "verlet", "fragment", ctx=ctx, dt=ph.dt, loads=built.loads, path=path)
+        try:
+            assert (sim.fast is not None) is (path == "foundation")
+            sim.step(100)
+            x[path] = sim.positions().astype(np.float64)
+        finally:
+            sim.release()
     x0 = built.grid.rest_positions
-    sim = FragmentIntegrator(ctx, system, built.grid, "verlet", ph.dt, loads=scene_loads(built.model, ph),
-                             state=I.State(x0, np.zeros_like(x0), x0.copy()))
-    try:
-        sim.step(100)
-        x_new = sim.positions().astype(np.float64)
-    finally:
-        sim.release()
-    assert np.abs(x_base - x0).max() > 0.05 * built.grid.spacing
-    # float32 rounding only: 100 steps, ~1e-5 h; the two start states differ by ~2e-3 h
-    assert np.abs(x_new - x_base).max() <= 1e-4 * built.grid.spacing
+    assert np.abs(x["foundation"] - x0).max() > 0.05 * built.grid.spacing
+    # float32 rounding only: 100 steps, ~1e-5 h
+    assert np.abs(x["general"] - x["foundation"]).max() <= 1e-4 * built.grid.spacing
+    ref = I.simulate(built.system, "verlet", ph.dt, 100, loads=built.loads).x
+    assert np.abs(x["foundation"] - ref).max() <= 1e-4 * built.grid.spacing
 
 
 def test_cloth_scene_builds_a_sheet_with_pinned_corners():
     scene = load_scene(SCENES / "cloth_64.toml")
     built = build_scene_model(scene)
     assert built.grid.occupied.shape == (64, 1, 64) and built.grid.count == 4096
-    assert built.model.fixed.sum() == 4
-    corners = built.grid.ijk[built.model.fixed]
+    assert built.system.fixed.sum() == 4
+    corners = built.grid.ijk[built.system.fixed]
     assert {(int(i), int(k)) for i, _, k in corners} == {(0, 0), (0, 63), (63, 0), (63, 63)}
     np.testing.assert_allclose(built.grid.spacing, 1.0 / 63)
     assert scene.physics.class_stiffness() == (50.0, 50.0, 5.0)
@@ -188,4 +198,4 @@ def test_finer_cloths_are_the_same_cloth(n):
     assert fine.class_stiffness() == base.class_stiffness()
     assert fine.structural.damping * r == pytest.approx(base.structural.damping, rel=1e-3)
     built = build_scene_model(load_scene(SCENES / f"cloth_{n}.toml"))
-    assert built.model.fixed.sum() == 4
+    assert built.system.fixed.sum() == 4

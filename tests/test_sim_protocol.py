@@ -69,13 +69,15 @@ def test_make_simulation_returns_the_backend_classes(ctx):
 @pytest.mark.parametrize("kwargs, words", [
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
     (dict(backend="cuda"), "unknown backend 'cuda'"),
-    (dict(backend="fragment", grid=None), "needs the node grid"),
+    (dict(backend="fragment", grid=None, mesh=True), "needs a system built on a node grid"),
     (dict(backend="feedback", ctx=None), "needs a GL context"),
     (dict(backend="numpy", colour="red"), "unknown option"),
 ])
 def test_make_simulation_refuses_with_a_deformgl_error(ctx, kwargs, words):
     system, grid = small_system()
     args = dict(integrator="verlet", backend="fragment", ctx=ctx, grid=grid) | kwargs
+    if args.pop("mesh", False):  # springs along triangle edges: no node grid
+        system = springs.from_triangle_mesh(system.rest_positions[:3], [[0, 1, 2]], stiffness=1.0)
     with pytest.raises(SimulationSetupError, match=words) as info:
         make_simulation(system, args.pop("integrator"), args.pop("backend"), dt=1e-3, **args)
     assert isinstance(info.value, DeformglError)

@@ -1,26 +1,60 @@
-"""The fragment-pass simulation against the float64 NumPy reference, and physics facts."""
+"""The fragment backend's Verlet fast path (Mosegaard & Sørensen 2005, section 3.1) against the
+float64 NumPy reference, and physics facts.
+
+Both start as the foundation did, at rest with ``x_prev = x`` (an explicit :class:`State`)."""
+
+from dataclasses import dataclass
 
 import moderngl
 import numpy as np
 import pytest
 
-from deformgl.sim.backends.foundation import FragmentSimulation
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.model import MAX_PULLS, SpringModel
-from deformgl.sim.normals import unpack_normals
-from deformgl.sim.reference import ReferenceVerlet, spring_sums
+from deformgl.sim.backends.foundation import MAX_PULLS
+from deformgl.sim.integrators import State
+from deformgl.sim.normals import pack_normals, unit_sums, unpack_normals
+from deformgl.sim.simulation import NumpySimulation, make_simulation
+from deformgl.sim.springs import Load, SpringSystem, from_grid
 
 H = 0.05
 
 
+@dataclass
+class Body:
+    """A test body: the system, its loads, the rest start state."""
+
+    system: SpringSystem
+    loads: tuple
+    fixed: np.ndarray
+
+    @property
+    def grid(self) -> NodeGrid:
+        return self.system.grid
+
+    def start(self, x0=None) -> State:
+        x = self.grid.rest_positions.copy() if x0 is None else np.asarray(x0, float)
+        return State(x, np.zeros_like(x), x.copy())
+
+    def gpu(self, ctx, dt, x0=None, **variant):
+        return make_simulation(self.system, "verlet", "fragment", ctx=ctx, dt=dt, loads=self.loads,
+                               state=self.start(x0), path="foundation", **variant)
+
+    def reference(self, dt, x0=None):
+        return NumpySimulation(self.system, "verlet", dt, loads=self.loads, state=self.start(x0))
+
+
 def model_for(occ, *, fixed=None, k=(40.0, 40.0), damping=0.02, gravity=(0.0, -9.81, 0.0),
-              mass=0.01, pulls=None, origin=(0.2, -0.1, 0.3)):
+              mass=0.01, pulls=None, origin=(0.2, -0.1, 0.3)) -> Body:
     grid = NodeGrid(np.array(origin, float), H, np.asarray(occ, bool))
     n = grid.count
-    groups = np.zeros(n, np.uint8) if pulls is None else pulls(grid).astype(np.uint8)
-    return SpringModel(grid=grid, mass=np.full(n, mass), fixed=np.zeros(n, bool) if fixed is None else fixed(grid),
-                       pull_groups=groups, k_structural=k[0], k_shear=k[1], damping=damping,
-                       gravity=np.array(gravity, float), n_pulls=0 if pulls is None else 2)
+    fixed_nodes = np.zeros(n, bool) if fixed is None else fixed(grid)
+    system = from_grid(grid, k_structural=k[0], k_shear=k[1], mass=mass, fixed=fixed_nodes,
+                       velocity_damping=damping, gravity=gravity)
+    loads = ()
+    if pulls is not None:
+        groups = pulls(grid)
+        loads = tuple(Load((groups >> g) & 1 == 1, lambda t, g=g: pull_schedule(t)[g]) for g in range(2))
+    return Body(system, loads, fixed_nodes)
 
 
 def dragon_like_occupancy():
@@ -60,46 +94,33 @@ def rel_error(gpu, ref):
 def test_one_step_matches_reference(ctx, variant, k):
     model = model_for(dragon_like_occupancy(), fixed=top_fixed, k=k, pulls=pulls)
     dt = 1e-3
-    ref = ReferenceVerlet(model, dt, pull_schedule)
-    # start from a random deformation so every spring is stretched or compressed
+    # start both from a random deformation so every spring is stretched or compressed
     rng = np.random.default_rng(1)
-    sim = FragmentSimulation(ctx, model, dt, pull_schedule, **variant)
+    x0 = model.grid.rest_positions + rng.normal(scale=0.1 * H, size=(model.grid.count, 3))
+    x0[model.fixed] = model.grid.rest_positions[model.fixed]
+    ref = model.reference(dt, x0)
+    sim = model.gpu(ctx, dt, x0, **variant)
     try:
-        # perturb both: write the perturbed state into the GPU textures
-        x0 = model.grid.rest_positions + rng.normal(scale=0.1 * H, size=(model.grid.count, 3))
-        x0[model.fixed] = model.grid.rest_positions[model.fixed]
-        ref.x, ref.x_prev = x0.copy(), x0.copy()
-        upload_state(sim, x0)
+        assert sim.fast is not None
         ref.step(1)
         sim.step(1)
-        assert rel_error(sim.positions(), ref.x) <= 1e-5
+        assert rel_error(sim.positions(), ref.positions()) <= 1e-5
     finally:
         sim.release()
-
-
-def upload_state(sim, positions):
-    layout = sim.textures.layout
-    ijk = sim.model.grid.ijk
-    for tex in sim.textures.state:
-        w, h = sim.textures.size
-        image = np.frombuffer(tex.read(), dtype="f4").reshape(h, w, 4).copy()
-        t = layout.texel(ijk)
-        image[t[:, 1], t[:, 0], :3] = positions
-        tex.write(image.tobytes())
 
 
 @pytest.mark.parametrize("variant", [VARIANTS[0], VARIANTS[1], VARIANTS[3]], ids=["compact", "compact-branch", "atlas"])
 def test_two_hundred_damped_steps_within_1e_3_spacing(ctx, variant):
     model = model_for(dragon_like_occupancy(), fixed=top_fixed, damping=0.05, pulls=pulls)
     dt = 1e-3
-    ref = ReferenceVerlet(model, dt, pull_schedule)
-    sim = FragmentSimulation(ctx, model, dt, pull_schedule, **variant)
+    ref = model.reference(dt)
+    sim = model.gpu(ctx, dt, **variant)
     try:
         ref.step(200)
         sim.step(200)
-        moved = np.abs(ref.x - model.grid.rest_positions).max()
+        moved = np.abs(ref.positions() - model.grid.rest_positions).max()
         assert moved > H  # the scene really deforms: the comparison is not trivial
-        assert np.abs(sim.positions() - ref.x).max() <= 1e-3 * H
+        assert np.abs(sim.positions() - ref.positions()).max() <= 1e-3 * H
     finally:
         sim.release()
 
@@ -107,13 +128,15 @@ def test_two_hundred_damped_steps_within_1e_3_spacing(ctx, variant):
 def test_normals_match_reference_and_point_outwards(ctx):
     occ = np.ones((5, 5, 5), bool)
     model = model_for(occ, gravity=(0, 0, 0))
-    ref = ReferenceVerlet(model, 1e-3)
-    sim = FragmentSimulation(ctx, model, 1e-3)
+    ref = model.reference(1e-3)
+    sim = model.gpu(ctx, 1e-3)
     try:
+        before = ref.positions()
         sim.step(1)
         ref.step(1)
-        gpu, cpu = unpack_normals(sim.normals()), unpack_normals(ref.normals)
-        sums = spring_sums(model, model.grid.rest_positions).unit_sum
+        # the pass writes, with the new position, the normal of the positions it read
+        gpu, cpu = unpack_normals(sim.fast.normals()), unpack_normals(pack_normals(unit_sums(model.grid, before)))
+        sums = unit_sums(model.grid, model.grid.rest_positions)
         defined = np.linalg.norm(sums, axis=1) > 0.5
         assert defined.sum() == 98  # the 5^3 block's surface nodes (interior sums cancel)
         sin = np.linalg.norm(np.cross(gpu[defined], cpu[defined]), axis=1)
@@ -124,14 +147,14 @@ def test_normals_match_reference_and_point_outwards(ctx):
         i = model.grid.index[4, 2, 2]
         assert np.allclose(gpu[i], [1, 0, 0], atol=1e-3)
         # interior nodes carry the defined "no normal" code, not NaN
-        assert np.all(sim.normals()[~defined] == 0.0)  # NO_NORMAL
+        assert np.all(sim.fast.normals()[~defined] == 0.0)  # NO_NORMAL
     finally:
         sim.release()
 
 
 def test_rest_state_is_an_equilibrium(ctx):
     model = model_for(dragon_like_occupancy(), gravity=(0, 0, 0), damping=0.0)
-    sim = FragmentSimulation(ctx, model, 1e-3)
+    sim = model.gpu(ctx, 1e-3)
     try:
         sim.step(100)
         assert np.abs(sim.positions() - model.grid.rest_positions).max() <= 1e-6 * H
@@ -141,7 +164,7 @@ def test_rest_state_is_an_equilibrium(ctx):
 
 def test_fixed_nodes_are_bit_identical(ctx):
     model = model_for(dragon_like_occupancy(), fixed=top_fixed, pulls=pulls)
-    sim = FragmentSimulation(ctx, model, 1e-3, pull_schedule)
+    sim = model.gpu(ctx, 1e-3)
     try:
         before = sim.positions()[model.fixed].copy()
         assert np.array_equal(before, model.grid.rest_positions[model.fixed].astype(np.float32))
@@ -156,7 +179,7 @@ def test_fixed_nodes_are_bit_identical(ctx):
 def test_unconstrained_grid_falls_half_g_t_squared(ctx):
     model = model_for(dragon_like_occupancy(), damping=0.0, origin=(0.0, 0.0, 0.0))
     dt, steps = 1e-3, 400
-    sim = FragmentSimulation(ctx, model, dt)
+    sim = model.gpu(ctx, dt)
     try:
         sim.step(steps)
         drop = np.mean(model.grid.rest_positions[:, 1] - sim.positions()[:, 1])
@@ -175,9 +198,9 @@ def test_no_texture_read_back_while_stepping_and_drawing(ctx, monkeypatch):
     from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 
     model = model_for(dragon_like_occupancy(), fixed=top_fixed)
-    sim = FragmentSimulation(ctx, model, 1e-3)
+    sim = model.gpu(ctx, 1e-3)
     target = RenderTarget(ctx, (64, 48), 4)
-    surface = GridSurfacePass(ctx, model.grid, sim.textures.layout, overlay=True)
+    surface = GridSurfacePass(ctx, model.grid, sim.fast.textures.layout, overlay=True)
     reads = []
 
     def forbid(name):
@@ -210,7 +233,7 @@ def test_no_texture_read_back_while_stepping_and_drawing(ctx, monkeypatch):
 def test_invalid_dt_and_release(ctx):
     model = model_for(np.ones((2, 2, 2)))
     with pytest.raises(ValueError, match="dt must be > 0"):
-        FragmentSimulation(ctx, model, -1.0)
+        model.gpu(ctx, -1.0)
 
 
 def test_dense_blocks_find_neighbours_by_arithmetic_with_the_same_result(ctx):
@@ -219,13 +242,77 @@ def test_dense_blocks_find_neighbours_by_arithmetic_with_the_same_result(ctx):
     model = model_for(np.ones((5, 4, 3), bool), fixed=top_fixed, pulls=pulls)
     states = {}
     for dense in (True, False):
-        sim = FragmentSimulation(ctx, model, 1e-3, pull_schedule, layout="compact" if dense else "indexed")
+        sim = model.gpu(ctx, 1e-3, layout="compact" if dense else "indexed")
         try:
-            assert (sim.textures.neighbours is None) is dense
-            assert ("#define COMPACT_DENSE" in sim.verlet.program.fragment_source.text) is dense
+            assert (sim.fast.textures.neighbours is None) is dense
+            assert ("#define COMPACT_DENSE" in sim.fast.verlet.program.fragment_source.text) is dense
             sim.step(30)
-            states[dense] = sim.read_state()
+            states[dense] = sim.fast.read_state()
         finally:
             sim.release()
     np.testing.assert_array_equal(states[True], states[False])
     assert np.abs(states[True][:, :3] - model.grid.rest_positions).max() > 0
+
+
+# --- the fast path is chosen by itself --------------------------------------------------------
+
+def test_verlet_picks_the_foundation_pass_where_it_models_the_system(ctx):
+    from deformgl.sim.integrators import Constraints
+    from deformgl.sim.springs import Drag
+
+    grid = NodeGrid(np.zeros(3), H, np.ones((4, 3, 3), bool))
+    plain = from_grid(grid, k_structural=40.0, k_shear=20.0, mass=0.01, velocity_damping=0.02)
+    load = Load(grid.ijk[:, 0] == 0, lambda t: (0.1, 0.0, 0.0))
+    cases = {  # what the pass does not model -> the general Verlet stage
+        "flexion springs": (from_grid(grid, k_structural=40.0, k_shear=20.0, k_flexion=5.0, mass=0.01), {}),
+        "spring damping": (from_grid(grid, k_structural=40.0, k_shear=20.0, damping_shear=0.01, mass=0.01), {}),
+        "wind": (from_grid(grid, k_structural=40.0, k_shear=20.0, mass=0.01, wind=(1.0, 0, 0), wind_drag=0.1), {}),
+        "drags": (plain, dict(drags=(Drag(0, lambda t: (0.0, 0.0, 0.0), 5.0),))),
+        "obstacles": (plain, dict(constraints=Constraints(ground=-1.0))),
+    }
+    for integrator, loads in (("verlet", ()), ("verlet", (load,)), ("rk4", ())):
+        sim = make_simulation(plain, integrator, "fragment", ctx=ctx, dt=1e-3, loads=loads)
+        try:
+            assert (sim.fast is not None) is (integrator == "verlet") and sim.packed_normals is (integrator == "verlet")
+        finally:
+            sim.release()
+    for reason, (system, options) in cases.items():
+        sim = make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-3, **options)
+        try:
+            assert sim.fast is None and not sim.packed_normals and len(sim.passes) == 1
+        finally:
+            sim.release()
+        with pytest.raises(ValueError, match=f"the foundation pass does not model {reason}"):
+            make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-3, path="foundation", **options)
+        with pytest.raises(ValueError, match="does not model"):  # a pass variant needs the pass
+            make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-3, draw="points", **options)
+    with pytest.raises(ValueError, match="the foundation pass is verlet, not rk4"):
+        make_simulation(plain, "rk4", "fragment", ctx=ctx, dt=1e-3, path="foundation")
+    with pytest.raises(ValueError, match="variants of the foundation pass"):
+        make_simulation(plain, "verlet", "fragment", ctx=ctx, dt=1e-3, path="general", layout="atlas")
+    sim = make_simulation(plain, "verlet", "fragment", ctx=ctx, dt=1e-3, path="general")
+    try:
+        assert sim.fast is None and not sim.packed_normals
+    finally:
+        sim.release()
+
+
+def test_both_verlet_paths_start_and_step_as_the_reference(ctx):
+    """From the default start (the reference's second-order Taylor x_prev) the foundation pass,
+    the general Verlet stage and the float64 reference take the same 200 steps, per-class
+    stiffness, fixed nodes and two loads included; velocities are the same backward difference."""
+    model = model_for(dragon_like_occupancy(), fixed=top_fixed, k=(60.0, 15.0), damping=0.05, pulls=pulls)
+    dt = 1e-3
+    ref = NumpySimulation(model.system, "verlet", dt, loads=model.loads)
+    ref.step(200)
+    assert np.abs(ref.positions() - model.grid.rest_positions).max() > H
+    for path in ("foundation", "general"):
+        sim = make_simulation(model.system, "verlet", "fragment", ctx=ctx, dt=dt, loads=model.loads, path=path)
+        try:
+            sim.step(200)
+            assert sim.time == pytest.approx(ref.time)
+            assert np.abs(sim.positions() - ref.positions()).max() <= 1e-3 * H, path
+            assert np.abs(sim.velocities() - ref.velocities()).max() <= 0.05 * np.abs(ref.velocities()).max(), path
+            assert np.all(sim.velocities()[model.fixed] == 0.0)
+        finally:
+            sim.release()

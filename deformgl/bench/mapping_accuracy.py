@@ -39,7 +39,7 @@ import numpy as np
 
 from deformgl.bench.studies import timed
 from deformgl.data import packaged_scene
-from deformgl.mapping.binding import rest_node_normals
+from deformgl.sim.normals import rest_normals
 from deformgl.mapping.closest import closest_on_triangles
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.bench import report_files
@@ -127,7 +127,7 @@ class GridMappings:
         self.spacing = built.grid.spacing
         self.surface = grid_surface(built.grid)
         # None once released
-        self.textures: NodeTextures | None = NodeTextures(ctx, built.model)
+        self.textures: NodeTextures | None = NodeTextures(ctx, built.grid)
         self.nodes: DrivenNodes | None = DrivenNodes(ctx, self.textures, built.grid)
         layout = self.textures.layout
         self.passes: dict[str, GridSurfacePass | MappedMeshPass] = {}
@@ -136,10 +136,10 @@ class GridMappings:
         try:
             if any(m != "one-to-one" for m in modes):
                 t0 = time.perf_counter()
-                binding = get_binding(built.mesh, built.model, self.surface, use_cache=use_cache,
+                binding = get_binding(built.mesh, built.grid, self.surface, use_cache=use_cache,
                                       uv=mesh_uv(built.mesh))
                 self.bind_ms = (time.perf_counter() - t0) * 1e3
-                normals = rest_node_normals(built.model)
+                normals = rest_normals(built.grid)
             for mode in modes:
                 if mode == "one-to-one":
                     self.passes[mode] = GridSurfacePass(ctx, built.grid, layout)

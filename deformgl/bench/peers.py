@@ -1,17 +1,17 @@
-"""The foundation step of :class:`~deformgl.reference.ReferenceVerlet` in Taichi and NVIDIA Warp
-on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
+"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi and
+NVIDIA Warp on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
 
-Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (eq. 1/2 of
-Mosegaard & Sørensen 2005 over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
+Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (Mosegaard &
+Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
 velocity damping ``-c (x - x_prev)/dt``, gravity, pull groups, fixed nodes kept exactly). The
-state stays inside the peer between steps; only :meth:`positions` copies it out. The eq. 3
-normals are not computed (nothing here draws).
+state stays inside the peer between steps; only :meth:`positions` copies it out. The
+normals of Mosegaard & Sørensen 2005, eq. 3 are not computed (nothing here draws).
 
 The peer packages are optional (``pip install deformgl[peers]``) and imported lazily:
 
 * Taichi runs its kernels on the CPU backend (``ti.init(arch=ti.cpu)``, once per process, with
-  Taichi's default thread pool of ``cpu_max_num_threads`` = the core count). Each model gets its
-  own fields in their own SNode tree and its own kernel, so several models live in one process
+  Taichi's default thread pool of ``cpu_max_num_threads`` = the core count). Each system gets its
+  own fields in their own SNode tree and its own kernel, so several systems live in one process
   without ``ti.reset()``.
 * Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
   the calling thread (one thread).
@@ -23,16 +23,15 @@ fragment pass's ``COMPACT_DENSE`` variant; elsewhere they read the (N, 18) neigh
 
 # no "from __future__ import annotations": Taichi and Warp read the kernel annotations as objects
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
-from deformgl.sim.model import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, SpringModel
+from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, VerletTerms, node_flags, verlet_terms
+from deformgl.sim.springs import Load, SpringSystem, load_groups
 
 PEERS = ("taichi", "warp")
-PullSchedule = Callable[[float], np.ndarray]
 
 
 def available_peers() -> dict[str, str | None]:
@@ -65,35 +64,42 @@ def _probe() -> dict[str, tuple[str | None, str | None]]:
     return out
 
 
-def _pull_rows(pull_force: PullSchedule | None, t: float) -> np.ndarray:
-    """(MAX_PULLS, 3) float32 pull force per group at time t, as ReferenceVerlet.pull_at."""
+def _pull_rows(loads: tuple[Load, ...], t: float) -> np.ndarray:
+    """(MAX_PULLS, 3) float32 force per node of each load at time t, as the fragment pass gets it."""
     out = np.zeros((MAX_PULLS, 3), np.float32)
-    if pull_force is not None:
-        p = np.asarray(pull_force(t), dtype=np.float64)
-        out[: min(len(p), MAX_PULLS)] = p[:MAX_PULLS]
+    for g, load in enumerate(loads):
+        out[g] = np.asarray(load.force(t), dtype=np.float64)
     return out
 
 
 class PeerStepper:
-    """Common part of the peer steppers: model data in float32, rotation of three state buffers.
+    """Common part of the peer steppers: system data in float32, rotation of three state buffers.
 
     Args:
-        model: the spring model.
+        system: a grid spring system the foundation pass models (:func:`verlet_terms`).
         dt: time step (s).
-        pull_force: callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group, or None
-            (evaluated at ``steps_done * dt`` before each step, as in ReferenceVerlet).
+        loads: at most ``MAX_PULLS`` scripted loads, evaluated at ``steps_done * dt`` before each
+            step (as the fragment pass).
+
+    Raises:
+        ValueError: dt <= 0, a system without a grid or with physics the pass does not model.
     """
 
     name = ""
 
-    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
+    def __init__(self, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
-        self.model = model
+        grid = system.grid
+        if grid is None:
+            raise ValueError("the peers step grid systems (springs.from_grid or springs.cloth)")
+        terms = verlet_terms(system, grid, loads=tuple(loads))
+        if not isinstance(terms, VerletTerms):
+            raise ValueError(f"the peers do not model {terms}")
+        self.system = system
         self.dt = float(dt)
-        self.pull_force = pull_force
+        self.loads = tuple(loads)
         self.steps_done = 0
-        grid = model.grid
         self.rest32 = np.ascontiguousarray(grid.rest_positions, dtype=np.float32)
         self._neighbours = np.ascontiguousarray(grid.neighbours, dtype=np.int32)
         # dense grids (every node of the box exists): neighbour j of node i is i + offsets[j] when
@@ -101,11 +107,12 @@ class PeerStepper:
         self.dense = grid.full
         self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array(node_strides(grid.shape)))
         self._mask = np.ascontiguousarray(grid.neighbour_mask, dtype=np.int32)
-        self._mass = np.ascontiguousarray(model.mass, dtype=np.float32)
-        self._flags = np.ascontiguousarray(model.flags(), dtype=np.int32)
+        self._mass = np.ascontiguousarray(system.mass, dtype=np.float32)
+        self._flags = np.ascontiguousarray(node_flags(system.fixed, load_groups(self.loads, grid.count)),
+                                           dtype=np.int32)
         self._scalars = tuple(float(np.float32(v)) for v in (
-            grid.spacing, model.k_structural, model.k_shear, model.damping, self.dt))
-        self._gravity = tuple(float(g) for g in np.asarray(model.gravity, np.float32))
+            grid.spacing, terms.k_structural, terms.k_shear, terms.damping, self.dt))
+        self._gravity = tuple(float(g) for g in np.asarray(terms.gravity, np.float32))
         self._zero_pull = np.zeros((MAX_PULLS, 3), np.float32)
 
     @property
@@ -114,9 +121,9 @@ class PeerStepper:
         return self.steps_done * self.dt
 
     def _pull(self) -> np.ndarray:
-        if self.pull_force is None:
+        if not self.loads:
             return self._zero_pull
-        return _pull_rows(self.pull_force, self.time)
+        return _pull_rows(self.loads, self.time)
 
     def step(self, n: int = 1) -> None:
         """Advance n steps (state stays in the peer's arrays)."""
@@ -171,22 +178,22 @@ def _taichi():
 
 
 class TaichiStepper(PeerStepper):
-    """The Verlet step as a Taichi CPU kernel over this model's own fields.
+    """The Verlet step as a Taichi CPU kernel over this system's own fields.
 
     The fields (state ``(3, N)`` vec3, neighbours, mass, flags, pulls) live in their own SNode tree
     (``ti.FieldsBuilder``), so models come and go without ``ti.reset()``; :meth:`release` frees
-    them. The kernel is compiled per stepper with the model constants folded in (like uniforms
+    them. The kernel is compiled per stepper with the system constants folded in (like uniforms
     that never change) and takes one int argument, the rotation phase of the three state rows:
     Taichi's Python-side launch cost grows by ~15-150 us per kernel argument on this machine.
     """
 
     name = "taichi"
 
-    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
-        super().__init__(model, dt, pull_force)
+    def __init__(self, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> None:
+        super().__init__(system, dt, loads)
         ti = _taichi()
         self._ti = ti
-        n = model.grid.count
+        n = system.count
         fb = ti.FieldsBuilder()
         state = ti.Vector.field(3, ti.f32)
         nb = ti.field(ti.i32)
@@ -283,7 +290,7 @@ class TaichiStepper(PeerStepper):
         self._fields[0].from_numpy(state)
 
     def release(self) -> None:
-        """Free this model's fields (the stepper is unusable afterwards)."""
+        """Free this system's fields (the stepper is unusable afterwards)."""
         if self._tree is not None:
             self._tree.destroy()
             self._tree = None
@@ -372,8 +379,8 @@ class WarpStepper(PeerStepper):
 
     name = "warp"
 
-    def __init__(self, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> None:
-        super().__init__(model, dt, pull_force)
+    def __init__(self, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> None:
+        super().__init__(system, dt, loads)
         wp, self._kernel = _warp()
         self._wp = wp
         dev = "cpu"
@@ -386,7 +393,7 @@ class WarpStepper(PeerStepper):
         self._fl = wp.array(self._flags, dtype=wp.int32, device=dev)
         self._g = wp.vec3(*self._gravity)
         self._zero = [wp.vec3(0.0, 0.0, 0.0)] * MAX_PULLS
-        self._n = model.grid.count
+        self._n = system.count
 
     def _launch(self, pull: np.ndarray) -> None:
         wp = self._wp
@@ -417,20 +424,20 @@ class WarpStepper(PeerStepper):
 STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}
 
 
-def make_stepper(peer: str, model: SpringModel, dt: float, pull_force: PullSchedule | None = None) -> PeerStepper:
-    """The stepper of ``peer`` (one of :data:`PEERS`) for ``model``.
+def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> PeerStepper:
+    """The stepper of ``peer`` (one of :data:`PEERS`) for ``system``.
 
     Raises:
         ValueError: unknown peer. ImportError: the peer package is not installed.
     """
     if peer not in STEPPERS:
         raise ValueError(f"peer must be one of {PEERS}, got {peer!r}")
-    return STEPPERS[peer](model, dt, pull_force)
+    return STEPPERS[peer](system, dt, loads)
 
 
 @dataclass
 class PeerTiming:
-    """One peer on one model.
+    """One peer on one system.
 
     Attributes:
         peer: name; version: package version; nodes: N.
@@ -453,9 +460,9 @@ class PeerTiming:
     cpu_per_wall: float
 
 
-def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, repeats: int = 3,
-                pull_force: PullSchedule | None = None) -> dict[str, PeerTiming]:
-    """Time each available peer's step on ``model``.
+def bench_peers(system: SpringSystem, dt: float, steps: int = 20, *, peers=None, repeats: int = 3,
+                loads: tuple[Load, ...] = ()) -> dict[str, PeerTiming]:
+    """Time each available peer's step on ``system``.
 
     Each peer: build, one step (JIT, timed apart), a warm-up of ``steps`` steps, then the best of
     ``repeats`` runs of ``steps`` steps. Peers that cannot be imported are left out.
@@ -467,7 +474,7 @@ def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, r
         if version is None:
             continue
         t0 = time.perf_counter()
-        stepper = make_stepper(peer, model, dt, pull_force)
+        stepper = make_stepper(peer, system, dt, loads)
         t1 = time.perf_counter()
         stepper.step(1)
         t2 = time.perf_counter()
@@ -481,6 +488,6 @@ def bench_peers(model: SpringModel, dt: float, steps: int = 20, *, peers=None, r
             wall += w
             best = min(best, w)
         ms = best / steps * 1e3
-        out[peer] = PeerTiming(peer, version, model.grid.count, ms, model.grid.count / (ms * 1e-3),
+        out[peer] = PeerTiming(peer, version, system.count, ms, system.count / (ms * 1e-3),
                                t1 - t0, t2 - t1, stepper.threads, cpu / wall)
     return out

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import moderngl
 
-from deformgl.bench.studies import block_model, machine_line, timed
-from deformgl.sim.backends.foundation import FragmentSimulation, NodeTextures
+from deformgl.bench.studies import block_system, fragment_verlet, machine_line, stable_dt, timed
+from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
 
@@ -54,15 +54,15 @@ def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), p
     """Ablation stages and the full step, with the index texture and with offsets, per grid."""
     rows = []
     for spec in grids:
-        model = block_model(spec)
+        system = block_system(spec)
         name = "x".join(map(str, spec))
         for layout, lookup in (("indexed", "index"), ("compact", "offsets")):
-            sim = FragmentSimulation(ctx, model, 0.2 / model.max_angular_frequency(), layout=layout)
+            sim = fragment_verlet(ctx, system, stable_dt(system, 0.2), layout=layout)
             try:
-                full = ProfileRow(name, model.grid.count, lookup, "full step",
+                full = ProfileRow(name, system.count, lookup, "full step",
                                   _median_ms(ctx, sim.step, passes, repeats))
                 # the stages overwrite the state with what they compute: measured after the step
-                rows.extend(_stages(ctx, sim.textures, name, model.grid.count, lookup, passes, repeats))
+                rows.extend(_stages(ctx, sim.foundation.textures, name, system.count, lookup, passes, repeats))
                 rows.append(full)
             finally:
                 sim.release()

@@ -22,7 +22,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from deformgl.bench.studies import block_model, machine_line
+from deformgl.bench.studies import block_system, fragment_verlet, machine_line
 from deformgl.errors import GLError
 from deformgl.bench.report_files import write_csv, write_json
 
@@ -235,19 +235,20 @@ def _fit_text(f: PowerFit | None) -> str:
             f"rms ln {f.rms_log:.3f})")
 
 
-def _make(ctx: moderngl.Context, backend: str, model, system, integrator: str, dt: float):
+def _make(ctx: moderngl.Context, backend: str, system, integrator: str, dt: float):
     """Construct a backend's simulation; returns (sim, GPU bytes it allocated)."""
     from deformgl.sim.backends.feedback import FeedbackSimulation
     from deformgl.sim.backends.fragment import FragmentIntegrator
-    from deformgl.sim.backends.foundation import FragmentSimulation
 
-    if backend == "foundation":  # counted from its textures (it has no bytes_per_node)
-        base = FragmentSimulation(ctx, model, dt)
-        t = base.textures
-        return base, sum(gl_bytes(o) for o in [t.node, t.neighbours, *t.state, base.verlet.vbo])
-    sim: FragmentIntegrator | FeedbackSimulation = (FragmentIntegrator(ctx, system, model.grid, integrator, dt) if backend == "fragment"
-           else FeedbackSimulation(ctx, system, integrator, dt))
-    return sim, sim.bytes_per_node * model.grid.count
+    if backend == "foundation":  # the fragment backend's Verlet fast path, counted from its GL objects
+        base = fragment_verlet(ctx, system, dt)
+        fast = base.foundation
+        t = fast.textures
+        return base, sum(gl_bytes(o) for o in [t.node, t.neighbours, *t.state, fast.verlet.vbo])
+    sim: FragmentIntegrator | FeedbackSimulation = (
+        FragmentIntegrator(ctx, system, system.grid, integrator, dt, path="general") if backend == "fragment"
+        else FeedbackSimulation(ctx, system, integrator, dt))
+    return sim, sim.bytes_per_node * system.count
 
 
 def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int, int]] = DEFAULT_SIZES,
@@ -274,7 +275,7 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
         ValueError: an unknown backend or integrator, or repeats < 1.
     """
     from deformgl.sim.integrators import INTEGRATORS
-    from deformgl.sim.springs import from_grid, max_angular_frequency
+    from deformgl.sim.springs import max_angular_frequency
 
     if unknown := [b for b in backends if b not in BACKENDS]:
         raise ValueError(f"unknown backend(s) {unknown}; expected some of {', '.join(BACKENDS)}")
@@ -289,10 +290,8 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
         for size in sizes:
             shape = (size, size, size) if isinstance(size, (int, np.integer)) else tuple(size)
             t0 = time.perf_counter()
-            model = block_model(shape)  # type: ignore[arg-type]
-            system = from_grid(model.grid, k_structural=model.k_structural, k_shear=model.k_shear,
-                               mass=model.mass, fixed=model.fixed, velocity_damping=model.damping)
-            n = model.grid.count
+            system = block_system(shape)  # type: ignore[arg-type]
+            n = system.count
             report.model_s[n] = time.perf_counter() - t0
             dt = 0.5 / max_angular_frequency(system).omega
             steps = int(min(max_steps, max(2, node_steps // n)))
@@ -306,14 +305,14 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
                     continue
                 t1 = time.perf_counter()
                 try:
-                    sim, allocated = _make(ctx, backend, model, system, integrator, dt)
+                    sim, allocated = _make(ctx, backend, system, integrator, dt)
                     ctx.finish()
                 except _SKIP_ERRORS as exc:
                     row.skipped = f"{type(exc).__name__}: {exc}"
                     continue
                 row.setup_s, row.bytes_per_node = time.perf_counter() - t1, allocated / n
                 live.append((row, sim, []))
-            del model, system
+            del system
         # Round-robin over every (size, backend), alternating direction: load from other processes
         # (llvmpipe's speed changes up to 2x on a shared machine) then hits all sizes alike and
         # cancels in the exponent. Round 0 is the warm-up (shaders compile on the first draw).

@@ -18,10 +18,10 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.context import context_info
-from deformgl.sim.backends.foundation import FragmentSimulation
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.model import SpringModel
-from deformgl.sim.reference import ReferenceVerlet
+from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.simulation import NumpySimulation, Simulation
+from deformgl.sim.springs import SpringSystem, from_grid, max_angular_frequency
 
 #: The benchmark volumes: about 4k, 20k and 131k nodes in full blocks, and a ball of about 20k
 #: nodes filling 52 % of its box (where drawing only around existing nodes matters).
@@ -61,14 +61,25 @@ def timed(fn: Callable[[], None], repeats: int = 5) -> float:
     return statistics.median(times)
 
 
-def block_model(spec: tuple[int, int, int] | str, spacing: float = 0.01) -> SpringModel:
-    """Benchmark scene: a block or ball of nodes, top layer fixed, moderate damping."""
+def block_system(spec: tuple[int, int, int] | str, spacing: float = 0.01, *, k_flexion: float = 0.0,
+                 damping: float = 1e-3) -> SpringSystem:
+    """Benchmark body: a block or ball of nodes, top layer fixed, structural and shear springs of
+    10 N/m (and flexion springs of ``k_flexion``), 1 g per node, velocity damping ``damping``."""
     grid = NodeGrid(np.zeros(3), spacing, bench_occupancy(spec))
-    n = grid.count
     top = grid.ijk[:, 1] == grid.ijk[:, 1].max()
-    return SpringModel(grid=grid, mass=np.full(n, 1e-3), fixed=top,
-                       pull_groups=np.zeros(n, np.uint8), k_structural=10.0, k_shear=10.0,
-                       damping=1e-3, gravity=np.array([0.0, -9.81, 0.0]))
+    return from_grid(grid, k_structural=10.0, k_shear=10.0, k_flexion=k_flexion, mass=1e-3, fixed=top,
+                     velocity_damping=damping)
+
+
+def fragment_verlet(ctx: moderngl.Context, system: SpringSystem, dt: float, **variant) -> FragmentIntegrator:
+    """The fragment backend's Verlet fast path (Mosegaard & Sørensen 2005, section 3.1) of ``system``
+    in a pass variant (``draw``, ``branch``, ``layout``)."""
+    return FragmentIntegrator(ctx, system, None, "verlet", dt, path="foundation", **variant)
+
+
+def stable_dt(system: SpringSystem, fraction: float) -> float:
+    """``fraction`` of 1 / w_max (the bound of :func:`deformgl.sim.springs.max_angular_frequency`)."""
+    return fraction / max_angular_frequency(system).omega
 
 
 @dataclass
@@ -90,25 +101,25 @@ def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, varian
         "atlas points": dict(layout="atlas", draw="points")}
     rows = []
     for spec in grids:
-        model = block_model(spec)
-        dt = 0.2 / model.max_angular_frequency()
+        system = block_system(spec)
+        dt = stable_dt(system, 0.2)
         per_variant = {}
         for name, kw in variants.items():
-            sim = FragmentSimulation(ctx, model, dt, **kw)
+            sim = fragment_verlet(ctx, system, dt, **kw)
             sim.step(3)
             ctx.finish()
 
-            def run(sim: FragmentSimulation = sim) -> None:
+            def run(sim: Simulation = sim) -> None:
                 sim.step(steps)
                 ctx.finish()
 
             per_variant[name] = timed(run) / steps * 1e3
             sim.release()
-        ref = ReferenceVerlet(model, dt)
-        ref_steps = max(1, min(steps, int(2e5 // model.grid.count)))
+        ref = NumpySimulation(system, "verlet", dt)
+        ref_steps = max(1, min(steps, int(2e5 // system.count)))
         numpy_ms = timed(lambda: ref.step(ref_steps), repeats=3) / ref_steps * 1e3
         name = spec if isinstance(spec, str) else "x".join(map(str, spec))
-        rows.append(SimRow(name, model.grid.count, per_variant, numpy_ms))
+        rows.append(SimRow(name, system.count, per_variant, numpy_ms))
     return rows
 
 
@@ -117,7 +128,7 @@ def format_sim(rows: list[SimRow], machine: str) -> str:
     names = list(rows[0].variant_ms)
     head = f"{'grid':>9} {'nodes':>7} | " + " | ".join(f"{n + ' ms/step':>20} {'Mnode/s':>8}" for n in names)
     head += f" | {'numpy ms/step':>13} | {'speed-up vs numpy':>17}"
-    lines = [machine, "fragment pass, position Verlet, 18 neighbours (eq. 1-3); baseline: float64 "
+    lines = [machine, "fragment pass, position Verlet, 18 neighbours (Mosegaard & Sørensen 2005, eq. 1-3); baseline: float64 "
              "NumPy reference in this process", head, "-" * len(head)]
     for r in rows:
         cells = " | ".join(f"{ms:>20.3f} {r.nodes / ms / 1e3:>8.1f}" for ms in r.variant_ms.values())
@@ -144,26 +155,28 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
         at ``frame_size``², with ``samples``x MSAA and without; and a dict of scene sizes.
     """
     from deformgl.render.mapped import MappedMeshPass, StaticMeshPass
-    from deformgl.render.mapped_setup import get_binding, mapped_vertices, rest_node_normals
-    from deformgl.scene.pipeline import build_scene_model, pull_schedule, scene_lighting, scene_view
+    from deformgl.render.mapped_setup import get_binding, mapped_vertices
+    from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
+    from deformgl.sim.normals import rest_normals
     from deformgl.render.passes import GridSurfacePass, RenderTarget
     from deformgl.scene.schema import load_scene
     from deformgl.grid.surface import grid_surface
 
     scene = load_scene(scene_path)
     built = build_scene_model(scene)
-    sim = FragmentSimulation(ctx, built.model, scene.physics.dt, pull_schedule(scene.physics))
+    sim = FragmentIntegrator(ctx, built.system, built.grid, "verlet", scene.physics.dt, loads=built.loads,
+                             path="foundation")
     sim.step(50)
     surface = grid_surface(built.grid)
-    binding = get_binding(built.mesh, built.model, surface, use_cache=True, uv=None)
-    rest_normals = rest_node_normals(built.model)
+    binding = get_binding(built.mesh, built.grid, surface, use_cache=True, uv=None)
+    node_normals = rest_normals(built.grid)
     mesh = built.mesh
     passes: dict[str, StaticMeshPass | GridSurfacePass | MappedMeshPass] = {
         "static mesh": StaticMeshPass(ctx, mesh.vertices, mesh.vertex_normals, mesh.faces),
         "one-to-one": GridSurfacePass(ctx, built.grid, sim.textures.layout),
     }
     for mode in ("constant", "curvature"):
-        data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_normals)
+        data = mapped_vertices(binding, mode, built.grid.rest_positions, node_normals)
         for stages in (1, 2):
             name = mode if stages == 1 else f"{mode} 2-stage"
             passes[name] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data, stages=stages)
@@ -258,21 +271,16 @@ def cloth_system(n: int, spacing: float = 0.01):
 
 
 def _integrator_workloads(cloths, volumes):
-    """(name, grid, system, foundation model) of each workload."""
-    from deformgl.sim.springs import from_grid
-
+    """(name, grid, system, baseline system: the same without flexion springs) of each workload."""
     for n in cloths:
         system = cloth_system(n)
-        grid = NodeGrid(np.zeros(3), 0.01, np.ones((n, 1, n), bool))
-        model = SpringModel(grid=grid, mass=np.full(n * n, 1e-3), fixed=system.fixed.copy(),
-                            pull_groups=np.zeros(n * n, np.uint8), k_structural=10.0, k_shear=10.0,
-                            damping=1e-4, gravity=np.array([0.0, -9.81, 0.0]))
-        yield f"{n}x{n} cloth", grid, system, model
+        grid = system.grid
+        base = from_grid(grid, k_structural=10.0, k_shear=10.0, mass=1e-3, fixed=system.fixed,
+                         velocity_damping=1e-4)
+        yield f"{n}x{n} cloth", grid, system, base
     for spec in volumes:
-        model = block_model(spec)
-        system = from_grid(model.grid, k_structural=10.0, k_shear=10.0, k_flexion=2.0, mass=model.mass,
-                           fixed=model.fixed, velocity_damping=model.damping)
-        yield "x".join(map(str, spec)) + " volume", model.grid, system, model
+        system = block_system(spec, k_flexion=2.0)
+        yield "x".join(map(str, spec)) + " volume", system.grid, system, block_system(spec)
 
 
 def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volumes=INTEGRATOR_VOLUMES,
@@ -290,12 +298,12 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
     from deformgl.sim.springs import max_angular_frequency
 
     rows = []
-    for name, grid, system, model in _integrator_workloads(cloths, volumes):
+    for name, grid, system, base_system in _integrator_workloads(cloths, volumes):
         if progress is not None:
             progress(name)
         n_steps = max(2, min(steps, int(node_steps // grid.count)))
         dt = 0.5 / max_angular_frequency(system).omega
-        base = FragmentSimulation(ctx, model, dt)
+        base = fragment_verlet(ctx, base_system, dt)
         try:
             base.step(2)
             ctx.finish()
@@ -370,7 +378,7 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
             st.step(steps)
         return run
 
-    lines = [machine_line(ctx), "same 18-neighbour position-Verlet step (eq. 1/2, damping, gravity, fixed "
+    lines = [machine_line(ctx), "same 18-neighbour position-Verlet step (Mosegaard & Sørensen 2005, eq. 1/2, damping, gravity, fixed "
              f"nodes) in float32; {rounds} alternating rounds of {steps} steps, best / median ms per step; "
              "ratio = fragment nodes/s / peer nodes/s of the medians (> 1: the fragment pass is faster)"]
     for peer, reason in peer_import_errors().items():
@@ -379,13 +387,13 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
     if not versions:
         return "\n".join(lines)
     for spec in grids:
-        model = block_model(spec)
-        dt = 0.2 / model.max_angular_frequency()
-        sim = FragmentSimulation(ctx, model, dt)
+        system = block_system(spec)
+        dt = stable_dt(system, 0.2)
+        sim = fragment_verlet(ctx, system, dt)
         steppers: dict[str, PeerStepper] = {}
         try:
             for peer in versions:
-                steppers[peer] = make_stepper(peer, model, dt)
+                steppers[peer] = make_stepper(peer, system, dt)
 
             def run_fragment() -> None:
                 sim.step(steps)
@@ -407,10 +415,10 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
         best = {name: min(t) for name, t in times.items()}
         median = {name: statistics.median(t) for name, t in times.items()}
         name = "x".join(map(str, spec))
-        lines.append(f"{name} ({model.grid.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
-                     f"ms/step ({model.grid.count / median['fragment'] / 1e3:.1f} M nodes/s)")
+        lines.append(f"{name} ({system.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
+                     f"ms/step ({system.count / median['fragment'] / 1e3:.1f} M nodes/s)")
         for peer, st in steppers.items():
             lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s): {best[peer]:.3f} / "
-                         f"{median[peer]:.3f} ms/step ({model.grid.count / median[peer] / 1e3:.1f} M nodes/s) "
+                         f"{median[peer]:.3f} ms/step ({system.count / median[peer] / 1e3:.1f} M nodes/s) "
                          f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x")
     return "\n".join(lines)

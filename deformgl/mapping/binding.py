@@ -26,9 +26,6 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.mapping.bases import constant_basis, curvature_basis
 from deformgl.mapping.closest import clean_weights, row_dot, closest_on_triangles
-from deformgl.sim.model import SpringModel
-from deformgl.sim.normals import pack_normals, unpack_normals
-from deformgl.sim.reference import spring_sums
 from deformgl.grid.surface import GridSurface
 from deformgl.mapping.tangents import orthonormalize_tangents, procedural_uv, vertex_normals, vertex_tangents
 
@@ -263,7 +260,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
         faces: (F, 3) its triangles (for vertex normals and tangents).
         node_positions: (N, 3) rest node positions.
         node_normals: (N, 3) rest Mosegaard & Sørensen 2005, eq. 3 node normals as the GPU sees them (unit, or zero where
-            undefined): ``unpack_normals(pack_normals(unit sums))``, see :func:`rest_node_normals`.
+            undefined): ``unpack_normals(pack_normals(unit sums))``, see :func:`deformgl.sim.normals.rest_normals`.
         surface: the node surface (triangles over ``surface.nodes``).
         spacing: grid spacing h (for the far test).
         tangents: (V, 4) or (V, 3) tangents to use (orthonormalised against the vertex normals;
@@ -346,9 +343,3 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
         tangent_curvature=np.concatenate([curvature_local(tangent[:, :3], tan_c), hand], axis=1),
         normal_world=normal, tangent_world=tangent, uv=uv_used, curvature_ok=curvature_ok,
         distance=dist, report=report)
-
-
-def rest_node_normals(model: SpringModel) -> np.ndarray:
-    """(N, 3) rest Mosegaard & Sørensen 2005, eq. 3 node normals exactly as the GPU unpacks them (zero where undefined):
-    the unit-vector sums of the rest positions, packed and unpacked (deformgl.sim.normals)."""
-    return unpack_normals(pack_normals(spring_sums(model, model.grid.rest_positions).unit_sum))

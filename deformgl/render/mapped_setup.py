@@ -9,13 +9,15 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from deformgl.mapping.binding import Binding, bind, rest_node_normals
+from deformgl.mapping.binding import Binding, bind
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.normals import rest_normals
 from deformgl.mapping.binding_cache import binding_key, load_binding, save_binding
 from deformgl.errors import InputError
 from deformgl.files import read_png, write_atomic
 from deformgl.render.mapped import MappedVertices
 from deformgl.mapping.bases import curvature_basis
-from deformgl.mapping.tangents import procedural_normal_map, procedural_uv, vertex_tangents
+from deformgl.mapping.tangents import procedural_normal_map
 
 CACHE_ENV = "DEFORMGL_CACHE_DIR"
 BINDING_FORMAT = 1
@@ -37,9 +39,8 @@ def mesh_uv(mesh: trimesh.Trimesh) -> np.ndarray | None:
     return np.asarray(uv, dtype=np.float64)
 
 
-def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: np.ndarray | None) -> Binding:
-    """Bind the mesh to the node surface, reusing a cached binding of the same inputs."""
-    grid = model.grid
+def get_binding(mesh: trimesh.Trimesh, grid: NodeGrid, surface, *, use_cache: bool, uv: np.ndarray | None) -> Binding:
+    """Bind the mesh to the node surface of ``grid``, reusing a cached binding of the same inputs."""
     key = binding_key(mesh.vertices, mesh.faces, grid.rest_positions, surface.triangles, grid.spacing,
                       {"format": BINDING_FORMAT}, uv=uv)
     path = cache_dir() / f"binding-{key[:24]}.npz"
@@ -47,7 +48,7 @@ def get_binding(mesh: trimesh.Trimesh, model, surface, *, use_cache: bool, uv: n
         cached = load_binding(path, key)
         if cached is not None:
             return cached
-    binding = bind(mesh.vertices, mesh.faces, grid.rest_positions, rest_node_normals(model), surface,
+    binding = bind(mesh.vertices, mesh.faces, grid.rest_positions, rest_normals(grid), surface,
                    spacing=grid.spacing, uv=uv)
     if use_cache:
         try:

@@ -3,8 +3,8 @@ node grid, its spring system, simulations of it, its mapped detailed mesh and im
 
 This is the code path of a scene (:mod:`deformgl.scene.pipeline`) without the scene file: the
 mesh is recentred on its bounding-box centre, voxelized at ``resolution`` nodes along its longest
-side (or at ``spacing``), the spring model is built from the physics (:func:`build_spring_model`,
-:func:`scene_system`), the binding to the node surface is the scene's (cached the same way), and
+side (or at ``spacing``), the spring system is built from the physics
+(:func:`~deformgl.scene.run.scene_system`), the binding to the node surface is the scene's (cached the same way), and
 node positions reach the draw passes through the same :class:`DrivenNodes` upload. Everything GL
 the body makes (its context if it made one, simulations, node textures, draw passes, targets)
 is owned by one :class:`~deformgl.gl.resources.GLOwner` and freed by :meth:`Body.release` or
@@ -32,23 +32,21 @@ from deformgl.files import write_png_atomic
 from deformgl.gl.context import create_context
 from deformgl.gl.resources import GLOwner
 from deformgl.grid.meshio import load_mesh
-from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout
 from deformgl.grid.surface import grid_surface
-from deformgl.grid.voxelize import voxelize
-from deformgl.mapping.binding import rest_node_normals
 from deformgl.mapping.node_drivers import DrivenNodes
 from deformgl.render.camera import View, frame_box
 from deformgl.render.mapped import MappedMeshPass
 from deformgl.render.mapped_setup import get_binding, mapped_vertices
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene import pipeline
-from deformgl.scene.pipeline import build_spring_model
+from deformgl.scene.pipeline import mesh_grid, recentred
 from deformgl.scene.run import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, Physics, Region, Scene
 from deformgl.scene.stepping import Simulation, make_simulation
 from deformgl.sim.backends.foundation import NodeTextures
-from deformgl.sim.model import SpringModel
+from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["Body", "above", "below", "inside", "render_scene", "render_to_png", "write_png"]
@@ -102,14 +100,14 @@ def _regions(fixed: Region | Sequence[Region] | None) -> tuple[Region, ...]:
 
 
 class Body:
-    """A detailed mesh, its node grid and spring model: build with :meth:`from_mesh` or
+    """A detailed mesh, its node grid and spring system: build with :meth:`from_mesh` or
     :meth:`from_arrays`.
 
     Attributes:
         mesh: the detailed mesh, recentred on its bounding-box centre.
         centre: (3,) the world offset removed (added back to everything returned).
         grid: the node grid (recentred coordinates).
-        model: the spring model; physics: the physics it was built from (dt and steps unused).
+        physics: the physics the system was built from (dt and steps unused).
         system: the spring system every integrator and backend steps.
         bbox: (2, 3) recentred bounding box of the mesh.
         source: the name errors start with (the mesh file, or ``"<arrays>"``).
@@ -123,24 +121,17 @@ class Body:
             resolution = None
         elif resolution is None or int(resolution) < 2:
             raise InputError(f"{source}: resolution must be at least 2 nodes along the longest side, got {resolution}")
-        lo, hi = mesh.bounds
-        self.centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
-        self.mesh = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64) - self.centre, mesh.faces,
-                                    visual=mesh.visual, process=False)
+        recentred_mesh, centre = recentred(mesh)
+        self.mesh: trimesh.Trimesh = recentred_mesh
+        self.centre: np.ndarray = centre
         self.source = source
-        vox = voxelize(self.mesh, nodes_along_longest=resolution, spacing=spacing, source=source)
-        self.grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
-                             occupied=np.asarray(vox.occupied, dtype=bool))
-        if len(grid_surface(self.grid).triangles) == 0:
-            raise InputError(f"{source}: too thin for a node grid at spacing {self.grid.spacing:.4g}: its "
-                             f"{self.grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a "
-                             f"finer grid (a larger resolution or a smaller spacing)")
+        self.grid = mesh_grid(self.mesh, nodes_along_longest=resolution, spacing=spacing, source=source,
+                              finer="a larger resolution or a smaller spacing")
         self.bbox = np.array(self.mesh.bounds, dtype=np.float64)
         g = tuple(float(v) for v in gravity)
         self.physics = Physics(dt=1e-3, steps=0, stiffness=float(stiffness), damping=float(damping),
                                mass=float(mass), gravity=(g[0], g[1], g[2]), fixed=_regions(fixed), pull=())
-        self.model: SpringModel = build_spring_model(self.grid, self.physics, self.bbox)
-        self.system: SpringSystem = scene_system(self.grid, self.model, self.physics)
+        self.system: SpringSystem = scene_system(self.grid, self.physics, self.bbox)
         self._ctx = ctx
         self._owner: GLOwner | None = None
         self._nodes: tuple[NodeTextures, DrivenNodes] | None = None
@@ -244,7 +235,8 @@ class Body:
 
     def node_positions(self, sim: Any = None) -> np.ndarray:
         """(N, 3) float64 world node positions of ``sim`` (its ``positions()``), or the rest ones."""
-        return self._local_positions(sim) + self.centre
+        world: np.ndarray = self._local_positions(sim) + self.centre
+        return world
 
     def _local_positions(self, sim: Any) -> np.ndarray:
         if sim is None:
@@ -254,7 +246,8 @@ class Body:
             raise InputError(f"{self.source}: node positions must have shape ({self.grid.count}, 3), got {x.shape}")
         if hasattr(sim, "positions"):
             return x[:, :3]
-        return x[:, :3] - self.centre  # world positions given as an array
+        local: np.ndarray = x[:, :3] - self.centre  # world positions given as an array
+        return local
 
     # -- drawing ---------------------------------------------------------------------------
 
@@ -267,7 +260,7 @@ class Body:
                 CompactLayout.for_grid(self.grid, max_size)
             except ValueError as exc:
                 raise InputError(f"{self.source}: {exc}; use a coarser grid") from None
-            textures = owner.own(NodeTextures(owner.ctx, self.model))
+            textures = owner.own(NodeTextures(owner.ctx, self.grid))
             driven = owner.own(DrivenNodes(owner.ctx, textures, self.grid))
             self._nodes = (textures, driven)
         self._nodes[1].set_positions(self._local_positions(sim))
@@ -285,8 +278,8 @@ class Body:
             if mapping == "one-to-one":
                 draw: Any = GridSurfacePass(owner.ctx, self.grid, layout)
             else:
-                binding = get_binding(self.mesh, self.model, grid_surface(self.grid), use_cache=True, uv=None)
-                data = mapped_vertices(binding, mapping, self.grid.rest_positions, rest_node_normals(self.model))
+                binding = get_binding(self.mesh, self.grid, grid_surface(self.grid), use_cache=True, uv=None)
+                data = mapped_vertices(binding, mapping, self.grid.rest_positions, rest_normals(self.grid))
                 draw = MappedMeshPass(owner.ctx, self.grid, layout, self.mesh.faces, data)
             self._passes[mapping] = owner.own(draw)
         return self._passes[mapping]

@@ -1,4 +1,4 @@
-"""From a scene to a PNG: load the mesh, build the grid and model, simulate, render, write.
+"""From a scene to a PNG: load the mesh, build the grid and spring system, simulate, render, write.
 
 Positions are recentred on the mesh's bounding-box centre before anything reaches float32 GPU
 memory, so a mesh far from the origin keeps its precision; the offset is kept in
@@ -11,6 +11,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import moderngl
 import numpy as np
@@ -20,21 +21,19 @@ from deformgl.trilinear.attachments import TubeAttachment
 from deformgl.render.camera import View, frame_box
 from deformgl.scene.obstacles import draw_obstacles
 from deformgl.errors import InputError, SimulationError
-from deformgl.sim.backends.foundation import FragmentSimulation, NodeTextures
+from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.files import write_png_atomic
 from deformgl.render.mapped import MappedMeshPass
-from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image, rest_node_normals
+from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image
 from deformgl.grid.meshio import load_mesh
-from deformgl.sim.model import MAX_PULLS, SpringModel
+from deformgl.sim.normals import rest_normals
+from deformgl.sim.springs import Load, SpringSystem
 from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
-from deformgl.progress import Progress
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
-from deformgl.scene.schema import Physics, Scene
+from deformgl.scene.schema import Scene
 from deformgl.scene.spec import ClothSpec, MeshSpec, Vec3
-from deformgl.sim.guards import BlowUpWatch, StepPlan, plan_steps
-from deformgl.scene.run import (SceneBox, SceneRun, bad_limit, needs_integrators, run_scene,
-                        run_with_retries, scene_constraints, scene_system, step_watched)
+from deformgl.scene.run import SceneBox, SceneRun, run_scene, scene_constraints, scene_loads, scene_system
 from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
@@ -43,21 +42,30 @@ from deformgl.grid.voxelize import voxelize
 
 @dataclass(frozen=True, eq=False)
 class SceneModel:
-    """Everything a scene builds on the CPU, once: recentred mesh, grid, spring model.
+    """Everything a scene builds on the CPU, once: recentred mesh, grid, spring system, loads.
 
     Attributes:
         mesh: the detailed mesh, recentred.
         centre: (3,) the world offset removed from every position.
         grid: node grid (recentred coordinates).
-        model: the spring model.
+        system: the spring system (:func:`~deformgl.scene.run.scene_system`).
+        loads: the ``[[physics.pull]]`` loads (:func:`~deformgl.scene.run.scene_loads`).
         bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
     """
 
     mesh: trimesh.Trimesh
     centre: np.ndarray
     grid: NodeGrid
-    model: SpringModel
+    system: SpringSystem
+    loads: tuple[Load, ...]
     bbox: np.ndarray
+
+    @classmethod
+    def build(cls, scene: Scene, mesh: trimesh.Trimesh, centre: np.ndarray, grid: NodeGrid,
+              bbox: np.ndarray) -> SceneModel:
+        """The model of ``scene``'s physics on ``grid`` (regions are fractions of ``bbox``)."""
+        return cls(mesh=mesh, centre=centre, grid=grid, system=scene_system(grid, scene.physics, bbox),
+                   loads=scene_loads(grid, scene.physics, bbox), bbox=bbox)
 
 
 def _vec3(v: Vec3) -> Vec3:
@@ -80,34 +88,6 @@ def _mesh(scene: Scene) -> MeshSpec:
     return scene.mesh
 
 
-def build_spring_model(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringModel:
-    """Per-node attributes from the scene's physics: mass, fixed regions, pull groups."""
-    frac = grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
-    fixed = np.zeros(grid.count, bool)
-    for region in physics.fixed:
-        fixed |= region.contains(frac)
-    groups = np.zeros(grid.count, np.uint8)
-    for g, pull in enumerate(physics.pull):
-        groups |= (pull.region.contains(frac).astype(np.uint8) << g)
-    return SpringModel(grid=grid, mass=np.full(grid.count, physics.mass), fixed=fixed,
-                       pull_groups=groups, k_structural=physics.stiffness, k_shear=physics.stiffness,
-                       damping=physics.damping, gravity=np.asarray(physics.gravity, dtype=np.float64),
-                       n_pulls=len(physics.pull))
-
-
-def pull_schedule(physics: Physics):
-    """Callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group."""
-    pulls = physics.pull
-
-    def forces(t: float) -> np.ndarray:
-        out = np.zeros((MAX_PULLS, 3))
-        for g, pull in enumerate(pulls):
-            out[g] = pull.force_at(t)
-        return out
-
-    return forces
-
-
 def build_cloth_model(scene: Scene) -> SceneModel:
     """A cloth scene: a one-node-thin sheet of nodes centred on the origin in the plane y = 0; its
     box is the cube of side ``cloth.size`` around it (Movania & Feng 2012, section 5)."""
@@ -120,32 +100,42 @@ def build_cloth_model(scene: Scene) -> SceneModel:
     surface = grid_surface(grid)
     mesh = trimesh.Trimesh(grid.rest_positions[surface.nodes], surface.triangles, process=False)
     bbox = np.array([[origin[0], -size / 2.0, origin[2]], [-origin[0], size / 2.0, -origin[2]]])
-    return SceneModel(mesh=mesh, centre=np.zeros(3), grid=grid,
-                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+    return SceneModel.build(scene, mesh, np.zeros(3), grid, bbox)
+
+
+def recentred(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The mesh moved so its bounding-box centre is the origin, and that centre (3,) float64."""
+    lo, hi = mesh.bounds
+    centre = (np.asarray(lo, np.float64) + np.asarray(hi, np.float64)) / 2.0
+    return trimesh.Trimesh(np.asarray(mesh.vertices, np.float64) - centre, mesh.faces, visual=mesh.visual,
+                           process=False), centre
+
+
+def mesh_grid(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing: float | None, source: str,
+              finer: str) -> NodeGrid:
+    """The node grid of a (recentred) mesh; a mesh too thin for any cell or 2x2 sheet is an
+    InputError naming ``source`` and what to change (``finer``)."""
+    vox = voxelize(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
+    grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
+                    occupied=np.asarray(vox.occupied, dtype=bool))
+    if len(grid_surface(grid).triangles) == 0:
+        raise InputError(f"{source}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
+                         f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
+                         f"({finer})")
+    return grid
 
 
 def build_scene_model(scene: Scene) -> SceneModel:
-    """Load and recentre the mesh, voxelize it into the node grid, build the spring model (or
+    """Load and recentre the mesh, voxelize it into the node grid, build the spring system (or
     build the cloth sheet of a cloth scene)."""
     if scene.cloth is not None:
         return build_cloth_model(scene)
     mesh_spec = _mesh(scene)
-    mesh = load_mesh(mesh_spec.path)
-    lo, hi = mesh.bounds
-    centre = (lo + hi) / 2.0
-    mesh = trimesh.Trimesh(mesh.vertices - centre, mesh.faces, visual=mesh.visual, process=False)
-    vox = voxelize(mesh, nodes_along_longest=scene.grid.nodes_along_longest,
-                   spacing=scene.grid.spacing, source=str(mesh_spec.path))
-    grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
-                    occupied=np.asarray(vox.occupied, dtype=bool))
-    if len(grid_surface(grid).triangles) == 0:
-        raise InputError(
-            f"{mesh_spec.path}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
-            f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
-            f"(grid.nodes_along_longest or grid.spacing in {scene.source.name})")
-    bbox = np.array(mesh.bounds, dtype=np.float64)
-    return SceneModel(mesh=mesh, centre=centre, grid=grid,
-                      model=build_spring_model(grid, scene.physics, bbox), bbox=bbox)
+    mesh, centre = recentred(load_mesh(mesh_spec.path))
+    grid = mesh_grid(mesh, nodes_along_longest=scene.grid.nodes_along_longest, spacing=scene.grid.spacing,
+                     source=str(mesh_spec.path),
+                     finer=f"grid.nodes_along_longest or grid.spacing in {scene.source.name}")
+    return SceneModel.build(scene, mesh, centre, grid, np.array(mesh.bounds, dtype=np.float64))
 
 
 def scene_view(scene: Scene, bbox: np.ndarray) -> View:
@@ -165,34 +155,6 @@ def scene_lighting(scene: Scene) -> Lighting:
                     specular=r.material.specular, shininess=r.material.shininess)
 
 
-def simulate(sim: FragmentSimulation, steps: int, *, progress: bool, chunk: int = 25,
-             watch: BlowUpWatch | None = None) -> None:
-    """Run ``steps`` steps on the GPU in chunks, showing progress, with the blow-up census of
-    ``watch`` if given; no read-back unless a check fails."""
-    with Progress(steps, "steps", enabled=progress) as bar:
-        step_watched(sim.ctx, sim, steps, bar, watch, chunk=chunk)
-
-
-def run_foundation(ctx: moderngl.Context, scene: Scene, built: SceneModel, plan: StepPlan, *,
-                   progress: bool) -> FragmentSimulation:
-    """The foundation's fragment Verlet pass over ``plan``'s steps, watched by the blow-up census
-    (the final census stands in for reading the state back). The caller owns the result."""
-    sim = FragmentSimulation(ctx, built.model, plan.step_dt, pull_schedule(scene.physics))
-    watch = None
-    try:
-        watch = BlowUpWatch(ctx, sim, every=scene.physics.safety.check_every,
-                            limit=bad_limit(scene.physics, SceneBox(*built.bbox)), grid=built.grid,
-                            source=scene.source, dt=plan.step_dt)
-        simulate(sim, plan.step_count, progress=progress, watch=watch)
-    except BaseException:
-        sim.release()
-        raise
-    finally:
-        if watch is not None:
-            watch.release()
-    return sim
-
-
 def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
     """The node grid must fit the GL texture limit; the error names the scene key to change."""
     try:
@@ -210,28 +172,21 @@ class NodeState:
 
     def __init__(self, ctx: moderngl.Context, scene: Scene, built: SceneModel, *, progress: bool) -> None:
         nodes = scene.nodes
-        self.sim: FragmentSimulation | None = None
+        self.sim: Any = None  # a simulation drawn from its own state texture (packed normals)
         self.driven: DrivenNodes | None = None
-        self.run: SceneRun | None = None  # the five-integrator run, if the scene used one
+        self.run: SceneRun | None = None  # the run, if the scene simulates
         self.notes: list[str] = []  # what the step plan and restarts changed, for the log
         self.textures: NodeTextures
         if nodes.source == "simulate":
-            physics = scene.physics
-            system = scene_system(built.grid, built.model, physics)
-            plan = plan_steps(system, physics, scene.source)
-            if needs_integrators(physics):
-                self.run = run_scene(ctx, scene, built.grid, built.model, SceneBox(*built.bbox), progress=progress,
-                                     plan=plan, notes=self.notes, system=system)
-                positions = self.run.positions
-            else:
-                if plan.note:
-                    self.notes.append(plan.note)
-                sim, _ = run_with_retries(
-                    plan, physics.safety.unstable,
-                    lambda p: run_foundation(ctx, scene, built, p, progress=progress), self.notes)
-                self.sim = sim
-                self.textures = sim.textures
+            self.run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
+                                 progress=progress, notes=self.notes, keep=True)
+            if self.run.sim is not None:
+                self.sim = self.run.sim
+                self.textures = self.sim.textures
                 return
+            if self.run.positions is None:
+                raise RuntimeError("run_scene returned neither positions nor a simulation")  # never
+            positions = self.run.positions
         if nodes.source == "file":
             if nodes.file is None:
                 raise ValueError(f"{scene.source}: nodes.file is not set")  # the schema sets it
@@ -246,7 +201,7 @@ class NodeState:
                 raise ValueError(f"{scene.source}: nodes.motion is not set")  # the schema sets it
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
-        self.textures = NodeTextures(ctx, built.model)
+        self.textures = NodeTextures(ctx, built.grid)
         try:
             self.driven = DrivenNodes(ctx, self.textures, built.grid)
             self.driven.set_positions(positions)
@@ -272,6 +227,7 @@ class NodeState:
         """Release every GL object."""
         if self.sim is not None:
             self.sim.release()
+            self.sim = None
         else:
             if self.driven is not None:
                 self.driven.release()
@@ -291,11 +247,11 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
     surface = grid_surface(built.grid)
     normal_map = normal_map_image(scene.mapping.normal_map, scene.source)
     own_uv = mesh_uv(built.mesh)
-    binding = get_binding(built.mesh, built.model, surface, use_cache=scene.mapping.cache, uv=own_uv)
+    binding = get_binding(built.mesh, built.grid, surface, use_cache=scene.mapping.cache, uv=own_uv)
     if log is not None:
         for line in binding.report.lines():
             log(f"{_mesh(scene).path.name}: {line}")
-    data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_node_normals(built.model))
+    data = mapped_vertices(binding, mode, built.grid.rest_positions, rest_normals(built.grid))
     if normal_map is not None:
         # the mesh's own UVs as they are; procedural ones (what the tangents were built from)
         # repeated over the surface

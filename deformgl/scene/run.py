@@ -2,11 +2,11 @@
 obstacles from the scene file, and the run (fixed step count or convergence stop).
 
 Scene positions are bounding-box fractions of the (recentred) scene box; sphere radii are in
-units of its longest side. The foundation's fragment Verlet pass (``fragment_sim.py``) keeps
-running scenes that use none of the extended physics (:attr:`scene.Physics.extended`) with the
-default integrator and backend; everything else runs here:
+units of its longest side. Every scene runs here, on its integrator and backend:
 
-* ``fragment``: :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` (grid topology);
+* ``fragment``: :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` (grid topology; for
+  Verlet on a system the foundation pass models it picks that pass, whose state texture carries
+  the packed node normals the mappings draw from);
 * ``feedback``: :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (explicit neighbour lists);
 * ``numpy``: the float64 reference, :class:`~deformgl.sim.simulation.NumpySimulation`.
 
@@ -23,28 +23,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any
 
 import moderngl
 import numpy as np
 
-from deformgl.errors import SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
-from deformgl.sim.model import SpringModel
-from deformgl.progress import Progress
-from deformgl.sim.guards import BlowUp, BlowUpWatch, StepPlan, plan_steps
-from deformgl.sim.run import make_watch
-from deformgl.sim.run import run as run_simulation
+from deformgl.sim.guards import StepPlan
+from deformgl.sim.run import run_guarded
 from deformgl.sim.simulation import make_simulation
 from deformgl.scene.schema import Keyframes, Physics, Scene
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["SceneBox", "SceneRun", "bad_limit", "needs_integrators", "run_scene",
-           "run_with_retries", "scene_constraints", "scene_drags", "scene_loads", "scene_system", "step_watched"]
-
-T = TypeVar("T")
-
+__all__ = ["SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+           "scene_system"]
 
 @dataclass(frozen=True)
 class SceneBox:
@@ -67,26 +60,30 @@ class SceneBox:
         return lambda t: self.world(keyframes.at(t))
 
 
-def needs_integrators(physics: Physics) -> bool:
-    """True when the scene must run on the five-integrator backends (not the foundation pass)."""
-    return physics.integrator != "verlet" or physics.backend != "fragment" or physics.extended
+def _fractions(grid: NodeGrid, bbox: np.ndarray) -> np.ndarray:
+    return grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
 
 
-def scene_system(grid: NodeGrid, model: SpringModel, physics: Physics) -> SpringSystem:
+def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringSystem:
     """The scene's spring system: the grid's springs by class (a class of stiffness 0 is not
-    built), the model's masses and fixed nodes, global damping, gravity and wind."""
+    built), the mass per node, the nodes of the ``[[physics.fixed]]`` regions (fractions of
+    ``bbox``, (2, 3)), global damping, gravity and wind."""
+    frac = _fractions(grid, bbox)
+    fixed = np.zeros(grid.count, bool)
+    for region in physics.fixed:
+        fixed |= region.contains(frac)
     k1, k2, k3 = physics.class_stiffness()
     return from_grid(grid, k_structural=k1, k_shear=k2, k_flexion=k3,
                      damping_structural=physics.structural.damping, damping_shear=physics.shear.damping,
-                     damping_flexion=physics.flexion.damping, mass=model.mass, fixed=model.fixed,
+                     damping_flexion=physics.flexion.damping, mass=physics.mass, fixed=fixed,
                      velocity_damping=physics.damping, gravity=physics.gravity, wind=physics.wind,
                      wind_drag=physics.wind_drag)
 
 
-def scene_loads(model: SpringModel, physics: Physics) -> tuple[Load, ...]:
+def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> tuple[Load, ...]:
     """One load per ``[[physics.pull]]``: its force per node on the nodes of its region."""
-    return tuple(Load((model.pull_groups >> g) & 1 == 1, pull.force_at)
-                 for g, pull in enumerate(physics.pull))
+    frac = _fractions(grid, bbox)
+    return tuple(Load(pull.region.contains(frac), pull.force_at) for pull in physics.pull)
 
 
 def scene_drags(grid: NodeGrid, physics: Physics, box: SceneBox) -> tuple[Drag, ...]:
@@ -114,14 +111,16 @@ def scene_constraints(physics: Physics, box: SceneBox) -> Constraints | None:
 class SceneRun:
     """What a run produced: final positions (N, 3) float64, steps taken (of dt / substeps),
     whether the convergence stop ended it (None without one), GPU bytes per node (0 for numpy),
-    the end time, the substeps per scene step."""
+    the end time, the substeps per scene step, and (``run_scene(keep=True)``) the simulation
+    itself, which the caller then releases."""
 
-    positions: np.ndarray
+    positions: np.ndarray | None
     steps: int
     converged: bool | None
     bytes_per_node: float
     time: float
     substeps: int = 1
+    sim: Any = None
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
@@ -140,76 +139,53 @@ def bad_limit(physics: Physics, box: SceneBox) -> float:
     return physics.safety.bad_distance * box.longest
 
 
-def step_watched(ctx: moderngl.Context, sim, steps: int, bar: Progress, watch: BlowUpWatch | None = None, *,
-                 chunk: int = 25, converge: tuple[float, int] | None = None) -> tuple[int, bool | None]:
-    """:func:`deformgl.sim.run.run` as (steps done, converged: True/False, None without a
-    convergence stop); kept for the callers that step a simulation they built themselves.
-
-    Raises:
-        BlowUp: a check counted bad nodes.
-    """
-    result = run_simulation(sim, steps, ctx=ctx, watch=watch, converge=converge, progress=bar, chunk=chunk)
-    return result.steps, result.converged
-
-
-def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T],
-                     notes: list[str]) -> tuple[T, StepPlan]:
-    """``attempt(plan)``; with the "subdivide" policy a :class:`BlowUp` restarts it with twice the
-    substeps (up to :data:`~deformgl.safety.MAX_SUBSTEPS`), each restart noted in ``notes``."""
-    while True:
-        try:
-            return attempt(plan), plan
-        except BlowUp as exc:
-            if policy != "subdivide":
-                raise
-            finer = plan.halved()
-            if finer is None:
-                raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "
-                                      f"--subdivide uses)") from None
-            notes.append(f"{exc}; {finer.note}")
-            plan = finer
-
-
-def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, model: SpringModel, box: SceneBox, *,
-              progress: bool, plan: StepPlan | None = None, notes: list[str] | None = None,
-              system: SpringSystem | None = None) -> SceneRun:
-    """Simulate a scene's nodes with its integrator on its backend; positions are read once.
+def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: SpringSystem,
+              loads: tuple[Load, ...], box: SceneBox, *, progress: bool, plan: StepPlan | None = None,
+              notes: list[str] | None = None, keep: bool = False) -> SceneRun:
+    """Simulate a scene's nodes with its integrator on its backend through the one guarded run
+    (:func:`deformgl.sim.run.run_guarded`: dt check, blow-up census, convergence stop,
+    subdivision); positions are read once.
 
     Args:
-        plan: the checked step plan (default: :func:`~deformgl.safety.plan_steps` of the scene,
-            which refuses a dt above the limit unless ``physics.safety.unstable`` says otherwise).
+        system, loads: the scene's :func:`scene_system` and :func:`scene_loads`.
+        plan: the checked step plan (default: :func:`~deformgl.sim.guards.plan_steps` of the
+            scene, which refuses a dt above the limit unless ``physics.safety.unstable`` says
+            otherwise).
         notes: receives what the plan and the restarts changed, if given.
-        system: the scene's :func:`scene_system`, if the caller built it already.
+        keep: when the simulation's state texture carries the packed node normals (the fragment
+            backend's Verlet fast path), return it in :attr:`SceneRun.sim` for drawing, unreleased
+            and unread (``positions`` None); otherwise it is read once and released.
     """
     physics = scene.physics
-    system = scene_system(grid, model, physics) if system is None else system
-    plan = plan_steps(system, physics, scene.source) if plan is None else plan
-    notes = [] if notes is None else notes
-    if plan.note:
-        notes.append(plan.note)
-    loads, drags = scene_loads(model, physics), scene_drags(grid, physics, box)
+    drags = scene_drags(grid, physics, box)
     constraints = scene_constraints(physics, box)
-    limit = bad_limit(physics, box)
+    made: list = []
 
-    def attempt(p: StepPlan) -> SceneRun:
-        converge = None
-        if physics.converge is not None:  # per scene step: over a substep a node moves 1/substeps as far
-            converge = (physics.converge.threshold * grid.spacing / p.substeps, physics.converge.every * p.substeps)
-        with Progress(p.step_count, "steps", enabled=progress) as bar:
-            sim = make_simulation(system, physics.integrator, physics.backend, dt=p.step_dt, ctx=ctx, grid=grid,
-                                  constraints=constraints, drags=drags, loads=loads)
-            watch = None
-            try:
-                watch = make_watch(ctx, sim, every=physics.safety.check_every, limit=limit, grid=grid,
-                                   source=scene.source, dt=p.step_dt)
-                result = run_simulation(sim, p.step_count, ctx=ctx, watch=watch, converge=converge, progress=bar)
-                return SceneRun(np.asarray(sim.positions(), np.float64), result.steps, result.converged,
-                                sim.bytes_per_node, result.steps * p.step_dt, p.substeps)
-            finally:
-                if watch is not None:
-                    watch.release()
-                sim.release()
+    def make(dt: float):
+        while made:  # a restart starts from the start state: the blown-up attempt is done with
+            made.pop().release()
+        made.append(make_simulation(system, physics.integrator, physics.backend, dt=dt, ctx=ctx, grid=grid,
+                                    constraints=constraints, drags=drags, loads=loads))
+        return made[-1]
 
-    # every run ends with a blow-up check (census or NumPy), so its positions are finite
-    run, _ = run_with_retries(plan, physics.safety.unstable, attempt, notes)
-    return run
+    converge = None
+    if physics.converge is not None:
+        converge = (physics.converge.threshold * grid.spacing, physics.converge.every)
+    try:
+        # every run ends with a blow-up check (census or NumPy), so its positions are finite
+        result = run_guarded(system, physics, make, source=scene.source, limit=bad_limit(physics, box),
+                             check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=converge,
+                             progress=progress, plan=plan, notes=notes)
+        sim = made[-1]
+        # a kept simulation is drawn from its state texture: nothing is read back
+        kept = keep and bool(getattr(sim, "packed_normals", False))
+        positions = None if kept else np.asarray(sim.positions(), np.float64)
+        step_dt = result.dt if result.dt is not None else physics.dt
+        out = SceneRun(positions, result.steps, result.converged, sim.bytes_per_node, result.steps * step_dt,
+                       result.substeps, sim if kept else None)
+        if kept:
+            made.clear()
+        return out
+    finally:
+        for sim in made:
+            sim.release()

@@ -28,7 +28,7 @@ from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_S
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
                                  parse_size)
-from deformgl.sim.model import MAX_PULLS
+from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 
 __all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
            "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",

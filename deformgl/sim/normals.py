@@ -66,3 +66,25 @@ def unpack_normals(packed: np.ndarray) -> np.ndarray:
     c = np.where(valid, bits - np.uint32(_BIAS), 0).astype(np.int64)
     e = np.stack([c // (LEVELS + 1), c % (LEVELS + 1)], axis=-1) / LEVELS * 2.0 - 1.0
     return np.where(valid[..., None], octahedral_decode(e), 0.0)
+
+
+def unit_sums(grid, x: np.ndarray) -> np.ndarray:
+    """(N, 3) sum of the unit vectors ``(p_i - p_j)/|p_i - p_j|`` to the existing ones of each
+    node's 18 neighbours (Mosegaard & Sørensen 2005, eq. 3; the normal before packing).
+
+    Args:
+        grid: the :class:`~deformgl.grid.nodes.NodeGrid`.
+        x: (N, 3) float64 positions.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    nb = grid.neighbours
+    present = (nb >= 0)[..., None]
+    d = x[:, None, :] - x[np.where(nb >= 0, nb, np.arange(len(x))[:, None])]   # p_i - p_j, (N, 18, 3)
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.where(present, d / np.where(length > 0, length, 1.0), 0.0).sum(axis=1)
+
+
+def rest_normals(grid) -> np.ndarray:
+    """(N, 3) rest eq. 3 node normals of Mosegaard & Sørensen 2005 exactly as the GPU unpacks
+    them (zero where undefined): the unit-vector sums of the rest positions, packed and unpacked."""
+    return unpack_normals(pack_normals(unit_sums(grid, grid.rest_positions)))

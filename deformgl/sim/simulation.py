@@ -23,6 +23,8 @@ from deformgl.sim.springs import Drag, Load, SpringSystem
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
 
 BACKENDS = ("fragment", "feedback", "numpy")
+#: Options only the fragment backend takes (its Verlet fast path and the pass variants).
+FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
 
 
 class SimulationSetupError(InputError, ValueError):
@@ -133,21 +135,28 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     Args:
         system: the spring system.
         integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
-        backend: "fragment" (needs ``grid``, the node grid of the system), "feedback" or "numpy".
+        backend: "fragment" (a system with a node grid: :func:`~deformgl.sim.springs.from_grid`,
+            :func:`~deformgl.sim.springs.cloth`), "feedback" or "numpy".
         dt: step in s, > 0.
         ctx: the GL context (the GPU backends).
-        grid: the node grid (the fragment backend).
-        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``.
+        grid: the node grid (the fragment backend; default ``system.grid``).
+        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; on the fragment
+            backend also ``path`` ("auto": the foundation pass for Verlet where it models the
+            system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
+            ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`).
 
     Raises:
         SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
-            fragment backend without ``grid``, or an unknown option.
+            fragment backend without a grid, or an unknown option.
     """
     if integrator not in INTEGRATORS:
         raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
     if backend not in BACKENDS:
         raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
-    unknown = set(options) - {"constraints", "drags", "loads", "state", "t0"}
+    known = {"constraints", "drags", "loads", "state", "t0"}
+    if backend == "fragment":
+        known |= set(FRAGMENT_OPTIONS)
+    unknown = set(options) - known
     if unknown:
         raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))}")
     if backend == "numpy":
@@ -155,8 +164,10 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     if ctx is None:
         raise SimulationSetupError(f"the {backend} backend needs a GL context (ctx=...)")
     if backend == "fragment":
+        grid = system.grid if grid is None else grid
         if grid is None:
-            raise SimulationSetupError("the fragment backend needs the node grid of the system (grid=...)")
+            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
+                                       "(springs.from_grid or springs.cloth) or grid=...")
         from deformgl.sim.backends.fragment import FragmentIntegrator
 
         return FragmentIntegrator(ctx, system, grid, integrator, dt, **options)

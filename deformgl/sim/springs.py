@@ -12,7 +12,8 @@ requires is modelled: a class whose stiffness is 0 is not built at all (no zero-
 GPU to loop over).
 
 Units: stiffness ``k`` is the physical spring constant in N/m (deformgl's convention, see
-``model.py``: ``k = k_ij / 2`` of Mosegaard & Sørensen 2005 eq. 1), damping in N*s/m, mass kg.
+docs/EQUATIONS.md: ``k = k_ij / 2`` of Mosegaard & Sørensen 2005, eq. 1, so a scene's stiffness
+means the same in every backend and integrator, and in Movania & Feng's ``F = k (L - |d|) d/|d|``), damping in N*s/m, mass kg.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ class SpringSystem:
         wind_drag: N*s/m, linear drag toward the air velocity: F = wind_drag * (wind - v).
         spacing: the system's length scale in world units (grid spacing h; the mean edge length
             of a triangle mesh); the default convergence threshold is 0.001 * spacing.
+        grid: the node grid the system was built from (:func:`from_grid`, :func:`cloth`; node
+            order is the grid's), or None (a triangle mesh, or springs listed by hand). The
+            fragment backend needs it.
     """
 
     rest_positions: np.ndarray
@@ -78,6 +82,7 @@ class SpringSystem:
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
     wind_drag: float = 0.0
     spacing: float = 1.0
+    grid: NodeGrid | None = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]
@@ -102,6 +107,8 @@ class SpringSystem:
             raise ValueError("SpringSystem.spring_class: values outside 0..2")
         if min(self.velocity_damping, self.wind_drag) < 0 or not self.spacing > 0:
             raise ValueError("SpringSystem: velocity_damping and wind_drag >= 0, spacing > 0")
+        if self.grid is not None and self.grid.count != n:
+            raise ValueError(f"SpringSystem.grid: {self.grid.count} nodes, the system {n}")
 
     @property
     def count(self) -> int:
@@ -126,7 +133,8 @@ def _node_array(value: float | ArrayLike, n: int, dtype: type) -> np.ndarray:
 def _assemble(x0: np.ndarray, pairs: np.ndarray, classes: np.ndarray,
               class_k: tuple[float, ...], class_c: tuple[float, ...], *, mass: float | ArrayLike,
               fixed: ArrayLike | None, spacing: float, velocity_damping: float,
-              gravity: ArrayLike, wind: ArrayLike, wind_drag: float) -> SpringSystem:
+              gravity: ArrayLike, wind: ArrayLike, wind_drag: float,
+              grid: NodeGrid | None = None) -> SpringSystem:
     """A SpringSystem from rest positions and candidate springs; classes with k = 0 are dropped."""
     k_of_class = np.asarray(class_k, dtype=np.float64)
     keep = k_of_class[classes] > 0  # model only what the scene requires
@@ -143,7 +151,7 @@ def _assemble(x0: np.ndarray, pairs: np.ndarray, classes: np.ndarray,
         i=pairs[:, 0], j=pairs[:, 1], rest_length=rest, stiffness=k_of_class[classes],
         damping=np.asarray(class_c, dtype=np.float64)[classes], spring_class=classes,
         velocity_damping=float(velocity_damping), gravity=np.asarray(gravity, float),
-        wind=np.asarray(wind, float), wind_drag=float(wind_drag), spacing=float(spacing))
+        wind=np.asarray(wind, float), wind_drag=float(wind_drag), spacing=float(spacing), grid=grid)
 
 
 def from_grid(grid: NodeGrid, *, k_structural: float, k_shear: float, k_flexion: float = 0.0,
@@ -186,7 +194,7 @@ def from_grid(grid: NodeGrid, *, k_structural: float, k_shear: float, k_flexion:
                      (k_structural, k_shear, k_flexion),
                      (damping_structural, damping_shear, damping_flexion), mass=mass,
                      fixed=fixed, spacing=grid.spacing, velocity_damping=velocity_damping,
-                     gravity=gravity, wind=wind, wind_drag=wind_drag)
+                     gravity=gravity, wind=wind, wind_drag=wind_drag, grid=grid)
 
 
 def cloth(nx: int, nz: int, spacing: float, *, k_structural: float, k_shear: float,

@@ -159,6 +159,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.integrator = integrator
         self.dt = float(dt)
         self.t = float(t0)
+        self._t0, self._steps = self.t, 0  # time is t0 + steps * dt
         self.constraints = constraints
         self.drags = tuple(drags)
         self.loads = tuple(loads)
@@ -390,7 +391,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
                             bound = True
                         into = self.tex_state if stage.final else self._stage_texture()
                         self._run(stage, stage.at(t, dt), into)
-                self.t = t + dt
+                self._steps += 1
+                self.t = self._t0 + self._steps * dt  # (no accumulated rounding)
         finally:
             # give the caller its framebuffer back; code elsewhere may have left the context
             # pointing at a framebuffer it has since released: then bind framebuffer 0

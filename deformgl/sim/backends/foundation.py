@@ -1,8 +1,16 @@
-"""Grid spring-mass simulation in fragment passes on RGBA32F textures (Mosegaard & Sørensen 2005, 3.1).
+"""The fragment backend's position-Verlet fast path: Mosegaard & Sørensen 2005, section 3.1.
+
+One fragment pass per step over RGBA32F textures, the spring force of Mosegaard & Sørensen 2005,
+eq. 1 (eq. 2 where the classes share one stiffness) and the packed eq. 3 node normal written
+with the new position, so a mapped mesh draws straight from the state texture.
+:class:`~deformgl.sim.backends.fragment.FragmentIntegrator` picks it by itself for Verlet when
+the system uses nothing the pass does not model (:func:`verlet_terms`); nothing else builds a
+:class:`FoundationVerlet`. It computes the same function as the general Verlet stage
+(Movania & Feng 2012, section 3; :func:`deformgl.sim.integrators.step`) from the same state.
 
 Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
-* node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, pull g 4<<g),
+* node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g),
   B neighbour mask (18 bits), A 0.
 * state, three rotating RGBA32F (H, W, 4): xyz position, w packed eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
@@ -12,21 +20,102 @@ Texels outside the grid (padding, empty nodes) hold position 0 and are never cha
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from dataclasses import dataclass
 
 import moderngl
 import numpy as np
 
 from deformgl.errors import GLError
-from deformgl.grid.nodes import NEIGHBOUR_UNIT, AtlasLayout, CompactLayout
-from deformgl.sim.model import MAX_PULLS, SpringModel
-from deformgl.sim.normals import pack_normals
 from deformgl.gl.programs import Program
-from deformgl.sim.reference import spring_sums
+from deformgl.gl.resources import GLOwner
+from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
+from deformgl.sim.base import SimulationBase
+from deformgl.sim.integrators import Constraints, State
+from deformgl.sim.normals import pack_normals, unit_sums
+from deformgl.sim.stages import spec
+from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
 
-PullSchedule = Callable[[float], np.ndarray]
+__all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
+           "VerletTerms", "verlet_terms", "node_flags", "NodeTextures", "VerletPass", "FoundationVerlet",
+           "tile_rectangles"]
+
 DRAW_MODES = ("rects", "points", "quad")
 LAYOUTS = ("compact", "indexed", "atlas")
+#: Node flag bits, stored in the G channel of the static node texture.
+FLAG_EXISTS = 1
+FLAG_FIXED = 2
+#: Bit of load (pull) group g is ``1 << (PULL_SHIFT + g)``.
+PULL_SHIFT = 2
+MAX_PULLS = MAX_LOADS
+
+
+@dataclass(frozen=True)
+class VerletTerms:
+    """The uniforms of the pass, read once from a :class:`SpringSystem` (a view of it, not a
+    second model).
+
+    Attributes:
+        k_structural, k_shear: N/m of the 6 springs at distance h and the 12 at h*sqrt(2).
+        damping: N*s/m global velocity damping.
+        gravity: (3,) m/s^2.
+        spacing: grid spacing h (rest lengths are h and h*sqrt(2)).
+        n_pulls: number of loads (pull groups).
+    """
+
+    k_structural: float
+    k_shear: float
+    damping: float
+    gravity: tuple[float, float, float]
+    spacing: float
+    n_pulls: int
+
+
+def _one_value(values: np.ndarray) -> float | None:
+    return float(values[0]) if len(values) and bool(np.all(values == values[0])) else None
+
+
+def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...] = (),
+                 drags: tuple[Drag, ...] = (), constraints: Constraints | None = None) -> VerletTerms | str:
+    """The pass's terms when it models everything ``system`` and the options use, else the
+    reason it does not (one phrase). The springs must be the grid's (``FragmentIntegrator``
+    checks that before it asks).
+
+    The pass models: one stiffness per class (structural, shear), per-node mass, fixed nodes,
+    global velocity damping, gravity, up to :data:`MAX_PULLS` loads. It does not model flexion
+    springs, spring damping, wind, drags or obstacles.
+    """
+    cls = system.spring_class
+    if np.any(cls == FLEXION):
+        return "flexion springs"
+    if np.any(system.damping > 0):
+        return "spring damping"
+    if system.wind_drag > 0:
+        return "wind"
+    if drags:
+        return "drags"
+    if constraints is not None and (constraints.ground is not None or constraints.spheres):
+        return "obstacles"
+    if len(loads) > MAX_PULLS:
+        return f"more than {MAX_PULLS} loads"
+    k = [_one_value(system.stiffness[cls == c]) for c in (STRUCTURAL, SHEAR)]
+    for c, name in ((STRUCTURAL, "structural"), (SHEAR, "shear")):
+        sel = cls == c
+        if np.any(sel) and k[c] is None:
+            return f"{name} springs of more than one stiffness"
+        rest = grid.spacing * np.where(c == STRUCTURAL, REST_LENGTH_UNITS[0], REST_LENGTH_UNITS[-1])
+        if np.any(sel) and not np.allclose(system.rest_length[sel], rest, rtol=1e-9, atol=0.0):
+            return f"{name} rest lengths other than the grid's"
+    return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
+                       gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
+                       spacing=float(grid.spacing), n_pulls=len(loads))
+
+
+def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
+    """(N,) int64 flag bits of the static node texture: exists, fixed, load groups."""
+    bits = FLAG_EXISTS + FLAG_FIXED * np.asarray(fixed, np.int64)
+    if load_bits is not None:
+        bits = bits + (np.asarray(load_bits, np.int64) << PULL_SHIFT)
+    return bits
 
 
 def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
@@ -40,55 +129,73 @@ def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
     return np.array(corners, dtype=np.float64)
 
 
-class NodeTextures:
-    """The GL textures of a simulation: one static node-data texture and the rotating state.
+class NodeTextures(GLOwner):
+    """The GL textures of a node grid: one static node-data texture and the rotating state.
 
     Args:
         ctx: GL context.
-        model: the spring model.
+        grid: the node grid.
+        mass: (N,) kg per node (default 1: drawing only).
+        flags: (N,) flag bits (:func:`node_flags`; default: every node exists, none fixed).
         n_state: number of state textures (3 for position Verlet).
         layout: "compact" (existing nodes packed densely, neighbours from an index texture, or
             by node-number offsets on dense grids), "indexed" (compact with the index texture
             always, to measure what the offsets save) or "atlas" (z-slices as tiles, neighbours
             by tile arithmetic); see docs/ARCHITECTURE.md.
+        positions: (n_state, N, 3) start positions of each state texture (default: the rest
+            positions in all); the w channel gets the packed eq. 3 normal of those positions.
     """
 
-    def __init__(self, ctx: moderngl.Context, model: SpringModel, n_state: int = 3,
-                 layout: str = "compact") -> None:
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
+                 flags: np.ndarray | None = None, n_state: int = 3, layout: str = "compact",
+                 positions: np.ndarray | None = None) -> None:
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+        super().__init__(ctx)
         max_size = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
-        grid = model.grid
         try:
             self.layout: AtlasLayout | CompactLayout = (
                 CompactLayout.for_grid(grid, max_size, arithmetic=layout == "compact")
                 if layout in ("compact", "indexed") else AtlasLayout.for_grid(grid.shape, max_size))
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
+        n = grid.count
+        mass = np.ones(n) if mass is None else np.asarray(mass, np.float64)
+        flags = node_flags(np.zeros(n, bool)) if flags is None else np.asarray(flags)
+        starts = (np.broadcast_to(grid.rest_positions, (n_state, n, 3)) if positions is None
+                  else np.asarray(positions, np.float64))
+        self.size = self.layout.size
         self.neighbours: moderngl.TextureArray | None = None
-        if isinstance(self.layout, CompactLayout) and not self.layout.dense:
-            layers = self.layout.neighbour_layers(grid.neighbours)
-            w, h = self.layout.size
-            self.neighbours = ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4")
-            self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        size = self.layout.size
-        node = np.stack([model.mass, model.flags(), grid.neighbour_mask, np.zeros(grid.count)], axis=1)
-        self.node = self._texture(ctx, self.layout.scatter(grid.ijk, node))
-        rest = np.concatenate(
-            [grid.rest_positions, pack_normals(spring_sums(model, grid.rest_positions).unit_sum)[:, None]],
-            axis=1)
-        image = self.layout.scatter(grid.ijk, rest)
-        self.state = [self._texture(ctx, image) for _ in range(n_state)]
-        self.framebuffers = [ctx.framebuffer(color_attachments=[t]) for t in self.state]
-        self.size = size
+        self.state: list[moderngl.Texture] = []
+        self.framebuffers: list[moderngl.Framebuffer] = []
+        with self.building():
+            if isinstance(self.layout, CompactLayout) and not self.layout.dense:
+                layers = self.layout.neighbour_layers(grid.neighbours)
+                w, h = self.layout.size
+                self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
+                self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(n)], axis=1)
+            self.node = self._texture(self.layout.scatter(grid.ijk, node))
+            for x in starts:
+                image = np.concatenate([x, pack_normals(unit_sums(grid, x))[:, None]], axis=1)
+                tex = self._texture(self.layout.scatter(grid.ijk, image))
+                self.state.append(tex)
+                self.framebuffers.append(self.own(ctx.framebuffer(color_attachments=[tex])))
 
-    @staticmethod
-    def _texture(ctx: moderngl.Context, image: np.ndarray) -> moderngl.Texture:
+    def _texture(self, image: np.ndarray) -> moderngl.Texture:
         h, w, c = image.shape
-        tex = ctx.texture((w, h), c, data=np.ascontiguousarray(image, dtype="f4").tobytes(), dtype="f4")
+        tex = self.own(self.ctx.texture((w, h), c, data=np.ascontiguousarray(image, dtype="f4").tobytes(),
+                                        dtype="f4"))
         tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         tex.repeat_x = tex.repeat_y = False
         return tex
+
+    @property
+    def bytes_allocated(self) -> int:
+        """GPU bytes of every texture (padding texels included)."""
+        w, h = self.size
+        static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16)
+        return static + len(self.state) * w * h * 16
 
     def bind_static(self, node_unit: int) -> None:
         """Bind the node-data texture (and the neighbour-index texture of compact layouts)."""
@@ -97,19 +204,18 @@ class NodeTextures:
             self.neighbours.use(NEIGHBOUR_UNIT)
 
     def release(self) -> None:
-        """Release every texture and framebuffer."""
-        for obj in [*self.framebuffers, *self.state, self.node, self.neighbours]:
-            if obj is not None:
-                obj.release()
+        """Release every texture and framebuffer (idempotent)."""
+        super().release()
         self.framebuffers, self.state = [], []
 
 
-class VerletPass:
+class VerletPass(GLOwner):
     """The position-Verlet fragment pass: one program, one draw per step.
 
     Args:
         ctx: GL context.
-        model: spring model (decides the compiled variant: pulls, stiffness groups).
+        terms: the pass's uniforms (decide the compiled variant: pulls).
+        grid: the node grid.
         textures: the textures it reads and writes.
         draw: ``"rects"`` (default) draws, per z-slice tile, the rectangle around its existing
             nodes and skips empty texels inside it with a test; ``"points"`` draws one point per
@@ -118,45 +224,45 @@ class VerletPass:
         branch: test each neighbour's mask bit with a branch instead of weighting by it.
     """
 
-    def __init__(self, ctx: moderngl.Context, model: SpringModel, textures: NodeTextures, *,
+    def __init__(self, ctx: moderngl.Context, terms: VerletTerms, grid: NodeGrid, textures: NodeTextures, *,
                  draw: str = "rects", branch: bool = False) -> None:
         if draw not in DRAW_MODES:
             raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
-        self.ctx = ctx
+        super().__init__(ctx)
         layout = textures.layout
         if isinstance(layout, CompactLayout) and draw == "rects":
             draw = "quad"  # a compact layout is one rectangle of existing nodes already
         self.draw = draw
-        self.n_pulls = model.n_pulls
+        self.n_pulls = terms.n_pulls
         vert = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert",
                 "quad": "sim/fullscreen.vert"}[draw]
-        self.program = Program(ctx, vert, "sim/verlet.frag", defines={
-            "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": model.n_pulls,
-            **layout.shader_defines()})
-        self.program.set(**layout.shader_uniforms(),
-                         u_spacing=model.grid.spacing, u_k_structural=model.k_structural,
-                         u_k_shear=model.k_shear, u_damping=model.damping,
-                         u_gravity=tuple(model.gravity), u_position=0, u_previous=1, u_node=2)
-        self.vbo: moderngl.Buffer | None
-        if draw == "points":
-            self.program.set(u_target_size=textures.size)
-            texels = layout.texel(model.grid.ijk).astype("i4")
-            self.vbo = ctx.buffer(texels.tobytes())
-            self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")])
-            self.vertices = len(texels)
-            self.mode = moderngl.POINTS
-        elif draw == "rects" and isinstance(layout, AtlasLayout):  # (compact: "quad", above)
-            self.program.set(u_target_size=textures.size)
-            corners = tile_rectangles(layout, model.grid.ijk)
-            self.vbo = ctx.buffer(corners.astype("f4").tobytes())
-            self.vao = ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")])
-            self.vertices = len(corners)
-            self.mode = moderngl.TRIANGLES
-        else:
-            self.vbo = None
-            self.vao = ctx.vertex_array(self.program.gl, [])
-            self.vertices = 3
-            self.mode = moderngl.TRIANGLES
+        self.vbo: moderngl.Buffer | None = None
+        with self.building():
+            self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
+                "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
+                **layout.shader_defines()}))
+            self.program.set(**layout.shader_uniforms(),
+                             u_spacing=terms.spacing, u_k_structural=terms.k_structural,
+                             u_k_shear=terms.k_shear, u_damping=terms.damping,
+                             u_gravity=terms.gravity, u_position=0, u_previous=1, u_node=2)
+            if draw == "points":
+                self.program.set(u_target_size=textures.size)
+                texels = layout.texel(grid.ijk).astype("i4")
+                self.vbo = self.own(ctx.buffer(texels.tobytes()))
+                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")]))
+                self.vertices = len(texels)
+                self.mode = moderngl.POINTS
+            elif draw == "rects" and isinstance(layout, AtlasLayout):  # (compact: "quad", above)
+                self.program.set(u_target_size=textures.size)
+                corners = tile_rectangles(layout, grid.ijk)
+                self.vbo = self.own(ctx.buffer(corners.astype("f4").tobytes()))
+                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")]))
+                self.vertices = len(corners)
+                self.mode = moderngl.TRIANGLES
+            else:
+                self.vao = self.own(ctx.vertex_array(self.program.gl, []))
+                self.vertices = 3
+                self.mode = moderngl.TRIANGLES
         self._dt: float | None = None
 
     def run(self, textures: NodeTextures, current: int, previous: int, target: int, dt: float,
@@ -174,99 +280,105 @@ class VerletPass:
         textures.state[current].use(0)
         textures.state[previous].use(1)
         textures.bind_static(2)
-        fbo = textures.framebuffers[target]
-        fbo.use()
+        textures.framebuffers[target].use()
         self.vao.render(self.mode, vertices=self.vertices)
 
-    def release(self) -> None:
-        """Release the program, vertex array and buffer."""
-        self.vao.release()
-        if self.vbo is not None:
-            self.vbo.release()
-        self.program.release()
 
-
-class FragmentSimulation:
-    """Position-Verlet simulation of a :class:`SpringModel` on the GPU, in fragment passes.
-
-    Nothing is read back to the CPU while stepping; :meth:`positions` and :meth:`normals` read the
-    current state once, for tests, checks and export.
+class FoundationVerlet(SimulationBase, GLOwner):
+    """Position Verlet of a grid :class:`SpringSystem` in one fragment pass per step, the packed
+    eq. 3 normal written with each position. Built by ``FragmentIntegrator`` (its Verlet fast
+    path), which checks the system first (:func:`verlet_terms`).
 
     Args:
         ctx: GL context.
-        model: the spring model.
+        system: the spring system; grid: its node grid; terms: :func:`verlet_terms` of both.
         dt: time step (s).
-        pull_force: callable ``t -> (MAX_PULLS, 3)`` force per node of each pull group, or None.
-        draw, branch: pass variants, see :class:`VerletPass`.
-        layout: texture layout, see :class:`NodeTextures`.
+        state: the start state (x and x_prev are uploaded).
+        loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
+        t0: time of the start state.
+        draw, branch: pass variants, see :class:`VerletPass`; layout: see :class:`NodeTextures`.
     """
 
-    def __init__(self, ctx: moderngl.Context, model: SpringModel, dt: float,
-                 pull_force: PullSchedule | None = None, *, draw: str = "rects",
-                 branch: bool = False, layout: str = "compact") -> None:
+    backend = "fragment"
+    integrator = "verlet"
+    #: the integrator it implements, as the stage table describes it (one stage, x_prev state)
+    spec = spec("verlet")
+
+    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, terms: VerletTerms,
+                 dt: float, state: State, *, loads: tuple[Load, ...] = (), t0: float = 0.0,
+                 draw: str = "rects", branch: bool = False, layout: str = "compact") -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
-        self.ctx = ctx
-        self.model = model
-        self.dt = float(dt)
-        self.pull_force = pull_force
-        self.textures = NodeTextures(ctx, model, layout=layout)
-        try:
-            self.verlet = VerletPass(ctx, model, self.textures, draw=draw, branch=branch)
-        except BaseException:
-            self.textures.release()
-            raise
-        self.current, self.previous, self.spare = 0, 1, 2
+        GLOwner.__init__(self, ctx)
+        self.system, self.grid, self.dt, self.t0 = system, grid, float(dt), float(t0)
+        self.t = self.t0
+        self.loads = tuple(loads)
+        self.count = grid.count
         self.steps_done = 0
-
-    @property
-    def time(self) -> float:
-        """Simulated time (s)."""
-        return self.steps_done * self.dt
+        flags = node_flags(system.fixed, load_groups(self.loads, grid.count))
+        x = np.asarray(state.x, np.float64)
+        x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
+        with self.building():
+            self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
+                                                  positions=np.stack([x, x_prev, x])))
+            self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
+        self.current, self.previous, self.spare = 0, 1, 2
+        self._pull = np.zeros((MAX_PULLS, 3))
 
     @property
     def position_texture(self) -> moderngl.Texture:
         """The state texture holding the latest positions and packed normals."""
         return self.textures.state[self.current]
 
-    @property
-    def count(self) -> int:
-        """Nodes simulated."""
-        return self.model.grid.count
-
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
-        """(texture, nodes per row, texels per node, slot of the position) of the latest
-        positions, for :class:`~deformgl.census.NodeCensus` (compact layout only: node n is
-        texel (n % width, n // width); w, the packed normal, is not looked at)."""
+        """(texture, nodes per row, texels per node, slot) of the latest positions, for
+        :class:`~deformgl.sim.census.NodeCensus` (compact layouts only: node n is texel
+        (n % width, n // width); w, the packed normal, is not looked at)."""
         if not isinstance(self.textures.layout, CompactLayout):
             raise ValueError("position_slot: the atlas layout does not store node n at (n % width, n // width)")
         return self.position_texture, self.textures.layout.width, 1, 0
 
     def step(self, n: int = 1) -> None:
         """Advance n steps on the GPU (no read-back)."""
-        no_pull = np.zeros((MAX_PULLS, 3))
+        if self.released:
+            raise RuntimeError("FoundationVerlet: released")
         for _ in range(n):
-            pull = self.pull_force(self.time) if self.pull_force and self.model.n_pulls else no_pull
-            self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, pull)
+            if self.loads:
+                t = self.t0 + self.steps_done * self.dt
+                for g, load in enumerate(self.loads):
+                    self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
+            self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, self._pull)
             self.current, self.previous, self.spare = self.spare, self.current, self.previous
             self.steps_done += 1
+        self.t = self.t0 + self.steps_done * self.dt
 
     def read_state(self, which: int | None = None) -> np.ndarray:
         """(N, 4) float32 texel of every node from a state texture (default: current)."""
         tex = self.textures.state[self.current if which is None else which]
         w, h = self.textures.size
         image = np.frombuffer(tex.read(), dtype="f4").reshape(h, w, 4)
-        return self.textures.layout.gather(self.model.grid.ijk, image)
+        return self.textures.layout.gather(self.grid.ijk, image)
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 current node positions (one read-back)."""
-        return self.read_state()[:, :3]
+        return self.read_state()[:, :3].copy()
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) backward difference (x - x_prev)/dt in float64 of the float32 positions, 0 at
+        fixed nodes (as the general Verlet stage and the reference)."""
+        x = self.read_state()[:, :3].astype(np.float64)
+        xp = self.read_state(self.previous)[:, :3].astype(np.float64)
+        return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
 
     def normals(self) -> np.ndarray:
         """(N,) float32 packed eq. 3 normals stored with the current positions (one read-back)."""
-        return self.read_state()[:, 3]
+        return self.read_state()[:, 3].copy()
+
+    @property
+    def bytes_per_node(self) -> float:
+        """GPU bytes of all textures per node."""
+        return self.textures.bytes_allocated / self.count
 
     def release(self) -> None:
-        """Release every GL object of the simulation."""
-        self.verlet.release()
-        self.textures.release()
+        """Release every GL object (idempotent)."""
+        GLOwner.release(self)

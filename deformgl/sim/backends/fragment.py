@@ -46,9 +46,13 @@ from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_st
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, verlet_terms
 from deformgl.sim.stages import BUFFERS, Stage, spec
 
-__all__ = ["FragmentIntegrator", "grid_neighbours"]
+__all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
+
+#: How the fragment backend runs Verlet (see :class:`FragmentIntegrator`).
+PATHS = ("auto", "general", "foundation")
 
 _VEC4 = 16
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
@@ -137,19 +141,37 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         state: start state (default :func:`integrators.initial_state` at rest); Verlet uses its
             ``x_prev``.
         t0: time of the start state.
+        path: "auto" (default): Verlet runs on the foundation pass of Mosegaard & Sørensen 2005,
+            section 3.1 (:mod:`~deformgl.sim.backends.foundation`: one pass per step, the packed
+            node normal written with each position, :attr:`packed_normals`) whenever that pass
+            models the system and options (:func:`~deformgl.sim.backends.foundation.verlet_terms`),
+            every other case on the stages of :data:`deformgl.sim.stages.SPECS`; "general": the
+            stages always; "foundation": the foundation pass or a ValueError saying why not.
+        draw, branch, layout: variants of the foundation pass
+            (:class:`~deformgl.sim.backends.foundation.VerletPass`,
+            :class:`~deformgl.sim.backends.foundation.NodeTextures`); other values than the
+            defaults need ``path="foundation"``.
 
     Raises:
-        ValueError: unknown integrator, dt <= 0, a drag on a node that does not exist, too many
-            loads, or a system that is not the grid's.
+        ValueError: unknown integrator or path, dt <= 0, a drag on a node that does not exist,
+            too many loads, a system that is not the grid's, ``path="foundation"`` on a system
+            or integrator the foundation pass does not model.
         GLError: the grid does not fit in a texture.
     """
 
     backend = "fragment"
 
-    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid,
+    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid | None,
                  integrator: str, dt: float, *, constraints: Constraints | None = None,
                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
-                 state: State | None = None, t0: float = 0.0) -> None:
+                 state: State | None = None, t0: float = 0.0, path: str = "auto", draw: str = "rects",
+                 branch: bool = False, layout: str = "compact") -> None:
+        grid = system.grid if grid is None else grid
+        if grid is None:
+            raise ValueError("FragmentIntegrator: the system has no node grid (build it with "
+                             "springs.from_grid or springs.cloth, or pass grid=)")
+        if path not in PATHS:
+            raise ValueError(f"FragmentIntegrator: path must be one of {', '.join(PATHS)}, got {path!r}")
         if integrator not in INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
                              f"{', '.join(INTEGRATORS)}")
@@ -165,6 +187,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.integrator = integrator
         self.dt = float(dt)
         self.t = float(t0)
+        self._t0, self._steps = self.t, 0  # time is t0 + steps * dt
         self.constraints = constraints
         self.count = grid.count
         self.drags = tuple(drags)
@@ -178,6 +201,19 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         _check_topology(system, grid, self.neighbour_table)
         self.classes = [_class_values(system, c, name) for c, name in
                         ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
+        #: the foundation pass when it runs this simulation (see ``path``), else None
+        self.fast: FoundationVerlet | None = None
+        self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
+        self.passes: dict[str, Program] = {}
+        terms = self._fast_path(path, draw, branch, layout)
+        if terms is not None:
+            GLOwner.__init__(self, ctx)
+            start = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+                     if state is None else state)
+            with self.building():
+                self.fast = self.own(FoundationVerlet(ctx, system, grid, terms, self.dt, start, loads=self.loads,
+                                                      t0=self.t, draw=draw, branch=branch, layout=layout))
+            return
         try:
             self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         except ValueError as exc:
@@ -187,12 +223,55 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         offsets = np.concatenate([NEIGHBOUR_OFFSETS, FLEXION_OFFSETS])[: self.neighbour_table.shape[1]]
         self.neighbour_offsets = [int(v) for v in offsets @ np.array(self.layout.strides)]
         GLOwner.__init__(self, ctx)
-        self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
-        self.passes: dict[str, Program] = {}
         with self.building():
             self._build(state)
 
     # -- construction ------------------------------------------------------------------------
+
+    def _fast_path(self, path: str, draw: str, branch: bool, layout: str) -> VerletTerms | None:
+        """The foundation pass's terms when it runs this simulation, None for the stages."""
+        variant = (draw, branch, layout) != ("rects", False, "compact")
+        verlet = self.spec is FoundationVerlet.spec  # the one integrator the pass implements
+        if path == "general" or (path == "auto" and not verlet):
+            if variant:
+                raise ValueError("FragmentIntegrator: draw, branch and layout are variants of the foundation "
+                                 "pass (path='foundation')")
+            return None
+        if not verlet:
+            raise ValueError(f"FragmentIntegrator: the foundation pass is {FoundationVerlet.integrator}, "
+                             f"not {self.integrator}")
+        terms = verlet_terms(self.system, self.grid, loads=self.loads, drags=self.drags,
+                             constraints=self.constraints)
+        if isinstance(terms, VerletTerms):
+            return terms
+        if path == "foundation" or variant:
+            raise ValueError(f"FragmentIntegrator: the foundation pass does not model {terms}")
+        return None
+
+    @property
+    def foundation(self) -> FoundationVerlet:
+        """The foundation pass running this simulation (``path="foundation"`` guarantees one)."""
+        if self.fast is None:
+            raise RuntimeError("FragmentIntegrator: this simulation runs the general stages, not the foundation pass")
+        return self.fast
+
+    @property
+    def packed_normals(self) -> bool:
+        """The position texture's w holds the packed eq. 3 node normal of Mosegaard & Sørensen
+        2005 (the foundation pass): the mappings can draw from it directly."""
+        return self.fast is not None
+
+    @property
+    def position_texture(self) -> moderngl.Texture:
+        """The texture holding the latest positions (xyz; w: packed normal on the foundation pass)."""
+        return self.position_slot()[0]
+
+    @property
+    def textures(self) -> NodeTextures:
+        """The foundation pass's node textures (its layout, static data and state)."""
+        if self.fast is None:
+            raise AttributeError("FragmentIntegrator.textures: only the foundation pass has node textures")
+        return self.fast.textures
 
 
     def _texture(self, image: np.ndarray | None) -> moderngl.Texture:
@@ -346,6 +425,10 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         """``n`` steps of dt on the GPU; nothing is read back."""
         if self._released:
             raise RuntimeError("FragmentIntegrator: released")
+        if self.fast is not None:
+            self.fast.step(n)
+            self.t = self.fast.t
+            return
         previous = self.ctx.fbo
         self.tex_node.use(_SAMPLERS["u_node"])
         if self.tex_neighbours is not None:
@@ -355,7 +438,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                 for stage in self.spec.stages:
                     self._run(stage, stage.at(self.t, self.dt))
                 self.roles = self.spec.rotate(self.roles)
-                self.t += self.dt
+                self._steps += 1
+                self.t = self._t0 + self._steps * self.dt  # (no accumulated rounding)
         finally:
             restore_framebuffer(self.ctx, previous)
 
@@ -367,16 +451,22 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 positions (one read-back)."""
+        if self.fast is not None:
+            return self.fast.positions()
         return self._read(self._index["x"])
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
         """Where the current positions are on the GPU: (texture, nodes per row, slots per node,
         slot); node n's position is texel ``(slots * (n % row) + slot, n / row)``."""
+        if self.fast is not None:
+            return self.fast.position_slot()
         return self.pool[self.roles[self._index["x"]]], self.layout.width, 1, 0
 
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
+        if self.fast is not None:
+            return self.fast.velocities()
         if not self.spec.velocity:
             x = self._read(self._index["x"]).astype(np.float64)
             xp = self._read(self._index["x_prev"]).astype(np.float64)
@@ -386,11 +476,15 @@ class FragmentIntegrator(SimulationBase, GLOwner):
     @property
     def bytes_per_node(self) -> float:
         """GPU bytes of all textures (state and static, padding texels included) per node."""
+        if self.fast is not None:
+            return self.fast.bytes_per_node
         return self.bytes_allocated / self.count
 
     @property
     def state_bytes_per_node(self) -> float:
         """Bytes of the state textures per texel: 16 x the vec4s of integrators.GPU_BUFFERS."""
+        if self.fast is not None:
+            return 16.0 * len(self.fast.textures.state)
         w, h = self.layout.size
         return self.state_bytes / (w * h)
 
