@@ -36,8 +36,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
     r.add_argument("--mapping", choices=["one-to-one", "constant", "curvature", "auto"], default=None,
                    help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
-                        "curvature draw the detailed mesh through the triangle basis (eq. 6) or the "
-                        "curvature-corrected basis (eq. 8); auto picks per vertex")
+                        "curvature draw the detailed mesh through the triangle basis (Mosegaard & Sørensen 2005, eq. 6) or the "
+                        "curvature-corrected basis (Mosegaard & Sørensen 2005, eq. 8); auto picks per vertex")
     r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet"], default=None,
                    help="override physics.integrator (Movania & Feng 2012): explicit Euler, semi-implicit "
                         "Euler, midpoint (RK2), classical RK4 or position Verlet")

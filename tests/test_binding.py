@@ -404,7 +404,7 @@ def undefined_touch(b: Binding, normals: np.ndarray) -> np.ndarray:
 
 
 def test_sphere_curvature_not_ok_exactly_where_a_node_has_no_normal(sphere):
-    """On a round shape node normals agree with the triangles; only nodes without an eq. 3
+    """On a round shape node normals agree with the triangles; only nodes without a Mosegaard & Sørensen 2005, eq. 3
     normal (concave steps of the voxel surface, missing only a body-diagonal neighbour, so their
     18 unit vectors cancel) make the curvature basis unreliable."""
     b = sphere.binding

@@ -48,7 +48,7 @@ class Mapped:
         return self.draw.capture(self.nodes.position_texture)
 
     def gpu_normals(self) -> np.ndarray:
-        """The eq. 3 normals the GPU computed for the current positions (unpacked in float64)."""
+        """The Mosegaard & Sørensen 2005, eq. 3 normals the GPU computed for the current positions (unpacked in float64)."""
         w, h = self.textures.size
         image = np.frombuffer(self.nodes.position_texture.read(), dtype="f4").reshape(h, w, 4)
         return unpack_normals(self.textures.layout.gather(self.built.grid.ijk, image)[:, 3])
@@ -140,8 +140,8 @@ def capsule(tmp_path_factory):
 @pytest.mark.parametrize("angle", [20.0, 60.0])
 def test_curvature_mode_has_smaller_seams_on_a_smooth_bend(mapped, capsule, n, shape, angle):
     """A smooth rounded bar on a grid 2-3 nodes across (the regime of the paper's dragon on 18
-    nodes), bent smoothly: the curvature-corrected basis (eq. 8) opens smaller seams than eq. 6.
-    (On grids 4 or more nodes across, the eq. 3 normals' own noise under deformation makes eq. 8
+    nodes), bent smoothly: the curvature-corrected basis (Mosegaard & Sørensen 2005, eq. 8) opens smaller seams than eq. 6.
+    (On grids 4 or more nodes across, the Mosegaard & Sørensen 2005, eq. 3 normals' own noise under deformation makes eq. 8
     the worse of the two: measured and reported by the mapping-accuracy benchmark.)"""
     seams = {}
     for mode in ("constant", "curvature"):
@@ -296,8 +296,8 @@ def test_shader_pack_example_draws_like_deformgl(ctx, tmp_path, capsys):
 
 
 def test_auto_keeps_the_constant_basis_where_node_normals_disagree(mapped):
-    """The dragon on 21 nodes, two nodes thick: opposite faces' eq. 3 normals cancel in eq. 8.
-    Curvature mode tears there; auto (paper 3.6) detects those vertices and stays close to eq. 6."""
+    """The dragon on 21 nodes, two nodes thick: opposite faces' Mosegaard & Sørensen 2005, eq. 3 normals cancel in eq. 8.
+    Curvature mode tears there; auto (paper 3.6) detects those vertices and stays close to Mosegaard & Sørensen 2005, eq. 6."""
     seams = {}
     for mode in ("constant", "curvature", "auto"):
         m = mapped(SCENES / "dragon_bend_auto.toml", mode)

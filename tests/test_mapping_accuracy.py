@@ -1,6 +1,6 @@
 """``bench mappings``: the accuracy study of the mappings (Mosegaard & Sørensen 3.2-3.3) against
 analytic motions, on the dragon: rest and rigid exactness, convergence under a bend, GPU against
-the float64 NumPy eq. 9, the one-to-one surface distance, the report."""
+the float64 NumPy Mosegaard & Sørensen 2005, eq. 9, the one-to-one surface distance, the report."""
 
 from __future__ import annotations
 
@@ -38,11 +38,11 @@ def rigid_rows(ctx) -> list[MappingRow]:
 
 @pytest.mark.parametrize("grid", [4, 8, 16])
 def test_rest_state_is_reproduced(rigid_rows, grid):
-    """Nodes at rest give back the rest mesh: eq. 6 to float32, eq. 8 to the octahedral packing
-    of the eq. 3 normals (the GPU's float32 normals can land one code away from NumPy's). On 16
+    """Nodes at rest give back the rest mesh: Mosegaard & Sørensen 2005, eq. 6 to float32, eq. 8 to the octahedral packing
+    of the Mosegaard & Sørensen 2005, eq. 3 normals (the GPU's float32 normals can land one code away from NumPy's). On 16
     nodes some vertices have the weighted node normal along T (|Nc x T| ~ 4e-5): there the
-    packing's rounding would turn eq. 8's basis over (0.7 spacings, found by this study), so
-    curvature mode keeps eq. 6 below mapping_setup.MIN_SIN_CURVATURE."""
+    packing's rounding would turn Mosegaard & Sørensen 2005, eq. 8's basis over (0.7 spacings, found by this study), so
+    curvature mode keeps Mosegaard & Sørensen 2005, eq. 6 below mapping_setup.MIN_SIN_CURVATURE."""
     assert pick(rigid_rows, grid=grid, mode="constant")[0].rest_max < 1e-5
     for mode in ("curvature", "auto"):
         assert pick(rigid_rows, grid=grid, mode=mode)[0].rest_max < 2e-4
@@ -50,8 +50,8 @@ def test_rest_state_is_reproduced(rigid_rows, grid):
 
 @pytest.mark.parametrize("grid", [4, 8, 16])
 def test_rigid_motion_is_mapped_exactly(rigid_rows, grid):
-    """Eq. 6 is built from node differences, so it rotates with the nodes and translation
-    cancels: exact to float32. Eq. 8's normals rotate too but are packed to 15.5 bits."""
+    """Mosegaard & Sørensen 2005, Eq. 6 is built from node differences, so it rotates with the nodes and translation
+    cancels: exact to float32. Mosegaard & Sørensen 2005, Eq. 8's normals rotate too but are packed to 15.5 bits."""
     assert pick(rigid_rows, grid=grid, mode="constant")[0].max < 1e-5
     for mode in ("curvature", "auto"):
         assert pick(rigid_rows, grid=grid, mode=mode)[0].max < 2e-4

@@ -1,4 +1,4 @@
-"""Packed normals (eq. 3): round trip <= 0.5 degrees everywhere, exact float32 integers, GLSL == NumPy."""
+"""Packed normals (Mosegaard & Sørensen 2005, eq. 3): round trip <= 0.5 degrees everywhere, exact float32 integers, GLSL == NumPy."""
 
 import numpy as np
 import pytest

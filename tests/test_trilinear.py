@@ -25,7 +25,7 @@ def bent_corners(rng):
     return CORNERS * rng.uniform(0.5, 2.0, 3) + rng.normal(scale=0.3, size=(8, 3))
 
 
-# ---- eq. 1-4 -------------------------------------------------------------------------------------
+# ---- Knuth, Kohlhammer & Kuijper, eq. 1-4 -------------------------------------------------------------------------------------
 def test_corner_order_matches_eq1_weights():
     # corner i sits at (i & 1, i >> 1 & 1, i >> 2 & 1): its weight is 1 there and 0 at the others
     assert np.array_equal(corner_weights(CORNERS), np.identity(8))

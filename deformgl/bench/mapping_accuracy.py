@@ -299,7 +299,7 @@ def conclusions(rows: list[MappingRow]) -> list[str]:
             for mode in dict.fromkeys(r.mode for r in rows)}
     out.append("draw cost, median ms/frame over grids and motions: "
                + ", ".join(f"{mode} {ms:.2f}" for mode, ms in cost.items())
-               + " (the eq. 9 modes draw the whole mesh; one-to-one only the grid surface).")
+               + " (the Mosegaard & Sørensen 2005, eq. 9 modes draw the whole mesh; one-to-one only the grid surface).")
     one = [r for r in rows if r.mode == "one-to-one"]
     if one:
         grow = max(one, key=lambda r: r.rms - r.rest_rms)
@@ -310,11 +310,11 @@ def conclusions(rows: list[MappingRow]) -> list[str]:
     failed = {(r.grid, r.mode): r for r in mapped if r.rest_max > REST_CHECK}
     for (n, mode), r in failed.items():
         out.append(f"rest self-check FAILED: {mode} on {n} nodes is {r.rest_max:.2g} spacings off the rest "
-                   f"mesh (max; RMS {r.rest_rms:.2g}); the known cause is eq. 8 bases built where the weighted node "
+                   f"mesh (max; RMS {r.rest_rms:.2g}); the known cause is Mosegaard & Sørensen 2005, eq. 8 bases built where the weighted node "
                    f"normal is almost parallel to T, where one code of normal packing turns the basis over "
                    f"(auto excludes them).")
     if mapped and not failed:
-        out.append(f"rest self-check: every eq. 9 mode within {max(r.rest_max for r in mapped):.2g} spacings.")
+        out.append(f"rest self-check: every Mosegaard & Sørensen 2005, eq. 9 mode within {max(r.rest_max for r in mapped):.2g} spacings.")
     return out
 
 
@@ -322,11 +322,11 @@ def format_mapping_accuracy(rows: list[MappingRow], machine: str) -> str:
     """The ``bench mappings`` table, then the conclusions in words."""
     lines = [machine,
              "error in grid spacings against the same analytic motion applied to the mesh (float64); "
-             "eq. 9 modes: per-vertex |v' - truth|; one-to-one (*): distance from the true vertex to the "
+             "Mosegaard & Sørensen 2005, eq. 9 modes: per-vertex |v' - truth|; one-to-one (*): distance from the true vertex to the "
              "drawn grid surface (no correspondence); rest: nodes at rest; o/oo: RMS in per mille of the "
              "mesh diagonal; ms: median draw with ctx.finish(), no normal map; bind: one-time binding",
              f"{'grid':>4} {'nodes':>5} {'motion':>9} {'mode':>11} | {'RMS':>7} {'p95':>7} {'max':>7} {'o/oo':>6} | "
-             f"{'rest RMS':>8} {'rest max':>8} | {'eq.8 %':>6} | {'ms/frame':>8} {'bind ms':>7}"]
+             f"{'rest RMS':>8} {'rest max':>8} | {'eq8 %':>6} | {'ms/frame':>8} {'bind ms':>7}"]
     lines.append("-" * len(lines[-1]))
     for r in rows:
         star = "*" if r.metric == "surface" else " "

@@ -23,7 +23,7 @@ __all__ = ["STAGES", "ProfileRow", "format_profile", "profile_step"]
 
 #: What each ablation stage adds (``STAGE`` define of step_ablation.frag).
 STAGES = ("own position (pass floor)", "+ previous position, node data", "+ neighbour indices",
-          "+ 18 neighbour positions", "+ spring sums (eq. 1/2)")
+          "+ 18 neighbour positions", "+ spring sums")
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,8 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
 
 def format_profile(rows: list[ProfileRow], machine: str) -> str:
     """The table: ms/pass, increment over the stage before, share of the full step."""
-    lines = [machine, "foundation step pass rebuilt stage by stage (shaders/profile/step_ablation.frag); "
+    lines = [machine, "foundation step pass rebuilt stage by stage (shaders/profile/step_ablation.frag; spring "
+             "sums: Mosegaard & Sørensen 2005, eq. 1/2); "
              "median ms per pass; share = increment / full step of the same lookup"]
     for grid in dict.fromkeys(r.grid for r in rows):
         for lookup in ("index", "offsets"):

@@ -172,7 +172,7 @@ def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machi
             f"{r.compose_ms['trilinear']:>6.1f}ms {r.draw_ms['trilinear']:>6.1f}ms {path_text:>22} | "
             f"{r.ratio():>8.2f}x {r.draw_ratio():>9.2f}x | {paper:>5.2f} | {r.grid_error:>8.1e}")
     lines.append("fps: frames/s; fps ratio = trilinear / linear (target >= 0.8); draw ratio: GPU part only; "
-                 "paths: leaves drawn affine / one cuboid (eq. 4) / 3D-texture grid; grid err: stated "
+                 "paths: leaves drawn affine / one cuboid (Knuth, Kohlhammer & Kuijper, eq. 4) / 3D-texture grid; grid err: stated "
                  "approximation error of the root grid (scene units, objects have diameter 1)")
     if depth_rows:
         lines.append("")

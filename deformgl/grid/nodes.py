@@ -27,7 +27,7 @@ N_STRUCTURAL = 6
 #: Texture unit of the compact layout's neighbour-index texture.
 NEIGHBOUR_UNIT = 3
 N_NEIGHBOURS = 18
-#: Rest length of each neighbour's spring, in grid spacings (eq. 2: 1 and sqrt(2)).
+#: Rest length of each neighbour's spring, in grid spacings (Mosegaard & Sørensen 2005, eq. 2: 1 and sqrt(2)).
 REST_LENGTH_UNITS = np.linalg.norm(NEIGHBOUR_OFFSETS, axis=1)
 
 

@@ -246,7 +246,7 @@ class Mapping:
     """How the detailed mesh is drawn from the nodes (Mosegaard & Sørensen 3.2-3.3).
 
     ``mode``: "one-to-one" (the node-grid surface), "constant" (eq. 6), "curvature" (eq. 8) or
-    "auto" (eq. 8 where the node normals are well defined, eq. 6 elsewhere). ``normal_map``:
+    "auto" (Mosegaard & Sørensen 2005, eq. 8 where the node normals are well defined, eq. 6 elsewhere). ``normal_map``:
     None, "procedural", or an absolute path to a tangent-space normal-map PNG.
     """
     mode: str

@@ -6,7 +6,7 @@ One signature for all (warp.sim style, state in, state out)::
     state = step(system, "rk4", state, dt, t, constraints=..., drags=...)
 
 Definitions: Movania & Feng 2012, section 3 (eq. 3 ``a = F/m``, eq. 4-5 explicit Euler, eq. 6
-Verlet, eq. 7 implicit Euler, numbered as the text refers to them; midpoint and RK4 are only
+Verlet, Movania & Feng 2012, eq. 7 implicit Euler, numbered as the text refers to them; midpoint and RK4 are only
 named). The formulas were lost in extraction; their standard forms are in ``docs/EQUATIONS.md``.
 Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.springs.forces`:
 

@@ -85,6 +85,6 @@ def unit_sums(grid, x: np.ndarray) -> np.ndarray:
 
 
 def rest_normals(grid) -> np.ndarray:
-    """(N, 3) rest eq. 3 node normals of Mosegaard & Sørensen 2005 exactly as the GPU unpacks
+    """(N, 3) rest node normals (Mosegaard & Sørensen 2005, eq. 3) exactly as the GPU unpacks
     them (zero where undefined): the unit-vector sums of the rest positions, packed and unpacked."""
     return unpack_normals(pack_normals(unit_sums(grid, grid.rest_positions)))

@@ -131,7 +131,7 @@ class TrilinearRenderer(GLOwner):
 
     def __init__(self, ctx: moderngl.Context, *, cuboid_form: int = 4) -> None:
         if cuboid_form not in (1, 4):
-            raise InputError(f"cuboid_form must be 1 (eq. 1) or 4 (eq. 4), got {cuboid_form}")
+            raise InputError(f"cuboid_form must be 1 (Knuth, Kohlhammer & Kuijper, eq. 1) or 4 (eq. 4), got {cuboid_form}")
         super().__init__(ctx)
         self.cuboid_form = cuboid_form
         self.max_3d = int(ctx.info.get("GL_MAX_3D_TEXTURE_SIZE", 256))

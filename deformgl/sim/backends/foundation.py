@@ -12,7 +12,7 @@ Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
 * node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g),
   B neighbour mask (18 bits), A 0.
-* state, three rotating RGBA32F (H, W, 4): xyz position, w packed eq. 3 normal. Position Verlet
+* state, three rotating RGBA32F (H, W, 4): xyz position, w packed Mosegaard & Sørensen 2005, eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
 
 Texels outside the grid (padding, empty nodes) hold position 0 and are never changed.
@@ -143,7 +143,7 @@ class NodeTextures(GLOwner):
             always, to measure what the offsets save) or "atlas" (z-slices as tiles, neighbours
             by tile arithmetic); see docs/ARCHITECTURE.md.
         positions: (n_state, N, 3) start positions of each state texture (default: the rest
-            positions in all); the w channel gets the packed eq. 3 normal of those positions.
+            positions in all); the w channel gets the packed Mosegaard & Sørensen 2005, eq. 3 normal of those positions.
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
@@ -286,7 +286,7 @@ class VerletPass(GLOwner):
 
 class FoundationVerlet(SimulationBase, GLOwner):
     """Position Verlet of a grid :class:`SpringSystem` in one fragment pass per step, the packed
-    eq. 3 normal written with each position. Built by ``FragmentIntegrator`` (its Verlet fast
+    Mosegaard & Sørensen 2005, eq. 3 normal written with each position. Built by ``FragmentIntegrator`` (its Verlet fast
     path), which checks the system first (:func:`verlet_terms`).
 
     Args:
@@ -371,7 +371,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
 
     def normals(self) -> np.ndarray:
-        """(N,) float32 packed eq. 3 normals stored with the current positions (one read-back)."""
+        """(N,) float32 packed Mosegaard & Sørensen 2005, eq. 3 normals stored with the current positions (one read-back)."""
         return self.read_state()[:, 3].copy()
 
     @property

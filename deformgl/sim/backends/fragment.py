@@ -257,8 +257,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     @property
     def packed_normals(self) -> bool:
-        """The position texture's w holds the packed eq. 3 node normal of Mosegaard & Sørensen
-        2005 (the foundation pass): the mappings can draw from it directly."""
+        """The position texture's w holds the packed node normal of Mosegaard & Sørensen
+        2005, eq. 3 (the foundation pass): the mappings can draw from it directly."""
         return self.fast is not None
 
     @property
