@@ -78,3 +78,27 @@ def test_subpackages_mirror_the_shaders():
     homes = {"census": "sim", "feedback": "sim/backends", "profile": "bench"}
     for name in shader_dirs:
         assert (PACKAGE / homes.get(name, name)).is_dir(), f"shaders/{name} has no package folder"
+
+
+def test_every_dotted_reference_in_the_docstrings_resolves():
+    """``:func:`deformgl.x.y``` names in code comments and docstrings follow the modules when they
+    move (the flat modules' old paths such as ``deformgl.springs.forces`` fail)."""
+    import importlib
+    import re
+
+    missing = set()
+    for path in sorted((ROOT / "deformgl").rglob("*.py")):
+        for m in re.finditer(r"`~?(deformgl(?:\.\w+)+)`", path.read_text(encoding="utf-8")):
+            parts = m.group(1).split(".")
+            for i in range(len(parts), 0, -1):
+                try:
+                    obj = importlib.import_module(".".join(parts[:i]))
+                except ImportError:
+                    continue
+                try:
+                    for attr in parts[i:]:
+                        obj = getattr(obj, attr)
+                except AttributeError:
+                    missing.add(f"{path.relative_to(ROOT)}: {m.group(1)}")
+                break
+    assert not missing, sorted(missing)

@@ -64,7 +64,6 @@ def run(ctx, scene, built, **physics):
 @pytest.mark.parametrize("name", INTEGRATORS)
 def test_every_backend_runs_the_same_scene(ctx, extended_scene, name):
     scene, built = extended_scene
-    assert scene.physics.extended
     ref = run(ctx, scene, built, integrator=name, backend="numpy")
     h = built.grid.spacing
     moved = np.abs(ref.positions - built.grid.rest_positions).max()
@@ -130,7 +129,6 @@ def test_plain_scenes_draw_from_the_verlet_fast_path(ctx, monkeypatch):
     import moderngl
 
     scene = load_scene(SCENES / "jelly.toml").with_overrides(steps=3)
-    assert not scene.physics.extended
     built = build_scene_model(scene)
     reads = []
     original = moderngl.Texture.read

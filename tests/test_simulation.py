@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.backends.foundation import MAX_PULLS
 from deformgl.sim.integrators import State
 from deformgl.sim.normals import pack_normals, unit_sums, unpack_normals
@@ -36,8 +37,9 @@ class Body:
         return State(x, np.zeros_like(x), x.copy())
 
     def gpu(self, ctx, dt, x0=None, **variant):
-        return make_simulation(self.system, "verlet", "fragment", ctx=ctx, dt=dt, loads=self.loads,
-                               state=self.start(x0), path="foundation", **variant)
+        # (the backend itself: make_simulation refuses the atlas layout the run loop cannot census)
+        return FragmentIntegrator(ctx, self.system, None, "verlet", dt, loads=self.loads, state=self.start(x0),
+                                  path="foundation", **variant)
 
     def reference(self, dt, x0=None):
         return NumpySimulation(self.system, "verlet", dt, loads=self.loads, state=self.start(x0))
@@ -289,7 +291,7 @@ def test_verlet_picks_the_foundation_pass_where_it_models_the_system(ctx):
     with pytest.raises(ValueError, match="the foundation pass is verlet, not rk4"):
         make_simulation(plain, "rk4", "fragment", ctx=ctx, dt=1e-3, path="foundation")
     with pytest.raises(ValueError, match="variants of the foundation pass"):
-        make_simulation(plain, "verlet", "fragment", ctx=ctx, dt=1e-3, path="general", layout="atlas")
+        FragmentIntegrator(ctx, plain, None, "verlet", 1e-3, path="general", layout="indexed")
     sim = make_simulation(plain, "verlet", "fragment", ctx=ctx, dt=1e-3, path="general")
     try:
         assert sim.fast is None and not sim.packed_normals
@@ -316,3 +318,37 @@ def test_both_verlet_paths_start_and_step_as_the_reference(ctx):
             assert np.all(sim.velocities()[model.fixed] == 0.0)
         finally:
             sim.release()
+
+
+def test_both_verlet_paths_give_the_caller_its_framebuffer_back(ctx):
+    """Stepping binds the state framebuffers; afterwards the caller's is bound again, so its next
+    clear or draw cannot land in the simulation's state. After release the context is not left
+    on a released framebuffer."""
+    from deformgl.gl.resources import is_released
+
+    model = model_for(np.ones((3, 3, 3), bool))
+    mine = ctx.simple_framebuffer((4, 4))
+    try:
+        for path in ("foundation", "general"):
+            sim = make_simulation(model.system, "verlet", "fragment", ctx=ctx, dt=1e-3, path=path)
+            mine.use()
+            sim.step(3)
+            assert ctx.fbo is mine, path
+            x = sim.positions()
+            mine.clear(7.0, 7.0, 7.0, 7.0)
+            np.testing.assert_array_equal(sim.positions(), x)
+            sim.fast.textures.framebuffers[0].use() if sim.fast else None
+            sim.release()
+            assert not is_released(ctx.fbo), path
+            with pytest.raises(RuntimeError, match="released"):
+                sim.positions()
+    finally:
+        mine.release()
+
+
+def test_the_atlas_layout_is_refused_where_the_run_loop_would_need_it(ctx):
+    from deformgl.sim.simulation import SimulationSetupError
+
+    model = model_for(np.ones((3, 3, 3), bool))
+    with pytest.raises(SimulationSetupError, match="layout 'atlas' is a benchmark variant"):
+        make_simulation(model.system, "verlet", "fragment", ctx=ctx, dt=1e-3, path="foundation", layout="atlas")

@@ -1,8 +1,8 @@
 """``deformgl bench mappings``: how well each mapping (Mosegaard & Sørensen 2005, 3.2-3.3)
 follows a known deformation, and what it costs to draw.
 
-A bend or twist (:class:`~deformgl.node_drivers.Motion`) is applied analytically to the rest
-node grid and uploaded (:class:`~deformgl.node_drivers.DrivenNodes`, GPU Mosegaard & Sørensen 2005, eq. 3 normals); the
+A bend or twist (:class:`~deformgl.mapping.node_drivers.Motion`) is applied analytically to the rest
+node grid and uploaded (:class:`~deformgl.mapping.node_drivers.DrivenNodes`, GPU Mosegaard & Sørensen 2005, eq. 3 normals); the
 detailed mesh is captured from the real vertex shader (transform feedback). The truth is the
 same motion, with the same box, applied to the mesh's rest vertices in float64. Errors are in
 grid spacings:
@@ -11,7 +11,7 @@ grid spacings:
   Mosegaard & Sørensen 2005, eq. 6): per-vertex correspondence error ``|v' - truth|`` of the eq. 9 vertex.
 * one-to-one (3.2): the grid surface replaces the mesh, so there is no vertex correspondence.
   The figure is a *surface distance*: from each truth vertex to the closest point of the
-  deformed grid surface (exact closest points, :func:`deformgl.binding.closest_on_triangles`).
+  deformed grid surface (exact closest points, :func:`deformgl.mapping.closest.closest_on_triangles`).
   Its rest value is the approximation error of drawing the grid surface instead of the mesh;
   only the growth beyond it is due to the deformation.
 

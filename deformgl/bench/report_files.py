@@ -1,5 +1,5 @@
 """The machine-readable files of the benchmark reports (``--out DIR``): JSON and CSV, each
-written atomically through :func:`deformgl.imagediff.write_atomic` (temporary file, rename)."""
+written atomically through :func:`deformgl.files.write_atomic` (temporary file, rename)."""
 
 from __future__ import annotations
 

@@ -4,11 +4,11 @@ The integrators are those of Movania & Feng 2012 (section 3: explicit Euler, sem
 Euler, midpoint, RK4, position Verlet; :mod:`deformgl.sim.integrators`). Method:
 
 * Two standard workloads (:func:`standard_workloads`): a damped 6x6x6 block, bottom layer
-  fixed, whose top corner is pulled by a :class:`~deformgl.springs.Drag` along a smooth path
+  fixed, whose top corner is pulled by a :class:`~deformgl.sim.springs.Drag` along a smooth path
   (3 spacings sideways, 1 up, cosine ramp over T); and a 16x16 cloth falling under gravity onto
   a fixed sphere. Both have spring damping (top-mode damping ratio about 0.5) and global
   damping, so forward Euler and midpoint have a stable dt too. They have at most 300 free
-  nodes, so :func:`~deformgl.stability.dt_limit` uses the exact spectrum (a dense ``eigh``); on
+  nodes, so :func:`~deformgl.sim.stability.dt_limit` uses the exact spectrum (a dense ``eigh``); on
   these grids the cheap Gershgorin bound is about 2x below it, which would squeeze the whole dt
   range. Small grids mean that GPU cost is mostly per-pass overhead on llvmpipe.
 * dt = f x limit for f in :data:`FRACTIONS` (0.1 ... 0.9), rounded down so that T/dt is an
@@ -25,7 +25,7 @@ Euler, midpoint, RK4, position Verlet; :mod:`deformgl.sim.integrators`). Method:
   stay ~7x below the smallest error measured, while the smooth volume's is below 1e-10
   spacings at limit / 50.
 * Cost: the median wall time of a separate batch of steps (after the measured run as warm-up,
-  ``ctx.finish()`` included; :func:`deformgl.bench.timed`), as ms/step and as ms per simulated
+  ``ctx.finish()`` included; :func:`deformgl.bench.studies.timed`), as ms/step and as ms per simulated
   second = (ms/step) / dt. The Pareto front (:func:`pareto_front`) is taken on RMS error
   against ms per simulated second, per workload and backend.
 """

@@ -1,13 +1,13 @@
 """Binding a detailed mesh to the node surface, once, on the CPU (Mosegaard & Sørensen 2005, 3.3).
 
 For every vertex ``v`` of the detailed mesh :func:`bind` finds the closest point ``r`` on the
-node-grid surface (:func:`deformgl.surface.grid_surface` over the rest node positions), the
+node-grid surface (:func:`deformgl.grid.surface.grid_surface` over the rest node positions), the
 triangle of nodes ``(p1, p2, p3)`` it lies on and its barycentric weights (Mosegaard & Sørensen 2005, eq. 4), and the
 offset ``o = v - r`` (eq. 5). The offset, the vertex normal and the vertex tangent (3.3.4) are
 then expressed (Mosegaard & Sørensen 2005, eq. 7) in the two triangle bases :mod:`deformgl.mapping.bases` rebuilds from the
 deformed nodes: the constant basis (Mosegaard & Sørensen 2005, eq. 6) and the curvature-corrected basis (eq. 8), the latter
 from the rest node normals exactly as the GPU unpacks them. This is the inverse of
-:func:`deformgl.mapping.map_vertices`: at rest every vertex, normal and tangent maps to itself.
+:func:`deformgl.mapping.bases.map_vertices`: at rest every vertex, normal and tangent maps to itself.
 
 Where the curvature basis is unreliable (paper 3.5: nodes without an Mosegaard & Sørensen 2005, eq. 3 normal, such as
 one-node-thin sheets) :attr:`Binding.curvature_ok` is False, and an "auto" mapping uses the
@@ -266,7 +266,7 @@ def bind(vertices: np.ndarray, faces: np.ndarray, node_positions: np.ndarray, no
         tangents: (V, 4) or (V, 3) tangents to use (orthonormalised against the vertex normals;
             w kept as its sign, +1 if absent); they take precedence over ``uv``.
         uv: (V, 2) texture coordinates to derive tangents from (Lengyel); without either,
-            :func:`deformgl.tangents.procedural_uv` coordinates are used.
+            :func:`deformgl.mapping.tangents.procedural_uv` coordinates are used.
         periodic_u: u is periodic with period 1 (wrap per-face u differences); default: True
             for the procedural coordinates, False for ``uv`` given.
         far: far threshold in spacings (reported, not an error).

@@ -60,7 +60,7 @@ def get_binding(mesh: trimesh.Trimesh, grid: NodeGrid, surface, *, use_cache: bo
 
 
 #: "curvature" mode uses Mosegaard & Sørensen 2005, eq. 8 only where ``|Nc x T|`` exceeds this (a conditioning bound, far
-#: below auto's :data:`deformgl.binding.MIN_SIN_NC_T`).
+#: below auto's :data:`deformgl.mapping.binding.MIN_SIN_NC_T`).
 MIN_SIN_CURVATURE = 1e-2
 
 

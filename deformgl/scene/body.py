@@ -44,7 +44,7 @@ from deformgl.scene.pipeline import mesh_grid, recentred
 from deformgl.scene.run import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, Physics, Region, Scene
-from deformgl.scene.stepping import Simulation, make_simulation
+from deformgl.scene.stepping import GuardedSimulation, make_simulation
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import SpringSystem
@@ -215,7 +215,7 @@ class Body:
     # -- simulation ------------------------------------------------------------------------
 
     def simulate(self, integrator: str = "verlet", backend: str = "fragment", *, dt: float,
-                 ctx: moderngl.Context | None = None, **options: Any) -> Simulation:
+                 ctx: moderngl.Context | None = None, **options: Any) -> GuardedSimulation:
         """A simulation of the body's spring system (:func:`deformgl.make_simulation`), owned by
         the body; step it with :func:`deformgl.run` (guards on) or ``sim.step(n)``.
 

@@ -109,7 +109,8 @@ def scene_constraints(physics: Physics, box: SceneBox) -> Constraints | None:
 
 @dataclass
 class SceneRun:
-    """What a run produced: final positions (N, 3) float64, steps taken (of dt / substeps),
+    """What a run produced: final positions (N, 3) float64 (None when the simulation is kept),
+    steps taken (of dt / substeps),
     whether the convergence stop ended it (None without one), GPU bytes per node (0 for numpy),
     the end time, the substeps per scene step, and (``run_scene(keep=True)``) the simulation
     itself, which the caller then releases."""

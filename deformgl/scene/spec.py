@@ -191,16 +191,6 @@ class Physics:
         return tuple(self.stiffness if c.stiffness is None else c.stiffness
                      for c in (self.structural, self.shear, self.flexion))  # type: ignore[return-value]
 
-    @property
-    def extended(self) -> bool:
-        """Uses anything the foundation's fragment Verlet pass does not model (springs by class,
-        spring damping, flexion, wind, obstacles, drags, the convergence stop)."""
-        k1, k2, k3 = self.class_stiffness()
-        return bool(k1 != self.stiffness or k2 != self.stiffness or k3 > 0
-                    or self.structural.damping or self.shear.damping or self.flexion.damping
-                    or self.wind_drag > 0 or self.ground is not None or self.sphere or self.drag
-                    or self.converge is not None)
-
 
 @dataclass(frozen=True, slots=True)
 class Camera:
@@ -258,7 +248,7 @@ class Mapping:
 
 @dataclass(frozen=True, slots=True)
 class MotionSpec:
-    """An analytic node motion (see :class:`deformgl.node_drivers.Motion`); axes as 0/1/2."""
+    """An analytic node motion (see :class:`deformgl.mapping.node_drivers.Motion`); axes as 0/1/2."""
     kind: str
     angle: float
     axis: int

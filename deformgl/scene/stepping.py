@@ -149,11 +149,6 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     return GuardedSimulation(system, integrator, backend, dt=dt, ctx=ctx, grid=grid, **options)
 
 
-#: The wrapper's former name (:mod:`deformgl.scene.body` imports it); ``deformgl.Simulation`` is the
-#: protocol, :class:`deformgl.sim.simulation.Simulation`.
-Simulation = GuardedSimulation
-
-
 @dataclass(frozen=True)
 class _Settings:
     """The :class:`~deformgl.sim.guards.StepSettings` of one :func:`run`."""

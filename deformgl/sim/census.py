@@ -7,8 +7,8 @@ the survivors: the only thing that crosses to the CPU is that one integer per qu
 
 State textures are RGBA32F, read with ``texelFetch``; slot ``s`` of node ``n`` is texel
 ``(slots * (n % row) + s, n / row)``: ``slots = 1, row = layout.width`` for
-:class:`~deformgl.fragment_integrators.FragmentIntegrator`, ``slots = 2, row = node_row`` for
-the ``tex_state`` of :class:`~deformgl.feedback_sim.FeedbackSimulation` (``slots = 1`` for its
+:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, ``slots = 2, row = node_row`` for
+the ``tex_state`` of :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (``slots = 1`` for its
 Verlet ``tex_x``). Only xyz is looked at; w (mass, a packed normal) is ignored.
 
 Each pass runs with every enable flag off (no depth test, blending or culling, through a

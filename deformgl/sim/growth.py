@@ -94,7 +94,7 @@ def _envelope_rate(amplitude: np.ndarray, window: int) -> float:
 def growth_rate(system: SpringSystem, integrator: str, dt: float, *, steps: int = 2000,
                 mode: np.ndarray | None = None, amplitude: float = 1e-6, tol: float = 1e-7,
                 envelope_tol: float = 1e-3) -> GrowthFit:
-    """Run ``steps`` steps of :func:`deformgl.integrators.step` from the rest state displaced
+    """Run ``steps`` steps of :func:`deformgl.sim.integrators.step` from the rest state displaced
     along ``mode`` and judge growth by the spectral radius, not by an energy threshold.
 
     The start is one mode (default: the exact top mode) scaled so its largest node moves

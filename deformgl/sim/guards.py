@@ -2,7 +2,7 @@
 a GPU census of blown-up nodes during it.
 
 Before the run (:func:`plan_steps`), the scene's dt is checked against the limit of its
-integrator on its spring system (:func:`deformgl.stability.check_dt`: the Gershgorin bound
+integrator on its spring system (:func:`deformgl.sim.stability.check_dt`: the Gershgorin bound
 ``w_max^2 <= max_i 2 sum_j k_ij / m_i``, the exact spectrum on small systems). Above it the
 scene is refused with the bound and the node and spring that set it, unless
 ``physics.safety.unstable`` (``--allow-unstable``, ``--subdivide``) says to run it anyway or to

@@ -8,7 +8,7 @@ One signature for all (warp.sim style, state in, state out)::
 Definitions: Movania & Feng 2012, section 3 (eq. 3 ``a = F/m``, eq. 4-5 explicit Euler, eq. 6
 Verlet, Movania & Feng 2012, eq. 7 implicit Euler, numbered as the text refers to them; midpoint and RK4 are only
 named). The formulas were lost in extraction; their standard forms are in ``docs/EQUATIONS.md``.
-Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.springs.forces`:
+Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.sim.springs.forces`:
 
 * ``euler`` (explicit/forward): ``x' = x + dt v``, ``v' = v + dt a(x, v)``.
 * ``semi-implicit`` (the paper's "implicit Euler", symplectic): ``v' = v + dt a(x, v)``,
@@ -18,7 +18,7 @@ Here ``a(x, v, t) = F / m`` with F from :func:`deformgl.springs.forces`:
 * ``rk4``: the classical four stages on the first-order system (x, v).
 * ``verlet`` (position Verlet): ``x' = 2x - x_prev + dt^2 a(x, v)`` with no stored velocity: the
   velocity seen by damping, spring damping and wind is the backward difference
-  ``v = (x - x_prev)/dt`` (as in ``reference.py``), i.e. the README's damped form
+  ``v = (x - x_prev)/dt`` (as the fragment pass computes it), i.e. the README's damped form
   ``x' = x + (1 - c dt/m)(x - x_prev) + dt^2 a`` for global damping. That velocity is first-order
   accurate, so with velocity-dependent forces Verlet's global order drops from 2 to 1.
 
@@ -185,7 +185,7 @@ def _rk4(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, np.nda
 
 def _verlet(acc: _Accel, s: State, dt: float, t: float) -> tuple[np.ndarray, None]:
     # Movania & Feng eq. 6 (lost; docs/EQUATIONS.md): x' = 2x - x_prev + dt^2 a,
-    # v = (x - x_prev)/dt for the velocity-dependent forces (as reference.py)
+    # v = (x - x_prev)/dt for the velocity-dependent forces (as shaders/sim/verlet.frag)
     v = (s.x - s.x_prev) / dt
     return 2.0 * s.x - s.x_prev + dt * dt * acc(s.x, v, t), None
 

@@ -13,13 +13,13 @@ the linearised system (docs/EQUATIONS.md, "Stability"):
 Three numbers per integrator:
 
 1. *Gershgorin limit*: from ``w_max^2 <= max_i 2 sum_j k_ij / m_i``
-   (:func:`deformgl.springs.max_angular_frequency`). Costs one pass over the springs and is
+   (:func:`deformgl.sim.springs.max_angular_frequency`). Costs one pass over the springs and is
    conservative (never above the exact limit under the modal-damping model below), so it is what
    :func:`check_dt` uses for large systems.
 2. *Exact limit*: from the spectrum of ``M^-1 K`` at rest (``K`` the 3N x 3N stiffness matrix,
    one block ``k u u^T`` per spring, fixed nodes removed). Dense ``eigh`` up to
    :data:`DENSE_MAX_NODES` free nodes; above, Lanczos on the sparse product (NumPy only).
-3. *Measured limit*: bisection on dt of long float64 runs of :func:`deformgl.integrators.step`
+3. *Measured limit*: bisection on dt of long float64 runs of :func:`deformgl.sim.integrators.step`
    (:func:`measured_limit`).
 
 Damping model. Each mode is the scalar test equation ``x'' = -w^2 x - g(w) x'`` with

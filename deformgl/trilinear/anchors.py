@@ -4,7 +4,7 @@ Kuijper, section 5), on the CPU in float64 NumPy.
 An anchor is two points registered on one triangle of the base mesh by barycentric coordinates:
 the anchor position and a second point giving the tangent direction. With the triangle's normal
 they define a local frame, recomputed from the mesh's current vertex positions whatever animates
-the mesh. A 1D or 2D array of anchors builds the :class:`~deformgl.trilinear.Trilinear` grid of an
+the mesh. A 1D or 2D array of anchors builds the :class:`~deformgl.trilinear.grid.Trilinear` grid of an
 attached object, so that the object follows the surface:
 
 * 2D, anchors (I, J): lattice point (i, j, k) = origin_ij + z_k normal_ij, cells (I-1, J-1, 1);

@@ -1,7 +1,7 @@
 """A scene graph whose transforms are trilinear (Knuth, Kohlhammer & Kuijper, sections 4-4.2).
 
 Nodes: :class:`GroupNode`, :class:`TransformNode` (an affine 4x4 matrix or a
-:class:`~deformgl.trilinear.Trilinear` grid over the bounding box of its content) and
+:class:`~deformgl.trilinear.grid.Trilinear` grid over the bounding box of its content) and
 :class:`GeometryNode` (a mesh leaf). :func:`compose_scene` traverses from the world to the leaves
 on the CPU and gives every leaf one composed transform (4.1): affine matrices multiply exactly;
 at a trilinear node the child's lattice is transformed by the composed parent at the higher of the

@@ -4,7 +4,7 @@ Every step stage is a vertex shader in ``shaders/feedback/`` drawn over ``POINTS
 node, its outputs captured with transform feedback into a buffer (the paper's section 4
 pipeline; nothing is rasterised: the 1x1 framebuffer is only bound because Mesa skips every
 draw, transform feedback included, without a complete one). It computes the same function as
-the float64 reference :func:`deformgl.integrators.step`, in float32.
+the float64 reference :func:`deformgl.sim.integrators.step`, in float32.
 
 GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
 
@@ -129,13 +129,13 @@ class FeedbackSimulation(SimulationBase, GLOwner):
     Args:
         ctx: the GL context.
         system: the spring system.
-        integrator: one of :data:`deformgl.integrators.INTEGRATORS`.
+        integrator: one of :data:`deformgl.sim.integrators.INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated on the CPU at each stage's time, as uniforms).
         loads: scripted per-node forces (at most ``springs.MAX_LOADS``; forces evaluated on the
             CPU at each stage's time, as uniforms; group bits per node in ``nodes.w``).
-        state: start state (default :func:`deformgl.integrators.initial_state` at rest); Verlet
+        state: start state (default :func:`deformgl.sim.integrators.initial_state` at rest); Verlet
             uses its ``x_prev``.
         t0: time of the start state.
     """

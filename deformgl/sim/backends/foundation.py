@@ -27,7 +27,7 @@ import numpy as np
 
 from deformgl.errors import GLError
 from deformgl.gl.programs import Program
-from deformgl.gl.resources import GLOwner
+from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
@@ -293,7 +293,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         ctx: GL context.
         system: the spring system; grid: its node grid; terms: :func:`verlet_terms` of both.
         dt: time step (s).
-        state: the start state (x and x_prev are uploaded).
+        state: the start state (x and x_prev are uploaded; fixed nodes get x_prev = x).
         loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
         t0: time of the start state.
         draw, branch: pass variants, see :class:`VerletPass`; layout: see :class:`NodeTextures`.
@@ -342,18 +342,24 @@ class FoundationVerlet(SimulationBase, GLOwner):
         """Advance n steps on the GPU (no read-back)."""
         if self.released:
             raise RuntimeError("FoundationVerlet: released")
-        for _ in range(n):
-            if self.loads:
-                t = self.t0 + self.steps_done * self.dt
-                for g, load in enumerate(self.loads):
-                    self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
-            self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, self._pull)
-            self.current, self.previous, self.spare = self.spare, self.current, self.previous
-            self.steps_done += 1
-        self.t = self.t0 + self.steps_done * self.dt
+        previous = self.ctx.fbo
+        try:
+            for _ in range(n):
+                if self.loads:
+                    t = self.t0 + self.steps_done * self.dt
+                    for g, load in enumerate(self.loads):
+                        self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
+                self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, self._pull)
+                self.current, self.previous, self.spare = self.spare, self.current, self.previous
+                self.steps_done += 1
+                self.t = self.t0 + self.steps_done * self.dt
+        finally:
+            restore_framebuffer(self.ctx, previous)  # the caller's framebuffer, as every backend
 
     def read_state(self, which: int | None = None) -> np.ndarray:
         """(N, 4) float32 texel of every node from a state texture (default: current)."""
+        if self.released:
+            raise RuntimeError("FoundationVerlet: released")
         tex = self.textures.state[self.current if which is None else which]
         w, h = self.textures.size
         image = np.frombuffer(tex.read(), dtype="f4").reshape(h, w, 4)
@@ -380,5 +386,9 @@ class FoundationVerlet(SimulationBase, GLOwner):
         return self.textures.bytes_allocated / self.count
 
     def release(self) -> None:
-        """Release every GL object (idempotent)."""
+        """Release every GL object (idempotent); the context's default framebuffer is bound if
+        one of the state framebuffers was."""
+        textures = getattr(self, "textures", None)  # (None when the constructor failed before it)
+        if not self.released and textures is not None and any(self.ctx.fbo is f for f in textures.framebuffers):
+            self.ctx.detect_framebuffer(0).use()
         GLOwner.release(self)

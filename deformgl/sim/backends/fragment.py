@@ -4,8 +4,8 @@ Each stage of a step is a fragment pass over the compact node texture (one texel
 Mosegaard & Sørensen 2005, section 3.1; ``grid.CompactLayout``): positions and velocities live in
 RGBA32F textures, a pass that produces both writes them together with multiple render targets,
 and midpoint / RK4 stages go into stage textures. It computes the same function as the float64
-reference :func:`deformgl.integrators.step`, in float32, for systems built by
-:func:`deformgl.springs.from_grid` or :func:`deformgl.springs.cloth` on the given grid.
+reference :func:`deformgl.sim.integrators.step`, in float32, for systems built by
+:func:`deformgl.sim.springs.from_grid` or :func:`deformgl.sim.springs.cloth` on the given grid.
 
 Topology is implicit: the neighbours come from a neighbour-index texture array (the 18
 ``NEIGHBOUR_OFFSETS`` of the compact layout, plus the 6 flexion neighbours at distance 2 along
@@ -133,7 +133,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         ctx: the GL context.
         system: spring system from :func:`springs.from_grid` / :func:`springs.cloth` on ``grid``.
         grid: the node grid (node order of the system).
-        integrator: one of :data:`deformgl.integrators.INTEGRATORS`.
+        integrator: one of :data:`deformgl.sim.integrators.INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated at each pass's stage time, as uniforms).
@@ -451,6 +451,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 positions (one read-back)."""
+        if self._released:
+            raise RuntimeError("FragmentIntegrator: released")
         if self.fast is not None:
             return self.fast.positions()
         return self._read(self._index["x"])
@@ -465,6 +467,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
     def velocities(self) -> np.ndarray:
         """(N, 3) velocities (one read-back). Verlet: the backward difference (x - x_prev)/dt in
         float64 of the float32 positions, 0 at fixed nodes (as the reference)."""
+        if self._released:
+            raise RuntimeError("FragmentIntegrator: released")
         if self.fast is not None:
             return self.fast.velocities()
         if not self.spec.velocity:
