@@ -32,3 +32,8 @@ class ShaderError(DeformglError):
 
 class SimulationError(DeformglError):
     """The simulation produced non-finite values or was asked for something it cannot do."""
+
+
+class DeformglWarning(UserWarning):
+    """Something deformgl worked around (a bad cache entry rebuilt, caching off): the CLI prints
+    it as one line ``deformgl: warning: ...``; the work goes on."""
