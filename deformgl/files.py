@@ -2,21 +2,194 @@
 
 A file is written to a temporary file in the target directory, flushed to disk, then renamed over
 the target, so a reader never sees a partial file and a failed write leaves an existing file as
-it was.
+it was. A run's outputs are committed together (:class:`OutputSet`): while one is active, the
+files it holds are written to temporary files and renamed only when all of them are complete;
+on any failure none is renamed and every temporary file is removed.
+
+Temporary files are named ``.NAME.deformgl-PID-HEX.tmp``: a run killed with SIGKILL leaves them
+behind, recognisably; :func:`remove_stale_temporaries` (called by the next run in that folder)
+removes those whose process is gone and that are older than the run that finds them.
 """
 
 from __future__ import annotations
 
+import contextvars
 import os
+import re
 import secrets
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 from PIL import Image
 
-__all__ = ["read_png", "write_atomic", "write_png_atomic"]
+from deformgl.errors import InputError
+
+__all__ = ["OutputSet", "check_writable", "read_png", "remove_stale_temporaries", "temporary_path",
+           "write_atomic", "write_png_atomic"]
+
+#: ``.NAME.deformgl-PID-HEX.tmp``; the older ``.NAME.HEX.tmp`` (no process id) is recognised too
+_TEMPORARY = re.compile(r"^\..+\.deformgl-(\d+)-[0-9a-f]{12}\.tmp$")
+_OLD_TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp$")
+_ACTIVE: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar("deformgl_output_set", default=None)
+
+
+def temporary_path(target: Path) -> Path:
+    """A fresh temporary name next to ``target``: ``.NAME.deformgl-PID-HEX.tmp``."""
+    return target.parent / f".{target.name}.deformgl-{os.getpid()}-{secrets.token_hex(6)}.tmp"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str], before: float) -> list[Path]:
+    """Remove the temporary files deformgl left in ``folder`` (a killed run): those named as
+    :func:`temporary_path` names them whose process is gone, and older ones without a process
+    id, in both cases last modified before ``before`` (a time.time(): the finding run's start).
+    Returns what was removed; a folder that cannot be listed removes nothing."""
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMPORARY.match(entry.name)
+        if m is None and not _OLD_TEMPORARY.match(entry.name):
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False) or entry.stat(follow_symlinks=False).st_mtime >= before:
+                continue
+            if m is not None and (int(m.group(1)) == os.getpid() or _alive(int(m.group(1)))):
+                continue
+            os.unlink(entry.path)
+            removed.append(Path(entry.path))
+        except OSError:
+            continue
+    return removed
+
+
+def check_writable(path: str | os.PathLike[str], what: str = "output") -> None:
+    """Whether a file can be written at ``path`` (before any work): its folder exists and takes a
+    new file (probed with a temporary file, so read-only mounts and /proc are found), and the path
+    is not a folder.
+
+    Raises:
+        InputError: one line naming the path and what is wrong.
+    """
+    target = Path(path)
+    directory = target.parent if str(target.parent) else Path(".")
+    if target.is_dir():
+        raise InputError(f"{target}: the {what} is a folder, not a file")
+    if not directory.is_dir():
+        raise InputError(f"{target}: the {what} folder {directory} does not exist")
+    if target.exists() and not target.is_file():
+        raise InputError(f"{target}: the {what} exists and is not a regular file")
+    probe = temporary_path(target)
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+    except OSError as exc:
+        raise InputError(f"{target}: cannot write the {what} into {directory}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+class OutputSet:
+    """A run's output files, committed together: all of them or none.
+
+    ``with OutputSet([png, mesh]):`` checks every path first (:func:`check_writable`), then every
+    :func:`write_atomic` to one of them inside the block writes a complete temporary file but
+    does not rename it. Leaving the block normally renames them all (a file that was there is
+    moved aside first and put back if a later rename fails); leaving it by an exception (a
+    failed write, a full disk, SIGTERM turned into an exception, Ctrl-C) removes every temporary
+    file and leaves the folder as it was.
+
+    Args:
+        paths: the outputs (None entries are ignored).
+        what: how the messages name them ("output").
+    """
+
+    def __init__(self, paths: Iterable[str | os.PathLike[str] | None], what: str = "output") -> None:
+        self.paths = [Path(p) for p in paths if p is not None]
+        self.what = what
+        self._staged: dict[Path, Path] = {}
+        self._token: contextvars.Token[OutputSet | None] | None = None
+        for path in self.paths:
+            check_writable(path, what)
+
+    def holds(self, path: Path) -> bool:
+        """Whether ``path`` is one of the set's outputs."""
+        key = os.path.abspath(path)
+        return any(os.path.abspath(p) == key for p in self.paths)
+
+    def stage(self, target: Path, temporary: Path) -> None:
+        """Keep a complete temporary file until :meth:`commit` (``write_atomic`` calls this)."""
+        previous = self._staged.pop(target, None)
+        if previous is not None:
+            _unlink(previous)
+        self._staged[target] = temporary
+
+    def commit(self) -> None:
+        """Rename every staged file over its target; on a failure undo the renames done."""
+        done: list[tuple[Path, Path | None]] = []
+        try:
+            for target, temporary in list(self._staged.items()):
+                backup = None
+                if target.exists():
+                    backup = temporary_path(target)
+                    os.replace(target, backup)
+                try:
+                    os.replace(temporary, target)
+                except BaseException:
+                    if backup is not None:
+                        os.replace(backup, target)
+                    raise
+                del self._staged[target]
+                done.append((target, backup))
+        except BaseException:
+            for target, backup in reversed(done):
+                if backup is not None:
+                    os.replace(backup, target)
+                else:
+                    _unlink(target)
+            self.discard()
+            raise
+        for _, backup in done:
+            if backup is not None:
+                _unlink(backup)
+
+    def discard(self) -> None:
+        """Remove every staged temporary file (the targets stay as they were)."""
+        for temporary in self._staged.values():
+            _unlink(temporary)
+        self._staged.clear()
+
+    def __enter__(self) -> OutputSet:
+        self._token = _ACTIVE.set(self)
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self._token is not None:
+            _ACTIVE.reset(self._token)
+            self._token = None
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+def _unlink(path: Path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
 
 
 def write_png_atomic(path: str | os.PathLike[str], array: np.ndarray) -> None:
@@ -52,9 +225,9 @@ def write_png_atomic(path: str | os.PathLike[str], array: np.ndarray) -> None:
 def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], object]) -> None:
     """Write a file so that ``path`` never holds a partial one: ``write(stream)`` fills a
     temporary file in the same directory (its return value is ignored), which is flushed to
-    disk and renamed over ``path``.
-    On any failure the temporary file is removed and an existing ``path`` is left as it was. The
-    new file gets the usual permissions for a new file (``0o666`` less the umask).
+    disk and renamed over ``path`` (inside an :class:`OutputSet` holding ``path``: when the set
+    commits). On any failure the temporary file is removed and an existing ``path`` is left as
+    it was. The new file gets the usual permissions for a new file (``0o666`` less the umask).
 
     Raises:
         FileNotFoundError: The directory of ``path`` does not exist.
@@ -69,7 +242,7 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
     # that the renamed file gets the same permissions as any other new file.
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     for _ in range(100):
-        temporary = directory / f".{target.name}.{secrets.token_hex(6)}.tmp"
+        temporary = temporary_path(target)
         try:
             fd = os.open(temporary, flags, 0o666)
             break
@@ -78,11 +251,15 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
     else:
         raise FileExistsError(f"cannot create a temporary file next to {target}")
 
+    active = _ACTIVE.get()
     try:
         with os.fdopen(fd, "wb") as stream:
             write(stream)
             stream.flush()
             os.fsync(stream.fileno())
+        if active is not None and active.holds(target):
+            active.stage(target, temporary)
+            return
         os.replace(temporary, target)
     except BaseException:
         try:
