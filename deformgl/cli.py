@@ -1,12 +1,25 @@
-"""The ``deformgl`` command: render scenes to PNG, print GL information, run benchmarks."""
+"""The ``deformgl`` command: render scenes to PNG, print GL information, run benchmarks.
+
+Exit codes: 0 done; 1 a runtime failure (the simulation blew up, no GL context, a write failed,
+an internal error); 2 a usage or input error (a bad option, scene, mesh or output path), found
+before any work; 130 interrupted (SIGINT); 143 terminated (SIGTERM). Every failure is one line on
+stderr, ``deformgl: error: ...``; an unexpected exception adds "rerun with --debug" and
+``--debug`` shows its traceback. A run that fails or is stopped writes none of its outputs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import time
+import warnings
 from pathlib import Path
 
-from deformgl.errors import DeformglError
+from deformgl.errors import DeformglError, DeformglWarning, InputError
+
+#: The exit codes (see the module docstring and the README).
+EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -18,6 +31,8 @@ def _parser() -> argparse.ArgumentParser:
                     "through OpenGL on EGL (Mesa llvmpipe without a GPU).")
     p.add_argument("--device", type=int, default=None,
                    help="EGL device index (default: $DEFORMGL_DEVICE, else EGL's default)")
+    p.add_argument("--debug", action="store_true",
+                   help="show the traceback of an unexpected error (a bug: please report it)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     r = sub.add_parser("render", help="simulate a scene and write a PNG",
@@ -118,13 +133,14 @@ def _scene_file(path: Path, flag: str = "") -> Path:
 
     found = find_scene(path)
     if not found.exists():
-        raise DeformglError(f"{path}: {flag + ': ' if flag else ''}scene file not found (not in "
+        raise InputError(f"{path}: {flag + ': ' if flag else ''}scene file not found (not in "
                             f"{Path.cwd()} nor among the shipped scenes: {', '.join(scene_names())})")
     return found
 
 
 def _render(args: argparse.Namespace) -> int:
     from deformgl.data import is_packaged
+    from deformgl.files import check_writable
     from deformgl.gl.context import create_context
     from deformgl.scene.pipeline import render_to_png
     from deformgl.scene.schema import load_scene, parse_size
@@ -136,21 +152,22 @@ def _render(args: argparse.Namespace) -> int:
         try:
             size = parse_size(args.size)
         except ValueError as exc:
-            raise DeformglError(f"--size: {exc}") from None
+            raise InputError(f"--size: {exc}") from None
     scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
                                  integrator=args.integrator, backend=args.backend, unstable=args.unstable,
                                  check_every=args.check_every)
     # a shipped scene writes into the working directory, never into the installed package
     out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
     if out.suffix.lower() != ".png":
-        raise DeformglError(f"{out}: the output must be a .png file")
-    for path in (out, args.export_mesh, args.pack_inputs):
-        if path is not None and not path.resolve().parent.is_dir():
-            raise DeformglError(f"{path}: the output folder {path.resolve().parent} does not exist")
+        raise InputError(f"{out}: the output must be a .png file")
     if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
-        raise DeformglError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
+        raise InputError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
     if args.pack_inputs is not None and args.pack_inputs.suffix.lower() != ".npz":
-        raise DeformglError(f"{args.pack_inputs}: --pack-inputs must end in .npz")
+        raise InputError(f"{args.pack_inputs}: --pack-inputs must end in .npz")
+    outputs = [p for p in (out, args.export_mesh, args.pack_inputs) if p is not None]
+    for path in outputs:
+        check_writable(path)  # before any work: render_to_png checks again, as a set
+    _clean_leftovers(outputs)
     ctx = create_context(args.device)
     try:
         render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
@@ -163,6 +180,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _trilinear(args: argparse.Namespace) -> int:
+    from deformgl.files import check_writable
     from deformgl.gl.context import create_context
     from deformgl.scene.schema import parse_size
     from deformgl.trilinear.scenes import write_trilinear_scene
@@ -170,11 +188,11 @@ def _trilinear(args: argparse.Namespace) -> int:
     try:
         size = parse_size(args.size)
     except ValueError as exc:
-        raise DeformglError(f"--size: {exc}") from None
+        raise InputError(f"--size: {exc}") from None
     if args.output.suffix.lower() != ".png":
-        raise DeformglError(f"{args.output}: the output must be a .png file")
-    if not args.output.resolve().parent.is_dir():
-        raise DeformglError(f"{args.output}: the output folder {args.output.resolve().parent} does not exist")
+        raise InputError(f"{args.output}: the output must be a .png file")
+    check_writable(args.output)
+    _clean_leftovers([args.output])
     ctx = create_context(args.device)
     try:
         write_trilinear_scene(ctx, args.scene, args.output, size, normals=args.normals)
@@ -242,9 +260,9 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
 
 def _bench(args: argparse.Namespace) -> int:
     if args.steps < 1:
-        raise DeformglError(f"--steps: must be >= 1, got {args.steps}")
+        raise InputError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
-        raise DeformglError(f"--out: {args.out} is not a folder")
+        raise InputError(f"--out: {args.out} is not a folder")
     from deformgl.bench.studies import bench_render, bench_sim, format_render, format_sim, machine_line
     from deformgl.gl.context import create_context
 
@@ -291,17 +309,91 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+#: When this process started (what is older and left by a dead run is a leftover).
+_STARTED = time.time()
+
+
+def _clean_leftovers(outputs: list[Path]) -> None:
+    """Remove the temporary files a killed deformgl run left in the output folders and the cache."""
+    from deformgl.files import remove_stale_temporaries
+    from deformgl.render.mapped_setup import cache_dir
+
+    for folder in {p.resolve().parent for p in outputs} | {cache_dir()}:
+        remove_stale_temporaries(folder, before=_STARTED)
+
+
+class Terminated(BaseException):
+    """SIGTERM (``timeout``, CI cancels, ``docker stop``) as an exception, so that a run unwinds:
+    its output set removes its temporary files and GL objects are released."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated(signum)
+
+
+def _one_line(text: object) -> str:
+    """A message on one line: newlines (a path may hold one) and carriage returns escaped."""
+    return str(text).replace("\r", "\\r").replace("\n", "\\n")
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    if issubclass(category, DeformglWarning):
+        print(f"deformgl: warning: {_one_line(message)}", file=sys.stderr)
+    else:
+        print(f"deformgl: warning: {_one_line(f'{category.__name__}: {message}')}", file=sys.stderr)
+
+
+def _error(text: object) -> None:
+    print(f"deformgl: error: {_one_line(text)}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script; returns the exit code."""
-    args = _parser().parse_args(argv)
+    """Entry point of the console script; returns the exit code (:data:`EXIT_INPUT` and the
+    others)."""
+    import numpy as np
+
+    args = _parser().parse_args(argv)  # (a usage error exits here with argparse's code 2)
+    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench}
+    previous = None
     try:
-        return {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench}[args.command](args)
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread: leave signals alone
+        previous = None
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            # non-finite values are found and named by the checks; numpy's own warnings only
+            # print noise before the one-line error
+            warnings.simplefilter("ignore", RuntimeWarning)
+            warnings.showwarning = _show_warning
+            return commands[args.command](args)
+    except InputError as exc:
+        _error(exc)
+        return EXIT_INPUT
     except DeformglError as exc:
-        print(f"deformgl: error: {exc}", file=sys.stderr)
-        return 1
+        _error(exc)
+        return EXIT_FAILURE
     except KeyboardInterrupt:
-        print("deformgl: interrupted", file=sys.stderr)
-        return 130
+        _error("interrupted")
+        return EXIT_INTERRUPTED
+    except Terminated:
+        _error("terminated (SIGTERM)")
+        return EXIT_TERMINATED
+    except MemoryError:
+        _error("out of memory; use a coarser grid (grid.nodes_along_longest) or a smaller render.size")
+        return EXIT_FAILURE
+    except OSError as exc:  # a write that failed (full disk, read-only mount) after the checks
+        name = exc.filename or ""
+        _error(f"{name}{': ' if name else ''}{exc.strerror or exc}")
+        return EXIT_FAILURE
+    except Exception as exc:
+        if args.debug:
+            raise
+        _error(f"internal error: {type(exc).__name__}: {exc} (a bug; rerun with --debug for the traceback "
+               f"and please report it)")
+        return EXIT_FAILURE
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -34,6 +34,11 @@ class SimulationError(DeformglError):
     """The simulation produced non-finite values or was asked for something it cannot do."""
 
 
+class RefusedStepError(SimulationError, InputError):
+    """A time step the integrator cannot run stably, refused before any work (the scene's or the
+    caller's dt is the input at fault: the CLI exits 2)."""
+
+
 class DeformglWarning(UserWarning):
     """Something deformgl worked around (a bad cache entry rebuilt, caching off): the CLI prints
     it as one line ``deformgl: warning: ...``; the work goes on."""

@@ -134,7 +134,7 @@ def test_unstable_dt_is_refused_run_anyway_or_subdivided_and_a_blow_up_writes_no
     jelly.write_text(jelly.read_text().replace("dt = 0.0005", "dt = 0.05"))
     out = tmp_path / "nan.png"
     code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet")
-    assert code == 1 and not out.exists()
+    assert code == 2 and not out.exists()  # the scene's dt: an input error, refused before any work
     assert re.search(r"jelly.toml: physics.dt: dt 0.05 s is above the verlet limit [0-9.e-]+ s .* set by node "
                      r"\d+ \(spring \d+, k = 6 N/m, m = 0.0005 kg; lanczos bound\).*--allow-unstable", err), err
     code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet", "--allow-unstable", "--check-every", "20")
@@ -143,7 +143,7 @@ def test_unstable_dt_is_refused_run_anyway_or_subdivided_and_a_blow_up_writes_no
                      r"\d+ \(grid \(\d+, \d+, \d+\)\) at", err), err
     jelly.write_text(jelly.read_text().replace("dt = 0.05", "dt = 0.2"))
     code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet", "--subdivide")
-    assert code == 1 and not out.exists() and "more than --subdivide's 16" in err, err
+    assert code == 2 and not out.exists() and "more than --subdivide's 16" in err, err
     jelly.write_text(jelly.read_text().replace("dt = 0.2", "dt = 0.008"))
     code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--subdivide", "--steps", "40")
     assert code == 0 and out.exists(), err
@@ -169,17 +169,17 @@ def test_trilinear_command_writes_png_and_rejects_bad_size(ctx, tmp_path, capsys
     assert code == 0, err
     assert read_png(out).shape == (80, 160, 3)
     code, _, err = run_cli(capsys, "trilinear", "tile", "-o", tmp_path / "t.png", "--size", "big")
-    assert code == 1 and "--size" in err and not (tmp_path / "t.png").exists()
+    assert code == 2 and "--size" in err and not (tmp_path / "t.png").exists()
 
 
 def test_pack_inputs_and_export_are_checked_before_work_and_not_private(ctx, tmp_path, capsys):
     scene = SCENES / "dragon_bend_auto.toml"
     code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--pack-inputs",
                            tmp_path / "missing" / "p.npz", "--quiet")
-    assert code == 1 and "does not exist" in err and not (tmp_path / "a.png").exists()
+    assert code == 2 and "does not exist" in err and not (tmp_path / "a.png").exists()
     code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--pack-inputs",
                            tmp_path / "p.txt", "--quiet")
-    assert code == 1 and "must end in .npz" in err
+    assert code == 2 and "must end in .npz" in err
     code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.png", "--size", "64x48",
                            "--export-mesh", tmp_path / "m.ply", "--pack-inputs", tmp_path / "p.npz", "--quiet")
     assert code == 0, err
@@ -194,12 +194,12 @@ def test_msaa_beyond_the_renderer_is_an_early_scene_error(ctx, jelly, tmp_path, 
     max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
     if max_samples >= 16:
         pytest.skip(f"this renderer supports {max_samples}x MSAA")
-    assert code == 1 and "render.msaa: 16x is more than this renderer's" in err
+    assert code == 2 and "render.msaa: 16x is more than this renderer's" in err
 
 
 def test_bench_rejects_zero_steps(capsys):
     code, _, err = run_cli(capsys, "bench", "sim", "--steps", "0")
-    assert code == 1 and "--steps: must be >= 1" in err
+    assert code == 2 and "--steps: must be >= 1" in err
 
 
 def test_a_scene_not_in_the_working_folder_is_the_shipped_one(ctx, tmp_path, monkeypatch, capsys):
@@ -218,10 +218,10 @@ def test_a_scene_found_nowhere_is_a_one_line_error(tmp_path, monkeypatch, capsys
     for given in ("nope.toml", "some/where/dragon.toml"):
         code, stdout, err = run_cli(capsys, "render", given)
         lines = err.strip().splitlines()
-        assert code == 1 and len(lines) == 1, err
+        assert code == 2 and len(lines) == 1, err
         assert f"{given}: scene file not found" in lines[0] and "dragon.toml" in lines[0]
     code, _, err = run_cli(capsys, "bench", "render", "--scene", "nope.toml")
-    assert code == 1 and "--scene: scene file not found" in err
+    assert code == 2 and "--scene: scene file not found" in err
 
 
 def test_shipped_scenes_and_assets_are_the_repository_ones():

@@ -23,7 +23,7 @@ from deformgl.scene.obstacles import draw_obstacles
 from deformgl.errors import InputError, SimulationError
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.files import write_png_atomic
+from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.mapped import MappedMeshPass
 from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image
 from deformgl.grid.meshio import load_mesh
@@ -293,11 +293,25 @@ class Rendered:
 
 
 def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
-    """Limits a scene can exceed, checked before any work: MSAA samples."""
+    """Limits a scene can exceed, checked before any work: MSAA samples, a normal map wider than
+    a texture may be (read from the PNG header, not decoded)."""
     max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
     if scene.render.msaa > max(max_samples, 1):
         raise InputError(f"{scene.source}: render.msaa: {scene.render.msaa}x is more than this renderer's "
                          f"{max_samples}x")
+    spec = scene.mapping.normal_map
+    if spec is not None and spec != "procedural" and scene.mapping.mode != "one-to-one":
+        from PIL import Image, UnidentifiedImageError
+
+        limit = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
+        try:
+            with Image.open(Path(spec)) as image:
+                width, height = image.size
+        except (OSError, UnidentifiedImageError, Image.DecompressionBombError) as exc:
+            raise InputError(f"{scene.source}: mapping.normal_map: cannot read {spec}: {exc}") from None
+        if max(width, height) > limit:
+            raise InputError(f"{scene.source}: mapping.normal_map: {spec} is {width}x{height}, more than this "
+                             f"renderer's {limit}x{limit} texture limit")
 
 
 def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh: bool = False,
@@ -368,16 +382,19 @@ def render_scene(ctx: moderngl.Context, scene: Scene, *, progress: bool = False)
 def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
                   export: Path | None = None, pack: Path | None = None,
                   log: Callable[[str], None] | None = None) -> np.ndarray:
-    """Render a scene and write the PNG, then the optional mesh and shader-pack inputs, each
-    atomically (temporary file, then rename); nothing is written if the render fails."""
+    """Render a scene and write the PNG, the optional mesh and shader-pack inputs as one
+    :class:`~deformgl.files.OutputSet`: every path is checked before any work, and the files
+    appear together when all are written, or none of them (a failed render or write, SIGTERM)."""
+    outputs = OutputSet([out, export, pack])
     result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
-    write_png_atomic(out, result.image)
-    if export is not None:
-        if result.mesh is None:
-            raise RuntimeError("render() returned no mesh for --export-mesh")  # it always does
-        export_mesh(export, *result.mesh)
-    if pack is not None:
-        if result.pack is None:
-            raise RuntimeError("render() returned no inputs for --pack-inputs")  # it always does
-        write_pack_inputs(pack, result.pack)
+    with outputs:
+        write_png_atomic(out, result.image)
+        if export is not None:
+            if result.mesh is None:
+                raise RuntimeError("render() returned no mesh for --export-mesh")  # it always does
+            export_mesh(export, *result.mesh)
+        if pack is not None:
+            if result.pack is None:
+                raise RuntimeError("render() returned no inputs for --pack-inputs")  # it always does
+            write_pack_inputs(pack, result.pack)
     return result.image

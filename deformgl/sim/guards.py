@@ -28,7 +28,7 @@ from typing import Protocol
 import moderngl
 import numpy as np
 
-from deformgl.errors import SimulationError
+from deformgl.errors import RefusedStepError, SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.stability import check_dt
@@ -154,16 +154,16 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
             hint = (" (a conservative bound, used above 30,000 free nodes: the exact limit of a volume "
                     "can be up to twice it; running anyway keeps the blow-up census watching)")
         setting = f" ({w.policy})" if w.policy else ""
-        raise SimulationError(f"{where}{hint}. Pass {w.run_anyway} to run it anyway or {w.subdivide} to split "
+        raise RefusedStepError(f"{where}{hint}. Pass {w.run_anyway} to run it anyway or {w.subdivide} to split "
                               f"each step{setting}")
     if policy == "run":
         return StepPlan(dt, physics.steps, 1, f"running anyway: {refusal.message}")
     limit = refusal.limit.dt
     if limit <= 0.0:
-        raise SimulationError(f"{where}; no substep is stable, so {w.subdivide} cannot help")
+        raise RefusedStepError(f"{where}; no substep is stable, so {w.subdivide} cannot help")
     substeps = max(1, math.ceil(dt / (SAFETY_MARGIN * limit)))
     if substeps > MAX_SUBSTEPS:
-        raise SimulationError(f"{where}; it needs {substeps} substeps per step, more than {w.cap}: "
+        raise RefusedStepError(f"{where}; it needs {substeps} substeps per step, more than {w.cap}: "
                               f"reduce {w.dt}")
     return StepPlan(dt, physics.steps, substeps,
                     f"dt {dt:.4g} s is above the {physics.integrator} limit {limit:.4g} s: "
