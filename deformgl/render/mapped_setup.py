@@ -4,6 +4,7 @@ tangents and normal map; and writing the deformed mesh captured from the GPU."""
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,8 @@ import trimesh
 from deformgl.mapping.binding import Binding, bind
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.normals import rest_normals
-from deformgl.mapping.binding_cache import binding_key, load_binding, save_binding
-from deformgl.errors import InputError
+from deformgl.mapping.binding_cache import BadCacheEntry, binding_key, read_binding, save_binding
+from deformgl.errors import DeformglWarning, InputError
 from deformgl.files import read_png, write_atomic
 from deformgl.render.mapped import MappedVertices
 from deformgl.mapping.bases import curvature_basis
@@ -24,11 +25,14 @@ BINDING_FORMAT = 1
 
 
 def cache_dir() -> Path:
-    """Where bindings are cached: ``$DEFORMGL_CACHE_DIR``, else ``$XDG_CACHE_HOME/deformgl``."""
+    """Where bindings are cached: ``$DEFORMGL_CACHE_DIR``, else ``$XDG_CACHE_HOME/deformgl``
+    (an absolute ``XDG_CACHE_HOME`` only, as the XDG spec asks), else ``~/.cache/deformgl``.
+    See docs/CACHE.md."""
     if os.environ.get(CACHE_ENV):
         return Path(os.environ[CACHE_ENV])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "deformgl"
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    base = Path(xdg) if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
+    return base / "deformgl"
 
 
 def mesh_uv(mesh: trimesh.Trimesh) -> np.ndarray | None:
@@ -39,23 +43,50 @@ def mesh_uv(mesh: trimesh.Trimesh) -> np.ndarray | None:
     return np.asarray(uv, dtype=np.float64)
 
 
+def _warn(message: str) -> None:
+    warnings.warn(message, DeformglWarning, stacklevel=3)
+
+
 def get_binding(mesh: trimesh.Trimesh, grid: NodeGrid, surface, *, use_cache: bool, uv: np.ndarray | None) -> Binding:
-    """Bind the mesh to the node surface of ``grid``, reusing a cached binding of the same inputs."""
+    """Bind the mesh to the node surface of ``grid``, reusing a cached binding of the same inputs.
+
+    A cached entry is verified (:func:`deformgl.mapping.binding_cache.read_binding`, against this
+    mesh and grid); a bad one is rebuilt and replaced, with a :class:`DeformglWarning`. Something
+    in the way of the cache (a directory at the file's path, a folder that cannot be written, a
+    file where the folder goes) is a :class:`DeformglWarning` too ("caching off for this run"),
+    and the mesh is bound without the cache.
+    """
     key = binding_key(mesh.vertices, mesh.faces, grid.rest_positions, surface.triangles, grid.spacing,
                       {"format": BINDING_FORMAT}, uv=uv)
+
+    normals = rest_normals(grid)
+
+    def fresh() -> Binding:
+        return bind(mesh.vertices, mesh.faces, grid.rest_positions, normals, surface,
+                    spacing=grid.spacing, uv=uv)
+
+    if not use_cache:
+        return fresh()
     path = cache_dir() / f"binding-{key[:24]}.npz"
-    if use_cache:
-        cached = load_binding(path, key)
-        if cached is not None:
-            return cached
-    binding = bind(mesh.vertices, mesh.faces, grid.rest_positions, rest_normals(grid), surface,
-                   spacing=grid.spacing, uv=uv)
-    if use_cache:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            save_binding(path, binding, key)
-        except OSError:
-            pass  # a read-only cache only costs time
+    try:
+        cached = read_binding(path, key, vertices=mesh.vertices, node_positions=grid.rest_positions,
+                              node_normals=normals)
+    except BadCacheEntry as exc:
+        _warn(f"{path}: binding cache entry {exc}: rebuilt")
+        cached = None
+    except OSError as exc:
+        _warn(f"{path}: caching off for this run: cannot read the cache file "
+              f"({exc.strerror or type(exc).__name__})")
+        return fresh()
+    if cached is not None:
+        return cached
+    binding = fresh()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_binding(path, binding, key)
+    except OSError as exc:
+        _warn(f"{path}: caching off for this run: cannot write the cache file "
+              f"({exc.strerror or type(exc).__name__})")
     return binding
 
 
