@@ -241,6 +241,14 @@ def test_relative_paths_are_relative_to_the_scene_file(scene_dir: Path, monkeypa
      "physics.pull[0].ramp: must be >= 0, got -1"),
     ('[[physics.pull]]\nregion = "above"\naxis = "y"\nat = 0.8\nforce = [1, 0, 0]\n' * 5,
      "physics.pull: at most 4 entries are allowed, got 5"),
+    # the documented ranges (docs/SCENE_LIMITS.md)
+    ("[physics]\ndt = 2\n", "physics.dt: must be in [1e-09, 1] s, got 2"),
+    ("[physics]\ndamping = 1e308\n", "physics.damping: must be in [0, 1e+06] N*s/m, got 1e+308"),
+    ("[physics]\nsteps = 100000001\n", "physics.steps: must be in [0, 1e+08], got 100000001"),
+    ("[render.camera]\ndistance = 1e17\n", "render.camera.distance: must be in [0.001, 1000] box diagonals, got 1e+17"),
+    ("[render.light]\ndirection = [1e-7, 0, 0]\n", "render.light.direction: length must be in (1e-06, 1e+06), got 1e-07"),
+    ("[render.light]\ndirection = [1e200, 1, 0.7]\n", "render.light.direction[0]: must be in [-1e+06, 1e+06], got 1e+200"),
+    ("[physics]\nmass = 1" + "0" * 400 + "\n", "physics.mass: is far out of range, got 100000...(401 digits)"),
     # output
     ('[output]\npath = "out.jpg"\n', "output.path: must end in .png, got 'out.jpg'"),
     ('[output]\npath = ".png"\n', "output.path: must end in .png, got '.png'"),

@@ -16,14 +16,18 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from deformgl.errors import SceneError
 from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _existing, _fail, _int, _join,  # noqa: F401
-                                   _num, _of, _plain, _str, _table, _vec)
-from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_SIZE, MAX_SPHERES,  # noqa: F401
-                                 MSAA_CHOICES, UNSTABLE_POLICIES, _BACKEND, _INTEGRATOR, _MAPPING_MODE,
+                                   _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
+from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
+                                 MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
+                                 UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
                                  _SIZE, _STEPS, Attach, Camera, ClothSpec, Converge, DragSpec, GridSpec,
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
@@ -70,20 +74,39 @@ def _build_grid(file: str, key: str, d: dict[str, Any]) -> GridSpec:
 
 def _build_light(file: str, key: str, d: dict[str, Any]) -> Light:
     x, y, z = d["direction"]
-    norm = math.sqrt(x * x + y * y + z * z)
+    norm = math.hypot(x, y, z)  # no overflow or underflow of the squares
     if norm == 0.0:
         _fail(file, _join(key, "direction"), "must be nonzero, got [0, 0, 0]")
-    return Light((x / norm, y / norm, z / norm), d["colour"], d["ambient"])
+    if not LIGHT_NORM[0] < norm < LIGHT_NORM[1]:
+        _fail(file, _join(key, "direction"),
+              f"length must be in ({LIGHT_NORM[0]:g}, {LIGHT_NORM[1]:g}), got {norm:.3g}")
+    unit = (x / norm, y / norm, z / norm)
+    if not 0.5 < math.hypot(*(float(np.float32(c)) for c in unit)) < 2.0:  # pragma: no cover - by the bounds
+        _fail(file, _join(key, "direction"), "cannot be normalised in float32")
+    return Light(unit, d["colour"], d["ambient"])
+
+
+#: The open range of the light direction's length (its components are finite and within 1e6).
+LIGHT_NORM = (1e-6, 1e6)
 
 
 _POS, _NONNEG, _UNIT = _num(lo=0.0, lo_open=True), _num(lo=0.0), _num(lo=0.0, hi=1.0)
+# The ranges a scene may use (docs/SCENE_LIMITS.md): wide around every shipped scene, narrow enough
+# that the float64 arithmetic of the dt check and the float32 arithmetic on the GPU stay finite.
+_FRAC = _num(sane=(-10.0, 10.0), unit="box fractions")
+_TIME = _num(lo=0.0, sane=(0.0, 1e9), unit="s")
+_K = _num(lo=0.0, lo_open=True, sane=(1e-9, 1e9), unit="N/m")  # spring stiffness
+_C = _num(lo=0.0, sane=(0.0, 1e6), unit="N*s/m")  # damping and drag
+_ANGLE = _num(sane=(-3600.0, 3600.0), unit="degrees")
+_COLOUR = _vec(3, _UNIT)
 _REGION: dict[str, tuple[Check, Any]] = {
     "region": (_str(("below", "above", "box")), REQUIRED),
-    "axis": (_str(AXES), None), "at": (_num(), None), "min": (_vec(3), None), "max": (_vec(3), None),
+    "axis": (_str(AXES), None), "at": (_FRAC, None), "min": (_vec(3, _FRAC), None),
+    "max": (_vec(3, _FRAC), None),
 }
 _PULL = _REGION | {
-    "force": (_vec(3), REQUIRED), "start": (_NONNEG, 0.0), "ramp": (_NONNEG, 0.0),
-    "stop": (_num(allow_inf=True), math.inf),
+    "force": (_vec(3, _num(sane=(-1e6, 1e6), unit="N")), REQUIRED), "start": (_TIME, 0.0),
+    "ramp": (_TIME, 0.0), "stop": (_num(allow_inf=True, sane=(0.0, 1e9), unit="s (or inf)"), math.inf),
 }
 def _build_keyframes(file: str, key: str, points: tuple[Vec3, ...], times: tuple[float, ...] | None) -> Keyframes:
     if times is None:
@@ -101,13 +124,17 @@ def _build_keyframes(file: str, key: str, points: tuple[Vec3, ...], times: tuple
 def _points(file: str, key: str, v: Any) -> tuple[Vec3, ...]:
     if not isinstance(v, list) or not v:
         _fail(file, key, f"must be a non-empty array of [x, y, z] points, got {_describe(v)}")
-    return tuple(_vec(3)(file, f"{key}[{i}]", p) for i, p in enumerate(v))
+    if len(v) > MAX_KEYFRAMES:
+        _fail(file, key, f"at most {MAX_KEYFRAMES} points are allowed, got {len(v)}")
+    return tuple(_vec(3, _FRAC)(file, f"{key}[{i}]", p) for i, p in enumerate(v))
 
 
 def _numbers(file: str, key: str, v: Any) -> tuple[float, ...]:
     if not isinstance(v, list):
         _fail(file, key, f"must be an array of numbers, got {_describe(v)}")
-    return tuple(_NONNEG(file, f"{key}[{i}]", t) for i, t in enumerate(v))
+    if len(v) > MAX_KEYFRAMES:
+        _fail(file, key, f"at most {MAX_KEYFRAMES} times are allowed, got {len(v)}")
+    return tuple(_TIME(file, f"{key}[{i}]", t) for i, t in enumerate(v))
 
 
 def _build_sphere(file: str, key: str, d: dict[str, Any]) -> SphereSpec:
@@ -125,58 +152,69 @@ def _build_physics(file: str, key: str, d: dict[str, Any]) -> Physics:
 
 
 def _spring_class(flexion: bool) -> Check:
-    return _table({"stiffness": (_NONNEG, 0.0 if flexion else None), "damping": (_NONNEG, 0.0)},
+    stiffness = _num(lo=0.0, sane=(0.0, 1e9), unit="N/m")
+    return _table({"stiffness": (stiffness, 0.0 if flexion else None), "damping": (_C, 0.0)},
                   lambda file, key, d: SpringClass(d["stiffness"], d["damping"]))
 
 
 _PHYSICS = _table({
-    "dt": (_POS, 0.002), "steps": (_STEPS, 400), "stiffness": (_POS, 500.0),
-    "damping": (_NONNEG, 0.5), "mass": (_POS, 0.01), "gravity": (_vec(3), [0.0, -9.81, 0.0]),
+    "dt": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1.0), unit="s"), 0.002), "steps": (_STEPS, 400),
+    "stiffness": (_K, 500.0), "damping": (_C, 0.5),
+    "mass": (_num(lo=0.0, lo_open=True, sane=(1e-12, 1e6), unit="kg"), 0.01),
+    "gravity": (_vec(3, _num(sane=(-1e4, 1e4), unit="m/s^2")), [0.0, -9.81, 0.0]),
     "fixed": (_array(_table(_REGION, _build_region)), []),
     "pull": (_array(_table(_PULL, _build_pull), MAX_PULLS), []),
     "integrator": (_INTEGRATOR, "verlet"), "backend": (_BACKEND, "fragment"),
     "springs": (_table({"structural": (_spring_class(False), {}), "shear": (_spring_class(False), {}),
                         "flexion": (_spring_class(True), {})}, lambda file, key, d: d), {}),
-    "wind": (_vec(3), [0.0, 0.0, 0.0]), "wind_drag": (_NONNEG, 0.0),
-    "ground": (_table({"at": (_num(), REQUIRED)}, lambda file, key, d: d["at"]), None),
+    "wind": (_vec(3, _num(sane=(-1e4, 1e4), unit="m/s")), [0.0, 0.0, 0.0]), "wind_drag": (_C, 0.0),
+    "ground": (_table({"at": (_FRAC, REQUIRED)}, lambda file, key, d: d["at"]), None),
     "sphere": (_array(_table({
-        "centre": (_vec(3), None), "path": (_points, None), "times": (_numbers, None),
-        "radius": (_POS, REQUIRED)}, _build_sphere), MAX_SPHERES), []),
+        "centre": (_vec(3, _FRAC), None), "path": (_points, None), "times": (_numbers, None),
+        "radius": (_num(lo=0.0, lo_open=True, sane=(0.0, 100.0), unit="box lengths"), REQUIRED)},
+        _build_sphere), MAX_SPHERES), []),
     "drag": (_array(_table({
-        "path": (_points, REQUIRED), "times": (_numbers, None), "stiffness": (_POS, REQUIRED)},
+        "path": (_points, REQUIRED), "times": (_numbers, None), "stiffness": (_K, REQUIRED)},
         lambda file, key, d: DragSpec(_build_keyframes(file, key, d["path"], d["times"]), d["stiffness"])),
         MAX_DRAGS), []),
-    "converge": (_table({"threshold": (_POS, 0.001), "every": (_int(lo=1), 10)}, _plain(Converge)), None),
-    "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_int(lo=0), 100),
-                       "bad_distance": (_POS, 1000.0)}, _plain(Safety)), {}),
+    "converge": (_table({"threshold": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e3), unit="grid spacings"), 0.001),
+                         "every": (_int(lo=1, sane=(1, MAX_STEPS)), 10)}, _plain(Converge)), None),
+    "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_CHECK_EVERY, 100),
+                       "bad_distance": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e6), unit="box lengths"), 1000.0)},
+                      _plain(Safety)), {}),
 }, _build_physics)
 
 
-_GRID = _table({"nodes_along_longest": (_int(lo=2), None), "spacing": (_POS, None)}, _build_grid)
+_GRID = _table({"nodes_along_longest": (_int(lo=2, sane=(2, MAX_GRID_NODES)), None),
+                "spacing": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1e9), unit="mesh units"), None)}, _build_grid)
 _CAMERA = _table({
     "projection": (_str(("perspective", "orthographic")), "perspective"),
-    "azimuth": (_num(), 30.0), "elevation": (_num(lo=-89.0, hi=89.0), 20.0),
+    "azimuth": (_num(sane=(-360.0, 360.0), unit="degrees"), 30.0), "elevation": (_num(lo=-89.0, hi=89.0), 20.0),
     "fov": (_num(lo=0.0, hi=179.0, lo_open=True, hi_open=True), 35.0),
-    "distance": (_POS, 1.6), "target": (_vec(3), [0.5, 0.5, 0.5]),
+    "distance": (_num(lo=0.0, lo_open=True, sane=(1e-3, 1e3), unit="box diagonals"), 1.6),
+    "target": (_vec(3, _FRAC), [0.5, 0.5, 0.5]),
 }, _plain(Camera))
 _LIGHT = _table({
-    "direction": (_vec(3), [0.4, 1.0, 0.6]), "colour": (_vec(3, _NONNEG), [1.0, 1.0, 1.0]),
+    "direction": (_vec(3, _num(sane=(-1e6, 1e6))), [0.4, 1.0, 0.6]),
+    "colour": (_vec(3, _num(lo=0.0, sane=(0.0, 100.0))), [1.0, 1.0, 1.0]),
     "ambient": (_UNIT, 0.2),
 }, _build_light)
 _MATERIAL = _table({
-    "colour": (_vec(3, _UNIT), [0.85, 0.6, 0.35]), "specular": (_UNIT, 0.3), "shininess": (_POS, 32.0),
+    "colour": (_COLOUR, [0.85, 0.6, 0.35]), "specular": (_UNIT, 0.3),
+    "shininess": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e4)), 32.0),
 }, _plain(Material))
 _RENDER = _table({
     "size": (_SIZE, [800, 600]), "msaa": (_int(choices=MSAA_CHOICES), 4),
-    "background": (_vec(3, _UNIT), [1.0, 1.0, 1.0]), "show_grid": (_of(bool, "a boolean (true or false)"), False),
+    "background": (_COLOUR, [1.0, 1.0, 1.0]), "show_grid": (_of(bool, "a boolean (true or false)"), False),
     "camera": (_CAMERA, {}), "light": (_LIGHT, {}), "material": (_MATERIAL, {}),
 }, _plain(Render))
 
 
 _MOTION = _table({
-    "kind": (_str(("rigid", "bend", "twist")), REQUIRED), "angle": (_num(), 0.0),
+    "kind": (_str(("rigid", "bend", "twist")), REQUIRED), "angle": (_ANGLE, 0.0),
     "axis": (_str(AXES), "y"), "along": (_str(AXES), "x"), "towards": (_str(AXES), "y"),
-    "translate": (_vec(3), [0.0, 0.0, 0.0]), "amount": (_num(), 1.0),
+    "translate": (_vec(3, _num(sane=(-1e6, 1e6), unit="mesh units")), [0.0, 0.0, 0.0]),
+    "amount": (_num(sane=(-10.0, 10.0)), 1.0),
 }, lambda file, key, d: _build_motion(file, key, d))
 
 
@@ -185,6 +223,47 @@ def _build_motion(file: str, key: str, d: dict[str, Any]) -> MotionSpec:
         _fail(file, _join(key, "towards"), f"must differ from along ({d['along']!r})")
     return MotionSpec(d["kind"], d["angle"], AXES.index(d["axis"]), AXES.index(d["along"]),
                       AXES.index(d["towards"]), d["translate"], d["amount"])
+
+
+#: How deep a scene file's tables and arrays may nest, and how large the file may be.
+MAX_DEPTH = 32
+MAX_SCENE_BYTES = 1 << 20
+_TOKENS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}\n]', re.S)
+
+
+def _check_text_depth(file: str, text: str) -> None:
+    """Refuses brackets and braces nested beyond :data:`MAX_DEPTH` outside strings and comments,
+    before the (recursive) TOML parser sees them."""
+    depth, line = 0, 1
+    for m in _TOKENS.finditer(text):
+        tok = m[0]
+        if tok in "[{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise SceneError(f"{file}: line {line}: nested more than {MAX_DEPTH} levels deep (arrays and tables)")
+        elif tok in "]}":
+            depth = max(0, depth - 1)
+        line += tok.count("\n")
+
+
+def _check_depth(file: str, data: dict[str, Any]) -> None:
+    """Refuses parsed tables and arrays nested beyond :data:`MAX_DEPTH` (dotted keys and table
+    headers nest without brackets), walking iteratively."""
+    stack: list[tuple[Any, int, tuple[str, ...]]] = [(data, 0, ())]
+    while stack:
+        value, depth, where = stack.pop()
+        if depth > MAX_DEPTH:
+            shown = "".join(k if k.startswith("[") or not i else "." + k for i, k in enumerate(where[:4]))
+            shown += "..." if len(where) > 4 else ""
+            _fail(file, shown, f"nested more than {MAX_DEPTH} levels deep (arrays and tables)")
+        items: Iterator[tuple[str, Any]] = iter(())
+        if isinstance(value, dict):
+            items = iter(value.items())
+        elif isinstance(value, list):
+            items = ((f"[{i}]", x) for i, x in enumerate(value))
+        for k, x in items:
+            if isinstance(x, (dict, list)):
+                stack.append((x, depth + 1, where + (k if len(k) <= 40 else k[:40] + "...",)))
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -198,7 +277,12 @@ def load_scene(path: str | Path) -> Scene:
     file, source = str(path), Path(path).resolve()
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read(MAX_SCENE_BYTES + 1)
+        if len(raw) > MAX_SCENE_BYTES:
+            raise SceneError(f"{file}: cannot read scene file: larger than {MAX_SCENE_BYTES // 1024} KiB")
+        text = raw.decode()
+        _check_text_depth(file, text)
+        data = tomllib.loads(text)
     except FileNotFoundError:
         raise SceneError(f"{file}: cannot read scene file: file not found") from None
     except OSError as e:
@@ -208,21 +292,32 @@ def load_scene(path: str | Path) -> Scene:
     except tomllib.TOMLDecodeError as e:
         m = re.fullmatch(r"(.*) \(at (line (\d+), column (\d+)|end of document)\)", str(e))
         where = f"{m[2]}: invalid TOML: {m[1]}" if m else f"invalid TOML: {e}"
-        raise SceneError(f"{file}: {where}") from None
+        raise SceneError(_one_line(f"{file}: {where}")) from None
+    except ValueError as e:  # e.g. an integer of more than 4300 digits
+        raise SceneError(_one_line(f"{file}: invalid TOML: {str(e).split(';')[0]}")) from None
+    except RecursionError:
+        raise SceneError(f"{file}: invalid TOML: nested too deeply to parse "
+                         f"(more than {MAX_DEPTH} levels are refused)") from None
+    _check_depth(file, data)
+
+    def given_file(key: str, rel: str, suffixes: tuple[str, ...] | None = None) -> Path:
+        if not rel:
+            _fail(file, key, "must be a file path, got ''")
+        return _existing(file, key, _resolve(file, key, source.parent, rel), suffixes)
 
     def build_mesh(file: str, key: str, d: dict[str, Any]) -> MeshSpec:
-        return MeshSpec(_existing(file, _join(key, "path"), (source.parent / d["path"]).resolve()))
+        return MeshSpec(given_file(_join(key, "path"), d["path"]))
 
     def build_output(file: str, key: str, d: dict[str, Any]) -> Output:
         out = d["path"] if d["path"] is not None else f"{source.stem}.png"
         if not out.lower().endswith(".png") or Path(out).name.lower() == ".png":
-            _fail(file, _join(key, "path"), f"must end in .png, got {out!r}")
-        return Output((source.parent / out).resolve())
+            _fail(file, _join(key, "path"), f"must end in .png, got {_short(out)}")
+        return Output(_resolve(file, _join(key, "path"), source.parent, out))
 
     def build_mapping(file: str, key: str, d: dict[str, Any]) -> Mapping:
         nm = d["normal_map"]
         if nm not in ("none", "procedural"):
-            nm = _existing(file, _join(key, "normal_map"), (source.parent / nm).resolve())
+            nm = given_file(_join(key, "normal_map"), nm)
         return Mapping(d["mode"], None if nm == "none" else nm, d["normal_map_strength"],
                        d["normal_map_repeat"], d["cache"])
 
@@ -235,7 +330,7 @@ def load_scene(path: str | Path) -> Scene:
         for k, needed_by in (("file", "file"), ("motion", "motion")):
             if d[k] is not None and src != needed_by:
                 _fail(file, _join(key, k), f"not used by source {src!r}")
-        path = _existing(file, _join(key, "file"), (source.parent / d["file"]).resolve()) if d["file"] else None
+        path = None if d["file"] is None else given_file(_join(key, "file"), d["file"], (".npy",))
         return Nodes(src, path, d["frame"], d["motion"])
 
     def build_scene(file: str, key: str, d: dict[str, Any]) -> Scene:
@@ -254,20 +349,22 @@ def load_scene(path: str | Path) -> Scene:
 
     scene = _table({
         "attach": (_array(_table({
-            "from": (_vec(3), REQUIRED), "to": (_vec(3), REQUIRED), "anchors": (_int(lo=2, hi=4096), 16),
-            "radius": (_num(lo=0.0, lo_open=True, hi=0.5), 0.01), "colour": (_vec(3, _UNIT), [0.2, 0.45, 0.85]),
+            "from": (_vec(3, _FRAC), REQUIRED), "to": (_vec(3, _FRAC), REQUIRED), "anchors": (_int(lo=2, hi=4096), 16),
+            "radius": (_num(lo=0.0, lo_open=True, hi=0.5), 0.01), "colour": (_COLOUR, [0.2, 0.45, 0.85]),
         }, lambda file, key, d: Attach(d["from"], d["to"], d["anchors"], d["radius"], d["colour"])), 8), []),
         "mapping": (_table({
             "mode": (_MAPPING_MODE, "one-to-one"), "normal_map": (_str(), "none"),
-            "normal_map_strength": (_UNIT, 1.0), "normal_map_repeat": (_POS, 4.0),
+            "normal_map_strength": (_UNIT, 1.0),
+            "normal_map_repeat": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e4), unit="per box side"), 4.0),
             "cache": (_of(bool, "a boolean (true or false)"), True),
         }, build_mapping), {}),
         "nodes": (_table({
             "source": (_str(("simulate", "file", "motion")), "simulate"), "file": (_str(), None),
-            "frame": (_int(), -1), "motion": (_MOTION, None),
+            "frame": (_int(sane=(-1e9, 1e9)), -1), "motion": (_MOTION, None),
         }, build_nodes), {}),
         "mesh": (_table({"path": (_str(), REQUIRED)}, build_mesh), None),
-        "cloth": (_table({"nodes": (_vec(2, _int(lo=2, hi=MAX_SIZE)), REQUIRED), "size": (_POS, 1.0)},
+        "cloth": (_table({"nodes": (_vec(2, _int(lo=2, hi=MAX_SIZE)), REQUIRED),
+                          "size": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e6), unit="m"), 1.0)},
                          lambda file, key, d: ClothSpec(d["nodes"], d["size"])), None),
         "grid": (_GRID, {"nodes_along_longest": 8}),
         "physics": (_PHYSICS, {}),

@@ -25,8 +25,14 @@ MAX_SPHERES = 8
 MAX_DRAGS = 8
 UNSTABLE_POLICIES = ("refuse", "run", "subdivide")
 MAPPING_MODES = ("one-to-one", "constant", "curvature", "auto")
+#: Sanity limits of scene sizes (docs/SCENE_LIMITS.md): steps of a run, nodes along a grid's
+#: longest side, points of a keyframed path.
+MAX_STEPS = 100_000_000
+MAX_GRID_NODES = 1024
+MAX_KEYFRAMES = 10_000
 # the checkers the command-line overrides share with the scene file's tables
-_STEPS, _SIZE = _int(lo=0), _vec(2, _int(lo=1, hi=MAX_SIZE))
+_STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
+_CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
 _INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
 
 
@@ -341,7 +347,7 @@ class Scene:
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))
         safety_overrides: tuple[tuple[str, str, object, Check], ...] = (
             ("--unstable", "unstable", unstable, _str(UNSTABLE_POLICIES)),
-            ("--check-every", "check_every", check_every, _int(lo=0)))
+            ("--check-every", "check_every", check_every, _CHECK_EVERY))
         for flag, key, given, check in safety_overrides:
             if given is not None:
                 safety = dataclasses.replace(scene.physics.safety, **{key: check(file, flag, given)})
