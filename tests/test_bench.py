@@ -66,7 +66,7 @@ def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, 
 def test_bench_out_must_be_a_folder(tmp_path, capsys):
     from deformgl.cli import main
 
-    assert main(["bench", "trade", "--out", str(tmp_path / "missing")]) == 1
+    assert main(["bench", "trade", "--out", str(tmp_path / "missing")]) == 2  # an input error
     assert "--out:" in capsys.readouterr().err
 
 

@@ -92,6 +92,6 @@ def test_a_shipped_scene_without_output_writes_into_the_working_folder(installed
     assert (work / "jelly.png").stat().st_size > 0
     missing = subprocess.run([str(bindir / "deformgl"), "render", "no_such.toml"], cwd=work, env=env,
                              capture_output=True, text=True, timeout=60)
-    assert missing.returncode == 1
+    assert missing.returncode == 2  # an input error
     lines = missing.stderr.strip().splitlines()
     assert len(lines) == 1 and "no_such.toml: scene file not found" in lines[0] and "dragon.toml" in lines[0]

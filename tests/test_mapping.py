@@ -204,7 +204,7 @@ def test_export_mesh_is_what_the_vertex_shader_computed(ctx, mapped, tmp_path, c
 def test_export_needs_a_detailed_mapping(ctx, tmp_path, capsys):
     code, _, err = render_cli(capsys, "render", SCENES / "jelly.toml", "-o", tmp_path / "j.png",
                               "--export-mesh", tmp_path / "j.ply", "--steps", "1", "--quiet")
-    assert code == 1 and "one-to-one" in err and not (tmp_path / "j.ply").exists()
+    assert code == 2 and "one-to-one" in err and not (tmp_path / "j.ply").exists()
 
 
 def scene_with_nodes(tmp_path, nodes_table: str) -> Path:
@@ -252,7 +252,7 @@ def test_bad_node_files_are_clear_errors(ctx, tmp_path, capsys, content, message
     scene = scene_with_nodes(tmp_path, '[nodes]\nsource = "file"\nfile = "bad.npy"\n')
     np.save(tmp_path / "bad.npy", content(21))
     code, _, err = render_cli(capsys, "render", scene, "-o", tmp_path / "bad.png", "--quiet")
-    assert code == 1 and "bad.npy" in err and message in err and not (tmp_path / "bad.png").exists()
+    assert code == 2 and "bad.npy" in err and message in err and not (tmp_path / "bad.png").exists()
 
 
 def test_normal_map_changes_shading_and_strength_zero_removes_it(ctx, golden):
