@@ -60,10 +60,18 @@ class NodeGrid:
         """Grid dimensions (nx, ny, nz), including empty positions."""
         return tuple(int(n) for n in self.occupied.shape)  # type: ignore[return-value]
 
+    @property
+    def index_dtype(self) -> type:
+        """Integer type of node numbers and grid indices: int32 while the grid's box has fewer
+        than 2**31 positions (every grid :func:`~deformgl.grid.voxelize.voxelize` or a cloth of
+        up to 16384**2 builds), else int64. Half the bytes of the per-node index arrays."""
+        return np.int32 if self.occupied.size < 2**31 else np.int64
+
     @cached_property
     def ijk(self) -> np.ndarray:
-        """(N, 3) int64 grid index of each existing node, in node order."""
-        return np.argwhere(self.occupied)
+        """(N, 3) grid index of each existing node, in node order (:attr:`index_dtype`)."""
+        ijk = np.argwhere(self.occupied)
+        return ijk.astype(self.index_dtype, copy=False)
 
     @property
     def count(self) -> int:
@@ -78,9 +86,11 @@ class NodeGrid:
 
     @cached_property
     def index(self) -> np.ndarray:
-        """(nx, ny, nz) int64 node number at each grid position, -1 where no node exists."""
-        idx = np.full(self.shape, -1, dtype=np.int64)
-        idx[self.occupied] = np.arange(self.count)
+        """(nx, ny, nz) node number at each grid position, -1 where no node exists
+        (:attr:`index_dtype`)."""
+        dtype = self.index_dtype
+        idx: np.ndarray = np.full(self.shape, -1, dtype=dtype)
+        idx[self.occupied] = np.arange(self.count, dtype=dtype)
         return idx
 
     @cached_property
@@ -90,11 +100,13 @@ class NodeGrid:
 
     @cached_property
     def neighbours(self) -> np.ndarray:
-        """(N, 18) int64 node number of each neighbour in NEIGHBOUR_OFFSETS order, -1 if absent."""
+        """(N, 18) node number of each neighbour in NEIGHBOUR_OFFSETS order, -1 if absent
+        (:attr:`index_dtype`)."""
         padded = np.pad(self.index, 1, constant_values=-1)
         base = self.ijk + 1
-        out = np.empty((self.count, N_NEIGHBOURS), dtype=np.int64)
-        for j, off in enumerate(NEIGHBOUR_OFFSETS):
+        out: np.ndarray = np.empty((self.count, N_NEIGHBOURS), dtype=self.index_dtype)
+        offsets = NEIGHBOUR_OFFSETS.astype(base.dtype)
+        for j, off in enumerate(offsets):
             q = base + off
             out[:, j] = padded[q[:, 0], q[:, 1], q[:, 2]]
         return out
@@ -109,10 +121,11 @@ class NodeGrid:
     def springs(self) -> np.ndarray:
         """(S, 2) int64 node pairs (a < b), each spring once; structural springs first."""
         pairs = []
+        own: np.ndarray = np.arange(self.count, dtype=self.index_dtype)
         for j in range(N_NEIGHBOURS):
             nb = self.neighbours[:, j]
-            a = np.nonzero(nb > np.arange(self.count))[0]
-            pairs.append(np.stack([a, nb[a]], axis=1))
+            a = np.nonzero(nb > own)[0]
+            pairs.append(np.stack([a, nb[a].astype(np.int64)], axis=1))
         return np.concatenate(pairs, axis=0)
 
     def bbox_fraction(self, points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -284,7 +297,7 @@ class CompactLayout(TexelImages):
     def neighbour_layers(self, neighbours: np.ndarray) -> np.ndarray:
         """(5, height, width, 4) int32 neighbour node numbers, absent ones replaced by the node."""
         n = len(neighbours)
-        own = np.arange(n)[:, None]
+        own = np.arange(n, dtype=neighbours.dtype)[:, None]  # (int32 on NodeGrid: half the bytes)
         nb = np.where(neighbours >= 0, neighbours, own)
         nb = np.concatenate([nb, np.repeat(own, 20 - nb.shape[1], axis=1)], axis=1)  # (N, 20)
         w, h = self.size

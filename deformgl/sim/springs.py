@@ -31,6 +31,7 @@ SHEAR = 1
 FLEXION = 2
 CLASS_NAMES = ("structural", "shear", "flexion")
 _AXES = np.eye(3, dtype=np.int64)
+_REST_BLOCK = 1 << 16  # springs per block of the rest-length computation
 
 
 def _frozen(a: ArrayLike, dtype: type, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -138,17 +139,28 @@ def _assemble(x0: np.ndarray, pairs: np.ndarray, classes: np.ndarray,
     """A SpringSystem from rest positions and candidate springs; classes with k = 0 are dropped."""
     k_of_class = np.asarray(class_k, dtype=np.float64)
     keep = k_of_class[classes] > 0  # model only what the scene requires
-    pairs, classes = pairs[keep], classes[keep]
+    if not keep.all():
+        pairs, classes = pairs[keep], classes[keep]
+    del keep
     order = np.argsort(classes, kind="stable")  # structural first, then shear, then flexion
     pairs, classes = pairs[order], classes[order]
+    del order
     # Rest length from the rest positions with the same arithmetic as forces(): the rest state
-    # is then an exact equilibrium (L - |d| == 0 bit for bit).
-    rest = np.linalg.norm(x0[pairs[:, 0]] - x0[pairs[:, 1]], axis=1)
+    # is then an exact equilibrium (L - |d| == 0 bit for bit). Row by row, so in blocks (the
+    # same values) to keep the (S, 3) temporaries small.
+    rest = np.empty(len(pairs), dtype=np.float64)
+    for start in range(0, len(pairs), _REST_BLOCK):
+        p = pairs[start:start + _REST_BLOCK]
+        rest[start:start + len(p)] = np.linalg.norm(x0[p[:, 0]] - x0[p[:, 1]], axis=1)
     n = len(x0)
+    # SpringSystem copies every array it is given (_frozen): hand it contiguous columns and
+    # drop ours right after, so only one copy of each (S,) array outlives the call.
+    i, j = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
+    del pairs
     return SpringSystem(
         rest_positions=x0, mass=_node_array(mass, n, np.float64),
         fixed=np.zeros(n, bool) if fixed is None else _node_array(fixed, n, np.bool_),
-        i=pairs[:, 0], j=pairs[:, 1], rest_length=rest, stiffness=k_of_class[classes],
+        i=i, j=j, rest_length=rest, stiffness=k_of_class[classes],
         damping=np.asarray(class_c, dtype=np.float64)[classes], spring_class=classes,
         velocity_damping=float(velocity_damping), gravity=np.asarray(gravity, float),
         wind=np.asarray(wind, float), wind_drag=float(wind_drag), spacing=float(spacing), grid=grid)
@@ -176,21 +188,30 @@ def from_grid(grid: NodeGrid, *, k_structural: float, k_shear: float, k_flexion:
         fixed: (N,) bool or None.
         velocity_damping, gravity, wind, wind_drag: see :class:`SpringSystem`.
     """
-    n = grid.count
-    own = np.arange(n)
+    # Candidates are built in the grid's (int32) node numbers and widened to int64 once; the
+    # per-node intermediates are dropped as soon as they are used (memory: issue 14).
+    own: np.ndarray = np.arange(grid.count, dtype=grid.index_dtype)
     nb = grid.neighbours                                   # (N, 18), -1 where absent
     rows, cols = np.nonzero(nb > own[:, None])              # each pair once (the larger number)
-    near = np.stack([rows, nb[rows, cols]], axis=1)
+    del own
+    near = np.empty((len(rows), 2), dtype=np.int64)
+    near[:, 0], near[:, 1] = rows, nb[rows, cols]
     near_class = np.where(cols < N_STRUCTURAL, STRUCTURAL, SHEAR).astype(np.int8)
+    del rows, cols
     padded = np.pad(grid.index, 2, constant_values=-1)
     base = grid.ijk[:, None, :] + 2                         # (N, 1, 3) in the padded grid
-    mid = padded[tuple(np.moveaxis(base + _AXES, -1, 0))]        # (N, 3): node at +1 along axis
-    far = padded[tuple(np.moveaxis(base + 2 * _AXES, -1, 0))]    # (N, 3): node at +2 along axis
-    rows, axes = np.nonzero((mid >= 0) & (far >= 0))
-    flex = np.stack([rows, far[rows, axes]], axis=1)
-    pairs = np.concatenate([near, flex]).astype(np.int64)
+    axes = _AXES.astype(base.dtype)
+    mid = padded[tuple(np.moveaxis(base + axes, -1, 0))]        # (N, 3): node at +1 along axis
+    far = padded[tuple(np.moveaxis(base + 2 * axes, -1, 0))]    # (N, 3): node at +2 along axis
+    del padded, base
+    rows, axes_of = np.nonzero((mid >= 0) & (far >= 0))
+    flex = np.empty((len(rows), 2), dtype=np.int64)
+    flex[:, 0], flex[:, 1] = rows, far[rows, axes_of]
+    del mid, far, rows, axes_of
+    pairs = np.concatenate([near, flex])
     classes = np.concatenate([near_class, np.full(len(flex), FLEXION, np.int8)])
-    return _assemble(grid.rest_positions.copy(), pairs, classes,
+    del near, flex, near_class
+    return _assemble(grid.rest_positions, pairs, classes,  # (SpringSystem copies it)
                      (k_structural, k_shear, k_flexion),
                      (damping_structural, damping_shear, damping_flexion), mass=mass,
                      fixed=fixed, spacing=grid.spacing, velocity_damping=velocity_damping,
@@ -339,18 +360,32 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     Returns:
         (N, 3) float64 force in N.
     """
-    d = x[system.i] - x[system.j]
+    # The same arithmetic in place (no second (S, 3) array per step of the formula) and the
+    # sums one component at a time: the values and the order of every sum are unchanged.
+    d = x[system.i]
+    d -= x[system.j]
     length = np.linalg.norm(d, axis=1)
-    u = d / np.where(length > 0, length, 1.0)[:, None]  # d = 0 -> u = 0
-    dv = v[system.i] - v[system.j]
-    scale = (system.stiffness * (system.rest_length - length)
-             - system.damping * np.einsum("sk,sk->s", dv, u))
-    f = scale[:, None] * u                                # force on i of each spring, (S, 3)
+    d /= np.where(length > 0, length, 1.0)[:, None]  # d = 0 -> u = 0
+    u = d
+    dv = v[system.i]
+    dv -= v[system.j]
+    along = np.einsum("sk,sk->s", dv, u)
+    del dv
+    length = np.subtract(system.rest_length, length, out=length)
+    scale = system.stiffness * length
+    del length
+    scale -= system.damping * along
+    del along
+    u *= scale[:, None]
+    f = u                                                 # force on i of each spring, (S, 3)
+    del scale
     ends = np.concatenate([system.i, system.j])
-    signed = np.concatenate([f, -f])
     n = system.count
-    total = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)],
-                     axis=1).astype(np.float64)  # (bincount of no springs gives int64)
+    total = np.empty((n, 3), dtype=np.float64)
+    for c in range(3):
+        fc = f[:, c]
+        total[:, c] = np.bincount(ends, weights=np.concatenate([fc, -fc]), minlength=n)
+    del ends, f, u
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
               - system.velocity_damping * v)
     for drag in drags:

@@ -1,0 +1,131 @@
+"""The memory budget of a scene (deformgl.scene.budget): counts, refusals, and the estimate
+against the measured peak RSS of a real render."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deformgl.errors import InputError
+from deformgl.scene.budget import box_springs, check, check_scene, estimate, probe_framebuffer
+from deformgl.scene.schema import load_scene
+from deformgl.sim.springs import cloth, from_grid
+from deformgl.grid.nodes import NodeGrid
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "scenes"
+
+
+def _jelly(n: int, steps: int = 10):
+    s = load_scene(SCENES / "jelly.toml")
+    return dataclasses.replace(s, grid=dataclasses.replace(s.grid, nodes_along_longest=n),
+                               physics=dataclasses.replace(s.physics, steps=steps))
+
+
+def test_box_springs_counts_from_grid_exactly():
+    for shape in [(3, 1, 4), (5, 4, 3), (2, 2, 2), (7, 1, 1)]:
+        grid = NodeGrid(np.zeros(3), 1.0, np.ones(shape, dtype=bool))
+        for flexion in (False, True):
+            system = from_grid(grid, k_structural=1.0, k_shear=1.0, k_flexion=1.0 if flexion else 0.0)
+            assert box_springs(shape, flexion) == system.spring_count
+
+
+def test_the_cloth_estimate_counts_its_nodes_and_springs_exactly():
+    s = load_scene(SCENES / "cloth_64.toml")
+    b = estimate(s)
+    system = cloth(64, 64, 1.0, k_structural=1.0, k_shear=1.0, k_flexion=1.0)
+    assert b.nodes == system.count and b.springs == system.spring_count
+
+
+def test_the_mesh_estimate_bounds_the_voxelized_grid():
+    from deformgl.scene.pipeline import build_scene_model
+
+    s = _jelly(20)
+    b = estimate(s)
+    built = build_scene_model(s)
+    assert built.grid.count <= b.nodes and built.system.spring_count <= b.springs
+
+
+def test_check_refuses_with_one_line_naming_what_to_change():
+    b = estimate(_jelly(300))
+    with pytest.raises(InputError) as exc:
+        check(b, available_host=int(9.8e9))
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert msg.startswith("jelly.toml: needs about ") and "GB of host memory for 12,960,000 nodes" in msg
+    assert msg.endswith("9.8 GB available: lower grid.nodes_along_longest (300)")
+    check(estimate(_jelly(9)), available_host=int(9.8e9))  # the shipped jelly fits
+
+
+def test_check_refuses_a_render_target_over_the_gl_limits():
+    b = estimate(dataclasses.replace(_jelly(9), render=dataclasses.replace(_jelly(9).render, size=(16384, 100))))
+    with pytest.raises(InputError, match="render.size: 16384x100 .* lower render.size"):
+        check(b, available_host=1 << 40, gl_limits={"GL_MAX_RENDERBUFFER_SIZE": 8192, "GL_MAX_SAMPLES": 4})
+    with pytest.raises(InputError, match="render.msaa: 4x .* lower render.msaa"):
+        check(b, available_host=1 << 40, gl_limits={"GL_MAX_SAMPLES": 2})
+
+
+def test_probe_refuses_the_incomplete_msaa_target_before_any_simulation(ctx):
+    with pytest.raises(InputError, match="12000x12000 framebuffer with 4x MSAA"):
+        probe_framebuffer(ctx, (12000, 12000), 4)
+    probe_framebuffer(ctx, (320, 240), 4)
+    probe_framebuffer(ctx, (12000, 12000), 0)  # limits only: nothing allocated
+
+
+def test_check_scene_passes_the_shipped_scenes(ctx):
+    for name in ("jelly", "cloth_256", "heart"):
+        b = check_scene(ctx, load_scene(SCENES / f"{name}.toml"))
+        assert b.host_bytes > 0 and b.gpu_bytes > 0
+
+
+_CHILD = textwrap.dedent("""
+    import dataclasses, json, resource, sys
+    from deformgl.gl.context import create_context
+    from deformgl.scene.budget import estimate
+    from deformgl.scene.pipeline import render
+    from deformgl.scene.schema import load_scene
+    kind, n = sys.argv[1], int(sys.argv[2])
+    s = load_scene(sys.argv[3])
+    if kind == "jelly":
+        s = dataclasses.replace(s, grid=dataclasses.replace(s.grid, nodes_along_longest=n))
+    else:
+        s = dataclasses.replace(s, cloth=dataclasses.replace(s.cloth, nodes=(n, n)))
+    s = dataclasses.replace(s, physics=dataclasses.replace(s.physics, steps=10))
+    budget = estimate(s)
+    render(create_context(), s)
+    print(json.dumps({"rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+                      "est": budget.needs_host(True), "nodes": budget.nodes}))
+""")
+
+
+def _peak(kind: str, n: int) -> dict:
+    scene = SCENES / ("jelly.toml" if kind == "jelly" else "cloth_256.toml")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), str(scene)], capture_output=True,
+                         text=True, env=env, check=True, timeout=600).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind, sizes", [("jelly", (40, 60, 80, 100)), ("cloth", (128, 256, 512))])
+def test_the_estimate_is_within_30_percent_of_the_measured_peak(ctx, kind, sizes):
+    """Incremental peak RSS of a render subprocess over the smallest size (llvmpipe: GPU memory
+    is host memory, so the estimate is host + GPU)."""
+    base, *rest = [_peak(kind, n) for n in sizes]
+    rows = []
+    for n, r in zip(sizes[1:], rest):
+        measured, estimated = r["rss"] - base["rss"], r["est"] - base["est"]
+        rows.append(f"{kind} {n}: {r['nodes']} nodes, measured +{measured / 1e6:.0f} MB, "
+                    f"estimated +{estimated / 1e6:.0f} MB ({estimated / measured:.2f})")
+    print("\n".join(rows))
+    for n, r in zip(sizes[1:], rest):
+        measured, estimated = r["rss"] - base["rss"], r["est"] - base["est"]
+        assert 0.7 * measured <= estimated <= 1.3 * measured, rows
