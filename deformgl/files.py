@@ -269,8 +269,9 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
         raise
 
 
-def read_png(path: str | os.PathLike[str]) -> np.ndarray:
-    """Reads an image file into a uint8 RGB or RGBA array.
+def read_png(path: str | os.PathLike[str], max_pixels: int | None = None) -> np.ndarray:
+    """Reads an image file into a uint8 RGB or RGBA array, refusing a too large one from its
+    header, before any pixel is decoded.
 
     Images with an alpha channel or palette transparency become (H, W, 4); all others,
     greyscale and palette images included, become (H, W, 3). 16-bit images are reduced to
@@ -278,6 +279,10 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
 
     Args:
         path: The file to read.
+        max_pixels: Most pixels (width x height) accepted; None: the environment variable
+            ``DEFORMGL_MAX_IMAGE_PIXELS``, default 8192 x 8192 (the same default as
+            :data:`deformgl.inputs.DEFAULT_MAX_IMAGE_PIXELS`; docs/INPUTS.md). Pillow's own
+            guard refuses more than 2 x ``PIL.Image.MAX_IMAGE_PIXELS`` whatever this is.
 
     Returns:
         A uint8 array of shape (H, W, 3) or (H, W, 4).
@@ -285,9 +290,40 @@ def read_png(path: str | os.PathLike[str]) -> np.ndarray:
     Raises:
         FileNotFoundError: ``path`` does not exist.
         PIL.UnidentifiedImageError: ``path`` is not an image Pillow can read.
+        InputError: The image has more pixels than the limit, its data is corrupt or truncated,
+            or ``DEFORMGL_MAX_IMAGE_PIXELS`` is not a positive integer; the one-line message
+            starts with ``path``.
     """
-    with Image.open(path) as image:
-        image.load()
+    import warnings
+    import zlib
+
+    name = os.fspath(path)
+    if max_pixels is None:
+        setting = os.environ.get("DEFORMGL_MAX_IMAGE_PIXELS", "").strip().replace("_", "")
+        max_pixels = int(setting) if setting.isdigit() else (8192 * 8192 if not setting else 0)
+        if max_pixels <= 0:
+            raise InputError(f"{name}: environment variable DEFORMGL_MAX_IMAGE_PIXELS must be a "
+                          f"positive integer, got {os.environ['DEFORMGL_MAX_IMAGE_PIXELS']!r}")
+    refusal = (f"over the limit of {max_pixels:,} pixels "
+               f"(set DEFORMGL_MAX_IMAGE_PIXELS to raise it)")
+    with warnings.catch_warnings():
+        # Pillow warns between its guard and twice it; the limit below is the one that counts.
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        try:
+            opened = Image.open(path)
+        except Image.DecompressionBombError as exc:
+            text = " ".join(str(exc).split()).rstrip(".")
+            raise InputError(f"{name}: image too large for Pillow's decompression-bomb guard ({text})") from None
+    with opened as image:
+        width, height = image.size
+        if width * height > max_pixels:
+            raise InputError(f"{name}: image is {width:,} x {height:,} = {width * height:,} pixels, "
+                          f"{refusal}")
+        try:
+            image.load()
+        except (OSError, SyntaxError, ValueError, EOFError, zlib.error) as exc:
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise InputError(f"{name}: corrupt or truncated image data ({text})") from None
         converted: Image.Image
         if image.mode in ("RGB", "RGBA"):
             converted = image

@@ -193,10 +193,42 @@ def test_empty_gzip_member(tmp_path: Path):
     assert load_error(path).endswith("file is empty")
 
 
-def test_truncated_ply_has_no_faces(tmp_path: Path):
+def test_truncated_ply_names_the_element_and_counts(tmp_path: Path):
     text = ascii_ply(["0 0 0", "1 0 0", "0 1 0"], ["3 0 1 2"])
     path = write(tmp_path / "cut.ply", text[: text.index("0 1 0")])
-    assert "empty mesh" in load_error(path)
+    assert load_error(path) == f"{path}: truncated: header declares 3 vertices, file holds 2"
+    path = write(tmp_path / "nofaces.ply", text[: text.index("3 0 1 2")])
+    assert load_error(path) == f"{path}: truncated: header declares 1 faces, file holds 0"
+
+
+def test_truncated_dragon_ascii_ply(tmp_path: Path):
+    """The fuzzer's case: the dragon cut short used to load 5,075 of its 11,102 faces silently."""
+    data = gzip.decompress(DRAGON.read_bytes())
+    body = data.index(b"end_header\n") + len(b"end_header\n")
+    lines = data[body:].split(b"\n")
+    path = tmp_path / "dragon.ply"
+    path.write_bytes(data[:body] + b"\n".join(lines[: 5205 + 5075]) + b"\n")
+    assert load_error(path) == f"{path}: truncated: header declares 11,102 faces, file holds 5,075"
+
+
+def test_coordinates_of_1e300_name_the_vertex(tmp_path: Path):
+    text = ascii_ply(["0 0 0", "1e300 0 0", "0 1 0", "0 0 -1e300"], ["3 0 1 2", "3 0 2 3"])
+    text = text.replace("property float", "property double")  # float32 would make them inf
+    assert load_error(write(tmp_path / "far.ply", text)).endswith(
+        ": vertex 1 has a coordinate beyond ±1e+15 (1e+300, 0, 0); 2 vertices are out of range "
+        "(DEFORMGL_MAX_COORDINATE sets the bound)"
+    )
+
+
+@pytest.mark.parametrize("name", ["m.ply", "m.obj", "m.stl", "m.off", "m.glb", "m.gltf"])
+def test_random_bytes_never_leak_a_module_or_internal_error(tmp_path: Path, name: str):
+    junk = np.random.default_rng(3).integers(0, 256, 3000, dtype=np.uint8).tobytes()
+    for path in (tmp_path / name, tmp_path / f"{name}.gz"):
+        path.write_bytes(gzip.compress(junk) if path.suffix == ".gz" else junk)
+        message = load_error(path)
+        assert "module" not in message and "charset" not in message
+        fmt = {"gltf": "glTF"}.get(name[2:], name[2:].upper())
+        assert f"not a valid {fmt} file" in message or "truncated: header declares" in message
 
 
 def test_truncated_binary_stl_is_empty(tmp_path: Path, box: trimesh.Trimesh):
@@ -219,7 +251,7 @@ def test_plain_file_named_gz(tmp_path: Path):
 
 def test_parse_failure_wraps_trimesh_message(tmp_path: Path):
     message = load_error(write(tmp_path / "junk.ply", "this is not a mesh\n"))
-    assert message == f"{tmp_path / 'junk.ply'}: cannot parse as PLY: Not a ply file!"
+    assert message == f"{tmp_path / 'junk.ply'}: not a valid PLY file (Not a ply file!)"
 
 
 def test_point_cloud_is_not_a_mesh(tmp_path: Path):

@@ -6,6 +6,7 @@ pass computes their normals (Mosegaard & Sørensen 2005, eq. 3).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,14 +14,18 @@ import moderngl
 import numpy as np
 
 from deformgl.errors import InputError
+from deformgl.inputs import max_mesh_bytes
 from deformgl.sim.backends.foundation import NodeTextures, tile_rectangles
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 
 
-def load_node_frames(path: Path, count: int, offset: np.ndarray) -> np.ndarray:
+def load_node_frames(path: Path | str, count: int, offset: np.ndarray) -> np.ndarray:
     """Read node positions from ``path``: (N, 3) or (F, N, 3), in the mesh's own coordinates.
+
+    The ``.npy`` header (shape, dtype) is checked before any data is read, and the data may be
+    at most ``DEFORMGL_MAX_MESH_BYTES`` (docs/INPUTS.md).
 
     Args:
         path: the ``.npy`` file.
@@ -31,27 +36,64 @@ def load_node_frames(path: Path, count: int, offset: np.ndarray) -> np.ndarray:
         (F, N, 3) float64 frames.
 
     Raises:
-        InputError: unreadable file, wrong shape or dtype, or a non-finite coordinate (named by
-            frame and node).
+        InputError: no file name, a directory, a missing or unreadable file, not a ``.npy`` file
+            (an ``.npz`` archive included), too large, wrong shape or dtype, or a non-finite
+            coordinate (named by frame and node). One line, starting with the file.
     """
+    name = os.fspath(path)
+    if not name.strip():
+        raise InputError("nodes.file: no file name given (an empty path)")
+    file = Path(name)
+    if file.is_dir():
+        raise InputError(f"{name}: node positions: a directory, not a .npy file")
     try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read node positions: {exc}") from None
+        with open(file, "rb") as stream:
+            magic = stream.read(6)
+            stream.seek(0)
+            if magic != b"\x93NUMPY":
+                kind = "a .npz archive" if magic[:4] == b"PK\x03\x04" else "not a .npy file"
+                raise InputError(f"{name}: node positions must be a .npy array, got {kind}")
+            version = np.lib.format.read_magic(stream)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(stream)
+            header_end = stream.tell()
+            _check_frames_header(name, shape, dtype, count)
+            limit = max_mesh_bytes()
+            size = int(np.prod(shape)) * dtype.itemsize
+            if size > limit:
+                raise InputError(f"{name}: node positions hold {size:,} bytes, more than the limit "
+                                 f"of {limit:,} (set DEFORMGL_MAX_MESH_BYTES to raise it)")
+            if file.stat().st_size < header_end + size:
+                raise InputError(f"{name}: truncated: header declares {shape} {dtype} values "
+                                 f"({size:,} bytes), file holds {file.stat().st_size - header_end:,}")
+            stream.seek(0)
+            data = np.load(stream, allow_pickle=False)
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError) as exc:
+        text = getattr(exc, "strerror", None) or " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"{name}: cannot read node positions: {text}") from None
     if data.ndim == 2:
         data = data[None]
-    if data.ndim != 3 or data.shape[1:] != (count, 3):
-        raise InputError(f"{path}: node positions must have shape ({count}, 3) or (frames, {count}, 3) "
-                         f"for this grid, got {data.shape}")
-    if not np.issubdtype(data.dtype, np.number):
-        raise InputError(f"{path}: node positions must be numbers, got dtype {data.dtype}")
     data = data.astype(np.float64)
     bad = ~np.isfinite(data).all(axis=2)
     if bad.any():
         f, n = np.argwhere(bad)[0]
-        raise InputError(f"{path}: frame {f}, node {n} has a non-finite coordinate {tuple(data[f, n])}; "
+        coords = ", ".join(f"{c:.6g}" for c in data[f, n])
+        raise InputError(f"{name}: frame {f}, node {n} has a non-finite coordinate ({coords}); "
                          f"{int(bad.sum())} node positions are bad")
     return data - offset
+
+
+def _check_frames_header(name: str, shape: tuple[int, ...], dtype: np.dtype, count: int) -> None:
+    """Refuse a .npy header whose shape is not (count, 3) / (F, count, 3) or whose dtype is not
+    real numbers."""
+    if len(shape) not in (2, 3) or tuple(shape[-2:]) != (count, 3) or (len(shape) == 3 and shape[0] == 0):
+        raise InputError(f"{name}: node positions must have shape ({count}, 3) or (frames, {count}, 3) "
+                         f"for this grid, got {tuple(shape)}")
+    if dtype.kind not in "iuf":
+        raise InputError(f"{name}: node positions must be real numbers, got dtype {dtype}")
 
 
 @dataclass(frozen=True)
