@@ -57,7 +57,7 @@ def test_corpus_file_is_one_scene_error_line(path: Path) -> None:
 
 
 # A fixed handful of corpus files through the command line in-process. The lead is changing the
-# exit codes (2: input error, 1: runtime failure): assert only "not 0" for now.
+# a bad scene is an input error: exit code 2 (1 is for runtime failures)
 CLI_CASES = CASES[:20]
 
 
@@ -68,7 +68,7 @@ def test_corpus_file_through_the_cli(path: Path, tmp_path: Path, capsys: pytest.
     out = tmp_path / "x.png"
     code = main(["render", str(path), "-o", str(out)])
     err = capsys.readouterr().err
-    assert code != 0
+    assert code == 2
     lines = err.strip("\n").split("\n")
     assert len(lines) == 1 and lines[0].startswith("deformgl: error: "), err
     assert not out.exists()
