@@ -18,7 +18,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 REQUIRE_GL = os.environ.get("DEFORMGL_REQUIRE_GL") == "1"
@@ -76,11 +75,6 @@ def _no_gl_unless_marked(request: pytest.FixtureRequest, monkeypatch: pytest.Mon
     yield
 
 
-def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption("--update-goldens", action="store_true", default=False,
-                     help="write the current renders as the new golden images (then look at them)")
-
-
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if not (REQUIRE_GL or REQUIRE_EXTRAS):
         return
@@ -113,13 +107,15 @@ def ctx():
 
 @pytest.fixture
 def golden(request: pytest.FixtureRequest):
-    """``golden(image, "name")`` compares a uint8 render with ``tests/golden/name.png``."""
-    from deformgl.testing.imagediff import check_golden
+    """``golden(image, "name", **tolerances)`` compares a uint8 render with ``tests/golden/name.png``.
 
-    update = request.config.getoption("--update-goldens")
+    The ``deformgl_golden`` fixture of the deformgl pytest plugin (deformgl/testing/plugin.py,
+    loaded by its entry point; it owns ``--update-goldens`` and ``--golden-failures``) with the
+    project's folders (failure images in ``tests/output/``) and the same-renderer tolerances
+    (:data:`deformgl.testing.imagediff.SAME_RENDERER`: the goldens are llvmpipe's, which renders
+    byte-identical images run to run and across thread counts).
+    """
+    from deformgl.testing.imagediff import SAME_RENDERER
+    from deformgl.testing.plugin import make_checker
 
-    def check(image: np.ndarray, name: str, **tolerances):
-        return check_golden(image, GOLDEN_DIR / f"{name}.png", update=update, out_dir=OUTPUT_DIR,
-                            **tolerances)
-
-    return check
+    return make_checker(request, GOLDEN_DIR, OUTPUT_DIR, **SAME_RENDERER)

@@ -392,3 +392,77 @@ def test_check_golden_shape_mismatch_fails_with_both_shapes(tmp_path: Path) -> N
     assert f"({HEIGHT}, {WIDTH}, 3)" in message
     assert f"({HEIGHT}, {WIDTH}, 4)" in message
     assert (tmp_path / "out" / "x-diff.png").is_file()
+
+
+# --- small-difference tests and accepted baselines ------------------------------------------
+
+
+def test_small_differences_pass_by_default_and_fail_the_same_renderer_tolerances() -> None:
+    from deformgl.testing.imagediff import SAME_RENDERER
+
+    expected = gradient()
+    actual = with_pixels_changed(expected, 240, 3)  # 2 % of pixels 3/255 off: shading, not noise
+    loose = compare_images(actual, expected)
+    assert loose.passed and "1/255" not in loose.reason and "mean" not in loose.reason
+    assert loose.fraction_small == pytest.approx(0.02)
+    assert loose.mean_abs == pytest.approx(0.06)
+    strict = compare_images(actual, expected, **SAME_RENDERER)
+    assert not strict.passed
+    assert strict.reason.startswith(
+        "images differ: 240 pixels (2.00 %) differ by more than 1/255 (limit 0.1 %) and "
+        "mean difference 0.06/255 (limit 0.05/255)")
+    # one level of noise everywhere is not counted by the small fraction, only by the mean
+    noisy = compare_images(gradient() + np.uint8(1), expected, small_tol=1, max_small_fraction=0.0)
+    assert noisy.passed
+    assert not compare_images(gradient() + np.uint8(1), expected, max_mean=0.5).passed
+    assert compare_images(actual, expected, max_mean=0.07).passed
+
+
+def test_small_difference_tolerances_are_checked() -> None:
+    image = gradient()
+    with pytest.raises(ValueError, match="max_small_fraction"):
+        compare_images(image, image, max_small_fraction=1.5)
+    with pytest.raises(ValueError, match="max_mean"):
+        compare_images(image, image, max_mean=-1.0)
+    with pytest.raises(ValueError, match="small_tol"):
+        compare_images(image, image, small_tol=256)
+
+
+def test_numbered_baselines_are_accepted_alternatives(tmp_path: Path) -> None:
+    from deformgl.testing.imagediff import baselines
+
+    golden = tmp_path / "scene.png"
+    other = gradient()
+    other[:, :, 0] = 0  # another renderer's picture
+    write_png_atomic(golden, gradient())
+    write_png_atomic(tmp_path / "scene_2.png", other)
+    write_png_atomic(tmp_path / "scene_10.png", gradient())
+    write_png_atomic(tmp_path / "scene_x.png", other)  # not a number: not an alternative
+    write_png_atomic(tmp_path / "scene_2_1.png", other)  # belongs to scene_2
+    assert baselines(golden) == [golden, tmp_path / "scene_2.png", tmp_path / "scene_10.png"]
+    assert check_golden(other, golden, update=False, out_dir=tmp_path / "out").passed
+    changed = gradient()
+    changed[:, :, 2] = 255
+    with pytest.raises(AssertionError) as raised:
+        check_golden(changed, golden, update=False, out_dir=tmp_path / "out")
+    assert str(tmp_path / "scene_2.png") in str(raised.value)  # the others tried are named
+    # update with alternatives: a match writes nothing, no match writes the primary
+    before = golden.read_bytes()
+    assert "nothing written" in check_golden(other, golden, update=True, out_dir=tmp_path / "out").reason
+    assert golden.read_bytes() == before
+    check_golden(changed, golden, update=True, out_dir=tmp_path / "out")
+    np.testing.assert_array_equal(read_png(golden), changed)
+    # only alternatives, no primary: they are still the baselines
+    golden.unlink()
+    assert check_golden(other, golden, update=False, out_dir=tmp_path / "out").passed
+
+
+def test_check_golden_accepts_the_new_tolerances_and_rejects_unknown_ones(tmp_path: Path) -> None:
+    golden = tmp_path / "x.png"
+    write_png_atomic(golden, gradient())
+    actual = with_pixels_changed(gradient(), 240, 3)
+    assert check_golden(actual, golden, update=False, out_dir=tmp_path / "out").passed
+    with pytest.raises(AssertionError, match="more than 1/255"):
+        check_golden(actual, golden, update=False, out_dir=tmp_path / "out", max_small_fraction=0.01)
+    with pytest.raises(TypeError, match="max_means"):
+        check_golden(actual, golden, update=False, out_dir=tmp_path / "out", max_means=1.0)
