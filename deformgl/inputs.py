@@ -19,6 +19,7 @@ time; docs/INPUTS.md lists them. Every refusal is one :class:`InputError` line n
 from __future__ import annotations
 
 import gzip
+import io
 import math
 import os
 import zlib
@@ -105,13 +106,12 @@ def read_bounded(path: Path, name: str, compressed: bool) -> bytes:
             raise _too_big(name, limit, "file holds")
         if not compressed:
             return path.read_bytes()
-        out = bytearray()
+        out = io.BytesIO()
         with gzip.open(path, "rb") as stream:
             while chunk := stream.read(_CHUNK):
-                out += chunk
-                if len(out) > limit:
+                if out.write(chunk) and out.tell() > limit:
                     raise _too_big(name, limit, "decompresses to")
-        return bytes(out)
+        return out.getvalue()
     except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
         raise InputError(f"{name}: not a valid gzip file: {_one_line(exc)}") from None
     except OSError as exc:

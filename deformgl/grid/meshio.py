@@ -186,7 +186,7 @@ def _check_ply(data: bytes, name: str) -> None:
             elements[-1][2].append(words[1:])
     body = data[end.end():]
     if fmt == "ascii":
-        held = len(body.rstrip().split(b"\n")) if body.strip() else 0
+        held = _lines(body)
         for element, count, _ in elements:
             if held < count:
                 _truncated(name, element, count, held)
@@ -245,11 +245,19 @@ def _check_off(data: bytes, name: str) -> None:
         return  # trimesh reports a malformed header
     vertices, faces = int(words[1]), int(words[2])
     body = data[consumed:]
-    held = len(body.rstrip().split(b"\n")) if body.strip() else 0
+    held = _lines(body)
     if held < vertices:
         _truncated(name, "vertex", vertices, held)
     if held - vertices < faces:
         _truncated(name, "face", faces, held - vertices)
+
+
+def _lines(body: bytes) -> int:
+    """Lines in ``body`` up to its last non-blank byte, counted without copying it."""
+    end = len(body)
+    while end and body[end - 1] in b" \t\r\n":
+        end -= 1
+    return body.count(b"\n", 0, end) + 1 if end else 0
 
 
 def _truncated(name: str, element: str, declared: int, held: int) -> None:
