@@ -142,6 +142,8 @@ def normal_map_image(spec, source: Path) -> np.ndarray | None:
         image = read_png(Path(spec))
     except OSError as exc:
         raise InputError(f"{source}: mapping.normal_map: cannot read {spec}: {exc}") from None
+    except InputError as exc:  # (too many pixels, corrupt: the message names the image)
+        raise InputError(f"{source}: mapping.normal_map: {exc}") from None
     return image[..., :3]
 
 
