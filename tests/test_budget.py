@@ -115,10 +115,11 @@ def _peak(kind: str, n: int) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind, sizes", [("jelly", (40, 60, 80, 100)), ("cloth", (128, 256, 512))])
+@pytest.mark.parametrize("kind, sizes", [("jelly", (40, 80, 100, 120)), ("cloth", (128, 384, 512, 640))])
 def test_the_estimate_is_within_30_percent_of_the_measured_peak(ctx, kind, sizes):
     """Incremental peak RSS of a render subprocess over the smallest size (llvmpipe: GPU memory
-    is host memory, so the estimate is host + GPU)."""
+    is host memory, so the estimate is host + GPU). The increments are 300 MB and more: the
+    baseline RSS of the interpreter, GL driver and imports varies by tens of MB between runs."""
     base, *rest = [_peak(kind, n) for n in sizes]
     rows = []
     for n, r in zip(sizes[1:], rest):
