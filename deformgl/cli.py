@@ -34,6 +34,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (a bug: please report it)")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    from deformgl.testing import diff_cli
+
+    diff_cli.add_parser(sub)
 
     r = sub.add_parser("render", help="simulate a scene and write a PNG",
                        description="Simulate a scene file (TOML) on the GPU and render it to PNG. "
@@ -353,7 +356,9 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     args = _parser().parse_args(argv)  # (a usage error exits here with argparse's code 2)
-    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench}
+    from deformgl.testing import diff_cli
+
+    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run}
     previous = None
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)

@@ -106,26 +106,38 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def _peak(kind: str, n: int) -> dict:
+def _peak(kind: str, n: int, shader_cache: Path) -> dict:
     scene = SCENES / ("jelly.toml" if kind == "jelly" else "cloth_256.toml")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    # a private Mesa shader cache, warmed before the measured runs: compiling a shader (LLVM) can
+    # peak higher than the nodes do, so every measured run must find the same cache state
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MESA_SHADER_CACHE_DIR=str(shader_cache),
+               DEFORMGL_CACHE_DIR=str(shader_cache / "deformgl"))
+    env.pop("MESA_SHADER_CACHE_DISABLE", None)
     out = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), str(scene)], capture_output=True,
                          text=True, env=env, check=True, timeout=600).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind, sizes", [("jelly", (40, 80, 100, 120)), ("cloth", (128, 384, 512, 640))])
-def test_the_estimate_is_within_30_percent_of_the_measured_peak(ctx, kind, sizes):
+@pytest.mark.parametrize("kind, sizes", [("jelly", (80, 100, 120, 140)), ("cloth", (512, 640, 768, 896))])
+def test_the_estimate_is_within_30_percent_of_the_measured_peak(ctx, kind, sizes, tmp_path):
     """Incremental peak RSS of a render subprocess over the smallest size (llvmpipe: GPU memory
     is host memory, so the estimate is host + GPU). The increments are 300 MB and more: the
-    baseline RSS of the interpreter, GL driver and imports varies by tens of MB between runs."""
-    base, *rest = [_peak(kind, n) for n in sizes]
+    baseline RSS of the interpreter, GL driver and imports varies by tens of MB between runs.
+    A first run of the smallest size warms the private shader and binding caches, and the base is
+    the lower of a run before and a run after the others. Every size is above the floor that a
+    render peaks at whatever its size: measured after other GL tests in the same session, jelly
+    at 40, 50 and 60 nodes all peaked at 389 MB (223, 249, 315 MB alone), 80 at 505 MB either way."""
+    _peak(kind, sizes[0], tmp_path)
+    base, *rest = [_peak(kind, n, tmp_path) for n in sizes]
+    again = _peak(kind, sizes[0], tmp_path)  # the base once more, after: the lower of the two counts
+    base = min(base, again, key=lambda r: r["rss"])
     rows = []
     for n, r in zip(sizes[1:], rest):
         measured, estimated = r["rss"] - base["rss"], r["est"] - base["est"]
         rows.append(f"{kind} {n}: {r['nodes']} nodes, measured +{measured / 1e6:.0f} MB, "
                     f"estimated +{estimated / 1e6:.0f} MB ({estimated / measured:.2f})")
+    print(f"{kind} {sizes[0]} (base): {base['rss'] / 1e6:.0f} MB peak RSS")
     print("\n".join(rows))
     for n, r in zip(sizes[1:], rest):
         measured, estimated = r["rss"] - base["rss"], r["est"] - base["est"]

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -14,7 +13,6 @@ import numpy as np
 import pytest
 
 from deformgl.files import read_png, write_png_atomic
-from deformgl.testing import diff_cli
 
 TEST_FILE = '''
 import numpy as np
@@ -106,9 +104,10 @@ def test_plugin_golden_dir_option(project: Path) -> None:
 # --- deformgl diff ---------------------------------------------------------------------------
 
 def diff(*argv: str) -> int:
-    parser = argparse.ArgumentParser(prog="deformgl")
-    diff_cli.add_parser(parser.add_subparsers(dest="command", required=True))
-    return diff_cli.run(parser.parse_args(["diff", *argv]))
+    """``deformgl diff ...`` through the command line's own entry point."""
+    from deformgl.cli import main
+
+    return main(["diff", *argv])
 
 
 def picture(shift: int = 0, size: tuple[int, int] = (40, 60)) -> np.ndarray:
@@ -140,12 +139,13 @@ def test_diff_command_exit_codes_and_figures(tmp_path: Path, capsys: pytest.Capt
     assert diff(str(a), str(b), "--pixel-max", "1", "--max-fraction", "1") == 1
     capsys.readouterr()
 
-    assert diff(str(a), str(c)) == 2
-    assert "sizes differ" in capsys.readouterr().out
+    assert diff(str(a), str(c)) == 2  # bad input: one line on stderr
+    assert capsys.readouterr().err.startswith(f"deformgl: error: {c}: sizes differ")
     assert diff(str(tmp_path / "missing.png"), str(a)) == 2
-    assert "no such file" in capsys.readouterr().out
+    assert "missing.png: the expected image: no such file" in capsys.readouterr().err
     (tmp_path / "text.png").write_text("not a png")
     assert diff(str(a), str(tmp_path / "text.png")) == 2
-    assert "cannot read it as PNG" in capsys.readouterr().out
+    err = capsys.readouterr().err
+    assert "cannot be read as PNG" in err and len(err.strip().splitlines()) == 1
     with pytest.raises(SystemExit):
         diff(str(a), str(b), "--max-fraction", "2")

@@ -48,11 +48,12 @@ HOST_BYTES: dict[str, dict[str, float]] = {
     # NodeGrid: rest positions 24, ijk 12, neighbours 72; SpringSystem rest positions 24,
     # mass 8, fixed 1; the initial state x, v, x_prev 72; driven/state read-backs
     "retained": {"node": 24 + 12 + 72 + 33 + 72, "spring": 8 + 8 + 8 + 8 + 8 + 1, "box": 1 + 4},
-    # transient at the simulation's start: forces() temporaries (u, dv: 48 per spring, ends and
-    # weights 32), the rest normals of sim.normals.unit_sums ((N, 18, 3) float64 temporaries, of
-    # which about 560 bytes per node stay resident in peak RSS; calibrated), the upload images (node,
-    # neighbour layers, state)
-    "simulation": {"node": 560 + 16 + 80 + 160 + 64, "spring": 48 + 32, "box": 0},
+    # transient at the simulation's start: the rest normals of sim.normals.unit_sums (one
+    # neighbour at a time: (N, 3) temporaries, ~100 per node), the upload images (node, neighbour
+    # layers, state: 16 + 80 + 160 + 64), and forces()' per-spring temporaries, which forces()
+    # builds one axis at a time and which overlap the images only in part: 30 per spring,
+    # calibrated against peak RSS (tests/test_budget.py; 48 + 32 counted would be the ceiling)
+    "simulation": {"node": 100 + 16 + 80 + 160 + 64, "spring": 30, "box": 0},
     # the voxelizer's box-sized intermediates (votes, parity, surface, fill) and the spring
     # candidates of from_grid before SpringSystem copies them
     "build": {"node": 0, "spring": 16 + 16 + 8 + 24, "box": 24},

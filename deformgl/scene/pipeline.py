@@ -19,6 +19,7 @@ import trimesh
 
 from deformgl.trilinear.attachments import TubeAttachment
 from deformgl.render.camera import View, frame_box
+from deformgl.scene.budget import check_scene
 from deformgl.scene.obstacles import draw_obstacles
 from deformgl.errors import InputError, SimulationError
 from deformgl.sim.backends.foundation import NodeTextures
@@ -328,6 +329,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         raise InputError(f"{scene.source}: {flag} needs a mapping of the detailed mesh "
                          f"(--mapping constant, curvature or auto), not one-to-one")
     check_gl_limits(ctx, scene)
+    check_scene(ctx, scene)  # host and GPU memory, render-target limits: before anything is built
     built = build_scene_model(scene)
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
     state = NodeState(ctx, scene, built, progress=progress)

@@ -77,11 +77,14 @@ def unit_sums(grid, x: np.ndarray) -> np.ndarray:
         x: (N, 3) float64 positions.
     """
     x = np.asarray(x, dtype=np.float64)
-    nb = grid.neighbours
-    present = (nb >= 0)[..., None]
-    d = x[:, None, :] - x[np.where(nb >= 0, nb, np.arange(len(x))[:, None])]   # p_i - p_j, (N, 18, 3)
-    length = np.linalg.norm(d, axis=-1, keepdims=True)
-    return np.where(present, d / np.where(length > 0, length, 1.0), 0.0).sum(axis=1)
+    total = np.zeros_like(x)
+    for j in range(grid.neighbours.shape[1]):  # one neighbour at a time: (N, 3) temporaries only
+        nb = grid.neighbours[:, j]
+        present = nb >= 0
+        d = x[present] - x[nb[present]]                                # p_i - p_j
+        length = np.linalg.norm(d, axis=1, keepdims=True)
+        total[present] += d / np.where(length > 0, length, 1.0)
+    return total
 
 
 def rest_normals(grid) -> np.ndarray:

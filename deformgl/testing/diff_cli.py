@@ -71,25 +71,24 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    """Runs ``deformgl diff``; returns the exit status (0 match, 1 differ, 2 bad input)."""
-    from deformgl.errors import DeformglError
+    """Runs ``deformgl diff``; returns the exit status (0 match, 1 differ); bad input (a missing
+    or unreadable image, different sizes) raises InputError, which the CLI prints as one line
+    with exit status 2."""
+    from deformgl.errors import DeformglError, InputError
     from deformgl.files import read_png, write_png_atomic
 
     images = []
     for label, path in (("expected", args.expected), ("actual", args.actual)):
         if not Path(path).is_file():
-            print(f"deformgl diff: {label} image {path}: no such file")
-            return 2
+            raise InputError(f"{path}: the {label} image: no such file")
         try:
             images.append(read_png(Path(path)))
         except (OSError, ValueError, DeformglError) as exc:
-            print(f"deformgl diff: {label} image {path}: cannot read it as PNG: {exc}")
-            return 2
+            raise InputError(f"{path}: the {label} image cannot be read as PNG: {exc}") from None
     expected, actual = images
     if expected.shape != actual.shape:
-        print(f"deformgl diff: sizes differ: expected {args.expected} is {_shape(expected.shape)}, "
-              f"actual {args.actual} is {_shape(actual.shape)}")
-        return 2
+        raise InputError(f"{args.actual}: sizes differ: expected {args.expected} is {_shape(expected.shape)}, "
+                         f"actual {args.actual} is {_shape(actual.shape)}")
 
     tolerances: dict[str, float] = dict(SAME_RENDERER) if getattr(args, "strict", False) else {}
     tolerances.update(channel_tol=args.channel_tolerance, max_fraction=args.max_fraction, pixel_max=args.pixel_max)
