@@ -228,17 +228,21 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     """``bench trade|mappings|scaling``: the table, and with ``--out`` the CSV, JSON and chart,
     each written atomically."""
     from deformgl.bench.studies import machine_line
+    from deformgl.files import OutputSet
 
     out = args.out
+    # the study's CSV, JSON and chart: checked before the study runs, written together or not at all
+    outputs = OutputSet([out / f"{args.what}.{ext}" for ext in ("csv", "json", "png")] if out else [])
     if args.what == "trade":
         from deformgl.bench.trade import trade_study
 
         report = trade_study(ctx, quick=args.quick, progress=note)
         print(report.format())
         if out is not None:
-            report.write_csv(out / "trade.csv")
-            report.write_json(out / "trade.json")
-            _chart(lambda: report.write_chart(out / "trade.png"))
+            with outputs:
+                report.write_csv(out / "trade.csv")
+                report.write_json(out / "trade.json")
+                _chart(lambda: report.write_chart(out / "trade.png"))
     elif args.what == "mappings":
         from deformgl.bench.mapping_accuracy import (DEFAULT_SCENE, format_mapping_accuracy, mapping_accuracy,
                                                      write_chart, write_csv, write_json)
@@ -246,9 +250,10 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
         rows = mapping_accuracy(ctx, scene_path=scene)
         print(format_mapping_accuracy(rows, machine_line(ctx)))
         if out is not None:
-            write_csv(out / "mappings.csv", rows)
-            write_json(out / "mappings.json", rows, machine_line(ctx))
-            _chart(lambda: write_chart(out / "mappings.png", rows, machine_line(ctx)))
+            with outputs:
+                write_csv(out / "mappings.csv", rows)
+                write_json(out / "mappings.json", rows, machine_line(ctx))
+                _chart(lambda: write_chart(out / "mappings.png", rows, machine_line(ctx)))
     else:
         from deformgl.bench.scaling import QUICK_SIZES, bench_scaling
 
@@ -256,9 +261,10 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
                    else bench_scaling(ctx, progress=note))
         print(scaling.format())
         if out is not None:
-            scaling.write_csv(out / "scaling.csv")
-            scaling.write_json(out / "scaling.json")
-            _chart(lambda: scaling.write_chart(out / "scaling.png"))
+            with outputs:
+                scaling.write_csv(out / "scaling.csv")
+                scaling.write_json(out / "scaling.json")
+                _chart(lambda: scaling.write_chart(out / "scaling.png"))
 
 
 def _bench(args: argparse.Namespace) -> int:

@@ -185,3 +185,10 @@ def test_sigkill_leftovers_are_removed_by_the_next_run(ctx, jelly, tmp_path, cap
     code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet")
     assert code == 0, err
     assert left_over(tmp_path) == ["a.png"]
+
+
+def test_sigint_while_writing_leaves_nothing(ctx, jelly, tmp_path):
+    proc, out, mesh = run_killed(tmp_path, jelly, "write", "SIGINT")
+    assert proc.returncode == cli.EXIT_INTERRUPTED, proc.stderr
+    assert one_error_line(proc.stderr) == "deformgl: error: interrupted"
+    assert left_over(tmp_path) == []
