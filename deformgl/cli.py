@@ -15,6 +15,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import NoReturn
 
 from deformgl.errors import DeformglError, DeformglWarning, InputError
 
@@ -22,10 +23,17 @@ from deformgl.errors import DeformglError, DeformglWarning, InputError
 EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line (exit 2), like every other error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_INPUT, f"deformgl: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
     from deformgl.sim.guards import MAX_SUBSTEPS
 
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="deformgl",
         description="GPU mass-spring soft bodies on a coarse grid, rendered headless to PNG "
                     "through OpenGL on EGL (Mesa llvmpipe without a GPU).")
@@ -336,13 +344,21 @@ class Terminated(BaseException):
     its output set removes its temporary files and GL objects are released."""
 
 
-def _on_sigterm(signum: int, frame: object) -> None:
-    raise Terminated(signum)
+def _on_signal(signum: int, frame: object) -> None:
+    """SIGTERM / SIGINT: record the stop (a library that swallows the exception cannot make the
+    run commit its outputs, see :data:`deformgl.files.STOP`), then unwind."""
+    from deformgl.files import committing, request_stop
+
+    exc: BaseException = Terminated(signum) if signum == signal.SIGTERM else KeyboardInterrupt()
+    request_stop(exc)
+    if committing():  # the outputs are being renamed: let the set finish, whole (main reports the stop)
+        return
+    raise exc
 
 
 def _one_line(text: object) -> str:
-    """A message on one line: newlines (a path may hold one) and carriage returns escaped."""
-    return str(text).replace("\r", "\\r").replace("\n", "\\n")
+    """A message on one line: newlines (a path may hold one) and every other line break escaped."""
+    return "\\n".join(str(text).splitlines()) if str(text) else ""
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -359,17 +375,40 @@ def _error(text: object) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code (:data:`EXIT_INPUT` and the
     others)."""
+    from deformgl.files import STOP
+
+    STOP.clear()  # (a stop recorded by an earlier call in this process)
+    handlers = {}
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        try:
+            handlers[sig] = signal.signal(sig, _on_signal)
+        except ValueError:  # not the main thread: leave signals alone
+            pass
+    try:
+        code = _main(argv)
+    except KeyboardInterrupt:
+        _error("interrupted")
+        return EXIT_INTERRUPTED
+    except Terminated:
+        _error("terminated (SIGTERM)")
+        return EXIT_TERMINATED
+    finally:
+        for sig, previous in handlers.items():
+            signal.signal(sig, previous)
+    if STOP:  # a signal whose exception something swallowed: the run did not commit its outputs
+        stopped = STOP.pop()
+        _error("terminated (SIGTERM)" if isinstance(stopped, Terminated) else "interrupted")
+        return EXIT_TERMINATED if isinstance(stopped, Terminated) else EXIT_INTERRUPTED
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     import numpy as np
 
-    args = _parser().parse_args(argv)  # (a usage error exits here with argparse's code 2)
+    args = _parser().parse_args(argv)  # (a usage error exits here, one line, code 2)
     from deformgl.testing import diff_cli
 
     commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run}
-    previous = None
-    try:
-        previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    except ValueError:  # not the main thread: leave signals alone
-        previous = None
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             # non-finite values are found and named by the checks; numpy's own warnings only
@@ -383,12 +422,6 @@ def main(argv: list[str] | None = None) -> int:
     except DeformglError as exc:
         _error(exc)
         return EXIT_FAILURE
-    except KeyboardInterrupt:
-        _error("interrupted")
-        return EXIT_INTERRUPTED
-    except Terminated:
-        _error("terminated (SIGTERM)")
-        return EXIT_TERMINATED
     except MemoryError:
         _error("out of memory; use a coarser grid (grid.nodes_along_longest) or a smaller render.size")
         return EXIT_FAILURE
@@ -396,15 +429,14 @@ def main(argv: list[str] | None = None) -> int:
         name = exc.filename or ""
         _error(f"{name}{': ' if name else ''}{exc.strerror or exc}")
         return EXIT_FAILURE
+    except (KeyboardInterrupt, Terminated):
+        raise
     except Exception as exc:
         if args.debug:
             raise
         _error(f"internal error: {type(exc).__name__}: {exc} (a bug; rerun with --debug for the traceback "
                f"and please report it)")
         return EXIT_FAILURE
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -14,9 +14,11 @@ removes those whose process is gone and that are older than the run that finds t
 from __future__ import annotations
 
 import contextvars
+import hashlib
 import os
 import re
 import secrets
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import BinaryIO
@@ -26,8 +28,8 @@ from PIL import Image
 
 from deformgl.errors import InputError
 
-__all__ = ["OutputSet", "check_writable", "read_png", "remove_stale_temporaries", "temporary_path",
-           "write_atomic", "write_png_atomic"]
+__all__ = ["OutputSet", "STOP", "check_writable", "committing", "read_png", "remove_stale_temporaries", "request_stop",
+           "temporary_path", "write_atomic", "write_png_atomic"]
 
 #: ``.NAME.deformgl-PID-HEX.tmp``; the older ``.NAME.HEX.tmp`` (no process id) is recognised too
 _TEMPORARY = re.compile(r"^\..+\.deformgl-(\d+)-[0-9a-f]{12}\.tmp$")
@@ -35,9 +37,33 @@ _OLD_TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp$")
 _ACTIVE: contextvars.ContextVar[OutputSet | None] = contextvars.ContextVar("deformgl_output_set", default=None)
 
 
+#: Set by the CLI's SIGINT / SIGTERM handlers (with the exception to raise): a library that swallows
+#: the signal's exception (trimesh catches BaseException around some imports) cannot make a stopped
+#: run commit its outputs: :meth:`OutputSet.commit` raises it instead.
+STOP: list[BaseException] = []
+_STOP_LOCK = threading.Lock()
+_COMMITTING = threading.Event()
+
+
+def committing() -> bool:
+    """Whether an :class:`OutputSet` is renaming its files now (a signal then waits for the end)."""
+    return _COMMITTING.is_set()
+
+
+def request_stop(exc: BaseException) -> None:
+    """Record that the run was asked to stop (a signal); the next commit raises ``exc``."""
+    with _STOP_LOCK:
+        if not STOP:
+            STOP.append(exc)
+
+
 def temporary_path(target: Path) -> Path:
-    """A fresh temporary name next to ``target``: ``.NAME.deformgl-PID-HEX.tmp``."""
-    return target.parent / f".{target.name}.deformgl-{os.getpid()}-{secrets.token_hex(6)}.tmp"
+    """A fresh temporary name next to ``target``: ``.NAME.deformgl-PID-HEX.tmp`` (a long NAME is
+    shortened to a prefix and a hash, so the temporary name fits where the target's does)."""
+    name = target.name
+    if len(name.encode()) > 150:
+        name = name[:100] + "~" + hashlib.sha256(name.encode()).hexdigest()[:12]
+    return target.parent / f".{name}.deformgl-{os.getpid()}-{secrets.token_hex(6)}.tmp"
 
 
 def _alive(pid: int) -> bool:
@@ -86,12 +112,15 @@ def check_writable(path: str | os.PathLike[str], what: str = "output") -> None:
     """
     target = Path(path)
     directory = target.parent if str(target.parent) else Path(".")
-    if target.is_dir():
-        raise InputError(f"{target}: the {what} is a folder, not a file")
-    if not directory.is_dir():
-        raise InputError(f"{target}: the {what} folder {directory} does not exist")
-    if target.exists() and not target.is_file():
-        raise InputError(f"{target}: the {what} exists and is not a regular file")
+    try:
+        if target.is_dir():
+            raise InputError(f"{target}: the {what} is a folder, not a file")
+        if not directory.is_dir():
+            raise InputError(f"{target}: the {what} folder {directory} does not exist")
+        if target.exists() and not target.is_file():
+            raise InputError(f"{target}: the {what} exists and is not a regular file")
+    except OSError as exc:  # (ENAMETOOLONG, ELOOP, EACCES on a parent)
+        raise InputError(f"{target}: cannot use this {what} path: {exc.strerror or exc}") from None
     probe = temporary_path(target)
     try:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
@@ -137,30 +166,46 @@ class OutputSet:
         self._staged[target] = temporary
 
     def commit(self) -> None:
-        """Rename every staged file over its target; on a failure undo the renames done."""
+        """Rename every staged file over its target; on a failure undo the renames done.
+
+        A target that exists is first hard-linked to a backup name (it never goes missing, and the
+        rename over it stays atomic). A stop requested before (:data:`STOP`) commits nothing; one
+        that arrives while the renames run is deferred (:func:`committing` tells the CLI's signal
+        handler), so a signal cannot split the set."""
+        if STOP:
+            self.discard()
+            raise STOP[0]
+        _COMMITTING.set()
         done: list[tuple[Path, Path | None]] = []
+        backup: Path | None = None
         try:
             for target, temporary in list(self._staged.items()):
                 backup = None
                 if target.exists():
                     backup = temporary_path(target)
-                    os.replace(target, backup)
-                try:
-                    os.replace(temporary, target)
-                except BaseException:
-                    if backup is not None:
-                        os.replace(backup, target)
-                    raise
+                    try:
+                        os.link(target, backup)
+                    except OSError:  # a file system without hard links: copy the old bytes
+                        backup.write_bytes(target.read_bytes())
+                os.replace(temporary, target)
                 del self._staged[target]
                 done.append((target, backup))
+                backup = None
         except BaseException:
-            for target, backup in reversed(done):
-                if backup is not None:
-                    os.replace(backup, target)
-                else:
-                    _unlink(target)
+            if backup is not None:  # the target that failed was not replaced: drop its backup
+                _unlink(backup)
+            for target, old in reversed(done):  # each undone on its own: one failure stops none
+                try:
+                    if old is not None:
+                        os.replace(old, target)
+                    else:
+                        _unlink(target)
+                except OSError:
+                    pass
             self.discard()
             raise
+        finally:
+            _COMMITTING.clear()
         for _, backup in done:
             if backup is not None:
                 _unlink(backup)

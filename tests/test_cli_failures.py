@@ -148,7 +148,7 @@ KILLER = textwrap.dedent("""
             if str(src).endswith(".tmp") and not str(dst).endswith(".tmp"):
                 count[0] += 1
                 if count[0] == 2:
-                    kill()
+                    os.kill(os.getpid(), sig)  # deferred until the set is renamed, whole
             return real_replace(src, dst)
         os.replace = replace
     sys.exit(cli.main(sys.argv[3:]))
@@ -167,11 +167,23 @@ def run_killed(tmp_path, jelly, phase, sig):
 
 
 @pytest.mark.parametrize("phase", ["simulate", "draw", "write", "commit"])
-def test_sigterm_at_each_phase_leaves_nothing(ctx, jelly, tmp_path, phase):
+def test_sigterm_at_each_phase_leaves_nothing_or_everything(ctx, jelly, tmp_path, phase):
+    """Before the outputs are renamed a SIGTERM leaves nothing; one that arrives between two
+    renames waits for the set to be complete (never one output without the other)."""
     proc, out, mesh = run_killed(tmp_path, jelly, phase, "SIGTERM")
     assert proc.returncode == EXIT_TERMINATED, proc.stderr
     assert one_error_line(proc.stderr) == "deformgl: error: terminated (SIGTERM)"
-    assert left_over(tmp_path) == [], phase  # no PNG, no mesh, no temporary file anywhere
+    if phase == "commit":
+        assert left_over(tmp_path) == ["a.ply", "a.png"]
+        assert out.stat().st_size > 0 and trimesh_faces(mesh) > 0
+    else:
+        assert left_over(tmp_path) == [], phase  # no PNG, no mesh, no temporary file anywhere
+
+
+def trimesh_faces(path: Path) -> int:
+    import trimesh
+
+    return len(trimesh.load(path, force="mesh").faces)
 
 
 def test_sigkill_leftovers_are_removed_by_the_next_run(ctx, jelly, tmp_path, capsys, monkeypatch):
@@ -192,3 +204,42 @@ def test_sigint_while_writing_leaves_nothing(ctx, jelly, tmp_path):
     assert proc.returncode == cli.EXIT_INTERRUPTED, proc.stderr
     assert one_error_line(proc.stderr) == "deformgl: error: interrupted"
     assert left_over(tmp_path) == []
+
+
+def test_a_signal_whose_exception_is_swallowed_still_stops_the_run(ctx, jelly, tmp_path, capsys, monkeypatch):
+    """trimesh catches BaseException around some of its imports: a SIGTERM arriving there was
+    swallowed and the run went on to write everything. Now the stop is recorded and the outputs
+    are not committed."""
+    import deformgl.scene.pipeline as pipeline
+    real = pipeline.render
+
+    def render_after_a_swallowed_sigterm(*a, **k):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.1)
+        except BaseException:  # what trimesh's import guards do
+            pass
+        return real(*a, **k)
+    monkeypatch.setattr(pipeline, "render", render_after_a_swallowed_sigterm)
+    out, mesh = tmp_path / "a.png", tmp_path / "a.ply"
+    code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--export-mesh", mesh, "--mapping", "constant", "--quiet")
+    assert code == EXIT_TERMINATED and one_error_line(err) == "deformgl: error: terminated (SIGTERM)"
+    assert left_over(tmp_path) == []
+
+
+def test_usage_errors_are_one_line_too(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["render", "x.toml", "--no-such-flag"])
+    assert info.value.code == EXIT_INPUT
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("deformgl: error: unrecognized arguments: --no-such-flag")
+
+
+def test_a_file_name_too_long_is_an_input_error(jelly, tmp_path, capsys, no_gl):
+    code, _, err = run_cli(capsys, "render", jelly, "-o", tmp_path / ("a" * 300 + ".png"))
+    assert code == EXIT_INPUT and "File name too long" in one_error_line(err)
+    ok = tmp_path / ("b" * 240 + ".png")  # a legal name: its temporary name is shortened to fit
+    from deformgl.files import check_writable, temporary_path
+
+    check_writable(ok)
+    assert len(temporary_path(ok).name) < 255

@@ -105,3 +105,26 @@ def test_stale_temporaries_of_dead_runs_are_removed(tmp_path):
 def test_temporary_names_are_recognisable(tmp_path):
     name = temporary_path(tmp_path / "x.png").name
     assert name.startswith(".x.png.deformgl-") and name.endswith(".tmp") and str(os.getpid()) in name
+
+
+def test_a_failed_rename_over_existing_files_keeps_both_old_files(tmp_path, monkeypatch):
+    """The old files are hard-linked aside, never moved: at no moment is a target missing, and a
+    failure puts every old file back."""
+    a, b = tmp_path / "a.png", tmp_path / "b.ply"
+    a.write_text("old a")
+    b.write_text("old b")
+    real = os.replace
+
+    def replace(src, dst):
+        if Path(dst) == b and str(src).endswith(".tmp"):
+            assert a.read_text() == "new a" and b.read_text() == "old b"  # b still there
+            raise OSError(5, "Input/output error")
+        return real(src, dst)
+
+    with pytest.raises(OSError):
+        with OutputSet([a, b]):
+            _write(a, "new a")
+            _write(b, "new b")
+            monkeypatch.setattr(os, "replace", replace)
+    monkeypatch.undo()
+    assert (a.read_text(), b.read_text()) == ("old a", "old b") and _temporaries(tmp_path) == []

@@ -281,7 +281,8 @@ def check(budget: Budget, *, available_host: int | None = None, gl_limits: dict[
         if software and target > need / 2:
             fix = f"lower render.size ({w}x{h}) or render.msaa ({budget.samples}x)"
         else:
-            fix = f"lower {name} ({value})"
+            # a finer spacing means more nodes: the spacing is raised, the node counts lowered
+            fix = f"{'raise' if name == 'grid.spacing' else 'lower'} {name} ({value})"
         raise InputError(f"{src}: needs about {_gb(need)} of host memory for {budget.nodes:,} nodes; "
                          f"{_gb(have)} available: {fix}")
 

@@ -77,10 +77,18 @@ def run(args: argparse.Namespace) -> int:
     from deformgl.errors import DeformglError, InputError
     from deformgl.files import read_png, write_png_atomic
 
+    from deformgl.files import check_writable
+
+    if args.diff is not None:  # before the comparison: a bad path is an input error, not "differ"
+        if Path(args.diff).suffix.lower() != ".png":
+            raise InputError(f"{args.diff}: --diff must end in .png")
+        check_writable(args.diff, "difference image")
     images = []
     for label, path in (("expected", args.expected), ("actual", args.actual)):
-        if not Path(path).is_file():
+        if not Path(path).exists():
             raise InputError(f"{path}: the {label} image: no such file")
+        if not Path(path).is_file():
+            raise InputError(f"{path}: the {label} image is not a regular file")
         try:
             images.append(read_png(Path(path)))
         except (OSError, ValueError, DeformglError) as exc:
