@@ -110,12 +110,14 @@ def _peak(kind: str, n: int, shader_cache: Path) -> dict:
     scene = SCENES / ("jelly.toml" if kind == "jelly" else "cloth_256.toml")
     # a private Mesa shader cache, warmed before the measured runs: compiling a shader (LLVM) can
     # peak higher than the nodes do, so every measured run must find the same cache state
-    env = dict(os.environ, PYTHONPATH=str(ROOT), MESA_SHADER_CACHE_DIR=str(shader_cache),
-               DEFORMGL_CACHE_DIR=str(shader_cache / "deformgl"))
+    # (the deformgl this test imports, installed or editable: not the checkout's folder, whose
+    # package has no shaders folder of its own: no PYTHONPATH, and a working folder outside it)
+    env = dict(os.environ, MESA_SHADER_CACHE_DIR=str(shader_cache), DEFORMGL_CACHE_DIR=str(shader_cache / "deformgl"))
     env.pop("MESA_SHADER_CACHE_DISABLE", None)
-    out = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), str(scene)], capture_output=True,
-                         text=True, env=env, check=True, timeout=600).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    proc = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), str(scene)], capture_output=True,
+                          text=True, env=env, timeout=600, cwd=shader_cache)  # (python -c puts the cwd first)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 @pytest.mark.slow
