@@ -5,9 +5,30 @@ from __future__ import annotations
 
 
 class SimulationBase:
-    """Mixin: ``time`` from the backend's ``t``, ``with`` releases on exit."""
+    """Mixin: the clock (time is ``t0 + steps * dt``, never accumulated: ``t += dt`` rounds, and
+    a load that switches on at a step's time then fires a step early), ``time``, and ``with``
+    releases on exit.
+
+    Attributes:
+        dt: step in s; t0: time of the start state; steps_done: steps taken; t: current time.
+    """
 
     t: float
+    t0: float
+    dt: float
+    steps_done: int
+
+    def _start_clock(self, dt: float, t0: float) -> None:
+        self.dt, self.t0, self.t, self.steps_done = float(dt), float(t0), float(t0), 0
+
+    def _at(self, steps: int) -> float:
+        """The time after ``steps`` steps from the start state."""
+        return self.t0 + steps * self.dt
+
+    def _tick(self) -> None:
+        """One step taken: advance the clock."""
+        self.steps_done += 1
+        self.t = self._at(self.steps_done)
 
     @property
     def time(self) -> float:

@@ -88,10 +88,10 @@ class NumpySimulation(SimulationBase):
             raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
         if not dt > 0:
             raise ValueError(f"NumpySimulation: dt must be > 0, got {dt}")
-        self.system, self.integrator, self.dt, self.t = system, integrator, float(dt), float(t0)
+        self.system, self.integrator = system, integrator
+        self._start_clock(dt, t0)
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
         self.count = system.count
-        self._steps = 0
         self.state = (integrators.initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                       if state is None else state)
         #: largest node displacement of the last step (the convergence test of the run loop)
@@ -99,14 +99,12 @@ class NumpySimulation(SimulationBase):
 
     def step(self, n: int = 1) -> None:
         """``n`` steps; time is ``t0 + steps * dt`` (no accumulated rounding)."""
-        t0 = self.t - self._steps * self.dt
         for _ in range(n):
-            new = integrators.step(self.system, self.integrator, self.state, self.dt, t0 + self._steps * self.dt,
+            new = integrators.step(self.system, self.integrator, self.state, self.dt, self.t,
                                    constraints=self.constraints, drags=self.drags, loads=self.loads)
             self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
             self.state = new
-            self._steps += 1
-        self.t = t0 + self._steps * self.dt
+            self._tick()
 
     def positions(self) -> np.ndarray:
         """(N, 3) float64 positions (a copy)."""

@@ -157,9 +157,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.ctx = ctx
         self.system = system
         self.integrator = integrator
-        self.dt = float(dt)
-        self.t = float(t0)
-        self._t0, self._steps = self.t, 0  # time is t0 + steps * dt
+        self._start_clock(dt, t0)
         self.constraints = constraints
         self.drags = tuple(drags)
         self.loads = tuple(loads)
@@ -391,8 +389,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
                             bound = True
                         into = self.tex_state if stage.final else self._stage_texture()
                         self._run(stage, stage.at(t, dt), into)
-                self._steps += 1
-                self.t = self._t0 + self._steps * dt  # (no accumulated rounding)
+                self._tick()
         finally:
             # give the caller its framebuffer back; code elsewhere may have left the context
             # pointing at a framebuffer it has since released: then bind framebuffer 0

@@ -310,11 +310,10 @@ class FoundationVerlet(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         GLOwner.__init__(self, ctx)
-        self.system, self.grid, self.dt, self.t0 = system, grid, float(dt), float(t0)
-        self.t = self.t0
+        self.system, self.grid = system, grid
+        self._start_clock(dt, t0)
         self.loads = tuple(loads)
         self.count = grid.count
-        self.steps_done = 0
         flags = node_flags(system.fixed, load_groups(self.loads, grid.count))
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
@@ -346,13 +345,12 @@ class FoundationVerlet(SimulationBase, GLOwner):
         try:
             for _ in range(n):
                 if self.loads:
-                    t = self.t0 + self.steps_done * self.dt
+                    t = self.t
                     for g, load in enumerate(self.loads):
                         self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
                 self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, self._pull)
                 self.current, self.previous, self.spare = self.spare, self.current, self.previous
-                self.steps_done += 1
-                self.t = self.t0 + self.steps_done * self.dt
+                self._tick()
         finally:
             restore_framebuffer(self.ctx, previous)  # the caller's framebuffer, as every backend
 

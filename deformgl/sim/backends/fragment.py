@@ -185,9 +185,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.system = system
         self.grid = grid
         self.integrator = integrator
-        self.dt = float(dt)
-        self.t = float(t0)
-        self._t0, self._steps = self.t, 0  # time is t0 + steps * dt
+        self._start_clock(dt, t0)
         self.constraints = constraints
         self.count = grid.count
         self.drags = tuple(drags)
@@ -427,7 +425,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             raise RuntimeError("FragmentIntegrator: released")
         if self.fast is not None:
             self.fast.step(n)
-            self.t = self.fast.t
+            self.steps_done, self.t = self.fast.steps_done, self.fast.t
             return
         previous = self.ctx.fbo
         self.tex_node.use(_SAMPLERS["u_node"])
@@ -438,8 +436,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                 for stage in self.spec.stages:
                     self._run(stage, stage.at(self.t, self.dt))
                 self.roles = self.spec.rotate(self.roles)
-                self._steps += 1
-                self.t = self._t0 + self._steps * self.dt  # (no accumulated rounding)
+                self._tick()
         finally:
             restore_framebuffer(self.ctx, previous)
 
