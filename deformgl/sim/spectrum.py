@@ -217,7 +217,7 @@ class ModalDamping:
     """Damping per mode, ``g(w) = alpha + beta w^2`` (1/s) in ``x'' = -w^2 x - g x'``.
 
     Attributes:
-        alpha: (lo, hi) of ``(velocity_damping + wind_drag) / m`` over the free nodes, 1/s.
+        alpha: (lo, hi) of ``(velocity_damping + wind_drag) / m + mass_damping`` over the free nodes, 1/s.
         beta: (lo, hi) of ``c_s / k_s`` over the springs with k > 0, s.
         proportional: True when both ranges are single values (Rayleigh damping: the modes of
             the undamped system stay uncoupled and the limits are exact).
@@ -242,8 +242,8 @@ class ModalDamping:
 def modal_damping(system: SpringSystem) -> ModalDamping:
     """The (alpha, beta) ranges of ``system`` (see :class:`ModalDamping`)."""
     free = ~system.fixed
-    a = (system.velocity_damping + system.wind_drag) / system.mass[free] if free.any() \
-        else np.zeros(1)
+    a = ((system.velocity_damping + system.wind_drag) / system.mass[free] + system.mass_damping
+         if free.any() else np.zeros(1))
     k = system.stiffness > 0
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

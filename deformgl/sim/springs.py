@@ -59,6 +59,8 @@ class SpringSystem:
         damping: (S,) float64 spring damping c_s along the spring, N*s/m, >= 0.
         spring_class: (S,) int8, STRUCTURAL, SHEAR or FLEXION (triangle-mesh edges: STRUCTURAL).
         velocity_damping: global damping c in N*s/m (force -c v on every node).
+        mass_damping: Rayleigh mass-proportional damping alpha in 1/s (force -alpha m_i v_i on
+            node i; :mod:`deformgl.sim.materials` sets it from a material).
         gravity: (3,) float64 m/s^2.
         wind: (3,) float64 air velocity in m/s.
         wind_drag: N*s/m, linear drag toward the air velocity: F = wind_drag * (wind - v).
@@ -79,6 +81,7 @@ class SpringSystem:
     damping: np.ndarray
     spring_class: np.ndarray
     velocity_damping: float = 0.0
+    mass_damping: float = 0.0
     gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, -9.81, 0.0]))
     wind: np.ndarray = field(default_factory=lambda: np.zeros(3))
     wind_drag: float = 0.0
@@ -106,8 +109,8 @@ class SpringSystem:
                 raise ValueError(f"SpringSystem.{name}: negative values")
         if np.any((self.spring_class < STRUCTURAL) | (self.spring_class > FLEXION)):
             raise ValueError("SpringSystem.spring_class: values outside 0..2")
-        if min(self.velocity_damping, self.wind_drag) < 0 or not self.spacing > 0:
-            raise ValueError("SpringSystem: velocity_damping and wind_drag >= 0, spacing > 0")
+        if min(self.velocity_damping, self.mass_damping, self.wind_drag) < 0 or not self.spacing > 0:
+            raise ValueError("SpringSystem: velocity_damping, mass_damping and wind_drag >= 0, spacing > 0")
         if self.grid is not None and self.grid.count != n:
             raise ValueError(f"SpringSystem.grid: {self.grid.count} nodes, the system {n}")
 
@@ -346,7 +349,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
-    (Movania & Feng 2012 eq. 1), each drag's ``k_d (target(t) - x)`` and each load's
+    (Movania & Feng 2012 eq. 1) and Rayleigh mass damping ``-alpha m v``, each drag's ``k_d (target(t) - x)`` and each load's
     ``force(t)`` on its nodes.
 
     Args:
@@ -387,7 +390,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
         total[:, c] = np.bincount(ends, weights=np.concatenate([fc, -fc]), minlength=n)
     del ends, f, u
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
-              - system.velocity_damping * v)
+              - (system.velocity_damping + system.mass_damping * system.mass)[:, None] * v)
     for drag in drags:
         total[drag.node] += drag.stiffness * (np.asarray(drag.target(t), float) - x[drag.node])
     for load in loads:

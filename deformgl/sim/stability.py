@@ -23,7 +23,7 @@ Three numbers per integrator:
    (:func:`measured_limit`).
 
 Damping model. Each mode is the scalar test equation ``x'' = -w^2 x - g(w) x'`` with
-``g(w) = alpha + beta w^2``: ``alpha = (velocity_damping + wind_drag)/m`` (mass-proportional),
+``g(w) = alpha + beta w^2``: ``alpha = (velocity_damping + wind_drag)/m + mass_damping`` (mass-proportional),
 ``beta = c_s/k_s`` (spring damping, stiffness-proportional). That is exact (Rayleigh damping)
 when the free masses are equal and ``c_s/k_s`` is the same for every spring; otherwise the limit
 is the smallest over the corners of the (alpha, beta) ranges and flagged ``proportional=False``.

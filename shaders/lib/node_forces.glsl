@@ -1,7 +1,7 @@
 // The per-node forces of both integrator backends (Movania & Feng 2012, eq. 1, and the
 // user-intervention force of section 3), the same as deformgl/sim/springs.py forces() after the
 // springs, in the same order:
-//   m g - c v (gravity, global damping), wind_drag (wind - v) (WIND), then
+//   m g - (c + alpha m) v (gravity, global and Rayleigh mass damping), wind_drag (wind - v) (WIND), then
 //   loads: force(t) per node on every node of load group g (bit g of the node's groups; a
 //          scene's [[physics.pull]]), at most 4 groups;
 //   drags: a zero-rest-length spring k_d (target(t) - x) pulling one node toward a moving target.
@@ -15,6 +15,7 @@
 #endif
 uniform vec3 u_gravity;
 uniform float u_velocity_damping;
+uniform float u_mass_damping;      // Rayleigh alpha, 1/s: -alpha m v
 #ifdef WIND
 uniform vec3 u_wind;
 uniform float u_wind_drag;
@@ -30,7 +31,7 @@ uniform vec3 u_drag_target[DRAGS];  // target(t) at this stage's time
 
 // Adds them to f (the node's spring force so far), term by term as the reference does.
 void add_node_forces(inout vec3 f, int node, int groups, vec3 x, vec3 v, float m) {
-    f += m * u_gravity - u_velocity_damping * v;
+    f += m * u_gravity - (u_velocity_damping + u_mass_damping * m) * v;
 #ifdef WIND
     f += u_wind_drag * (u_wind - v);
 #endif

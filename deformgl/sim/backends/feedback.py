@@ -304,7 +304,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         uniforms: dict[str, object] = {
             "u_nodes": 0, "u_other": 1, "u_springs": 2, "u_dt": self.dt,
             "u_gravity": tuple(float(g) for g in system.gravity),
-            "u_velocity_damping": system.velocity_damping}
+            "u_velocity_damping": system.velocity_damping,
+            "u_mass_damping": system.mass_damping}
         if "WIND" in defines:
             uniforms.update(u_wind=tuple(float(w) for w in system.wind),
                             u_wind_drag=system.wind_drag)

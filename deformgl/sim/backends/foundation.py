@@ -89,6 +89,8 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
         return "flexion springs"
     if np.any(system.damping > 0):
         return "spring damping"
+    if system.mass_damping > 0:
+        return "mass damping"
     if system.wind_drag > 0:
         return "wind"
     if drags:

@@ -11,6 +11,9 @@ Topology is implicit: the neighbours come from a neighbour-index texture array (
 ``NEIGHBOUR_OFFSETS`` of the compact layout, plus the 6 flexion neighbours at distance 2 along
 an axis when the system has flexion springs; an absent one points at the node itself). Per-class
 stiffness, rest length and spring damping are uniforms (``from_grid`` gives one value per class);
+a system whose springs of a class differ in stiffness (the calibrated lattice of
+:mod:`deformgl.sim.materials`) adds a weight texture: each spring's stiffness and damping are
+the class's times its weight;
 per-node mass and the fixed flag are a static RGBA32F texture. The constructor checks that the
 system's springs are exactly the grid's.
 
@@ -64,7 +67,7 @@ def _array(values: list) -> object:
 
 
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
-             "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7}
+             "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
 
 
 def _sampler(buffer: str) -> str:
@@ -93,18 +96,53 @@ def grid_neighbours(grid: NodeGrid, flexion: bool) -> np.ndarray:
 
 
 def _class_values(system: SpringSystem, cls: int, name: str) -> tuple[float, float, float]:
-    """(k, rest length, damping) of a class, checked to be one value each; zeros if absent."""
+    """(k, rest length, damping) of a class: the largest stiffness of the class, its one rest
+    length, and the damping that goes with k (a spring of weight w = k_s / k must have the
+    damping w c: the ratio c_s / k_s is one value per class); zeros if absent."""
     sel = system.spring_class == cls
     if not np.any(sel):
         return 0.0, 0.0, 0.0
-    out = []
-    for attr in ("stiffness", "rest_length", "damping"):
-        values = getattr(system, attr)[sel]
-        if np.ptp(values) > 1e-9 * max(abs(float(values.mean())), 1e-300):
-            raise ValueError(f"FragmentIntegrator: {name} springs need one {attr} "
-                             f"(a springs.from_grid system)")
-        out.append(float(values.mean()))
-    return out[0], out[1], out[2]
+    rest = system.rest_length[sel]
+    if np.ptp(rest) > 1e-9 * max(abs(float(rest.mean())), 1e-300):
+        raise ValueError(f"FragmentIntegrator: {name} springs need one rest_length "
+                         f"(a springs.from_grid system)")
+    stiffness, damping = system.stiffness[sel], system.damping[sel]
+    k = float(stiffness.max())
+    if k > 0:
+        c = float(damping[np.argmax(stiffness)])
+        expected = c * stiffness / k
+    else:
+        c, expected = float(damping.mean()), np.full(len(damping), float(damping.mean()))
+    if np.any(np.abs(damping - expected) > 1e-9 * max(float(np.abs(damping).max()), 1e-300)):
+        raise ValueError(f"FragmentIntegrator: {name} springs need spring damping in proportion "
+                         f"to their stiffness (one c_s / k_s per class)")
+    return k, float(rest.mean()), c
+
+
+def spring_weights(system: SpringSystem, nb: np.ndarray, class_k: list[float]) -> np.ndarray | None:
+    """(N, columns of ``nb``) float64 weight of the spring to each neighbour (its stiffness over
+    its class's k; 0 where no spring), or None when every spring has its class's k."""
+    col_class = np.array([STRUCTURAL] * 6 + [SHEAR] * 12 + [FLEXION] * (nb.shape[1] - 18))
+    k_of = np.asarray(class_k, np.float64)
+    k_spring = k_of[system.spring_class]
+    w_spring = np.divide(system.stiffness, k_spring, out=np.zeros(system.spring_count), where=k_spring > 0)
+    if np.all(w_spring == 1.0):
+        return None
+    n = system.count
+    rows, cols = np.nonzero(nb >= 0)
+    keys = rows.astype(np.int64) * n + nb[rows, cols].astype(np.int64) + \
+        col_class[cols].astype(np.int64) * n * n  # (node, other, class): flexion and edges differ
+    order = np.argsort(keys)
+    keys = keys[order]
+    weights = np.zeros(nb.shape, np.float64)
+    cls = system.spring_class.astype(np.int64)
+    for a, b in ((system.i, system.j), (system.j, system.i)):
+        want = a * n + b + cls * n * n
+        at = np.searchsorted(keys, want)
+        if np.any(at >= len(keys)) or np.any(keys[np.minimum(at, len(keys) - 1)] != want):
+            raise ValueError("FragmentIntegrator: the system's springs are not those of the grid")
+        weights[rows[order[at]], cols[order[at]]] = w_spring
+    return weights
 
 
 def _check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> None:
@@ -306,6 +344,17 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_neighbours = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
                                                                    dtype="i4"))
             self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        #: per-spring stiffness as weights of the class's k (the calibrated lattice), or None
+        self.tex_weights: moderngl.Texture | None = None
+        weights = spring_weights(system, nb, [c[0] for c in self.classes])
+        if weights is not None:
+            padded_w = np.zeros((n, 4 * layers), np.float32)
+            padded_w[:, : nb.shape[1]] = weights
+            wimg = np.zeros((layers, h * w, 4), np.float32)
+            wimg[:, :n, :] = padded_w.reshape(n, layers, 4).transpose(1, 0, 2)
+            self.tex_weights = self.own(self.ctx.texture_array((w, h, layers), 4, wimg.tobytes(),
+                                                                dtype="f4"))
+            self.tex_weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
 
@@ -325,6 +374,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1], "DENSE": self.dense,
                                      "SPRING_DAMPING": bool(np.any(system.damping > 0)),
+                                     "SPRING_WEIGHTS": self.tex_weights is not None,
                                      "SPHERES": 0, "DRAGS": len(self.drags),
                                      "LOADS": len(self.loads)}
         if system.wind_drag > 0:
@@ -340,7 +390,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self._vaos = {key: self.own(self.ctx.vertex_array(p.gl, []))
                       for key, p in self.passes.items()}
         self.state_bytes = len(self.pool) * w * h * _VEC4
-        static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4)
+        static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4) + \
+            (0 if self.tex_weights is None else w * h * layers * _VEC4)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
@@ -355,7 +406,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
             "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3),
             "u_gravity": tuple(float(g) for g in system.gravity),
-            "u_velocity_damping": system.velocity_damping}
+            "u_velocity_damping": system.velocity_damping,
+            "u_mass_damping": system.mass_damping}
         if defines.get("WIND"):
             uniforms.update(u_wind=tuple(float(g) for g in system.wind),
                             u_wind_drag=system.wind_drag)
@@ -431,6 +483,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.tex_node.use(_SAMPLERS["u_node"])
         if self.tex_neighbours is not None:
             self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
+        if self.tex_weights is not None:
+            self.tex_weights.use(_SAMPLERS["u_weights"])
         try:
             for _ in range(n):
                 for stage in self.spec.stages:

@@ -10,7 +10,8 @@
 // exactly as the reference's zero-length rule, so no neighbour mask is needed.
 //
 // Per spring, d = x_i - x_j, u = d/|d| (0 for |d| = 0), class stiffness k, rest length L,
-// spring damping c_s (one value per class, as deformgl/sim/springs.py from_grid builds them):
+// spring damping c_s (one value per class, as deformgl/sim/springs.py from_grid builds them;
+// with SPRING_WEIGHTS each spring's k and c_s are the class's times its weight w_j):
 //   f = k (L - |d|) u - c_s ((v_i - v_j) . u) u        (Movania & Feng 2012, eq. 2; damping only with
 //                                                      SPRING_DAMPING; lib/spring_force.glsl)
 // per node: m g + wind_drag (wind - v) (WIND) - c v (Movania & Feng 2012, eq. 1), loads and drags
@@ -33,6 +34,12 @@ uniform vec3 u_rest;        // rest length of each class
 #ifdef SPRING_DAMPING
 uniform vec3 u_c;           // spring damping of each class, N*s/m
 #endif
+#ifdef SPRING_WEIGHTS
+// NB_LAYERS layers RGBA32F: weight w_j of the spring to neighbour j (4 per layer, in neighbour
+// order): its stiffness is w_j u_k[class] and its damping w_j u_c[class] (the calibrated
+// lattice of deformgl/sim/materials.py: the share of full cells that contain the spring).
+uniform sampler2DArray u_weights;
+#endif
 #include "lib/node_forces.glsl"
 #include "lib/node_texel.glsl"
 #include "lib/spring_force.glsl"
@@ -51,24 +58,32 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
 #ifdef DENSE
     int self_node = texel_node(texel);
     int mask = int(texelFetch(u_node, texel, 0).a);
-    for (int j = 0; j < NB_COUNT; ++j) {
-        int other = ((mask >> j) & 1) != 0 ? self_node + u_offsets[j] : self_node;
-        int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-        f += class_spring_force(node_texel(other), xi, vi, cls);
-    }
-#else
+#endif
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
+#ifndef DENSE
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
+#endif
+#ifdef SPRING_WEIGHTS
+        vec4 w = texelFetch(u_weights, ivec3(texel, layer), 0);
+#endif
         for (int c = 0; c < 4; ++c) {
             int j = 4 * layer + c;
             if (j >= NB_COUNT) {
                 break;
             }
+#ifdef DENSE
+            int other = ((mask >> j) & 1) != 0 ? self_node + u_offsets[j] : self_node;
+#else
+            int other = nb[c];
+#endif
             int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-            f += class_spring_force(node_texel(nb[c]), xi, vi, cls);
+#ifdef SPRING_WEIGHTS
+            f += w[c] * class_spring_force(node_texel(other), xi, vi, cls);
+#else
+            f += class_spring_force(node_texel(other), xi, vi, cls);
+#endif
         }
     }
-#endif
     add_node_forces(f, texel_node(texel), groups, xi, vi, m);
     return f / m;
 }

@@ -1,0 +1,289 @@
+"""Physical materials and the calibrated spring lattice: Young's modulus and density instead of
+per-spring constants, so a scene means the same body at any grid resolution and length scale.
+
+The lattice is the node grid's 18-neighbour spring set (6 edges of length h and 12 face
+diagonals of length h sqrt(2), Mosegaard & Sørensen 2005, section 3.1), assembled cell by cell
+like a finite-element mesh: every cube cell whose 8 corner nodes exist contributes its 12 edge
+springs and its 12 face-diagonal springs, and an eighth of its mass to each corner.
+
+Calibration (derived in docs/ACCURACY.md, tested in tests/test_materials.py). A spring of
+constant k along unit vector n with rest length L stores ``k L^2 (n . eps . n)^2 / 2`` under a
+uniform small strain eps. Summed over the infinite lattice per node volume h^3 (3 edges and
+6 face diagonals per node, all of constant k) this is the energy of the elasticity tensor
+
+    C11 = 3k/h,   C12 = C44 = k/h,
+
+which is isotropic (C11 - C12 = 2 C44) with Lamé constants lambda = mu = k/h: Poisson's ratio
+1/4 and Young's modulus E = 5k/(2h). So ``k = 2 E h / 5``. One cell alone reproduces the same
+tensor when each of its edges carries k/4 and each face diagonal k/2 (an interior edge is shared
+by 4 cells, a diagonal by 2), so a body of full cells has exactly the continuum's energy under
+any uniform strain: the lattice passes the patch test, and its boundary springs get the right
+share without special cases. A cell gives ``rho h^3 / 8`` of mass to each of its 8 corners.
+
+Thin features: a spring that belongs to no full cell (a one-node-thick wall of the
+voxelization) is given the share of one cell (edge k/4, diagonal k/2), and a node in no full cell
+the mass of one cell corner (rho h^3/8), so every node stays connected and massive;
+:class:`LatticeReport` counts them.
+
+Damping is Rayleigh damping, independent of the resolution: ``mass_damping`` alpha (1/s) gives
+each node the force ``-alpha m v`` and ``stiffness_damping`` beta (s) gives each spring the damping
+``c_s = beta k_s`` along it; a mode of angular frequency w then has the damping ratio
+``alpha / (2 w) + beta w / 2``.
+
+Cloth (one node thick, in a plane) uses the 2D lattice of 4 edges and 4 diagonals per node.
+With edge constant k_e and diagonal constant k_d it is isotropic when ``k_e = 2 k_d``, with 2D
+Lamé constants lambda = mu = k_d: Poisson's ratio 1/3 and the 2D (membrane) Young's modulus
+``Y = 8 k_d / 3`` in N/m. Per square cell an edge carries k_e/2 (2 cells share it) and each
+diagonal k_d; a cell gives ``rho_A h^2 / 4`` to each corner.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from itertools import product
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
+
+__all__ = ["ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
+           "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts"]
+
+
+@dataclass(frozen=True)
+class ElasticMaterial:
+    """A linear-elastic solid.
+
+    Attributes:
+        youngs_modulus: E in Pa (> 0).
+        density: rho in kg/m^3 (> 0).
+        mass_damping: Rayleigh alpha in 1/s (force -alpha m v on every node).
+        stiffness_damping: Rayleigh beta in s (spring damping beta k along each spring).
+        name: a label (a preset's name).
+        source: where the values come from.
+
+    The lattice's Poisson's ratio is 1/4 whatever the material says (see the module docstring;
+    docs/ACCURACY.md measures how far it is from an FEM body with another ratio).
+    """
+
+    youngs_modulus: float
+    density: float
+    mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
+    name: str = ""
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for key in ("youngs_modulus", "density"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"material.{key} must be a finite number > 0, got {value}")
+        for key in ("mass_damping", "stiffness_damping"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+
+    def wave_speed(self) -> float:
+        """The lattice's P-wave speed sqrt(C11 / rho) = sqrt(6 E / (5 rho)) in m/s."""
+        return math.sqrt(6.0 * self.youngs_modulus / (5.0 * self.density))
+
+
+@dataclass(frozen=True)
+class SheetMaterial:
+    """A membrane (cloth): 2D Young's modulus ``stretch_modulus`` in N/m (E times thickness),
+    ``areal_density`` in kg/m^2, Rayleigh damping as :class:`ElasticMaterial`, and
+    ``flexion_ratio``: flexion springs (2h along an axis) of that fraction of the edge
+    constant (0: none). A flat sheet's flexion springs resist bending only through the
+    geometry (at second order in the out-of-plane displacement), so the ratio is a shape knob,
+    not a calibrated bending modulus."""
+
+    stretch_modulus: float
+    areal_density: float
+    mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
+    flexion_ratio: float = 0.0
+    name: str = ""
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for key in ("stretch_modulus", "areal_density"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"material.{key} must be a finite number > 0, got {value}")
+        for key in ("mass_damping", "stiffness_damping", "flexion_ratio"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+
+
+#: Named materials (E in Pa, rho in kg/m^3) with the source of the values. Soft tissues span
+#: a wide range in the literature; these are representative small-strain values.
+PRESETS: dict[str, ElasticMaterial] = {
+    "liver": ElasticMaterial(4.0e3, 1060.0, name="liver",
+                             source="human liver, small-strain E ~ 1-10 kPa (Yeh et al. 2002, "
+                                    "Ultrasound Med. Biol. 28(4)); density 1060 kg/m^3 (ICRP 89)"),
+    "heart": ElasticMaterial(3.0e4, 1060.0, name="heart",
+                             source="passive myocardium, E ~ 10-50 kPa (Sommer et al. 2015, "
+                                    "Acta Biomater. 24); density 1060 kg/m^3 (ICRP 89)"),
+    "brain": ElasticMaterial(1.0e3, 1040.0, name="brain",
+                             source="brain tissue, E ~ 0.5-3 kPa (Budday et al. 2015, "
+                                    "J. Mech. Behav. Biomed. Mater. 46); density 1040 kg/m^3"),
+    "gelatin": ElasticMaterial(1.0e4, 1030.0, name="gelatin",
+                               source="10 % w/v gelatin gel, E ~ 10 kPa (Hall et al. 1997, IEEE "
+                                      "TUFFC 44(6)); density ~ 1030 kg/m^3"),
+    "silicone": ElasticMaterial(1.0e5, 1070.0, name="silicone",
+                                source="soft silicone elastomer (Ecoflex 00-30 class), E ~ "
+                                       "70-125 kPa (manufacturer data); density 1070 kg/m^3"),
+    "rubber": ElasticMaterial(1.0e6, 1100.0, name="rubber",
+                              source="natural rubber, E ~ 1-10 MPa at small strain (Gent, "
+                                     "Engineering with Rubber, 3rd ed.); density ~ 1100 kg/m^3"),
+}
+
+
+@dataclass(frozen=True)
+class LatticeReport:
+    """What the cell assembly found: full cells, and the thin features of the voxelization
+    that belong to no full cell (each given one cell's share, see the module docstring)."""
+
+    cells: int
+    thin_nodes: int
+    thin_springs: int
+    spring_constant: float  # k = 2 E h / 5 (N/m) of an interior spring; the sheet's k_d
+    node_mass: float        # rho h^3 (kg) of an interior node; the sheet's rho_A h^2
+
+    def summary(self) -> str:
+        """One line for logs and the CLI."""
+        text = f"{self.cells} full cells"
+        if self.thin_nodes or self.thin_springs:
+            text += (f"; {self.thin_nodes} nodes and {self.thin_springs} springs in no full cell "
+                     f"(given one cell's share)")
+        return text
+
+
+def lattice_stiffness(material: ElasticMaterial, spacing: float) -> float:
+    """k = 2 E h / 5 in N/m: the constant of an interior spring (edge or face diagonal)."""
+    return 0.4 * material.youngs_modulus * spacing
+
+
+def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "verlet") -> float:
+    """The explicit stability limit of the lattice in s, a multiple of ``h sqrt(rho / E)``.
+
+    Interior node: ``w_max <= sqrt(2 sum k / m) = sqrt(2 * 18 k / (rho h^3))`` with k = 2 E h / 5,
+    so ``w_max <= h^-1 sqrt(14.4 E / rho)``; Verlet and semi-implicit Euler are stable for
+    ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits` computes on a
+    built system). Explicit Euler has no undamped limit (it is unstable at every dt without
+    damping); RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see deformgl.sim.limits).
+    """
+    omega = math.sqrt(14.4 * material.youngs_modulus / material.density) / spacing
+    factor = {"verlet": 2.0, "semi-implicit": 2.0, "rk4": 2.0 * math.sqrt(2.0)}.get(integrator, 2.0)
+    return factor / omega
+
+
+def cell_counts(grid: NodeGrid, system: SpringSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per spring of a :func:`from_grid` system (structural and shear only): the number of full
+    cells that contain it; per node: the number of full cells it is a corner of; and the
+    (nx-1, ny-1, nz-1) bool array of full cells."""
+    occ = grid.occupied
+    nx, ny, nz = occ.shape
+    full = np.ones((max(nx - 1, 0), max(ny - 1, 0), max(nz - 1, 0)), bool)
+    for dx, dy, dz in product((0, 1), repeat=3):
+        full &= occ[dx:nx - 1 + dx, dy:ny - 1 + dy, dz:nz - 1 + dz]
+    padded = np.pad(full, 1)  # cell (a, b, c) is padded[a + 1, b + 1, c + 1]
+    ijk = grid.ijk.astype(np.int64)
+    a, b = ijk[system.i], ijk[system.j]
+    lo = np.minimum(a, b)
+    differs = a != b                                  # (S, 3): the axes the spring spans
+    counts = np.zeros(system.spring_count, np.int64)
+    for off in product((-1, 0), repeat=3):
+        # along a spanned axis the cell index is lo (offset 0 only); along the others lo - 1 or lo
+        o = np.array(off)
+        valid = ~(differs & (o != 0)).any(axis=1)
+        idx = lo + np.where(differs, 0, o) + 1
+        counts += valid & padded[idx[:, 0], idx[:, 1], idx[:, 2]]
+    node_cells = np.zeros(grid.count, np.int64)
+    for off in product((-1, 0), repeat=3):
+        idx = ijk + np.array(off) + 1
+        node_cells += padded[idx[:, 0], idx[:, 1], idx[:, 2]]
+    return counts, node_cells, full
+
+
+def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLike | None = None,
+                   gravity: ArrayLike = (0.0, -9.81, 0.0), wind: ArrayLike = (0.0, 0.0, 0.0),
+                   wind_drag: float = 0.0) -> tuple[SpringSystem, LatticeReport]:
+    """The calibrated spring system of a solid ``material`` on ``grid`` (world units: metres).
+
+    Edge and face-diagonal springs of the grid with ``k = 2 E h / 5`` times (full cells
+    containing the spring) / (4 for an edge, 2 for a diagonal); node masses ``rho h^3 / 8`` per
+    full cell at the node; Rayleigh damping from the material. See the module docstring.
+
+    Returns:
+        The system and the :class:`LatticeReport`.
+    """
+    h = float(grid.spacing)
+    k = lattice_stiffness(material, h)
+    base = from_grid(grid, k_structural=1.0, k_shear=1.0, fixed=fixed, gravity=gravity,
+                     wind=wind, wind_drag=wind_drag)
+    counts, node_cells, full = cell_counts(grid, base)
+    share = np.where(base.spring_class == STRUCTURAL, 4.0, 2.0)
+    thin_springs = counts == 0
+    stiffness = k * np.maximum(counts, 1) / share
+    thin_nodes = node_cells == 0
+    mass = material.density * h ** 3 / 8.0 * np.maximum(node_cells, 1)
+    system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
+                                 mass=mass, mass_damping=material.mass_damping)
+    report = LatticeReport(int(full.sum()), int(thin_nodes.sum()), int(thin_springs.sum()), k,
+                           material.density * h ** 3)
+    return system, report
+
+
+def sheet_system(grid: NodeGrid, material: SheetMaterial, *, fixed: ArrayLike | None = None,
+                 gravity: ArrayLike = (0.0, -9.81, 0.0), wind: ArrayLike = (0.0, 0.0, 0.0),
+                 wind_drag: float = 0.0) -> tuple[SpringSystem, LatticeReport]:
+    """The calibrated system of a membrane on a one-node-thick grid (a cloth): edges
+    ``k_e = 2 k_d`` and diagonals ``k_d = 3 Y / 8`` times their share of full square cells,
+    node masses ``rho_A h^2 / 4`` per cell at the node (see the module docstring)."""
+    shape = grid.shape
+    thin_axes = [a for a in range(3) if shape[a] == 1]
+    if not thin_axes:
+        raise ValueError("sheet material: the grid is not one node thick (a cloth); use an "
+                         "ElasticMaterial (youngs_modulus, density)")
+    h = float(grid.spacing)
+    k_d = 3.0 * material.stretch_modulus / 8.0
+    k_e = 2.0 * k_d
+    base = from_grid(grid, k_structural=1.0, k_shear=1.0, k_flexion=1.0 if material.flexion_ratio else 0.0,
+                     fixed=fixed, gravity=gravity, wind=wind, wind_drag=wind_drag)
+    # a 2D cell of the sheet is a 3D "cell" of a grid doubled along the thin axis: count in 2D
+    axis = thin_axes[0]
+    occ = np.squeeze(grid.occupied, axis=axis)
+    n0, n1 = occ.shape
+    full = occ[:-1, :-1] & occ[1:, :-1] & occ[:-1, 1:] & occ[1:, 1:]
+    padded = np.pad(full, 1)
+    ijk = np.delete(grid.ijk.astype(np.int64), axis, axis=1)
+    a, b = ijk[base.i], ijk[base.j]
+    lo = np.minimum(a, b)
+    differs = a != b
+    counts = np.zeros(base.spring_count, np.int64)
+    for off in product((-1, 0), repeat=2):
+        o = np.array(off)
+        valid = ~(differs & (o != 0)).any(axis=1)
+        idx = lo + np.where(differs, 0, o) + 1
+        counts += valid & padded[idx[:, 0], idx[:, 1]]
+    node_cells = np.zeros(grid.count, np.int64)
+    for off in product((-1, 0), repeat=2):
+        idx = ijk + np.array(off) + 1
+        node_cells += padded[idx[:, 0], idx[:, 1]]
+    edge = base.spring_class == STRUCTURAL
+    flex = base.spring_class == FLEXION
+    stiffness = np.where(edge, k_e * np.maximum(counts, 1) / 2.0, k_d * np.maximum(counts, 1))
+    stiffness = np.where(flex, material.flexion_ratio * k_e, stiffness)
+    mass = material.areal_density * h ** 2 / 4.0 * np.maximum(node_cells, 1)
+    system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
+                                 mass=mass, mass_damping=material.mass_damping)
+    thin_springs = int(((counts == 0) & ~flex).sum())
+    report = LatticeReport(int(full.sum()), int((node_cells == 0).sum()), thin_springs, k_d,
+                           material.areal_density * h ** 2)
+    return system, report
