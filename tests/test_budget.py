@@ -107,7 +107,7 @@ _CHILD = textwrap.dedent("""
 
 
 def _peak(kind: str, n: int, shader_cache: Path) -> dict:
-    scene = SCENES / ("jelly.toml" if kind == "jelly" else "cloth_256.toml")
+    scene = SCENES / ("jelly_springs.toml" if kind == "jelly" else "cloth_256.toml")
     # a private Mesa shader cache, warmed before the measured runs: compiling a shader (LLVM) can
     # peak higher than the nodes do, so every measured run must find the same cache state
     # (the deformgl this test imports, installed or editable: not the checkout's folder, whose

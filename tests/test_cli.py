@@ -22,7 +22,7 @@ def jelly(tmp_path):
     (tmp_path / "assets").mkdir()
     shutil.copy(SCENES / "assets" / "jelly_block.obj", tmp_path / "assets")
     scene = tmp_path / "jelly.toml"
-    scene.write_text((SCENES / "jelly.toml").read_text())
+    scene.write_text((SCENES / "jelly_springs.toml").read_text())
     return scene
 
 

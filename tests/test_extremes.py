@@ -252,7 +252,7 @@ def test_far_from_the_origin_float32_needs_the_recentring(ctx):
 def _scene_with_mesh(tmp_path: Path, mesh: trimesh.Trimesh, name: str, gravity_scale: float = 1.0) -> Path:
     mesh_path = tmp_path / f"{name}.obj"
     mesh.export(mesh_path)
-    text = (SCENES / "jelly.toml").read_text().replace('path = "assets/jelly_block.obj"', f'path = "{mesh_path}"')
+    text = (SCENES / "jelly_springs.toml").read_text().replace('path = "assets/jelly_block.obj"', f'path = "{mesh_path}"')
     text = text.replace("steps = 300", "steps = 150").replace("show_grid = true", "show_grid = false")
     text = text.replace("gravity = [0.0, -9.81, 0.0]", f"gravity = [0.0, {-9.81 * gravity_scale!r}, 0.0]")
     text = text.replace("force = [0.004, 0.0, 0.0]", f"force = [{0.004 * gravity_scale!r}, 0.0, 0.0]")

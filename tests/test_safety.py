@@ -24,7 +24,7 @@ SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
 @pytest.fixture(scope="module")
 def jelly():
-    scene = load_scene(SCENES / "jelly.toml")
+    scene = load_scene(SCENES / "jelly_springs.toml")
     built = build_scene_model(scene)
     return scene, built, scene_system(built.grid, scene.physics, built.bbox)
 
@@ -211,7 +211,7 @@ def test_describe_bad_node_names_the_first_bad_one():
     ("bad_distance = 0", "physics.safety.bad_distance"),
 ])
 def test_bad_safety_keys_name_the_key(tmp_path, text, key):
-    src = (SCENES / "jelly.toml").read_text().replace('path = "assets/', f'path = "{SCENES}/assets/')
+    src = (SCENES / "jelly_springs.toml").read_text().replace('path = "assets/', f'path = "{SCENES}/assets/')
     path = tmp_path / "s.toml"
     path.write_text(src + f"\n[physics.safety]\n{text}\n")
     with pytest.raises(SceneError, match=rf"s.toml: {key}: "):

@@ -41,7 +41,7 @@ stiffness = 0.5
 def extended_scene(tmp_path_factory):
     """The jelly with every extended feature: classes, spring damping, flexion, wind, ground,
     a moving sphere, a drag; and its pull (a load)."""
-    text = (SCENES / "jelly.toml").read_text()
+    text = (SCENES / "jelly_springs.toml").read_text()
     text = text.replace('path = "assets/jelly_block.obj"', f'path = "{SCENES / "assets" / "jelly_block.obj"}"')
     text = text.replace("[[physics.fixed]]", "wind = [0.5, 0.0, 0.2]\nwind_drag = 0.0002\n\n[[physics.fixed]]", 1)
     text = text.replace("steps = 300", "steps = 120") + EXTENDED
@@ -128,7 +128,7 @@ def test_plain_scenes_draw_from_the_verlet_fast_path(ctx, monkeypatch):
     positions once and drives the node textures."""
     import moderngl
 
-    scene = load_scene(SCENES / "jelly.toml").with_overrides(steps=3)
+    scene = load_scene(SCENES / "jelly_springs.toml").with_overrides(steps=3)
     built = build_scene_model(scene)
     reads = []
     original = moderngl.Texture.read
@@ -154,7 +154,7 @@ def test_verlet_fast_path_and_the_general_verlet_stage_are_the_same_function(ctx
     paths compute the same steps from the same state (the default: the reference's Taylor start)."""
     from deformgl.sim.simulation import make_simulation
 
-    scene = load_scene(SCENES / "jelly.toml")
+    scene = load_scene(SCENES / "jelly_springs.toml")
     built = build_scene_model(scene)
     ph = scene.physics
     x = {}

@@ -39,6 +39,7 @@ from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
 from deformgl.grid.voxelize import voxelize
+from deformgl.sim.materials import LatticeReport
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +53,7 @@ class SceneModel:
         system: the spring system (:func:`~deformgl.scene.run.scene_system`).
         loads: the ``[[physics.pull]]`` loads (:func:`~deformgl.scene.run.scene_loads`).
         bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
+        lattice: what the cell assembly of a ``[material]`` scene found, or None.
     """
 
     mesh: trimesh.Trimesh
@@ -60,13 +62,18 @@ class SceneModel:
     system: SpringSystem
     loads: tuple[Load, ...]
     bbox: np.ndarray
+    lattice: LatticeReport | None = None
 
     @classmethod
     def build(cls, scene: Scene, mesh: trimesh.Trimesh, centre: np.ndarray, grid: NodeGrid,
               bbox: np.ndarray) -> SceneModel:
         """The model of ``scene``'s physics on ``grid`` (regions are fractions of ``bbox``)."""
-        return cls(mesh=mesh, centre=centre, grid=grid, system=scene_system(grid, scene.physics, bbox),
-                   loads=scene_loads(grid, scene.physics, bbox), bbox=bbox)
+        source = scene.source.name
+        report: list[LatticeReport] = []
+        system = scene_system(grid, scene.physics, bbox, source=source, report=report)
+        return cls(mesh=mesh, centre=centre, grid=grid, system=system,
+                   loads=scene_loads(grid, scene.physics, bbox, source=source), bbox=bbox,
+                   lattice=report[0] if report else None)
 
 
 def _vec3(v: Vec3) -> Vec3:
@@ -132,8 +139,13 @@ def build_scene_model(scene: Scene) -> SceneModel:
     if scene.cloth is not None:
         return build_cloth_model(scene)
     mesh_spec = _mesh(scene)
-    mesh, centre = recentred(load_mesh(mesh_spec.path))
-    grid = mesh_grid(mesh, nodes_along_longest=scene.grid.nodes_along_longest, spacing=scene.grid.spacing,
+    loaded = load_mesh(mesh_spec.path)
+    if mesh_spec.scale != 1.0:  # metres per mesh unit: the mesh and grid.spacing in metres
+        loaded = trimesh.Trimesh(np.asarray(loaded.vertices, np.float64) * mesh_spec.scale, loaded.faces,
+                                 visual=loaded.visual, process=False)
+    mesh, centre = recentred(loaded)
+    spacing = None if scene.grid.spacing is None else scene.grid.spacing * mesh_spec.scale
+    grid = mesh_grid(mesh, nodes_along_longest=scene.grid.nodes_along_longest, spacing=spacing,
                      source=str(mesh_spec.path),
                      finer=f"grid.nodes_along_longest or grid.spacing in {scene.source.name}")
     return SceneModel.build(scene, mesh, centre, grid, np.array(mesh.bounds, dtype=np.float64))

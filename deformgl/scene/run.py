@@ -33,7 +33,9 @@ from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.guards import StepPlan
 from deformgl.sim.run import run_guarded
 from deformgl.sim.simulation import make_simulation
-from deformgl.scene.schema import Keyframes, Physics, Scene
+from deformgl.errors import SceneError
+from deformgl.scene.schema import Keyframes, Physics, Region, Scene
+from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
 __all__ = ["SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
@@ -64,14 +66,40 @@ def _fractions(grid: NodeGrid, bbox: np.ndarray) -> np.ndarray:
     return grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
 
 
-def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringSystem:
-    """The scene's spring system: the grid's springs by class (a class of stiffness 0 is not
-    built), the mass per node, the nodes of the ``[[physics.fixed]]`` regions (fractions of
-    ``bbox``, (2, 3)), global damping, gravity and wind."""
+def _caught(region: Region, frac: np.ndarray, grid: NodeGrid, source: str, key: str) -> np.ndarray:
+    """The nodes a region selects; none is an error naming the key (a silent no-op would let
+    an unfixed body fall out of the frame)."""
+    nodes = region.contains(frac)
+    if not nodes.any():
+        raise SceneError(f"{source}: {key}: the region catches no node of the grid ({grid.count} nodes "
+                         f"at spacing {grid.spacing:.4g}); widen it or refine the grid")
+    return nodes
+
+
+def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene",
+                 report: list[LatticeReport] | None = None) -> SpringSystem:
+    """The scene's spring system: with ``physics.material`` the calibrated lattice of
+    :mod:`deformgl.sim.materials` (springs, masses and Rayleigh damping from the material);
+    otherwise the grid's springs by class (a class of stiffness 0 is not built) and the mass
+    per node. Either way the nodes of the ``[[physics.fixed]]`` regions (fractions of ``bbox``,
+    (2, 3)) are fixed, and gravity and wind apply. ``report``, if given, receives the lattice's
+    :class:`~deformgl.sim.materials.LatticeReport`.
+
+    Raises:
+        SceneError: a fixed region that catches no node (``source: physics.fixed[i]: ...``).
+    """
     frac = _fractions(grid, bbox)
     fixed = np.zeros(grid.count, bool)
-    for region in physics.fixed:
-        fixed |= region.contains(frac)
+    for i, region in enumerate(physics.fixed):
+        fixed |= _caught(region, frac, grid, source, f"physics.fixed[{i}]")
+    material = physics.material
+    if material is not None:
+        build = lattice_system if isinstance(material, ElasticMaterial) else sheet_system
+        system, lattice = build(grid, material, fixed=fixed, gravity=physics.gravity,  # type: ignore[arg-type]
+                                wind=physics.wind, wind_drag=physics.wind_drag)
+        if report is not None:
+            report.append(lattice)
+        return system
     k1, k2, k3 = physics.class_stiffness()
     return from_grid(grid, k_structural=k1, k_shear=k2, k_flexion=k3,
                      damping_structural=physics.structural.damping, damping_shear=physics.shear.damping,
@@ -80,10 +108,28 @@ def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> SpringSy
                      wind_drag=physics.wind_drag)
 
 
-def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray) -> tuple[Load, ...]:
-    """One load per ``[[physics.pull]]``: its force per node on the nodes of its region."""
+def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene") -> tuple[Load, ...]:
+    """One load per ``[[physics.pull]]`` on the nodes of its region: its force per node, or with
+    a material its total force in N split equally over the region's nodes (the same pull at
+    every grid resolution).
+
+    Raises:
+        SceneError: a pull region that catches no node.
+    """
     frac = _fractions(grid, bbox)
-    return tuple(Load(pull.region.contains(frac), pull.force_at) for pull in physics.pull)
+    loads = []
+    for i, pull in enumerate(physics.pull):
+        nodes = _caught(pull.region, frac, grid, source, f"physics.pull[{i}]")
+        force = pull.force_at
+        if physics.material is not None:
+            force = _split(pull.force_at, int(nodes.sum()))
+        loads.append(Load(nodes, force))
+    return tuple(loads)
+
+
+def _split(total: Callable[[float], np.ndarray], count: int) -> Callable[[float], np.ndarray]:
+    """t -> the total force divided over ``count`` nodes."""
+    return lambda t: np.asarray(total(t), dtype=np.float64) / count
 
 
 def scene_drags(grid: NodeGrid, physics: Physics, box: SceneBox) -> tuple[Drag, ...]:

@@ -13,6 +13,7 @@ dataclasses are in :mod:`deformgl.scene.spec` and the value checkers in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import tomllib
@@ -32,6 +33,7 @@ from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_G
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
                                  parse_size)
+from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 
 __all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
@@ -185,6 +187,49 @@ _PHYSICS = _table({
 }, _build_physics)
 
 
+_PA = _num(lo=0.0, lo_open=True, sane=(1e-3, 1e13), unit="Pa")
+_MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
+    "preset": (_str(tuple(PRESETS)), None),
+    "youngs_modulus": (_PA, None),
+    "density": (_num(lo=0.0, lo_open=True, sane=(1e-3, 1e5), unit="kg/m^3"), None),
+    "stretch_modulus": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e10), unit="N/m"), None),
+    "areal_density": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e4), unit="kg/m^2"), None),
+    "flexion_ratio": (_num(lo=0.0, sane=(0.0, 10.0)), None),
+    "mass_damping": (_num(lo=0.0, sane=(0.0, 1e6), unit="1/s"), 0.0),
+    "stiffness_damping": (_num(lo=0.0, sane=(0.0, 1e3), unit="s"), 0.0),
+}
+
+
+def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMaterial | SheetMaterial:
+    """``[material]``: a solid (a preset and/or youngs_modulus + density) or a sheet
+    (stretch_modulus + areal_density, for cloth)."""
+    sheet = [k for k in ("stretch_modulus", "areal_density", "flexion_ratio") if d[k] is not None]
+    solid = [k for k in ("preset", "youngs_modulus", "density") if d[k] is not None]
+    if sheet and solid:
+        _fail(file, _join(key, sheet[0]), f"a sheet (cloth) key; not used with {solid[0]!r} (a solid)")
+    if sheet:
+        for k in ("stretch_modulus", "areal_density"):
+            if d[k] is None:
+                _fail(file, _join(key, k), "required for a sheet material (cloth)")
+        return SheetMaterial(d["stretch_modulus"], d["areal_density"], d["mass_damping"],
+                             d["stiffness_damping"], d["flexion_ratio"] or 0.0)
+    base = PRESETS[d["preset"]] if d["preset"] is not None else None
+    values = {}
+    for k in ("youngs_modulus", "density"):
+        value = d[k] if d[k] is not None else (getattr(base, k) if base is not None else None)
+        if value is None:
+            _fail(file, _join(key, k), "required (or set 'preset' to one of " + ", ".join(PRESETS) + ")")
+        values[k] = value
+    return ElasticMaterial(values["youngs_modulus"], values["density"], d["mass_damping"], d["stiffness_damping"],
+                           name=base.name if base is not None and d["youngs_modulus"] is None
+                           and d["density"] is None else "", source=base.source if base is not None else "")
+
+
+_BODY_MATERIAL = _table(_MATERIAL_KEYS, _build_body_material)
+#: ``physics`` keys the material replaces.
+_PER_SPRING_KEYS = ("stiffness", "mass", "damping", "springs")
+
+
 _GRID = _table({"nodes_along_longest": (_int(lo=2, sane=(2, MAX_GRID_NODES)), None),
                 "spacing": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1e9), unit="mesh units"), None)}, _build_grid)
 _CAMERA = _table({
@@ -306,7 +351,7 @@ def load_scene(path: str | Path) -> Scene:
         return _existing(file, key, _resolve(file, key, source.parent, rel), suffixes)
 
     def build_mesh(file: str, key: str, d: dict[str, Any]) -> MeshSpec:
-        return MeshSpec(given_file(_join(key, "path"), d["path"]))
+        return MeshSpec(given_file(_join(key, "path"), d["path"]), d["scale"])
 
     def build_output(file: str, key: str, d: dict[str, Any]) -> Output:
         out = d["path"] if d["path"] is not None else f"{source.stem}.png"
@@ -345,6 +390,18 @@ def load_scene(path: str | Path) -> Scene:
                 _fail(file, "nodes.source", "a cloth scene is simulated")
         if d["attach"] and d["mapping"].mode == "one-to-one":
             _fail(file, "attach", "needs a detailed mesh: set mapping.mode to constant, curvature or auto")
+        material = d.pop("material")
+        if material is not None:
+            raw_physics = data.get("physics", {})
+            for k in _PER_SPRING_KEYS:
+                if isinstance(raw_physics, dict) and k in raw_physics:
+                    _fail(file, _join("physics", k), "not used with [material]: the springs, masses and "
+                          "damping come from material.youngs_modulus, density and the Rayleigh damping")
+            if isinstance(material, SheetMaterial) != (d["cloth"] is not None):
+                _fail(file, "material", "a cloth needs a sheet material (stretch_modulus, areal_density)"
+                      if d["cloth"] is not None else
+                      "stretch_modulus and areal_density are for a cloth; a mesh needs youngs_modulus and density")
+            d["physics"] = dataclasses.replace(d["physics"], material=material, damping=0.0)
         return Scene(source, **d)
 
     scene = _table({
@@ -362,7 +419,10 @@ def load_scene(path: str | Path) -> Scene:
             "source": (_str(("simulate", "file", "motion")), "simulate"), "file": (_str(), None),
             "frame": (_int(sane=(-1e9, 1e9)), -1), "motion": (_MOTION, None),
         }, build_nodes), {}),
-        "mesh": (_table({"path": (_str(), REQUIRED)}, build_mesh), None),
+        "mesh": (_table({"path": (_str(), REQUIRED),
+                         "scale": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1e9), unit="m per mesh unit"), 1.0)},
+                        build_mesh), None),
+        "material": (_BODY_MATERIAL, None),
         "cloth": (_table({"nodes": (_vec(2, _int(lo=2, hi=MAX_SIZE)), REQUIRED),
                           "size": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e6), unit="m"), 1.0)},
                          lambda file, key, d: ClothSpec(d["nodes"], d["size"])), None),

@@ -14,6 +14,7 @@ import numpy as np
 
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
 from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384
@@ -38,8 +39,11 @@ _INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(M
 
 @dataclass(frozen=True, slots=True)
 class MeshSpec:
-    """The detailed mesh to deform: an absolute path that existed at load time."""
+    """The detailed mesh to deform: an absolute path that existed at load time, and ``scale``:
+    metres per mesh unit (the mesh, and ``grid.spacing``, are scaled by it before anything else,
+    so a material scene means the same body whatever unit the mesh file uses)."""
     path: Path
+    scale: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,6 +195,11 @@ class Physics:
     drag: tuple[DragSpec, ...] = ()
     converge: Converge | None = None
     safety: Safety = Safety()
+    #: the body's material (a top-level ``[material]`` table): the springs, masses and damping
+    #: come from it (:mod:`deformgl.sim.materials`) instead of ``stiffness``, ``mass``,
+    #: ``damping`` and ``springs``; each pull's ``force`` is then the total force in N on its
+    #: region, split equally over the region's nodes.
+    material: ElasticMaterial | SheetMaterial | None = None
 
     def class_stiffness(self) -> tuple[float, float, float]:
         """Stiffness of the structural, shear and flexion springs in N/m."""

@@ -28,6 +28,7 @@ from typing import Protocol
 import moderngl
 import numpy as np
 
+from deformgl.sim.materials import ElasticMaterial
 from deformgl.errors import RefusedStepError, SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
@@ -147,7 +148,7 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
     refusal = check_dt(system, physics.integrator, dt)
     if refusal is None:
         return StepPlan(dt, physics.steps)
-    where = f"{source}: {w.where}{refusal.message}"
+    where = f"{source}: {w.where}{refusal.message}{material_terms(system, getattr(physics, 'material', None), refusal.limit.dt)}"
     if policy == "refuse":
         hint = ""
         if refusal.limit.bound == "gershgorin":
@@ -168,6 +169,19 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
     return StepPlan(dt, physics.steps, substeps,
                     f"dt {dt:.4g} s is above the {physics.integrator} limit {limit:.4g} s: "
                     f"{substeps} substeps of {dt / substeps:.4g} s per step")
+
+
+def material_terms(system: SpringSystem, material: object, limit: float) -> str:
+    """The dt limit in a material's terms, for the refusal: ``limit`` (s) as a multiple of
+    ``h sqrt(rho / E)``, the scale it falls with (:func:`deformgl.sim.materials.critical_dt`);
+    empty without an elastic material."""
+    if not isinstance(material, ElasticMaterial):
+        return ""
+    h = system.spacing
+    scale = h * math.sqrt(material.density / material.youngs_modulus)
+    return (f"; in material terms the limit is {limit / scale:.3g} h sqrt(rho/E) with E = "
+            f"{material.youngs_modulus:.4g} Pa, rho = {material.density:.4g} kg/m^3, grid spacing h = {h:.4g} m: "
+            f"it falls in proportion to h and to 1/sqrt(E)")
 
 
 class BlowUp(SimulationError):

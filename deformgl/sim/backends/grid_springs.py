@@ -1,0 +1,104 @@
+"""The springs of a grid system as the fragment backend stores them: neighbour columns (the 18
+of Mosegaard & Sørensen 2005, section 3.1, then the 6 flexion neighbours of Movania & Feng 2012,
+section 3), one stiffness, rest length and damping per class, and per-spring weights of the
+class's stiffness where the springs of a class differ (the calibrated lattice of
+:mod:`deformgl.sim.materials`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
+
+__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "grid_neighbours", "spring_weights"]
+
+#: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
+FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
+                           dtype=np.int64)
+def grid_neighbours(grid: NodeGrid, flexion: bool) -> np.ndarray:
+    """(N, 18 or 24) int64 node number of each neighbour, -1 where no spring can be.
+
+    Columns 0-17 are ``grid.neighbours``; with ``flexion`` columns 18-23 are the nodes at
+    ``FLEXION_OFFSETS``, present only where the node between exists too (as ``from_grid``).
+    """
+    nb = grid.neighbours
+    if not flexion:
+        return nb
+    padded = np.pad(grid.index, 2, constant_values=-1)
+    base = grid.ijk + 2
+    cols = []
+    for off in FLEXION_OFFSETS:
+        mid = padded[tuple((base + off // 2).T)]
+        far = padded[tuple((base + off).T)]
+        cols.append(np.where(mid >= 0, far, -1))
+    return np.concatenate([nb, np.stack(cols, axis=1)], axis=1)
+
+
+def class_values(system: SpringSystem, cls: int, name: str) -> tuple[float, float, float]:
+    """(k, rest length, damping) of a class: the largest stiffness of the class, its one rest
+    length, and the damping that goes with k (a spring of weight w = k_s / k must have the
+    damping w c: the ratio c_s / k_s is one value per class); zeros if absent."""
+    sel = system.spring_class == cls
+    if not np.any(sel):
+        return 0.0, 0.0, 0.0
+    rest = system.rest_length[sel]
+    if np.ptp(rest) > 1e-9 * max(abs(float(rest.mean())), 1e-300):
+        raise ValueError(f"FragmentIntegrator: {name} springs need one rest_length "
+                         f"(a springs.from_grid system)")
+    stiffness, damping = system.stiffness[sel], system.damping[sel]
+    k = float(stiffness.max())
+    if k > 0:
+        c = float(damping[np.argmax(stiffness)])
+        expected = c * stiffness / k
+    else:
+        c, expected = float(damping.mean()), np.full(len(damping), float(damping.mean()))
+    if np.any(np.abs(damping - expected) > 1e-9 * max(float(np.abs(damping).max()), 1e-300)):
+        raise ValueError(f"FragmentIntegrator: {name} springs need spring damping in proportion "
+                         f"to their stiffness (one c_s / k_s per class)")
+    return k, float(rest.mean()), c
+
+
+def spring_weights(system: SpringSystem, nb: np.ndarray, class_k: list[float]) -> np.ndarray | None:
+    """(N, columns of ``nb``) float64 weight of the spring to each neighbour (its stiffness over
+    its class's k; 0 where no spring), or None when every spring has its class's k."""
+    col_class = np.array([STRUCTURAL] * 6 + [SHEAR] * 12 + [FLEXION] * (nb.shape[1] - 18))
+    k_of = np.asarray(class_k, np.float64)
+    k_spring = k_of[system.spring_class]
+    w_spring = np.divide(system.stiffness, k_spring, out=np.zeros(system.spring_count), where=k_spring > 0)
+    if np.all(w_spring == 1.0):
+        return None
+    n = system.count
+    rows, cols = np.nonzero(nb >= 0)
+    keys = rows.astype(np.int64) * n + nb[rows, cols].astype(np.int64) + \
+        col_class[cols].astype(np.int64) * n * n  # (node, other, class): flexion and edges differ
+    order = np.argsort(keys)
+    keys = keys[order]
+    weights = np.zeros(nb.shape, np.float64)
+    cls = system.spring_class.astype(np.int64)
+    for a, b in ((system.i, system.j), (system.j, system.i)):
+        want = a * n + b + cls * n * n
+        at = np.searchsorted(keys, want)
+        if np.any(at >= len(keys)) or np.any(keys[np.minimum(at, len(keys) - 1)] != want):
+            raise ValueError("FragmentIntegrator: the system's springs are not those of the grid")
+        weights[rows[order[at]], cols[order[at]]] = w_spring
+    return weights
+
+
+def check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> None:
+    """The system's springs must be exactly the grid's springs of the classes it has."""
+    n = grid.count
+    if system.count != n:
+        raise ValueError(f"FragmentIntegrator: system has {system.count} nodes, grid {n}")
+    own = np.arange(n)[:, None]
+    col_class = np.array([STRUCTURAL] * 6 + [SHEAR] * 12 + [FLEXION] * (nb.shape[1] - 18))
+    for cls in (STRUCTURAL, SHEAR, FLEXION):
+        rows, cols = np.nonzero((nb > own) & (col_class[None, :] == cls))
+        expected = np.sort(rows * n + nb[rows, cols])
+        sel = system.spring_class == cls
+        if not np.any(sel):
+            continue
+        a, b = np.minimum(system.i[sel], system.j[sel]), np.maximum(system.i[sel], system.j[sel])
+        if not np.array_equal(np.sort(a * n + b), expected):
+            raise ValueError("FragmentIntegrator: the system's springs are not those of the grid "
+                             "(build it with springs.from_grid or springs.cloth on this grid)")
