@@ -338,3 +338,51 @@ def test_a_cloth_takes_a_sheet_material(ctx, tmp_path):
     size = scene.cloth.size
     assert built.system.mass.sum() == pytest.approx(0.25 * size * size, rel=1e-9)
     assert set(np.unique(built.system.spring_class)) == {STRUCTURAL, SHEAR}
+
+
+def test_the_python_api_takes_a_material(ctx):
+    from deformgl import Body
+    from deformgl.scene.body import below
+    import trimesh
+    box = trimesh.creation.box(extents=(0.1, 0.05, 0.05))
+    masses = []
+    for resolution in (5, 9):
+        with Body(box, resolution=resolution, material="gelatin", fixed=below("y", 0.1), ctx=ctx) as body:
+            assert body.lattice is not None and body.lattice.cells > 0
+            masses.append(body.system.mass.sum())
+    assert np.allclose(masses, PRESETS["gelatin"].density * 0.1 * 0.05 * 0.05, rtol=0.15)
+    with Body(box, resolution=5, material="gelatin", scale=0.001, fixed=below("y", 0.1), ctx=ctx) as mm:
+        assert mm.grid.spacing == pytest.approx(0.1e-3 / 4, rel=1e-6)
+    with pytest.raises(Exception, match="material must be an ElasticMaterial or one of"):
+        Body(box, material="jelly", ctx=ctx)
+
+
+def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_normals(ctx):
+    """The foundation pass (one pass per step, the packed Mosegaard & Sørensen 2005, eq. 3 normal with each position) takes
+    per-spring weights: the same positions as the reference, and normals that are still the
+    unweighted unit-vector sums of Mosegaard & Sørensen 2005, eq. 3."""
+    from deformgl.sim.normals import unit_sums, unpack_normals
+    occ = np.ones((6, 4, 3), bool)
+    occ[5, 3, 2] = False
+    grid = NodeGrid(np.zeros(3), 0.01, occ)
+    system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, mass_damping=4.0), fixed=grid.ijk[:, 0] == 0)
+    ref = make_simulation(system, "verlet", "numpy", dt=1e-4)
+    sim = make_simulation(system, "verlet", "fragment", dt=1e-4, ctx=ctx)
+    try:
+        assert sim.fast is not None and sim.textures.weights is not None
+        ref.step(150)
+        sim.step(150)
+        moved = np.abs(ref.positions() - system.rest_positions).max()
+        assert moved > 1e-5
+        assert np.abs(sim.positions() - ref.positions()).max() <= 2e-3 * moved + 1e-7
+        texture, row, slots, slot = sim.position_slot()
+        layout = sim.textures.layout
+        image = np.frombuffer(texture.read(), dtype="f4").reshape(layout.size[1], layout.size[0], 4)
+        got = unpack_normals(layout.gather(grid.ijk, image)[:, 3].astype(np.float32))
+        x = layout.gather(grid.ijk, image)[:, :3].astype(np.float64)  # (one step after the normals' x)
+        sums = unit_sums(grid, x)
+        surface = np.linalg.norm(sums, axis=1) > 0.5
+        expected = sums[surface] / np.linalg.norm(sums[surface], axis=1)[:, None]
+        assert np.min(np.sum(got[surface] * expected, axis=1)) > 0.999
+    finally:
+        sim.release()

@@ -41,6 +41,7 @@ from deformgl.render.mapped_setup import get_binding, mapped_vertices
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene import pipeline
 from deformgl.scene.pipeline import mesh_grid, recentred
+from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport
 from deformgl.scene.run import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, Physics, Region, Scene
@@ -111,16 +112,36 @@ class Body:
         system: the spring system every integrator and backend steps.
         bbox: (2, 3) recentred bounding box of the mesh.
         source: the name errors start with (the mesh file, or ``"<arrays>"``).
+        lattice: with a ``material``, what the cell assembly found
+            (:class:`~deformgl.sim.materials.LatticeReport`), else None.
+
+    Options: ``resolution`` (nodes along the longest side) or ``spacing`` (mesh units);
+    ``material``: an :class:`~deformgl.sim.materials.ElasticMaterial` or a preset name
+    (``"liver"``, ``"gelatin"``, ...): the calibrated lattice of
+    :mod:`deformgl.sim.materials`, the same body at any resolution; without one, the per-spring
+    form: ``stiffness`` N/m per spring, ``mass`` kg per node, ``damping`` N*s/m. ``scale``: metres
+    per mesh unit. ``gravity`` m/s^2, ``fixed`` regions.
     """
 
     def __init__(self, mesh: trimesh.Trimesh, *, resolution: int | None = 8, spacing: float | None = None,
                  stiffness: float = 500.0, damping: float = 0.5, mass: float = 0.01,
                  gravity: Sequence[float] = (0.0, -9.81, 0.0), fixed: Region | Sequence[Region] | None = None,
+                 material: ElasticMaterial | str | None = None, scale: float = 1.0,
                  ctx: moderngl.Context | None = None, source: str = "<arrays>") -> None:
         if spacing is not None:
             resolution = None
         elif resolution is None or int(resolution) < 2:
             raise InputError(f"{source}: resolution must be at least 2 nodes along the longest side, got {resolution}")
+        if isinstance(material, str):
+            if material not in PRESETS:
+                raise InputError(f"{source}: material must be an ElasticMaterial or one of {', '.join(PRESETS)}, "
+                                 f"got {material!r}")
+            material = PRESETS[material]
+        if not (np.isfinite(scale) and scale > 0):
+            raise InputError(f"{source}: scale must be > 0 (metres per mesh unit), got {scale}")
+        if scale != 1.0:
+            mesh = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64) * scale, mesh.faces, process=False)
+            spacing = None if spacing is None else spacing * scale
         recentred_mesh, centre = recentred(mesh)
         self.mesh: trimesh.Trimesh = recentred_mesh
         self.centre: np.ndarray = centre
@@ -129,9 +150,13 @@ class Body:
                               finer="a larger resolution or a smaller spacing")
         self.bbox = np.array(self.mesh.bounds, dtype=np.float64)
         g = tuple(float(v) for v in gravity)
-        self.physics = Physics(dt=1e-3, steps=0, stiffness=float(stiffness), damping=float(damping),
-                               mass=float(mass), gravity=(g[0], g[1], g[2]), fixed=_regions(fixed), pull=())
-        self.system: SpringSystem = scene_system(self.grid, self.physics, self.bbox)
+        self.physics = Physics(dt=1e-3, steps=0, stiffness=float(stiffness), damping=0.0 if material else float(damping),
+                               mass=float(mass), gravity=(g[0], g[1], g[2]), fixed=_regions(fixed), pull=(),
+                               material=material)
+        reports: list[LatticeReport] = []
+        self.system: SpringSystem = scene_system(self.grid, self.physics, self.bbox, source=source, report=reports)
+        #: what the cell assembly found (a material body), else None
+        self.lattice: LatticeReport | None = reports[0] if reports else None
         self._ctx = ctx
         self._owner: GLOwner | None = None
         self._nodes: tuple[NodeTextures, DrivenNodes] | None = None
@@ -142,7 +167,8 @@ class Body:
     def from_mesh(cls, mesh: str | os.PathLike[str] | trimesh.Trimesh, **options: Any) -> Body:
         """A body from a mesh file (PLY, OBJ, STL, GLB, glTF, OFF, optionally ``.gz``; vertices kept
         as stored) or a ``trimesh.Trimesh``; ``options`` as :class:`Body` (``resolution``,
-        ``spacing``, ``stiffness``, ``damping``, ``mass``, ``gravity``, ``fixed``, ``ctx``)."""
+        ``spacing``, ``stiffness``, ``damping``, ``mass``, ``gravity``, ``fixed``, ``material``,
+        ``scale``, ``ctx``)."""
         if isinstance(mesh, trimesh.Trimesh):
             return cls(mesh, **options)
         options.setdefault("source", os.fspath(mesh))

@@ -41,7 +41,14 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 #define NB_TEXEL(J, DX, DY, DZ) (origin[DZ + 1] + local + ivec2(DX, DY))
 #endif
 
-#ifdef NEIGHBOUR_BRANCH
+// SPRING_WEIGHTS (the calibrated lattice of deformgl/sim/materials.py): spring J's stiffness is
+// its class's times wt[J] (u_weights: 5 layers RGBA32F, 4 neighbours per layer in neighbour
+// order, 0 where absent), so S and P are weighted sums; the Mosegaard & Sorensen 2005, eq. 3 normal stays the unweighted
+// sum of unit vectors over the existing neighbours (U).
+#if defined(SPRING_WEIGHTS)
+uniform sampler2DArray u_weights;
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float inv = 1.0 / max(length(d), 1e-30); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
+#elif defined(NEIGHBOUR_BRANCH)
 #define NB_ACCUM(S, P, J, DX, DY, DZ) \
     if ((mask & (1u << J)) != 0u) { \
         vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; \
@@ -72,6 +79,14 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
     ivec2 origin[3] = ivec2[3](atlas_tile_origin(pz - 1), atlas_tile_origin(pz), atlas_tile_origin(pz + 1));
 #endif
     vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
+#ifdef SPRING_WEIGHTS
+    vec3 U = vec3(0.0);
+    vec4 w0 = texelFetch(u_weights, ivec3(texel, 0), 0), w1 = texelFetch(u_weights, ivec3(texel, 1), 0);
+    vec4 w2 = texelFetch(u_weights, ivec3(texel, 2), 0), w3 = texelFetch(u_weights, ivec3(texel, 3), 0);
+    vec4 w4 = texelFetch(u_weights, ivec3(texel, 4), 0);
+    float wt[18] = float[18](w0.x, w0.y, w0.z, w0.w, w1.x, w1.y, w1.z, w1.w, w2.x, w2.y, w2.z, w2.w,
+                             w3.x, w3.y, w3.z, w3.w, w4.x, w4.y);
+#endif
     NB_ACCUM(s1, p1, 0, 1, 0, 0)
     NB_ACCUM(s1, p1, 1, -1, 0, 0)
     NB_ACCUM(s1, p1, 2, 0, 1, 0)
@@ -92,6 +107,10 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
     NB_ACCUM(s2, p2, 17, 0, -1, -1)
     SpringSum r;
     r.force = u_k_structural * (u_spacing * s1 - p1) + u_k_shear * (1.41421356 * u_spacing * s2 - p2);
+#ifdef SPRING_WEIGHTS
+    r.unit_sum = U;
+#else
     r.unit_sum = s1 + s2;
+#endif
     return r;
 }

@@ -1,8 +1,8 @@
 #version 330 core
 // One position-Verlet step of the grid spring-mass system (Mosegaard & Sorensen 2005, 3.1;
-// Movania & Feng 2012): x' = 2x - x_prev + dt^2 a, a = (g + m*gravity + pull - c*v)/m,
+// Movania & Feng 2012): x' = 2x - x_prev + dt^2 a, a = (g + m*gravity + pull - (c + alpha m) v)/m,
 // v = (x - x_prev)/dt. Writes the new position and, in alpha, the packed normal at x (Mosegaard & Sorensen 2005, eq. 3).
-// Variants: NEIGHBOUR_BRANCH (see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
+// Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
 // no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code).
 #include "lib/atlas.glsl"
 #include "lib/node_flags.glsl"
@@ -14,6 +14,7 @@ uniform sampler2D u_previous;   // RGBA32F: xyz position at t - dt
 uniform sampler2D u_node;       // RGBA32F static node data (node_flags.glsl)
 uniform float u_dt;
 uniform float u_damping;        // c, N*s/m
+uniform float u_mass_damping;   // Rayleigh alpha, 1/s (force -alpha m v)
 uniform vec3 u_gravity;
 #if PULLS > 0
 uniform vec3 u_pull_force[PULLS];  // N per node, this step
@@ -40,7 +41,7 @@ void main() {
     }
     vec3 x_prev = texelFetch(u_previous, texel, 0).xyz;
     float m = node.r;
-    vec3 f = s.force + m * u_gravity - u_damping * (x.xyz - x_prev) / u_dt;
+    vec3 f = s.force + m * u_gravity - (u_damping + u_mass_damping * m) * (x.xyz - x_prev) / u_dt;
 #if PULLS > 0
     for (int g = 0; g < PULLS; ++g) {
         f += float((flags >> (PULL_SHIFT + g)) & 1) * u_pull_force[g];

@@ -20,7 +20,7 @@ Texels outside the grid (padding, empty nodes) hold position 0 and are never cha
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import moderngl
 import numpy as np
@@ -29,6 +29,7 @@ from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
+from deformgl.sim.backends.grid_springs import spring_weights
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
@@ -47,6 +48,8 @@ FLAG_FIXED = 2
 #: Bit of load (pull) group g is ``1 << (PULL_SHIFT + g)``.
 PULL_SHIFT = 2
 MAX_PULLS = MAX_LOADS
+#: Texture unit of the spring-weight texture array (SPRING_WEIGHTS).
+WEIGHT_UNIT = 4
 
 
 @dataclass(frozen=True)
@@ -57,6 +60,9 @@ class VerletTerms:
     Attributes:
         k_structural, k_shear: N/m of the 6 springs at distance h and the 12 at h*sqrt(2).
         damping: N*s/m global velocity damping.
+        mass_damping: Rayleigh alpha in 1/s (force -alpha m v).
+        weights: (N, 18) weight of each neighbour's spring (its stiffness over its class's k)
+            where the springs of a class differ (the calibrated lattice), else None.
         gravity: (3,) m/s^2.
         spacing: grid spacing h (rest lengths are h and h*sqrt(2)).
         n_pulls: number of loads (pull groups).
@@ -68,6 +74,8 @@ class VerletTerms:
     gravity: tuple[float, float, float]
     spacing: float
     n_pulls: int
+    mass_damping: float = 0.0
+    weights: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 def _one_value(values: np.ndarray) -> float | None:
@@ -80,8 +88,9 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
     reason it does not (one phrase). The springs must be the grid's (``FragmentIntegrator``
     checks that before it asks).
 
-    The pass models: one stiffness per class (structural, shear), per-node mass, fixed nodes,
-    global velocity damping, gravity, up to :data:`MAX_PULLS` loads. It does not model flexion
+    The pass models: structural and shear springs at the grid's rest lengths (one stiffness per
+    class, or per spring as weights of the class's largest), per-node mass, fixed nodes, global
+    velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads. It does not model flexion
     springs, spring damping, wind, drags or obstacles.
     """
     cls = system.spring_class
@@ -89,8 +98,6 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
         return "flexion springs"
     if np.any(system.damping > 0):
         return "spring damping"
-    if system.mass_damping > 0:
-        return "mass damping"
     if system.wind_drag > 0:
         return "wind"
     if drags:
@@ -99,17 +106,17 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
         return "obstacles"
     if len(loads) > MAX_PULLS:
         return f"more than {MAX_PULLS} loads"
-    k = [_one_value(system.stiffness[cls == c]) for c in (STRUCTURAL, SHEAR)]
+    k = [float(system.stiffness[cls == c].max()) if np.any(cls == c) else None for c in (STRUCTURAL, SHEAR)]
     for c, name in ((STRUCTURAL, "structural"), (SHEAR, "shear")):
         sel = cls == c
-        if np.any(sel) and k[c] is None:
-            return f"{name} springs of more than one stiffness"
         rest = grid.spacing * np.where(c == STRUCTURAL, REST_LENGTH_UNITS[0], REST_LENGTH_UNITS[-1])
         if np.any(sel) and not np.allclose(system.rest_length[sel], rest, rtol=1e-9, atol=0.0):
             return f"{name} rest lengths other than the grid's"
+    weights = spring_weights(system, grid.neighbours, [k[0] or 0.0, k[1] or 0.0, 0.0])
     return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
-                       spacing=float(grid.spacing), n_pulls=len(loads))
+                       spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
+                       weights=weights)
 
 
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
@@ -146,11 +153,13 @@ class NodeTextures(GLOwner):
             by tile arithmetic); see docs/ARCHITECTURE.md.
         positions: (n_state, N, 3) start positions of each state texture (default: the rest
             positions in all); the w channel gets the packed Mosegaard & Sørensen 2005, eq. 3 normal of those positions.
+        weights: (N, 18) spring weights (:class:`VerletTerms`), stored as a 5-layer RGBA32F
+            texture array in the layout (bound to :data:`WEIGHT_UNIT`), or None.
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
                  flags: np.ndarray | None = None, n_state: int = 3, layout: str = "compact",
-                 positions: np.ndarray | None = None) -> None:
+                 positions: np.ndarray | None = None, weights: np.ndarray | None = None) -> None:
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         super().__init__(ctx)
@@ -168,6 +177,7 @@ class NodeTextures(GLOwner):
                   else np.asarray(positions, np.float64))
         self.size = self.layout.size
         self.neighbours: moderngl.TextureArray | None = None
+        self.weights: moderngl.TextureArray | None = None
         self.state: list[moderngl.Texture] = []
         self.framebuffers: list[moderngl.Framebuffer] = []
         with self.building():
@@ -176,6 +186,15 @@ class NodeTextures(GLOwner):
                 w, h = self.layout.size
                 self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            if weights is not None:
+                padded = np.zeros((n, 20))
+                padded[:, :18] = weights
+                w, h = self.layout.size
+                images = np.stack([self.layout.scatter(grid.ijk, padded[:, 4 * i: 4 * i + 4]) for i in range(5)])
+                self.weights = self.own(ctx.texture_array((w, h, 5), 4,
+                                                          np.ascontiguousarray(images, dtype="f4").tobytes(),
+                                                          dtype="f4"))
+                self.weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
             node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(n)], axis=1)
             self.node = self._texture(self.layout.scatter(grid.ijk, node))
             for x in starts:
@@ -196,7 +215,8 @@ class NodeTextures(GLOwner):
     def bytes_allocated(self) -> int:
         """GPU bytes of every texture (padding texels included)."""
         w, h = self.size
-        static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16)
+        static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16) + \
+            (0 if self.weights is None else w * h * 5 * 16)
         return static + len(self.state) * w * h * 16
 
     def bind_static(self, node_unit: int) -> None:
@@ -204,6 +224,8 @@ class NodeTextures(GLOwner):
         self.node.use(node_unit)
         if self.neighbours is not None:
             self.neighbours.use(NEIGHBOUR_UNIT)
+        if self.weights is not None:
+            self.weights.use(WEIGHT_UNIT)
 
     def release(self) -> None:
         """Release every texture and framebuffer (idempotent)."""
@@ -242,11 +264,14 @@ class VerletPass(GLOwner):
         with self.building():
             self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
+                "SPRING_WEIGHTS": textures.weights is not None,
                 **layout.shader_defines()}))
             self.program.set(**layout.shader_uniforms(),
                              u_spacing=terms.spacing, u_k_structural=terms.k_structural,
-                             u_k_shear=terms.k_shear, u_damping=terms.damping,
+                             u_k_shear=terms.k_shear, u_damping=terms.damping, u_mass_damping=terms.mass_damping,
                              u_gravity=terms.gravity, u_position=0, u_previous=1, u_node=2)
+            if textures.weights is not None:
+                self.program.set(u_weights=WEIGHT_UNIT)
             if draw == "points":
                 self.program.set(u_target_size=textures.size)
                 texels = layout.texel(grid.ijk).astype("i4")
@@ -321,7 +346,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
         with self.building():
             self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
-                                                  positions=np.stack([x, x_prev, x])))
+                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights))
             self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))
