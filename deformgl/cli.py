@@ -109,7 +109,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
     b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators", "trade", "mappings",
-                                    "scaling", "profile"],
+                                    "scaling", "profile", "accuracy"],
                    help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
@@ -121,7 +121,10 @@ def _parser() -> argparse.ArgumentParser:
                         "Pareto front; mappings: each mapping's error against an analytic bend and twist, and "
                         "its draw time; scaling: ms/step from 4k to 1M nodes, the fitted exponent, bytes/node; "
                         "profile: the step pass rebuilt stage by stage (own texels, neighbour lookup, 18 "
-                        "neighbour fetches, spring sums), what each costs")
+                        "neighbour fetches, spring sums), what each costs; accuracy: the calibrated lattice's static "
+                        "equilibrium against converged hexahedral FEM (cantilever, compressed block, twisted bar) "
+                        "at 2 to 17 nodes across, with the fitted order (needs the 'fem' extra: pip install "
+                        "'deformgl[fem]')")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
@@ -275,11 +278,32 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
                 _chart(lambda: scaling.write_chart(out / "scaling.png"))
 
 
+def _accuracy(args: argparse.Namespace) -> int:
+    """``bench accuracy``: the lattice-vs-FEM tables, and with ``--out`` accuracy.csv/.json."""
+    from deformgl.bench.accuracy import accuracy_study
+    from deformgl.bench.fem import require_skfem
+    from deformgl.files import OutputSet
+
+    require_skfem()
+    out = args.out
+    outputs = OutputSet([out / f"accuracy.{ext}" for ext in ("csv", "json")] if out else [])
+    note = None if args.quiet else (lambda line: print(f"[bench] {line} ...", file=sys.stderr, flush=True))
+    report = accuracy_study(quick=args.quick, progress=note)
+    print(report.format())
+    if out is not None:
+        with outputs:
+            report.write_csv(out / "accuracy.csv")
+            report.write_json(out / "accuracy.json")
+    return 0
+
+
 def _bench(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
         raise InputError(f"--out: {args.out} is not a folder")
+    if args.what == "accuracy":  # CPU only: no GL context
+        return _accuracy(args)
     from deformgl.bench.studies import bench_render, bench_sim, format_render, format_sim, machine_line
     from deformgl.gl.context import create_context
 
