@@ -55,6 +55,11 @@ _EXPORTS: dict[str, str] = {
     "from_triangle_mesh": "deformgl.sim.springs",
     "Drag": "deformgl.sim.springs",
     "Load": "deformgl.sim.springs",
+    "ElasticMaterial": "deformgl.sim.materials",
+    "SheetMaterial": "deformgl.sim.materials",
+    "PRESETS": "deformgl.sim.materials",
+    "lattice_system": "deformgl.sim.materials",
+    "sheet_system": "deformgl.sim.materials",
     "INTEGRATORS": "deformgl.sim.integrators",
     "Constraints": "deformgl.sim.integrators",
     "Sphere": "deformgl.sim.integrators",
@@ -117,6 +122,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.sim.run import RunResult
     from deformgl.sim.simulation import Simulation, SimulationSetupError
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
+    from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial, lattice_system, sheet_system
     from deformgl.sim.limits import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment
     from deformgl.trilinear.batches import ComposedScene
