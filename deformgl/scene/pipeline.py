@@ -39,7 +39,7 @@ from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
 from deformgl.grid.voxelize import voxelize
-from deformgl.sim.materials import LatticeReport
+from deformgl.sim.materials import ElasticMaterial, LatticeReport, SheetMaterial
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,6 +109,18 @@ def build_cloth_model(scene: Scene) -> SceneModel:
     mesh = trimesh.Trimesh(grid.rest_positions[surface.nodes], surface.triangles, process=False)
     bbox = np.array([[origin[0], -size / 2.0, origin[2]], [-origin[0], size / 2.0, -origin[2]]])
     return SceneModel.build(scene, mesh, np.zeros(3), grid, bbox)
+
+
+def material_line(material: object, spacing: float) -> str:
+    """``material E = ... Pa, rho = ... kg/m^3 at spacing h = ... m`` for the render log."""
+    if isinstance(material, ElasticMaterial):
+        what = f"E = {material.youngs_modulus:.4g} Pa, rho = {material.density:.4g} kg/m^3"
+    elif isinstance(material, SheetMaterial):
+        what = f"Y = {material.stretch_modulus:.4g} N/m, rho_A = {material.areal_density:.4g} kg/m^2"
+    else:
+        return "per-spring constants"
+    name = getattr(material, "name", "")
+    return f"material {name + ' ' if name else ''}{what} at grid spacing h = {spacing:.4g} m"
 
 
 def recentred(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
@@ -356,6 +368,9 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         if log is not None:
             for note in state.notes:
                 log(f"{scene.name}: {note}")
+            if built.lattice is not None:
+                log(f"{scene.name}: {material_line(scene.physics.material, built.grid.spacing)}: "
+                    f"{built.lattice.summary()}")
         if state.run is not None:
             if log is not None:
                 log(f"{scene.name}: {state.run.summary(scene.physics)}")
