@@ -120,7 +120,7 @@ def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: s
     loads = []
     for i, pull in enumerate(physics.pull):
         nodes = _caught(pull.region, frac, grid, source, f"physics.pull[{i}]")
-        force = pull.force_at
+        force: Callable[[float], np.ndarray] = pull.force_at
         if physics.material is not None:
             force = _split(pull.force_at, int(nodes.sum()))
         loads.append(Load(nodes, force))

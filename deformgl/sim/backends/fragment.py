@@ -256,7 +256,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                                                    dtype="i4"))
             self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
         #: per-spring stiffness as weights of the class's k (the calibrated lattice), or None
-        self.tex_weights: moderngl.Texture | None = None
+        self.tex_weights: moderngl.TextureArray | None = None
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
             padded_w = np.zeros((n, 4 * layers), np.float32)
