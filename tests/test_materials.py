@@ -386,3 +386,10 @@ def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_norma
         assert np.min(np.sum(got[surface] * expected, axis=1)) > 0.999
     finally:
         sim.release()
+
+
+def test_the_cpu_peers_refuse_the_calibrated_lattice_rather_than_step_it_wrong():
+    from deformgl.bench.peers import PeerStepper
+    system, _ = lattice_system(block((3, 3, 3)), GEL)
+    with pytest.raises(ValueError, match="per-spring stiffness"):
+        PeerStepper(system, dt=1e-4)  # (the check every peer's constructor runs first)

@@ -96,6 +96,9 @@ class PeerStepper:
         terms = verlet_terms(system, grid, loads=tuple(loads))
         if not isinstance(terms, VerletTerms):
             raise ValueError(f"the peers do not model {terms}")
+        if terms.weights is not None or terms.mass_damping:
+            raise ValueError("the peers do not model per-spring stiffness or mass damping (a material's "
+                             "calibrated lattice): they step the per-spring form of the paper scenes")
         self.system = system
         self.dt = float(dt)
         self.loads = tuple(loads)
