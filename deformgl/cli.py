@@ -105,6 +105,22 @@ def _parser() -> argparse.ArgumentParser:
                                "texture size, vertex texture units and whether RGBA32F render "
                                "targets work.")
 
+    pl = sub.add_parser("plan", help="pick the coarsest grid, integrator and dt for an accuracy",
+                        description="Model only what a scene requires: from the measured lattice-vs-FEM errors "
+                                    "(bench accuracy) and time-stepping errors (bench trade --resolution), the "
+                                    "coarsest grid, the integrator and the largest dt whose predicted relative "
+                                    "deflection error is below --tolerance, and why (docs/ACCURACY.md).")
+    pl.add_argument("scene", type=Path, help="scene file (.toml) with a [material] table, or a shipped scene's name")
+    pl.add_argument("--tolerance", type=float, required=True, metavar="X",
+                    help="relative error of the deflection, e.g. 0.02 for 2 %%")
+    pl.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
+                    help="how the body deforms: which measured workload's error model applies "
+                         "(cantilever, compressed block, twisted bar; default bending)")
+    pl.add_argument("--preset", default=None, help="the material when the scene has no [material] table")
+    pl.add_argument("--youngs-modulus", type=float, default=None, metavar="PA",
+                    help="E in Pa when the scene has no [material] table (with --density)")
+    pl.add_argument("--density", type=float, default=None, metavar="KG_M3", help="rho in kg/m^3 (with --youngs-modulus)")
+
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
@@ -133,6 +149,10 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and WHAT.png, "
                         "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
+    b.add_argument("--resolution", action="store_true",
+                   help="trade: instead, the grid-resolution study: the FEM-checked cantilever at several grid "
+                        "resolutions x integrator x dt, its error against FEM split into discretisation, time "
+                        "stepping and float32, against the fragment backend's cost per simulated second")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--scene", type=Path, default=None,
@@ -244,7 +264,17 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     out = args.out
     # the study's CSV, JSON and chart: checked before the study runs, written together or not at all
     outputs = OutputSet([out / f"{args.what}.{ext}" for ext in ("csv", "json", "png")] if out else [])
-    if args.what == "trade":
+    if args.what == "trade" and args.resolution:
+        from deformgl.bench.resolution import resolution_study
+
+        outputs = OutputSet([out / f"resolution.{ext}" for ext in ("csv", "json")] if out else [])
+        res = resolution_study(ctx, quick=args.quick, progress=note)
+        print(res.format())
+        if out is not None:
+            with outputs:
+                res.write_csv(out / "resolution.csv")
+                res.write_json(out / "resolution.json")
+    elif args.what == "trade":
         from deformgl.bench.trade import trade_study
 
         report = trade_study(ctx, quick=args.quick, progress=note)
@@ -278,6 +308,29 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
                 _chart(lambda: scaling.write_chart(out / "scaling.png"))
 
 
+def _plan(args: argparse.Namespace) -> int:
+    from deformgl.bench.plan import plan_scene
+    from deformgl.sim.materials import PRESETS, ElasticMaterial
+
+    material = None
+    if args.preset is not None:
+        if args.preset not in PRESETS:
+            raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {args.preset!r}")
+        material = PRESETS[args.preset]
+    elif args.youngs_modulus is not None or args.density is not None:
+        if args.youngs_modulus is None or args.density is None:
+            raise InputError("--youngs-modulus and --density: give both")
+        try:
+            material = ElasticMaterial(args.youngs_modulus, args.density)
+        except ValueError as exc:
+            raise InputError(str(exc).replace("material.", "--")) from None
+    source = _scene_file(args.scene)
+    plan = plan_scene(source, args.tolerance, args.load, material)
+    print(f"plan for {args.scene}:")
+    print("\n".join("  " + line for line in plan.lines()))
+    return 0
+
+
 def _accuracy(args: argparse.Namespace) -> int:
     """``bench accuracy``: the lattice-vs-FEM tables, and with ``--out`` accuracy.csv/.json."""
     from deformgl.bench.accuracy import accuracy_study
@@ -302,6 +355,8 @@ def _bench(args: argparse.Namespace) -> int:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
         raise InputError(f"--out: {args.out} is not a folder")
+    if args.resolution and args.what != "trade":
+        raise InputError(f"--resolution: only for bench trade, not bench {args.what}")
     if args.what == "accuracy":  # CPU only: no GL context
         return _accuracy(args)
     from deformgl.bench.studies import bench_render, bench_sim, format_render, format_sim, machine_line
@@ -432,7 +487,8 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)  # (a usage error exits here, one line, code 2)
     from deformgl.testing import diff_cli
 
-    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run}
+    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run,
+                "plan": _plan}
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             # non-finite values are found and named by the checks; numpy's own warnings only

@@ -295,12 +295,12 @@ def static_displacement(system: SpringSystem, forces: np.ndarray,
         partial = (hold.any(axis=1) & ~hold.all(axis=1)).any()  # amg wants whole 3x3 blocks
         if len(dofs) > DIRECT_DOFS and not partial:
             try:
-                import pyamg  # noqa: F401
+                import pyamg  # type: ignore[import-untyped,import-not-found,unused-ignore]  # noqa: F401
                 method = "amg"
             except ImportError:
                 pass
     if method == "amg":
-        import pyamg
+        import pyamg  # type: ignore[import-untyped,import-not-found,unused-ignore]
 
         ml = pyamg.smoothed_aggregation_solver(k.tocsr().tobsr(blocksize=(3, 3)), symmetry="symmetric",
                                                B=_rigid_modes(system.rest_positions[dofs[::3] // 3]),
@@ -319,7 +319,7 @@ def static_displacement(system: SpringSystem, forces: np.ndarray,
                                 "mode is not held by the constraints)") from None
         u_free = lu.solve(b)
         with np.errstate(all="ignore"):
-            residual = np.linalg.norm(k @ u_free - b) / max(np.linalg.norm(b), 1e-300)
+            residual = float(np.linalg.norm(k @ u_free - b)) / max(float(np.linalg.norm(b)), 1e-300)
         if not residual < 1e-6:  # (nan too) a zero pivot rounded to a tiny one
             raise DeformglError("static solve: the stiffness matrix is singular (a rigid-body "
                                 "mode is not held by the constraints)")
@@ -352,7 +352,7 @@ def lattice_value(case: LatticeCase, u: np.ndarray | None = None) -> float:
 def require_skfem() -> None:
     """Raise a one-line error when scikit-fem (the 'fem' extra) is not installed."""
     try:
-        import skfem  # noqa: F401
+        import skfem  # type: ignore[import-untyped,import-not-found,unused-ignore]  # noqa: F401
     except ImportError:
         raise DeformglError("the FEM reference needs scikit-fem: pip install 'deformgl[fem]'") from None
 
@@ -378,10 +378,9 @@ def fem_value(w: Workload, per_thickness: int, *, nu: float = 0.25, order: int =
     import time
 
     require_skfem()
-    from skfem import (Basis, BilinearForm, ElementHex1, ElementHex2, ElementVector, FacetBasis,
-                       Functional, LinearForm, MeshHex, asm, condense, solve)
-    from skfem.helpers import ddot, sym_grad, trace
-    from skfem.models.elasticity import lame_parameters
+    from skfem import (Basis, BilinearForm, ElementHex1, ElementHex2, ElementVector,  # type: ignore[import-untyped,import-not-found,unused-ignore]
+                       FacetBasis, Functional, LinearForm, MeshHex, asm, condense, solve)
+    from skfem.helpers import ddot, sym_grad, trace  # type: ignore[import-untyped,import-not-found,unused-ignore]
 
     start = time.perf_counter()
     nx, ny, nz = w.cells(per_thickness)
@@ -391,7 +390,8 @@ def fem_value(w: Workload, per_thickness: int, *, nu: float = 0.25, order: int =
     element = ElementVector(ElementHex2() if order == 2 else ElementHex1())
     intorder = 4 if order == 2 else 2
     basis = Basis(mesh, element, intorder=intorder)
-    lam, mu = lame_parameters(material.youngs_modulus, nu)
+    lam = material.youngs_modulus * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))  # Lame constants
+    mu = material.youngs_modulus / (2.0 * (1.0 + nu))
 
     @BilinearForm
     def elasticity(u, v, _):
@@ -421,10 +421,8 @@ def fem_value(w: Workload, per_thickness: int, *, nu: float = 0.25, order: int =
             def traction(v, _):
                 return -p * v[1]
         else:
-            a = w.thickness
             scale = w.magnitude / (w.size[1] * w.size[2] * (w.size[1] ** 2 + w.size[2] ** 2) / 12.0)
             cy, cz = w.size[1] / 2.0, w.size[2] / 2.0
-            del a
 
             @LinearForm
             def traction(v, p):

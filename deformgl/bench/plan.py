@@ -1,0 +1,162 @@
+"""``deformgl plan SCENE --tolerance X``: model only what a scene requires (issue 12, item 5).
+
+From the measurements of ``deformgl bench accuracy`` and ``deformgl bench trade --resolution``
+(docs/ACCURACY.md), pick the coarsest grid, the integrator and the largest dt whose predicted
+relative error of the body's deflection is below the tolerance, and say why:
+
+* discretisation: ``e_d = C (h / t)^p`` with ``t`` the body's thickness (the smallest side of
+  its bounding box, in m) and (C, p) fitted by least squares to the measured lattice-vs-FEM errors
+  of the workload that deforms like the body (:data:`MEASURED`: bending, the cantilever;
+  compression, the block; torsion, the twisted bar). The grid gets the fewest nodes across the
+  thickness with ``e_d <= tolerance - e_t - e_32``;
+* time stepping: Verlet (the cheapest step on every grid of the resolution study) at the largest
+  dt = f x :func:`~deformgl.sim.materials.critical_dt` (f <= :data:`MAX_FRACTION`) with the
+  measured time-stepping error ``e_t = D f`` (first order: the mass damping's velocity is a
+  backward difference) below a tenth of the tolerance;
+* float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from deformgl.errors import InputError
+from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
+
+__all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "Plan",
+           "fit", "make_plan", "plan_scene"]
+
+#: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
+#: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
+MEASURED: dict[str, dict[int, float]] = {
+    "bending": {2: 0.459, 3: 0.192, 4: 0.0992, 5: 0.0596, 8: 0.0211, 9: 0.0164, 17: 0.00430},
+    "compression": {2: 0.0601, 3: 0.0249, 5: 0.00984, 9: 0.00381, 17: 0.00145},
+    "torsion": {2: 0.719, 3: 0.439, 5: 0.185, 9: 0.0576, 17: 0.0155},
+}
+LOADS = tuple(MEASURED)
+MAX_FRACTION = 0.9
+#: Verlet's time-stepping error of the tip per unit dt / critical dt (``bench trade
+#: --resolution``: 3.3e-4 at 0.9, 1.8e-4 at 0.5 on the 2-across cantilever; first order).
+TIME_STEP_ERROR = 4.0e-4
+FLOAT32_ERROR = 1.0e-4
+MAX_ACROSS = 257
+
+
+def fit(load: str, finest: int = 4) -> tuple[float, float]:
+    """(C, p) of ``e_d = C (h / t)^p``: least squares of log e against log(h/t) over the
+    ``finest`` finest measured resolutions of ``load``."""
+    pts = sorted(MEASURED[load].items())[-finest:]
+    x = np.log([1.0 / (n - 1) for n, _ in pts])
+    y = np.log([e for _, e in pts])
+    p, logc = np.polyfit(x, y, 1)
+    return float(math.exp(logc)), float(p)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What :func:`make_plan` chose and the predicted errors (relative)."""
+
+    tolerance: float
+    load: str
+    size: tuple[float, float, float]
+    material: ElasticMaterial
+    across: int
+    spacing: float
+    nodes_along_longest: int
+    integrator: str
+    fraction: float
+    dt: float
+    critical: float
+    discretisation: float
+    time_stepping: float
+    float32: float
+    model: tuple[float, float]
+
+    @property
+    def error(self) -> float:
+        """The predicted total relative error."""
+        return self.discretisation + self.time_stepping + self.float32
+
+    def lines(self) -> list[str]:
+        """What was chosen and why, for the terminal."""
+        c, p = self.model
+        t = min(self.size)
+        m = self.material
+        return [
+            f"body: {self.size[0]:.4g} x {self.size[1]:.4g} x {self.size[2]:.4g} m (thickness "
+            f"{t:.4g} m); material {m.name or 'from the scene'}: E = {m.youngs_modulus:g} Pa, "
+            f"rho = {m.density:g} kg/m^3; tolerance {self.tolerance:g} (relative deflection error)",
+            f"grid: {self.across} nodes across the thickness, spacing {self.spacing:.4g} m, "
+            f"nodes_along_longest = {self.nodes_along_longest}: the coarsest grid whose predicted "
+            f"discretisation error {self.discretisation:.2%} (e = {c:.3g} (h/t)^{p:.2f}, fitted to "
+            f"bench accuracy's {self.load} workload) leaves room for the time stepping and float32",
+            f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
+            f"critical dt {self.critical:.3g} s (2 h sqrt(rho / 14.4 E)): predicted time-stepping "
+            f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}",
+            f"predicted total error {self.error:.2%} <= {self.tolerance:.2%}",
+            "scene keys: [grid] spacing = " f"{self.spacing:.6g} (or nodes_along_longest = "
+            f"{self.nodes_along_longest}); [physics] integrator = \"{self.integrator}\", dt = {self.dt:.6g}",
+        ]
+
+
+def make_plan(size: tuple[float, float, float], material: ElasticMaterial, tolerance: float,
+              load: str = "bending") -> Plan:
+    """The plan of a body of bounding box ``size`` (m) and ``material`` for ``tolerance``.
+
+    Raises:
+        InputError: a tolerance outside (0, 1), an unknown load, or a tolerance that needs more
+            than :data:`MAX_ACROSS` nodes across.
+    """
+    if not (0.0 < tolerance < 1.0):
+        raise InputError(f"--tolerance: a relative error between 0 and 1, got {tolerance}")
+    if load not in MEASURED:
+        raise InputError(f"--load: one of {', '.join(LOADS)}, got {load!r}")
+    if min(size) <= 0:
+        raise InputError(f"the body's bounding box {size} m has no thickness")
+    fraction = min(MAX_FRACTION, 0.1 * tolerance / TIME_STEP_ERROR)
+    e_t, e_32 = TIME_STEP_ERROR * fraction, FLOAT32_ERROR
+    budget = tolerance - e_t - e_32
+    c, p = fit(load)
+    if budget <= 0:
+        raise InputError(f"--tolerance {tolerance}: below the float32 error {FLOAT32_ERROR:g}")
+    cells = max(1, math.ceil((c / budget) ** (1.0 / p)))  # cells across: e_d(1/cells) <= budget
+    if cells + 1 > MAX_ACROSS:
+        raise InputError(f"--tolerance {tolerance}: needs {cells + 1} nodes across the thickness "
+                         f"(more than {MAX_ACROSS}); the lattice error falls as h^{p:.2f}")
+    thickness = min(size)
+    h = thickness / cells
+    along = int(round(max(size) / h)) + 1
+    crit = critical_dt(material, h, "verlet")
+    return Plan(tolerance, load, size, material, cells + 1, h, along, "verlet", fraction,
+                fraction * crit, crit, c * (1.0 / cells) ** p, e_t, e_32, (c, p))
+
+
+def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
+               material: ElasticMaterial | None = None) -> Plan:
+    """:func:`make_plan` for a scene file: its mesh's bounding box times ``mesh.scale`` and its
+    ``[material]`` (or ``material`` when the scene has none).
+
+    Raises:
+        InputError: the scene is invalid, a cloth, or has no material and none was given.
+    """
+    from deformgl.grid.meshio import load_mesh
+    from deformgl.scene.schema import load_scene
+
+    scene = load_scene(path)
+    if scene.cloth is not None or scene.mesh is None:
+        raise InputError(f"{path}: plan models volume bodies (a mesh and an [material] solid); "
+                         "this scene is a cloth")
+    found = getattr(scene.physics, "material", None)
+    if found is not None and not isinstance(found, ElasticMaterial):
+        raise InputError(f"{path}: material: plan needs a solid (youngs_modulus, density)")
+    chosen = found or material
+    if chosen is None:
+        raise InputError(f"{path}: material: the scene has no [material] table; give --preset "
+                         f"({', '.join(PRESETS)}) or --youngs-modulus and --density")
+    mesh = load_mesh(scene.mesh.path)
+    extent = (mesh.bounds[1] - mesh.bounds[0]) * float(getattr(scene.mesh, "scale", 1.0))
+    return make_plan(tuple(float(e) for e in extent), chosen, tolerance, load)  # type: ignore[arg-type]

@@ -1,0 +1,244 @@
+"""``deformgl bench trade --resolution``: the grid resolution on the speed/accuracy chart
+(issue 12, item 4).
+
+Workload: the FEM-checked cantilever of :mod:`deformgl.bench.fem` (1 x 0.1 x 0.1 m, clamped,
+released from rest under gravity), E = 1e8 Pa, rho = 1000 kg/m^3 and Rayleigh mass damping
+alpha = :data:`ALPHA` 1/s (twice the beam's first angular frequency, 32 rad/s: resolution
+independent), for each grid resolution (nodes across the thickness) x integrator x dt (fractions
+of :func:`~deformgl.sim.materials.critical_dt`). Measured on the tip (the free end face's mean
+downward displacement) at T = :data:`SIM_TIME` and kept apart, each relative to the FEM static
+tip deflection:
+
+* discretisation: the static lattice's tip against converged FEM (:mod:`deformgl.bench.fem`;
+  without scikit-fem, against :data:`FEM_TIP`, the value `bench accuracy` printed);
+* time stepping: the float64 NumPy run at dt against a converged float64 RK4 run (dt = the RK4
+  limit / :data:`REFERENCE_DIVISOR`) of the same lattice at T;
+* float32: the fragment (GPU) run against the NumPy run of the same integrator and dt at T.
+
+``error`` is their sum, a bound of the tip's error against the converged continuum. Cost: the
+fragment backend's ms per step (``ctx.finish()`` included), the median of :data:`ROUNDS` rounds
+in which every configuration times one batch in turn (alternating, so a slow moment of the
+shared machine hits all alike), as ms per simulated second = (ms/step) / dt. The front
+(:func:`deformgl.bench.trade.pareto_front`, error against cost) says which grid and integrator
+give a requested accuracy cheapest.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+import moderngl
+import numpy as np
+
+from deformgl.bench import report_files
+from deformgl.bench.fem import MATERIAL, WORKLOADS, LatticeCase, lattice_case, lattice_value
+from deformgl.bench.trade import pareto_front
+from deformgl.sim.materials import ElasticMaterial, critical_dt
+from deformgl.sim.simulation import make_simulation
+
+__all__ = ["ALPHA", "SIM_TIME", "ACROSS", "QUICK_ACROSS", "INTEGRATORS", "FRACTIONS",
+           "QUICK_FRACTIONS", "FEM_TIP", "ResolutionRow", "ResolutionReport", "resolution_study"]
+
+ALPHA = 64.0
+SIM_TIME = 0.05
+ACROSS = (2, 3, 4, 5)
+QUICK_ACROSS = (2, 3)
+#: Explicit Euler and midpoint have no stable dt without stiffness damping (see
+#: deformgl.sim.materials.critical_dt): the lattice here has none.
+INTEGRATORS = ("verlet", "semi-implicit", "rk4")
+QUICK_INTEGRATORS = ("verlet", "semi-implicit")
+FRACTIONS = (0.25, 0.5, 0.9)
+QUICK_FRACTIONS = (0.5, 0.9)
+REFERENCE_DIVISOR = 16.0
+ROUNDS, BATCH = 5, 40
+#: The converged FEM tip deflection of the cantilever in m (``deformgl bench accuracy``:
+#: ElementHex2 on 1, 2, 4 elements across, Richardson-extrapolated), used without scikit-fem.
+FEM_TIP = 1.477008e-02
+
+
+@dataclass(frozen=True)
+class ResolutionRow:
+    """One grid x integrator x dt; errors relative to the FEM tip, cost of the fragment backend."""
+
+    across: int
+    spacing: float
+    nodes: int
+    integrator: str
+    fraction: float
+    dt: float
+    steps: int
+    discretisation: float
+    time_stepping: float
+    float32: float
+    error: float
+    ms_per_step: float
+    ms_per_sim_s: float
+
+
+@dataclass
+class ResolutionReport:
+    """What :func:`resolution_study` measured."""
+
+    rows: list[ResolutionRow]
+    fem_tip: float
+    fem_source: str
+    machine: str
+    date: str
+    sim_time: float = SIM_TIME
+
+    def front(self) -> list[ResolutionRow]:
+        """Pareto front of error against ms per simulated second, cheapest first."""
+        return pareto_front(self.rows, key=lambda r: (r.ms_per_sim_s, r.error))
+
+    def cheapest(self, tolerance: float) -> ResolutionRow | None:
+        """The cheapest configuration whose error is at most ``tolerance`` (relative)."""
+        ok = [r for r in self.front() if r.error <= tolerance]
+        return ok[0] if ok else None
+
+    def format(self) -> str:
+        """The terminal table and the front in words."""
+        lines = [self.machine, f"date: {self.date}; cantilever 1 x 0.1 x 0.1 m released under "
+                 f"gravity, E = 1e8 Pa, rho = 1000 kg/m^3, mass damping {ALPHA:g} 1/s; tip at T = "
+                 f"{self.sim_time:g} s; errors relative to the FEM static tip {self.fem_tip:.5e} m "
+                 f"({self.fem_source}): discretisation (static lattice vs FEM), time stepping "
+                 "(float64 run vs a converged float64 RK4 run), float32 (fragment vs NumPy); "
+                 "cost: fragment backend, median of alternating rounds"]
+        head = (f"  {'across':>6} {'h [m]':>8} {'nodes':>6} {'integrator':>13} {'dt/crit':>7} "
+                f"{'dt [s]':>9} {'steps':>6} | {'discr.':>8} {'time':>8} {'float32':>8} "
+                f"{'total':>8} | {'ms/step':>8} {'ms/sim-s':>9}")
+        lines += [head, "  " + "-" * (len(head) - 2)]
+        lines += [f"  {r.across:>6} {r.spacing:>8.4f} {r.nodes:>6} {r.integrator:>13} "
+                  f"{r.fraction:>7.2f} {r.dt:>9.2e} {r.steps:>6} | {r.discretisation:>8.1e} "
+                  f"{r.time_stepping:>8.1e} {r.float32:>8.1e} {r.error:>8.1e} | "
+                  f"{r.ms_per_step:>8.3f} {r.ms_per_sim_s:>9.1f}" for r in self.rows]
+        lines.append("Pareto front (total error against ms per simulated second, fragment backend):")
+        above = math.inf
+        for r in self.front():
+            span = "above" if above == math.inf else f"between {r.error:.2e} and"
+            lines.append(f"  for errors {span} {r.error if above == math.inf else above:.2e}: "
+                         f"{r.across} nodes across (h = {r.spacing:.4f} m), {r.integrator} at "
+                         f"dt = {r.dt:.2e} s = {r.fraction:.2f} x critical, {r.ms_per_sim_s:.3g} "
+                         "ms per simulated second")
+            above = r.error
+        lines.append(f"  nothing measured is more accurate than {above:.1e}: a finer grid "
+                     "(bench accuracy: the error falls about as h^1.7)")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict."""
+        return {"machine": self.machine, "date": self.date, "sim_time": self.sim_time,
+                "fem_tip": self.fem_tip, "fem_source": self.fem_source,
+                "rows": [dataclasses.asdict(r) for r in self.rows]}
+
+    def write_csv(self, path: str | os.PathLike) -> None:
+        """One line per row, atomically."""
+        report_files.write_csv(path, [dataclasses.asdict(r) for r in self.rows],
+                               [f.name for f in dataclasses.fields(ResolutionRow)])
+
+    def write_json(self, path: str | os.PathLike) -> None:
+        """:meth:`to_dict` as JSON, atomically."""
+        report_files.write_json(path, self.to_dict())
+
+
+def _tip_at(case: LatticeCase, integrator: str, dt: float, steps: int, backend: str = "numpy",
+            ctx: moderngl.Context | None = None) -> float:
+    with make_simulation(case.system, integrator, backend, dt=dt, ctx=ctx) as sim:
+        sim.step(steps)
+        u = np.asarray(sim.positions(), np.float64) - case.system.rest_positions
+    return lattice_value(case, u)
+
+
+def fem_tip() -> tuple[float, str]:
+    """The FEM static tip in m and where it comes from (scikit-fem if installed)."""
+    try:
+        import skfem  # type: ignore[import-untyped,import-not-found,unused-ignore]  # noqa: F401
+    except ImportError:
+        return FEM_TIP, "bench accuracy's value; scikit-fem not installed"
+    from deformgl.bench.fem import fem_reference
+
+    value, _, _ = fem_reference(WORKLOADS["cantilever"], (1, 2, 4))
+    return value, "scikit-fem ElementHex2, 1/2/4 across, extrapolated"
+
+
+def resolution_study(ctx: moderngl.Context, *, quick: bool = False,
+                     across: Sequence[int] | None = None, integrators: Sequence[str] | None = None,
+                     fractions: Sequence[float] | None = None,
+                     progress: Callable[[str], None] | None = None) -> ResolutionReport:
+    """Every resolution x integrator x dt of the cantilever (see the module docstring).
+
+    Args:
+        ctx: the GL context (the fragment backend's runs and timings).
+        quick: :data:`QUICK_ACROSS`, two integrators, :data:`QUICK_FRACTIONS`, 2 rounds of 10
+            steps, a reference at the RK4 limit / 4, and the stored :data:`FEM_TIP` instead of
+            a new FEM solve.
+        across, integrators, fractions: override the defaults.
+        progress: called with a line before each resolution.
+    """
+    from deformgl.bench.accuracy import cpu_line
+    from deformgl.bench.studies import machine_line
+
+    across = tuple(across or (QUICK_ACROSS if quick else ACROSS))
+    integrators = tuple(integrators or (QUICK_INTEGRATORS if quick else INTEGRATORS))
+    fractions = tuple(fractions or (QUICK_FRACTIONS if quick else FRACTIONS))
+    rounds, batch = (2, 10) if quick else (ROUNDS, BATCH)
+    material = ElasticMaterial(MATERIAL.youngs_modulus, MATERIAL.density, mass_damping=ALPHA)
+    w = WORKLOADS["cantilever"]
+    fem, source = (FEM_TIP, "bench accuracy's value") if quick else fem_tip()
+    pending: list[dict[str, Any]] = []
+    for n in across:
+        if progress:
+            progress(f"resolution: {n} nodes across")
+        case = lattice_case(w, n, material)
+        static = lattice_value(case)
+        ref_dt = critical_dt(material, case.spacing, "rk4") / (4.0 if quick else REFERENCE_DIVISOR)
+        ref_steps = math.ceil(SIM_TIME / ref_dt)
+        reference = _tip_at(case, "rk4", SIM_TIME / ref_steps, ref_steps)
+        for name in integrators:
+            for f in fractions:
+                steps = math.ceil(SIM_TIME / (f * critical_dt(material, case.spacing, name)))
+                dt = SIM_TIME / steps
+                tip64 = _tip_at(case, name, dt, steps)
+                tip32 = _tip_at(case, name, dt, steps, "fragment", ctx)
+                pending.append(dict(case=case, across=n, integrator=name, fraction=f, dt=dt,
+                                    steps=steps, discretisation=abs(static - fem) / fem,
+                                    time_stepping=abs(tip64 - reference) / fem,
+                                    float32=abs(tip32 - tip64) / fem, times=[]))
+    # cost: alternating rounds over every configuration, one batch each, median per configuration
+    sims = [make_simulation(p["case"].system, p["integrator"], "fragment", dt=p["dt"], ctx=ctx)
+            for p in pending]
+    try:
+        for s in sims:  # warm-up (shader compilation, first upload)
+            s.step(2)
+        ctx.finish()
+        for _ in range(rounds):
+            for p, s in zip(pending, sims):
+                start = time.perf_counter()
+                s.step(batch)
+                ctx.finish()
+                p["times"].append((time.perf_counter() - start) / batch * 1e3)
+    finally:
+        for s in sims:
+            s.release()
+    rows = []
+    for p in pending:
+        ms = statistics.median(p["times"])
+        case = p["case"]
+        rows.append(ResolutionRow(p["across"], case.spacing, case.grid.count, p["integrator"],
+                                  p["fraction"], p["dt"], p["steps"], p["discretisation"],
+                                  p["time_stepping"], p["float32"],
+                                  p["discretisation"] + p["time_stepping"] + p["float32"],
+                                  ms, ms / p["dt"]))
+    date = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    try:
+        machine = machine_line(ctx)
+    except Exception:  # pragma: no cover - a context without the info queries
+        machine = cpu_line()
+    return ResolutionReport(rows, fem, source, machine, date)

@@ -1,0 +1,74 @@
+"""deformgl plan (issue 12, item 5): the coarsest grid, the integrator and the largest dt whose
+predicted error is below a tolerance, from the measured error models."""
+
+from __future__ import annotations
+
+import pytest
+
+from deformgl.bench.plan import MEASURED, fit, make_plan, plan_scene
+from deformgl.cli import main
+from deformgl.errors import InputError
+from deformgl.sim.materials import PRESETS, critical_dt
+
+BEAM = (1.0, 0.1, 0.1)
+
+
+def test_the_error_model_reproduces_the_measurements():
+    for load, table in MEASURED.items():
+        c, p = fit(load)
+        assert p > 1.2, load      # bending 1.9, torsion 1.9, compression 1.4 (finest four)
+        for n, e in sorted(table.items())[-4:]:
+            assert c * (1.0 / (n - 1)) ** p == pytest.approx(e, rel=0.35), (load, n)
+
+
+@pytest.mark.parametrize("tolerance", [0.2, 0.05, 0.02, 0.005])
+def test_the_plan_is_the_coarsest_grid_below_the_tolerance(tolerance):
+    plan = make_plan(BEAM, PRESETS["rubber"], tolerance)
+    c, p = plan.model
+    assert plan.error <= tolerance
+    coarser = c * (1.0 / (plan.across - 2)) ** p if plan.across > 2 else float("inf")
+    assert coarser + plan.time_stepping + plan.float32 > tolerance   # one node fewer would not do
+    assert plan.spacing == pytest.approx(0.1 / (plan.across - 1))
+    assert plan.nodes_along_longest == round(1.0 / plan.spacing) + 1
+    assert plan.dt == pytest.approx(plan.fraction * critical_dt(PRESETS["rubber"], plan.spacing))
+    assert plan.fraction <= 0.9
+
+
+def test_tighter_tolerances_need_finer_grids_and_the_measured_table_agrees():
+    plans = [make_plan(BEAM, PRESETS["liver"], t) for t in (0.1, 0.02, 0.005)]
+    assert [p.across for p in plans] == sorted({p.across for p in plans})
+    # 2 % of a cantilever: the measurement says 9 across (1.6 %), 8 across is 2.1 %
+    assert make_plan(BEAM, PRESETS["liver"], 0.02).across in (8, 9)
+
+
+def test_the_dt_follows_the_material():
+    soft, stiff = (make_plan(BEAM, PRESETS[m], 0.05) for m in ("liver", "rubber"))
+    assert soft.across == stiff.across
+    ratio = (PRESETS["rubber"].youngs_modulus / PRESETS["rubber"].density) / \
+            (PRESETS["liver"].youngs_modulus / PRESETS["liver"].density)
+    assert soft.dt / stiff.dt == pytest.approx(ratio ** 0.5)
+
+
+def test_bad_tolerances_and_loads_are_input_errors():
+    with pytest.raises(InputError, match="--tolerance"):
+        make_plan(BEAM, PRESETS["liver"], 0.0)
+    with pytest.raises(InputError, match="--tolerance"):
+        make_plan(BEAM, PRESETS["liver"], 1e-6)
+    with pytest.raises(InputError, match="--load"):
+        make_plan(BEAM, PRESETS["liver"], 0.1, "shear")
+
+
+def test_plan_reads_the_scenes_material_and_mesh():
+    from deformgl.data import packaged_scene
+
+    plan = plan_scene(packaged_scene("jelly"), 0.05)
+    assert plan.material.youngs_modulus == 5000.0 and plan.material.density == 1030.0
+    assert min(plan.size) == pytest.approx(0.0586, rel=0.01)
+
+
+def test_the_plan_command(capsys):
+    assert main(["plan", "jelly.toml", "--tolerance", "0.05"]) == 0
+    out = capsys.readouterr().out
+    assert "nodes across the thickness" in out and "verlet" in out and "<= 5.00%" in out
+    assert main(["plan", "jelly.toml", "--tolerance", "5"]) == 2
+    assert "--tolerance" in capsys.readouterr().err
