@@ -208,3 +208,33 @@ def test_block_and_twist_converge_to_fem():
         assert errors[0] > errors[1] > errors[2], (name, errors)
         assert errors[2] < (0.01 if name == "block" else 0.06), (name, errors)  # twist: 5.6 %
     assert math.isfinite(fem)
+
+
+def test_the_fragment_backend_settles_on_the_static_solve_too(ctx):
+    """The GPU (float32, per-spring stiffness and mass damping) on the coarsest cantilever."""
+    from deformgl.sim.materials import critical_dt
+    from deformgl.sim.simulation import make_simulation
+
+    material = ElasticMaterial(MATERIAL.youngs_modulus, MATERIAL.density, mass_damping=70.0)
+    case = lattice_case(CANTILEVER, 2, material)
+    dt = 0.5 * critical_dt(material, case.spacing)
+    with make_simulation(case.system, "verlet", "fragment", dt=dt, ctx=ctx) as sim:
+        sim.step(int(0.6 / dt))
+        u = sim.positions().astype(np.float64) - case.system.rest_positions
+    assert lattice_value(case, u) == pytest.approx(lattice_value(case), rel=2e-3)
+
+
+@pytest.mark.slow
+def test_the_bench_accuracy_command_prints_the_table_and_writes_its_files(tmp_path, capsys):
+    need_fem()
+    import json
+
+    from deformgl.cli import main
+
+    assert main(["bench", "accuracy", "--quick", "--quiet", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "fitted order" in out and "Euler-Bernoulli" in out and "nu" in out
+    data = json.loads((tmp_path / "accuracy.json").read_text())
+    nine = next(r for r in data["rows"] if r["workload"] == "cantilever" and r["across"] == 9)
+    assert 0.98 < nine["ratio"] < 0.99            # against the quick (2-across) FEM
+    assert (tmp_path / "accuracy.csv").read_text().startswith("workload,across,spacing")

@@ -48,3 +48,10 @@ def test_the_front_names_the_cheapest_grid_for_an_accuracy(report):
     assert report.cheapest(0.01) is None       # needs a finer grid than measured
     text = report.format()
     assert "Pareto front" in text and "3 nodes across" in text
+
+
+def test_resolution_is_an_option_of_bench_trade_only(capsys):
+    from deformgl.cli import main
+
+    assert main(["bench", "sim", "--resolution"]) == 2
+    assert "--resolution" in capsys.readouterr().err

@@ -28,6 +28,10 @@ Euler, midpoint, RK4, position Verlet; :mod:`deformgl.sim.integrators`). Method:
   ``ctx.finish()`` included; :func:`deformgl.bench.studies.timed`), as ms/step and as ms per simulated
   second = (ms/step) / dt. The Pareto front (:func:`pareto_front`) is taken on RMS error
   against ms per simulated second, per workload and backend.
+
+The grid resolution is the other knob: ``deformgl bench trade --resolution``
+(:mod:`deformgl.bench.resolution`) puts the FEM-checked cantilever at several grids x integrator x
+dt on the same kind of chart, with its error against finite elements (docs/ACCURACY.md).
 """
 
 from __future__ import annotations
