@@ -87,6 +87,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
+    r.add_argument("--time", type=float, default=None, metavar="T",
+                   help="scene-graph files: the still at time T seconds of the keyframed deformations "
+                        "(default 0)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
 
     t = sub.add_parser("trilinear", help="render a trilinear scene-graph scene to PNG",
@@ -157,6 +160,12 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.scene.schema import load_scene, parse_size
 
     source = _scene_file(args.scene)
+    from deformgl.trilinear.graphfile import is_graph_file
+
+    if is_graph_file(source):
+        return _render_graph(args, source)
+    if args.time is not None:
+        raise InputError(f"{source}: --time applies to scene-graph files (docs/SCENEGRAPH.md)")
     scene = load_scene(source)
     size = None
     if args.size is not None:
@@ -184,6 +193,52 @@ def _render(args: argparse.Namespace) -> int:
         render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
                       export=args.export_mesh, pack=args.pack_inputs,
                       log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
+    finally:
+        ctx.release()
+    print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
+    return 0
+
+
+def _render_graph(args: argparse.Namespace, source: Path) -> int:
+    """``deformgl render`` of a scene-graph file (a ``[graph]`` table; docs/SCENEGRAPH.md)."""
+    import math
+
+    from deformgl.data import is_packaged
+    from deformgl.files import check_writable
+    from deformgl.gl.context import create_context
+    from deformgl.scene.graphs import graph_to_png
+    from deformgl.scene.schema import parse_size
+    from deformgl.trilinear.graphfile import load_graph
+
+    graph = load_graph(source)
+    for flag, value in (("--steps", args.steps), ("--mesh", args.mesh), ("--mapping", args.mapping),
+                        ("--integrator", args.integrator), ("--backend", args.backend),
+                        ("--allow-unstable/--subdivide", args.unstable), ("--check-every", args.check_every),
+                        ("--pack-inputs", args.pack_inputs)):
+        if value is not None:
+            raise InputError(f"{source}: {flag} applies to simulation scenes, not to scene-graph files "
+                             f"(set them in the [body] scene)")
+    if args.time is not None and not (math.isfinite(args.time) and args.time >= 0.0):
+        raise InputError(f"--time: must be a finite time >= 0 s, got {args.time}")
+    size = None
+    if args.size is not None:
+        try:
+            size = parse_size(args.size)
+        except ValueError as exc:
+            raise InputError(f"--size: {exc}") from None
+    named = Path(graph.output) if graph.output else Path(f"{source.stem}.png")
+    out = args.output or (Path(named.name) if is_packaged(source) else source.parent / named)
+    if out.suffix.lower() != ".png":
+        raise InputError(f"{out}: the output must be a .png file")
+    if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
+        raise InputError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
+    outputs = [p for p in (out, args.export_mesh) if p is not None]
+    for path in outputs:
+        check_writable(path)
+    _clean_leftovers(outputs)
+    ctx = create_context(args.device)
+    try:
+        graph_to_png(ctx, source, out, size=size, time=args.time or 0.0, export=args.export_mesh)
     finally:
         ctx.release()
     print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
