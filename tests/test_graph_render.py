@@ -14,7 +14,7 @@ from deformgl.scene.graphs import render_graph_file
 from deformgl.trilinear.cuboid import CORNERS, trilinear_corners
 from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_frames, render_graph
 from deformgl.trilinear.graphfile import load_graph, save_graph
-from deformgl.trilinear.graphspec import Deformation, Key, Mesh, NodeSpec, SceneGraph, Transform, View
+from deformgl.trilinear.graphspec import Deformation, Keyframe, GraphMesh, NodeSpec, SceneGraph, GraphTransform, GraphView
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 SIZE = (160, 120)
@@ -30,17 +30,17 @@ def deep_graph() -> SceneGraph:
     """Depth 6: tilt -> torus-wrap grid -> array (instancing) -> twist grid (keyframed) -> scale ->
     sphere; the twist node is shared by all 24 instances."""
     return SceneGraph(
-        roots=["tilt"], view=View(size=SIZE, azimuth=10.0, elevation=40.0, distance=1.1, samples=0),
-        meshes={"ball": Mesh("sphere", {"radius": 0.5, "segments": 12, "rings": 8})},
+        roots=["tilt"], view=GraphView(size=SIZE, azimuth=10.0, elevation=40.0, distance=1.1, samples=0),
+        meshes={"ball": GraphMesh("sphere", {"radius": 0.5, "segments": 12, "rings": 8})},
         deformations={"wrap": Deformation("torus", {"length": 8.0, "width": 3.0, "major": 3.0, "minor": 0.8}),
-                      "tw": Deformation("twist", {"rate": 0.0}, [Key(0.0, {"rate": 0.0}), Key(2.0, {"rate": 3.0})])},
-        nodes={"tilt": NodeSpec(Transform("trs", axis=(1.0, 0.0, 0.0), degrees=-90.0), ["wrap"]),
-               "wrap": NodeSpec(Transform("grid", deformation="wrap", cells=(16, 6, 1),
+                      "tw": Deformation("twist", {"rate": 0.0}, [Keyframe(0.0, {"rate": 0.0}), Keyframe(2.0, {"rate": 3.0})])},
+        nodes={"tilt": NodeSpec(GraphTransform("trs", axis=(1.0, 0.0, 0.0), degrees=-90.0), ["wrap"]),
+               "wrap": NodeSpec(GraphTransform("grid", deformation="wrap", cells=(16, 6, 1),
                                           box=((0.0, 0.0, 0.0), (8.0, 3.0, 1.0))), ["cells"]),
-               "cells": NodeSpec(Transform("array", count=(8, 3, 1), step=(1.0, 1.0, 0.0), offset=(0.5, 0.5, 0.5),
+               "cells": NodeSpec(GraphTransform("array", count=(8, 3, 1), step=(1.0, 1.0, 0.0), offset=(0.5, 0.5, 0.5),
                                            colours=((0.8, 0.3, 0.2), (0.2, 0.4, 0.8))), ["twisted"]),
-               "twisted": NodeSpec(Transform("grid", deformation="tw", cells=(2, 2, 4)), ["squash"]),
-               "squash": NodeSpec(Transform("trs", scale=(0.9, 0.5, 0.9)), ["ball"]),
+               "twisted": NodeSpec(GraphTransform("grid", deformation="tw", cells=(2, 2, 4)), ["squash"]),
+               "squash": NodeSpec(GraphTransform("trs", scale=(0.9, 0.5, 0.9)), ["ball"]),
                "ball": NodeSpec(mesh="ball")})
 
 
@@ -81,9 +81,9 @@ def test_frames_follow_the_keyframes_and_match_the_stills(ctx):
 def test_exported_one_cell_cuboid_matches_float64_eq1(ctx, tmp_path, capsys):
     rng = np.random.default_rng(17)
     corners = CORNERS * np.array([2.0, 1.0, 1.5]) + rng.uniform(-0.3, 0.3, (8, 3))
-    graph = SceneGraph(roots=["cell"], view=View(size=(64, 48), samples=0),
-                       meshes={"ball": Mesh("sphere", {"radius": 0.5, "segments": 24, "rings": 16})},
-                       nodes={"cell": NodeSpec(Transform("cuboid", corners=corners,
+    graph = SceneGraph(roots=["cell"], view=GraphView(size=(64, 48), samples=0),
+                       meshes={"ball": GraphMesh("sphere", {"radius": 0.5, "segments": 24, "rings": 16})},
+                       nodes={"cell": NodeSpec(GraphTransform("cuboid", corners=corners,
                                                          box=((-0.5, -0.5, -0.5), (0.5, 0.5, 0.5))), ["ball"]),
                               "ball": NodeSpec(mesh="ball")})
     path = save_graph(graph, tmp_path / "cell.toml")

@@ -10,7 +10,7 @@ from deformgl.errors import SceneError
 from deformgl.trilinear.graphbuild import build_graph
 from deformgl.trilinear.graphfile import is_graph_file, load_graph, save_graph
 from deformgl.trilinear.graphspec import (
-    Body, Deformation, Key, Mesh, NodeSpec, SceneGraph, Transform, View,
+    GraphBody, Deformation, Keyframe, GraphMesh, NodeSpec, SceneGraph, GraphTransform, GraphView,
 )
 from deformgl.trilinear.scenegraph import GeometryNode, TransformNode, compose_scene
 from deformgl.trilinear.scenes import COLOURS, Z_UP_TO_Y_UP, helix_scene, tile_scene, tubes_scene
@@ -35,23 +35,23 @@ def every_kind_graph(tmp_path: Path) -> SceneGraph:
     c[0, 0] = 0.125
     return SceneGraph(
         roots=["a"], description="every kind", output="x.png",
-        meshes={"s": Mesh("sphere", {"radius": 0.5, "segments": 8, "rings": 5}), "f": Mesh(file="box.ply"),
-                "t": Mesh("tube", {"length": 1.0, "radius": 0.25})},
-        deformations={"tw": Deformation("twist", {"rate": 0.1}, [Key(0.0, {"rate": 0.0}), Key(1.5, {"rate": 0.8})]),
+        meshes={"s": GraphMesh("sphere", {"radius": 0.5, "segments": 8, "rings": 5}), "f": GraphMesh(file="box.ply"),
+                "t": GraphMesh("tube", {"length": 1.0, "radius": 0.25})},
+        deformations={"tw": Deformation("twist", {"rate": 0.1}, [Keyframe(0.0, {"rate": 0.0}), Keyframe(1.5, {"rate": 0.8})]),
                       "b": Deformation("bend", {"angle": 0.3, "length": 2.0}),
                       "w": Deformation("torus", {"length": 4.0, "width": 2.0, "major": 3.0, "minor": 1.0})},
-        nodes={"a": NodeSpec(Transform("matrix", matrix=Z_UP_TO_Y_UP.copy()), ["b"], normals="tangent"),
-               "b": NodeSpec(Transform("trs", translate=(1.0, 2.0, 3.0), axis=(0.0, 1.0, 0.0), degrees=30.0,
+        nodes={"a": NodeSpec(GraphTransform("matrix", matrix=Z_UP_TO_Y_UP.copy()), ["b"], normals="tangent"),
+               "b": NodeSpec(GraphTransform("trs", translate=(1.0, 2.0, 3.0), axis=(0.0, 1.0, 0.0), degrees=30.0,
                                        scale=(1.0, 2.0, 0.5)), ["c", "d", "e"]),
-               "c": NodeSpec(Transform("cuboid", corners=corners, box=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))), ["g"]),
-               "d": NodeSpec(Transform("coefficients", coefficients=c, box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))), ["g"]),
-               "e": NodeSpec(Transform("grid", deformation="tw", cells=(3, 3, 3)), ["h"], colour=(0.1, 0.2, 0.3)),
-               "g": NodeSpec(Transform("grid", file="lattice.npy", box=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))), ["i"]),
-               "h": NodeSpec(Transform("array", count=(2, 3, 1), step=(1.0, 1.0, 0.0), offset=(0.5, 0.0, 0.0),
+               "c": NodeSpec(GraphTransform("cuboid", corners=corners, box=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))), ["g"]),
+               "d": NodeSpec(GraphTransform("coefficients", coefficients=c, box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))), ["g"]),
+               "e": NodeSpec(GraphTransform("grid", deformation="tw", cells=(3, 3, 3)), ["h"], colour=(0.1, 0.2, 0.3)),
+               "g": NodeSpec(GraphTransform("grid", file="lattice.npy", box=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))), ["i"]),
+               "h": NodeSpec(GraphTransform("array", count=(2, 3, 1), step=(1.0, 1.0, 0.0), offset=(0.5, 0.0, 0.0),
                                        colours=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)), tangent_of="w",
                                        tangent_at=(0.5, 0.0, 0.0)), ["i", "j"]),
                "i": NodeSpec(mesh="s"), "j": NodeSpec(mesh="f", normals="direct")},
-        view=View(size=(200, 100), azimuth=5.0, elevation=10.0, distance=2.0, samples=0, background=(0.5, 0.5, 0.5)))
+        view=GraphView(size=(200, 100), azimuth=5.0, elevation=10.0, distance=2.0, samples=0, background=(0.5, 0.5, 0.5)))
 
 
 def test_load_save_load_is_the_identity(tmp_path):
@@ -67,7 +67,7 @@ def test_load_save_load_is_the_identity(tmp_path):
         assert load_graph(save_graph(g, tmp_path / name)) == g
     # an attach node round-trips too (with its body)
     g = load_graph(SCENES / "graph_dragon_beads.toml")
-    assert g.body == Body("dragon_bend_constant.toml") and g.nodes["back"].transform.kind == "attach"
+    assert g.body == GraphBody("dragon_bend_constant.toml") and g.nodes["back"].transform.kind == "attach"
     assert g.nodes["back"].transform.anchors == 16
 
 

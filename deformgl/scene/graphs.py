@@ -27,12 +27,12 @@ from deformgl.trilinear.batches import ComposedScene
 from deformgl.trilinear.cuboid import Box
 from deformgl.trilinear.graphbuild import ATTACH_BOX, compose_graph, draw_composed, graph_mesh
 from deformgl.trilinear.graphfile import load_graph
-from deformgl.trilinear.graphspec import SceneGraph, Transform
+from deformgl.trilinear.graphspec import SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
 from deformgl.trilinear.scenegraph import TrilinearRenderer
 
 
-def attach_grid(built: SceneModel, deformed: np.ndarray, t: Transform, name: str = "attach") -> Trilinear:
+def attach_grid(built: SceneModel, deformed: np.ndarray, t: GraphTransform, name: str = "attach") -> Trilinear:
     """The grid of an ``attach`` transform on the body's deformed detailed mesh (section 5):
     anchors at the rest mesh's vertices nearest to the path, frames from ``deformed`` (V, 3)."""
     lo, hi = built.bbox

@@ -23,7 +23,7 @@ from deformgl.render.passes import Lighting, RenderTarget
 from deformgl.trilinear.batches import ComposedScene
 from deformgl.trilinear.cuboid import CORNERS, Box, apply_coefficients
 from deformgl.trilinear.deformations import tangent_affine
-from deformgl.trilinear.graphspec import NodeSpec, SceneGraph, Transform
+from deformgl.trilinear.graphspec import NodeSpec, SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
 from deformgl.trilinear.nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.renderer import TrilinearRenderer
@@ -34,7 +34,7 @@ LIGHT = Lighting(direction=(0.3, 0.8, 0.6), ambient=0.25)
 
 #: ``attach(node name, transform) -> Trilinear`` over the box [0, 1] x [-0.5, 0.5] x [0, 1]:
 #: what the scene layer gives for ``attach`` transforms (anchors on the simulated body).
-AttachResolver = Callable[[str, Transform], Trilinear]
+AttachResolver = Callable[[str, GraphTransform], Trilinear]
 
 #: The local box of an ``attach`` node's children.
 ATTACH_BOX = Box(np.array([0.0, -0.5, 0.0]), np.array([1.0, 0.5, 1.0]))
@@ -94,7 +94,7 @@ class _Builder:
         los, his = zip(*(self.bounds(c) for c in self.g.nodes[name].children))
         return np.min(los, axis=0), np.max(his, axis=0)
 
-    def image_bounds(self, name: str, t: Transform | None, inner: tuple[np.ndarray, np.ndarray]):
+    def image_bounds(self, name: str, t: GraphTransform | None, inner: tuple[np.ndarray, np.ndarray]):
         if t is None:
             return inner
         if t.kind == "array":
@@ -107,12 +107,12 @@ class _Builder:
         return pts.min(0), pts.max(0)
 
     # ---- transforms -------------------------------------------------------------------------------
-    def box(self, name: str, t: Transform) -> Box:
+    def box(self, name: str, t: GraphTransform) -> Box:
         if t.box is not None:
             return Box(np.array(t.box[0]), np.array(t.box[1]))
         return Box.of_points(np.array(self.content(name)))
 
-    def transform(self, name: str, t: Transform):
+    def transform(self, name: str, t: GraphTransform):
         """A 4x4 matrix or a Trilinear for a non-array transform (cached per node)."""
         if name in self.transforms:
             return self.transforms[name]
@@ -148,7 +148,7 @@ class _Builder:
         self.transforms[name] = made
         return made
 
-    def instances(self, name: str, t: Transform) -> list[np.ndarray]:
+    def instances(self, name: str, t: GraphTransform) -> list[np.ndarray]:
         """The 4x4 placements of an array's instances, x fastest-outer (i, then j, then k)."""
         f = self.g.deformations[t.tangent_of].function() if t.tangent_of is not None else None
         out = []

@@ -23,7 +23,8 @@ import tomli_w
 from deformgl.errors import DeformglError, InputError, SceneError
 from deformgl.files import write_atomic
 from deformgl.trilinear.graphspec import (
-    DEFORMATIONS, SHAPE_INTEGERS, SHAPES, Body, Deformation, Key, Mesh, NodeSpec, SceneGraph, Transform, View,
+    DEFORMATIONS, SHAPE_INTEGERS, SHAPES, Deformation, GraphBody, GraphMesh, GraphTransform, GraphView, Keyframe, NodeSpec,
+    SceneGraph,
 )
 from deformgl.trilinear.normals import NORMAL_MODES
 
@@ -149,7 +150,7 @@ def is_graph_file(path: str | Path) -> bool:
         return False
 
 
-def _mesh(file: str, key: str, v: Any) -> Mesh:
+def _mesh(file: str, key: str, v: Any) -> GraphMesh:
     d = _keys(file, key, v, ("shape", "file", *sorted({k for p in SHAPES.values() for k in p})))
     if ("shape" in d) == ("file" in d):
         _fail(file, key, "needs exactly one of 'shape' and 'file'")
@@ -157,7 +158,7 @@ def _mesh(file: str, key: str, v: Any) -> Mesh:
         for k in d:
             if k != "file":
                 _fail(file, f"{key}.{k}", "a mesh file takes no shape parameters")
-        return Mesh(file=_str(file, f"{key}.file", d["file"]))
+        return GraphMesh(file=_str(file, f"{key}.file", d["file"]))
     shape = _str(file, f"{key}.shape", d["shape"], tuple(SHAPES))
     params: dict[str, float] = {}
     for k, x in d.items():
@@ -170,7 +171,7 @@ def _mesh(file: str, key: str, v: Any) -> Mesh:
     for k, default in SHAPES[shape].items():
         if default is None and k not in params:
             _fail(file, f"{key}.{k}", f"required key is missing (shape {shape!r})")
-    return Mesh(shape=shape, params=params)
+    return GraphMesh(shape=shape, params=params)
 
 
 def _deformation(file: str, key: str, v: Any) -> Deformation:
@@ -185,7 +186,7 @@ def _deformation(file: str, key: str, v: Any) -> Deformation:
             _fail(file, f"{key}.{k}", f"a {kind!r} deformation takes only {', '.join(names)}")
     if kind == "bend" and params["length"] <= 0.0:
         _fail(file, f"{key}.length", f"must be > 0, got {params['length']!r}")
-    keys: list[Key] = []
+    keys: list[Keyframe] = []
     raw_keys = d.get("keys", [])
     if not isinstance(raw_keys, list):
         _fail(file, f"{key}.keys", "must be an array of tables ([[...keys]])")
@@ -198,11 +199,11 @@ def _deformation(file: str, key: str, v: Any) -> Deformation:
         values = {n: _num(file, f"{where}.{n}", x) for n, x in kd.items() if n != "t"}
         if not values:
             _fail(file, where, f"a keyframe sets at least one of {', '.join(names)}")
-        keys.append(Key(t, values))
+        keys.append(Keyframe(t, values))
     return Deformation(kind, params, keys)
 
 
-def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
+def _transform(file: str, key: str, d: dict[str, Any]) -> GraphTransform | None:
     kinds = [k for k in ("matrix", "cuboid", "coefficients", "grid", "array", "attach") if k in d]
     trs = [k for k in ("translate", "rotate", "scale") if k in d]
     if len(kinds) + bool(trs) > 1:
@@ -225,7 +226,7 @@ def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
             if min(scale) <= 0.0:
                 _fail(file, f"{key}.scale", f"must be > 0, got {list(scale)}")
         translate = _vec(file, f"{key}.translate", d["translate"]) if "translate" in d else (0.0, 0.0, 0.0)
-        return Transform("trs", translate=translate, axis=axis, degrees=degrees, scale=scale)  # type: ignore[arg-type]
+        return GraphTransform("trs", translate=translate, axis=axis, degrees=degrees, scale=scale)  # type: ignore[arg-type]
     if not kinds:
         return None
     kind = kinds[0]
@@ -234,15 +235,15 @@ def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
         m = _array(file, where, d[kind], (4, 4))
         if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12):
             _fail(file, where, f"the last row must be [0, 0, 0, 1] (affine), got {m[3].tolist()}")
-        return Transform("matrix", matrix=m)
+        return GraphTransform("matrix", matrix=m)
     v = d[kind]
     if kind == "cuboid":
         t = _keys(file, where, v, ("corners", "box"))
-        return Transform("cuboid", corners=_array(file, f"{where}.corners", _required(file, where, t, "corners"), (8, 3)),
+        return GraphTransform("cuboid", corners=_array(file, f"{where}.corners", _required(file, where, t, "corners"), (8, 3)),
                          box=_box(file, f"{where}.box", t.get("box", {"lo": [0, 0, 0], "hi": [1, 1, 1]})))
     if kind == "coefficients":
         t = _keys(file, where, v, ("matrix", "box"))
-        return Transform("coefficients",
+        return GraphTransform("coefficients",
                          coefficients=_array(file, f"{where}.matrix", _required(file, where, t, "matrix"), (3, 8)),
                          box=_box(file, f"{where}.box", t.get("box", {"lo": [0, 0, 0], "hi": [1, 1, 1]})))
     if kind == "grid":
@@ -255,8 +256,8 @@ def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
                 _fail(file, f"{where}.cells", "a lattice file gives its own cells")
             if box is None:
                 _fail(file, f"{where}.box", "a lattice file needs an explicit box {lo, hi}")
-            return Transform("grid", file=_str(file, f"{where}.file", t["file"]), box=box)
-        return Transform("grid", deformation=_str(file, f"{where}.deformation", t["deformation"]), box=box,
+            return GraphTransform("grid", file=_str(file, f"{where}.file", t["file"]), box=box)
+        return GraphTransform("grid", deformation=_str(file, f"{where}.deformation", t["deformation"]), box=box,
                          cells=_ints(file, f"{where}.cells", _required(file, where, t, "cells"), hi=4096))  # type: ignore[arg-type]
     if kind == "array":
         t = _keys(file, where, v, ("count", "step", "offset", "colours", "tangent_of", "tangent_at"))
@@ -266,7 +267,7 @@ def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
         colours = t.get("colours", [])
         if not isinstance(colours, list):
             _fail(file, f"{where}.colours", "must be an array of RGB colours")
-        return Transform("array", count=count,  # type: ignore[arg-type]
+        return GraphTransform("array", count=count,  # type: ignore[arg-type]
                          step=_vec(file, f"{where}.step", t.get("step", [0, 0, 0])),  # type: ignore[arg-type]
                          offset=_vec(file, f"{where}.offset", t.get("offset", [0, 0, 0])),  # type: ignore[arg-type]
                          colours=tuple(_colour(file, f"{where}.colours[{i}]", c) for i, c in enumerate(colours)),
@@ -277,7 +278,7 @@ def _transform(file: str, key: str, d: dict[str, Any]) -> Transform | None:
     for k, p in zip(("start", "end"), frac):
         if not all(-0.5 <= x <= 1.5 for x in p):
             _fail(file, f"{where}.{k}", f"bounding-box fractions must be in [-0.5, 1.5], got {list(p)}")
-    return Transform("attach", start=frac[0], end=frac[1],  # type: ignore[arg-type]
+    return GraphTransform("attach", start=frac[0], end=frac[1],  # type: ignore[arg-type]
                      anchors=_int(file, f"{where}.anchors", t.get("anchors", 8), 2, 4096),
                      width=_num(file, f"{where}.width", t.get("width", 0.02), positive=True),
                      height=_num(file, f"{where}.height", t.get("height", 0.02), positive=True))
@@ -314,18 +315,18 @@ def parse_graph(file: str, data: dict[str, Any]) -> SceneGraph:
         _fail(file, "graph.output", f"must be a .png file, got {output!r}")
     vd = _keys(file, "view", data.get("view", {}), ("size", "azimuth", "elevation", "distance", "samples",
                                                      "background"))
-    view = View(size=_ints(file, "view.size", vd["size"], 2, hi=8192) if "size" in vd else View.size,  # type: ignore[arg-type]
-                azimuth=_num(file, "view.azimuth", vd.get("azimuth", View.azimuth)),
-                elevation=_num(file, "view.elevation", vd.get("elevation", View.elevation)),
-                distance=_num(file, "view.distance", vd.get("distance", View.distance), positive=True),
-                samples=_int(file, "view.samples", vd.get("samples", View.samples), 0, 16),
-                background=_colour(file, "view.background", vd.get("background", list(View.background))))
+    view = GraphView(size=_ints(file, "view.size", vd["size"], 2, hi=8192) if "size" in vd else GraphView.size,  # type: ignore[arg-type]
+                azimuth=_num(file, "view.azimuth", vd.get("azimuth", GraphView.azimuth)),
+                elevation=_num(file, "view.elevation", vd.get("elevation", GraphView.elevation)),
+                distance=_num(file, "view.distance", vd.get("distance", GraphView.distance), positive=True),
+                samples=_int(file, "view.samples", vd.get("samples", GraphView.samples), 0, 16),
+                background=_colour(file, "view.background", vd.get("background", list(GraphView.background))))
     if min(view.size) < 16:
         _fail(file, "view.size", f"at least 16x16 pixels, got {view.size[0]}x{view.size[1]}")
     body = None
     if "body" in data:
         bd = _keys(file, "body", data["body"], ("scene",))
-        body = Body(_str(file, "body.scene", _required(file, "body", bd, "scene")))
+        body = GraphBody(_str(file, "body.scene", _required(file, "body", bd, "scene")))
     graph = SceneGraph(roots=list(roots), nodes=_named(file, "nodes", data.get("nodes", {}), _node),
                        meshes=_named(file, "meshes", data.get("meshes", {}), _mesh),
                        deformations=_named(file, "deformations", data.get("deformations", {}), _deformation),
@@ -353,7 +354,7 @@ def _box_doc(box: Any) -> Any:
     return "content" if box is None else {"lo": list(box[0]), "hi": list(box[1])}
 
 
-def _transform_doc(t: Transform) -> dict[str, Any]:
+def _transform_doc(t: GraphTransform) -> dict[str, Any]:
     if t.kind == "trs":
         return {"translate": list(t.translate), "rotate": {"axis": list(t.axis), "degrees": t.degrees},
                 "scale": list(t.scale)}

@@ -3,7 +3,7 @@ scene-graph file holds (:mod:`deformgl.trilinear.graphfile` reads and writes it,
 what the Python API builds. :mod:`deformgl.trilinear.graphbuild` turns it into the runtime nodes
 of :mod:`deformgl.trilinear.nodes` and renders it.
 
-A :class:`SceneGraph` names its meshes (:class:`Mesh`), its deformations (:class:`Deformation`,
+A :class:`SceneGraph` names its meshes (:class:`GraphMesh`), its deformations (:class:`Deformation`,
 with optional keyframes of their parameters) and its nodes (:class:`NodeSpec`); a node lists its
 children by name, so one child under many parents is drawn once per parent (instancing), and an
 ``array`` transform repeats its children over a lattice of translations. Depth is unbounded: the
@@ -40,7 +40,7 @@ DEFORMATIONS: dict[str, tuple[str, ...]] = {
     "bend": ("angle", "length"),
 }
 
-#: Transform kinds of a node (at most one per node).
+#: GraphTransform kinds of a node (at most one per node).
 TRANSFORM_KINDS = ("matrix", "trs", "cuboid", "coefficients", "grid", "array", "attach")
 
 
@@ -64,7 +64,7 @@ class BendAngle:
 
 
 @dataclass
-class Mesh:
+class GraphMesh:
     """Geometry: a built-in ``shape`` (:data:`SHAPES`) with ``params``, or a mesh ``file``
     (any trimesh-readable format; relative to the scene-graph file)."""
 
@@ -90,7 +90,7 @@ class Mesh:
 
 
 @dataclass
-class Key:
+class Keyframe:
     """One keyframe: parameter values at time ``t`` (seconds)."""
 
     t: float
@@ -104,7 +104,7 @@ class Deformation:
 
     kind: str
     params: dict[str, float]
-    keys: list[Key] = field(default_factory=list)
+    keys: list[Keyframe] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.kind not in DEFORMATIONS:
@@ -148,7 +148,7 @@ class Deformation:
 
 
 @dataclass
-class Transform:
+class GraphTransform:
     """A node's transform; ``kind`` (:data:`TRANSFORM_KINDS`) says which fields are used:
 
     * ``matrix``: ``matrix`` a 4x4 affine matrix;
@@ -198,7 +198,7 @@ class Transform:
             raise InputError(f"unknown transform kind {self.kind!r}; choose one of {', '.join(TRANSFORM_KINDS)}")
 
     def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Transform):
+        if not isinstance(other, GraphTransform):
             return NotImplemented
         for f in dataclasses.fields(self):
             a, b = getattr(self, f.name), getattr(other, f.name)
@@ -233,7 +233,7 @@ class NodeSpec:
     inherited by the leaves below unless they set their own.
     """
 
-    transform: Transform | None = None
+    transform: GraphTransform | None = None
     children: list[str] = field(default_factory=list)
     mesh: str | None = None
     colour: tuple[float, float, float] | None = None
@@ -241,7 +241,7 @@ class NodeSpec:
 
 
 @dataclass
-class View:
+class GraphView:
     """The camera and image: ``size`` (width, height) pixels, ``azimuth`` / ``elevation``
     (degrees), ``distance`` (bounding-box diagonals), MSAA ``samples``, ``background`` RGB."""
 
@@ -254,7 +254,7 @@ class View:
 
 
 @dataclass
-class Body:
+class GraphBody:
     """The simulated body that ``attach`` transforms are anchored on: a simulation scene file
     (relative to the scene-graph file), simulated and drawn with the graph (section 5)."""
 
@@ -268,11 +268,11 @@ class SceneGraph:
 
     roots: list[str]
     nodes: dict[str, NodeSpec]
-    meshes: dict[str, Mesh] = field(default_factory=dict)
+    meshes: dict[str, GraphMesh] = field(default_factory=dict)
     deformations: dict[str, Deformation] = field(default_factory=dict)
-    view: View = field(default_factory=View)
+    view: GraphView = field(default_factory=GraphView)
     output: str | None = None
-    body: Body | None = None
+    body: GraphBody | None = None
     description: str = ""
 
     def check(self) -> SceneGraph:
