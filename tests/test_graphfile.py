@@ -1,12 +1,16 @@
 """Scene-graph files (docs/SCENEGRAPH.md): the format, its one-line errors, and load -> save ->
 load as the identity; the shipped demos as files equal to the graphs built in Python."""
 
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from deformgl.errors import SceneError
+from test_scene_fuzz import _dump, _mutate  # the scene fuzzer's mutations
 from deformgl.trilinear.graphbuild import build_graph
 from deformgl.trilinear.graphfile import is_graph_file, load_graph, save_graph
 from deformgl.trilinear.graphspec import (
@@ -184,3 +188,22 @@ def test_a_missing_mesh_file_is_named_at_build_time(tmp_path):
 def test_colours_of_the_demo_arrays_are_the_builders_colours():
     graph = load_graph(SCENES / "trilinear_tubes.toml")
     assert graph.nodes["tubes"].transform.colours == tuple(tuple(c) for c in COLOURS[:2])
+
+
+@settings(max_examples=150, derandomize=True, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
+                                 HealthCheck.data_too_large])
+@given(data=st.data())
+def test_mutated_graph_files_load_or_fail_in_one_line(tmp_path_factory, data):
+    """The scene fuzzer's mutations (test_scene_fuzz.py) on the shipped scene-graph files: every
+    outcome is a graph that checks, or one SceneError line naming the file."""
+    base = data.draw(st.sampled_from(SHIPPED), label="graph")
+    doc = _mutate(tomllib.loads((SCENES / base).read_text(encoding="utf-8")), data)
+    path = tmp_path_factory.mktemp("fuzz") / base
+    path.write_text(_dump(doc), encoding="utf-8")
+    try:
+        graph = load_graph(path)
+    except SceneError as e:
+        assert "\n" not in str(e) and str(e).startswith(f"{path}: "), str(e)
+    else:
+        assert graph.check() is graph
