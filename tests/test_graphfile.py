@@ -21,7 +21,8 @@ from deformgl.trilinear.scenes import COLOURS, Z_UP_TO_Y_UP, helix_scene, tile_s
 from deformgl.trilinear.grid import Trilinear
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
-SHIPPED = ["trilinear_tubes.toml", "trilinear_tile.toml", "trilinear_helix.toml", "graph_dragon_beads.toml"]
+SHIPPED = ["trilinear_tubes.toml", "trilinear_tile.toml", "trilinear_helix.toml", "trilinear_helix_4617.toml",
+           "graph_dragon_beads.toml"]
 
 
 def every_kind_graph(tmp_path: Path) -> SceneGraph:
@@ -79,7 +80,8 @@ def test_the_shipped_demo_files_build_the_graphs_of_the_python_builders():
     """Each demo file composes to the same leaves and transforms as the Python builder of the scene."""
     pairs = [("trilinear_tile.toml", [tile_scene().root]),
              ("trilinear_tubes.toml", [tubes_scene("linear").root, tubes_scene("trilinear").root]),
-             ("trilinear_helix.toml", [helix_scene("trilinear", 600, turns=6.0).root])]
+             ("trilinear_helix.toml", [helix_scene("trilinear", 600, turns=6.0).root]),
+             ("trilinear_helix_4617.toml", [helix_scene("trilinear", 4617, segments=6, rings=4).root])]
     for name, roots in pairs:
         graph = load_graph(SCENES / name)
         built = build_graph(graph, SCENES)
