@@ -141,3 +141,29 @@ def test_cli_bad_graph_file_and_time_on_a_simulation_scene_are_one_line(tmp_path
     assert err.count("\n") == 1 and not (tmp_path / "x.png").exists()
     code, _, err = run_cli(capsys, "render", SCENES / "jelly.toml", "--time", "1", "-o", tmp_path / "y.png")
     assert code == 2 and "--time applies to scene-graph files" in err
+
+
+def test_the_docs_python_example_runs(ctx, tmp_path, monkeypatch):  # ctx: marked gl (the example makes its own)
+    """docs/SCENEGRAPH.md's example, in a folder where scenes/ is the shipped one."""
+    text = (SCENES.parent / "docs" / "SCENEGRAPH.md").read_text()
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "scenes").symlink_to(SCENES)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(code, "SCENEGRAPH.md", "exec"), namespace)
+    assert namespace["image"].shape == (480, 960, 3) and len(namespace["frames"]) == 3
+    assert load_graph(tmp_path / "helix_side.toml").view.azimuth == 60.0
+
+
+def test_a_bad_lattice_file_is_named_with_its_key(tmp_path):
+    np.save(tmp_path / "flat.npy", np.zeros((2, 2, 3)))
+    graph = SceneGraph(roots=["g"], meshes={"b": GraphMesh("sphere", {"radius": 0.5})},
+                       nodes={"g": NodeSpec(GraphTransform("grid", file="flat.npy", box=((0.0,) * 3, (1.0,) * 3)), ["b"]),
+                              "b": NodeSpec(mesh="b")})
+    from deformgl.errors import SceneError
+
+    with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid: grid points must have shape"):
+        compose_graph(graph, tmp_path, file="g.toml")
+    graph.nodes["g"].transform.file = "none.npy"
+    with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid\.file: cannot read .*none\.npy"):
+        compose_graph(graph, tmp_path, file="g.toml")
