@@ -66,7 +66,8 @@ def test_a_deep_graph_renders_the_same_from_python_from_its_file_and_from_the_cl
 
 def test_frames_follow_the_keyframes_and_match_the_stills(ctx):
     graph = deep_graph()
-    frames = render_frames(ctx, graph, [0.0, 1.0, 2.0])
+    assert graph.frame_times(3) == [0.0, 1.0, 2.0] and graph.frame_times(1) == [0.0]
+    frames = render_frames(ctx, graph, graph.frame_times(3))
     assert len(frames) == 3
     assert all(np.abs(a.astype(int) - b).max() > 50 for a, b in zip(frames, frames[1:]))  # it moves
     # the frame at t = 1 s is the still with the twist rate set to the interpolated 1.5 rad/m
@@ -167,3 +168,10 @@ def test_a_bad_lattice_file_is_named_with_its_key(tmp_path):
     graph.nodes["g"].transform.file = "none.npy"
     with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid\.file: cannot read .*none\.npy"):
         compose_graph(graph, tmp_path, file="g.toml")
+
+
+def test_the_shipped_demo_files_render_the_goldens(ctx, golden):
+    """The goldens of test_trilinear_scenes.py, rendered from the files as deformgl render does."""
+    for name in ("tubes", "tile"):
+        graph = load_graph(SCENES / f"trilinear_{name}.toml")
+        golden(render_graph(ctx, graph, SCENES, size=(320, 240)), f"trilinear_{name}")

@@ -328,6 +328,12 @@ class SceneGraph:
         """Last keyframe time of any deformation (s), 0 for a still graph."""
         return max((k.t for d in self.deformations.values() for k in d.keys), default=0.0)
 
+    def frame_times(self, frames: int) -> list[float]:
+        """``frames`` times (s) from 0 to :attr:`duration`, evenly spaced (for an animation)."""
+        if frames < 1:
+            raise InputError(f"frames must be >= 1, got {frames}")
+        return [float(t) for t in np.linspace(0.0, self.duration, frames)] if frames > 1 else [0.0]
+
     def at(self, t: float) -> SceneGraph:
         """The still graph at time ``t`` (s): every deformation's keyframed parameters replaced
         by their interpolated values, keyframes dropped."""
