@@ -209,3 +209,25 @@ def test_mutated_graph_files_load_or_fail_in_one_line(tmp_path_factory, data):
         assert "\n" not in str(e) and str(e).startswith(f"{path}: "), str(e)
     else:
         assert graph.check() is graph
+
+
+def test_depth_and_size_limits(tmp_path):
+    """3,000 levels load, save and build (the nesting is in the names); too many instances or
+    lattice points are refused up front, in one line."""
+    n = 3000
+    nodes = {f"n{i}": NodeSpec(GraphTransform("trs", translate=(0.001, 0.0, 0.0)), [f"n{i + 1}"]) for i in range(n)}
+    nodes[f"n{n}"] = NodeSpec(mesh="m")
+    g = SceneGraph(roots=["n0"], nodes=nodes, meshes={"m": GraphMesh("sphere", {"radius": 1.0})})
+    loaded = load_graph(save_graph(g, tmp_path / "deep.toml"))
+    assert loaded == g and loaded.depth == n + 1
+    (root,) = build_graph(loaded)
+    assert sum(1 for _ in root.walk()) == n + 1
+    big = tmp_path / "big.toml"
+    big.write_text(GOOD.replace("translate = [0, 0, 1]", "array = { count = [1024, 1024, 1] }")
+                   .replace('children = ["leaf"]', 'children = ["leaf", "leaf", "leaf"]'))
+    with pytest.raises(SceneError, match=r"big\.toml: graph\.roots: 'r' draws more than 2097152 mesh instances"):
+        load_graph(big)
+    big.write_text(GOOD.replace("translate = [0, 0, 1]", 'grid = { deformation = "d", cells = [400, 400, 400] }')
+                   + '[deformations.d]\nkind = "twist"\nrate = 1.0\n')
+    with pytest.raises(SceneError, match=r"nodes\.r\.grid\.cells: 64481201 lattice points, at most 4194304"):
+        load_graph(big)

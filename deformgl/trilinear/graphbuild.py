@@ -9,6 +9,7 @@ Each node spec referenced by several parents is built once per inherited colour 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -201,7 +202,13 @@ def build_graph(graph: SceneGraph, base: str | Path = ".", *, time: float = 0.0,
     """
     still = graph.at(time).check()
     builder = _Builder(still, Path(base), file, attach)
-    return [builder.node(r, None) for r in still.roots]
+    # the builder recurses once per level (a few frames each): room for the graph's depth
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 8 * still.depth + 1000))
+    try:
+        return [builder.node(r, None) for r in still.roots]
+    finally:
+        sys.setrecursionlimit(limit)
 
 
 def compose_graph(graph: SceneGraph, base: str | Path = ".", *, time: float = 0.0, file: str = "<graph>",

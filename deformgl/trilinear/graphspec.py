@@ -40,7 +40,13 @@ DEFORMATIONS: dict[str, tuple[str, ...]] = {
     "bend": ("angle", "length"),
 }
 
-#: GraphTransform kinds of a node (at most one per node).
+#: Most leaves (mesh instances) a graph may draw, and most lattice points of one grid.
+MAX_LEAVES = 1 << 21
+MAX_LATTICE_POINTS = 1 << 22
+#: Deepest graph (nodes on the longest path from a root to a leaf).
+MAX_GRAPH_DEPTH = 10000
+
+#: Transform kinds of a node (at most one per node).
 TRANSFORM_KINDS = ("matrix", "trs", "cuboid", "coefficients", "grid", "array", "attach")
 
 
@@ -275,6 +281,9 @@ class SceneGraph:
     body: GraphBody | None = None
     description: str = ""
 
+    #: Nodes on the longest path from a root to a leaf, set by :meth:`check`.
+    depth: int = field(default=0, init=False, repr=False, compare=False)
+
     def check(self) -> SceneGraph:
         """Refuse dangling names, a leaf with children, and cycles; returns self.
 
@@ -303,7 +312,9 @@ class SceneGraph:
             if t is not None and t.kind == "attach" and self.body is None:
                 raise InputError(f"nodes.{name}.attach: needs a [body] to attach to")
         state: dict[str, int] = {}
-        for root in self.roots:  # iterative depth-first search for cycles
+        leaves: dict[str, int] = {}  # mesh instances below each node (capped)
+        depths: dict[str, int] = {}
+        for root in self.roots:  # iterative depth-first search for cycles, counting leaves
             stack: list[tuple[str, int]] = [(root, 0)]
             while stack:
                 name, i = stack.pop()
@@ -320,7 +331,25 @@ class SceneGraph:
                         raise InputError(f"nodes.{kids[i]}: the graph has a cycle through this node")
                     stack.append((kids[i], 0))
                 else:
-                    state[name] = 2
+                    state[name] = 2  # done: its children's leaf counts are known
+                    node = self.nodes[name]
+                    n = 1 if node.mesh is not None else sum(leaves[c] for c in kids)
+                    if node.transform is not None and node.transform.kind == "array":
+                        n *= int(np.prod(node.transform.count))
+                    leaves[name] = min(n, MAX_LEAVES + 1)
+                    depths[name] = 1 + max((depths[c] for c in kids), default=0)
+                    if depths[name] > MAX_GRAPH_DEPTH:
+                        raise InputError(f"nodes.{name}: more than {MAX_GRAPH_DEPTH} levels below this node")
+        self.depth = max(depths[r] for r in self.roots)
+        for root in self.roots:
+            if leaves[root] > MAX_LEAVES:
+                raise InputError(f"graph.roots: {root!r} draws more than {MAX_LEAVES} mesh instances")
+        for name, node in self.nodes.items():
+            t = node.transform
+            if t is not None and t.kind == "grid" and t.file is None:
+                points = int(np.prod(np.array(t.cells) + 1))
+                if points > MAX_LATTICE_POINTS:
+                    raise InputError(f"nodes.{name}.grid.cells: {points} lattice points, at most {MAX_LATTICE_POINTS}")
         return self
 
     @property
