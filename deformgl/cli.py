@@ -47,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     diff_cli.add_parser(sub)
 
     r = sub.add_parser("render", help="simulate a scene and write a PNG",
-                       description="Simulate a scene file (TOML) on the GPU and render it to PNG. "
+                       description="Simulate a scene file (TOML) on the GPU and render it to PNG, or render a scene-graph "
+                                   "file (one with a [graph] table, docs/SCENEGRAPH.md). "
                                    "The PNG is written to a temporary file and renamed, so a failed "
                                    "run never leaves a partial image.")
     r.add_argument("scene", type=Path,
@@ -201,37 +202,19 @@ def _render(args: argparse.Namespace) -> int:
 
 def _render_graph(args: argparse.Namespace, source: Path) -> int:
     """``deformgl render`` of a scene-graph file (a ``[graph]`` table; docs/SCENEGRAPH.md)."""
-    import math
-
-    from deformgl.data import is_packaged
     from deformgl.files import check_writable
     from deformgl.gl.context import create_context
-    from deformgl.scene.graphs import graph_to_png
+    from deformgl.scene.graphs import graph_output, graph_to_png
     from deformgl.scene.schema import parse_size
-    from deformgl.trilinear.graphfile import load_graph
 
-    graph = load_graph(source)
-    for flag, value in (("--steps", args.steps), ("--mesh", args.mesh), ("--mapping", args.mapping),
-                        ("--integrator", args.integrator), ("--backend", args.backend),
-                        ("--allow-unstable/--subdivide", args.unstable), ("--check-every", args.check_every),
-                        ("--pack-inputs", args.pack_inputs)):
-        if value is not None:
-            raise InputError(f"{source}: {flag} applies to simulation scenes, not to scene-graph files "
-                             f"(set them in the [body] scene)")
-    if args.time is not None and not (math.isfinite(args.time) and args.time >= 0.0):
-        raise InputError(f"--time: must be a finite time >= 0 s, got {args.time}")
-    size = None
-    if args.size is not None:
-        try:
-            size = parse_size(args.size)
-        except ValueError as exc:
-            raise InputError(f"--size: {exc}") from None
-    named = Path(graph.output) if graph.output else Path(f"{source.stem}.png")
-    out = args.output or (Path(named.name) if is_packaged(source) else source.parent / named)
-    if out.suffix.lower() != ".png":
-        raise InputError(f"{out}: the output must be a .png file")
-    if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
-        raise InputError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
+    refused = {"--steps": args.steps, "--mesh": args.mesh, "--mapping": args.mapping, "--integrator": args.integrator,
+               "--backend": args.backend, "--allow-unstable/--subdivide": args.unstable,
+               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs}
+    out = graph_output(source, args.output, args.export_mesh, args.time, refused)
+    try:
+        size = parse_size(args.size) if args.size is not None else None
+    except ValueError as exc:
+        raise InputError(f"--size: {exc}") from None
     outputs = [p for p in (out, args.export_mesh) if p is not None]
     for path in outputs:
         check_writable(path)

@@ -9,12 +9,14 @@ anchors on the deformed mesh, mapped from its children's box [0, 1] x [-0.5, 0.5
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import moderngl
 import numpy as np
 
+from deformgl.data import is_packaged
 from deformgl.errors import InputError
 from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.camera import View
@@ -92,6 +94,31 @@ def render_graph_file(ctx: moderngl.Context, path: str | Path, *, size: tuple[in
 
     result = render(ctx, body, overlay=overlay)
     return GraphRender(result.image, made), (captured[0] if captured else None)
+
+
+def graph_output(source: Path, output: Path | None, export: Path | None, time: float | None,
+                 refused: dict[str, object]) -> Path:
+    """The checks of ``deformgl render GRAPH.toml`` before any work, and its PNG path: the
+    ``-o`` given, else the graph's ``output`` (for a shipped graph, its name in the working folder).
+
+    Raises:
+        SceneError: the graph file is invalid (:func:`~deformgl.trilinear.graphfile.load_graph`).
+        InputError: a simulation-only option in ``refused`` is set, a bad time or output suffix.
+    """
+    graph = load_graph(source)
+    for flag, value in refused.items():
+        if value is not None:
+            raise InputError(f"{source}: {flag} applies to simulation scenes, not to scene-graph files "
+                             f"(set them in the [body] scene)")
+    if time is not None and not (math.isfinite(time) and time >= 0.0):
+        raise InputError(f"--time: must be a finite time >= 0 s, got {time}")
+    named = Path(graph.output) if graph.output else Path(f"{source.stem}.png")
+    out = output or (Path(named.name) if is_packaged(source) else source.parent / named)
+    if out.suffix.lower() != ".png":
+        raise InputError(f"{out}: the output must be a .png file")
+    if export is not None and export.suffix.lower() not in (".ply", ".obj", ".glb"):
+        raise InputError(f"{export}: --export-mesh must end in .ply, .obj or .glb")
+    return out
 
 
 def graph_to_png(ctx: moderngl.Context, path: str | Path, out: Path, *, size: tuple[int, int] | None = None,
