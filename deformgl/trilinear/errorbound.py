@@ -14,7 +14,17 @@ hull of its corners). ``G`` is trilinear on each of its cells, so ``e`` is trili
 of ``B`` cut by the parent's lattice planes; every component is then linear along each axis, its
 length convex along each axis, and the maximum over a piece is at one of its corners. The bound
 is therefore exact arithmetic on finitely many points (float64 rounding aside): no sampling.
-``l`` is the tangent map of ``G`` at the image of the cell's centre.
+``l`` is the least-squares affine fit of ``G`` at those corners (any ``l`` gives a bound; the fit
+keeps it small). Where ``B`` lies inside one parent cell the tensor-product bound
+``1/8 sum_a sup |g_aa|`` is used when smaller (``g_aa = D^2 G[M_a, M_a]``: ``M`` is linear along
+each axis and ``G`` has no pure second derivatives).
+
+The bound is applied to sub-cells: each composed cell is split into ``s``^3 (``s = 3`` by default),
+``|C - g|`` is at most its largest value at the sub-lattice points (evaluated exactly) plus the
+largest sub-cell bound of interpolating ``g`` on the sub-cells, since the difference between the
+composed cell's interpolant and the sub-cells' is trilinear on each sub-cell. The second term
+shrinks with ``s``, so the bound approaches the true maximum; on stacked random 2x2x2 / 4x3x5
+lattices it is 1.36-1.47 times the maximum over a 61^3 sample (tests/test_errorbound.py).
 
 The errors the grids carry (:attr:`Trilinear.error`, against the functions they approximate) are
 added as ``parent.error + lip(G) |A| child.error``, with ``lip(G)`` bounded over the parent's
@@ -34,6 +44,7 @@ from deformgl.trilinear.grid import (
 )
 
 __all__ = ["composition_bound", "compose_within", "lipschitz_bound"]
+
 
 def compose_within(parent: Trilinear, child: Trilinear, max_error: float, *, between: np.ndarray | None = None,
                    max_cells: int = 64, subdivide: int = 2) -> Trilinear:
