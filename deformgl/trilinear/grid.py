@@ -427,7 +427,8 @@ def composition_bound(parent: Trilinear, child: Trilinear, composed: Trilinear, 
     Each composed cell is split into ``subdivide``^3 sub-cells: ``composed - g`` is at most its
     largest value at the sub-lattice points (computed exactly) plus the bound of interpolating
     ``g`` on the sub-cells (the difference of the two interpolants is trilinear per sub-cell, so
-    largest at sub-lattice points), which shrinks with the sub-cells.
+    largest at sub-lattice points), which shrinks with the sub-cells. The cost grows with the
+    sub-cells; grids of more than 8M / ``subdivide``^3 cells get fewer sub-cells (still a bound).
 
     Raises:
         InputError: ``composed`` is not over the child's box, or its cells are not whole
@@ -439,7 +440,9 @@ def composition_bound(parent: Trilinear, child: Trilinear, composed: Trilinear, 
                                    and np.array_equal(composed.box.hi, child.box.hi)):
         raise InputError(f"composition_bound: the composed grid {tuple(fine)} over its box must refine the "
                          f"child's {tuple(base)} cells by whole multiples over the same box")
-    sub = fine * max(1, int(subdivide))
+    # at most ~8M sub-cells: coarser sub-cells (a looser bound, still a bound) for huge grids
+    s_ = max(1, min(int(subdivide), int((8e6 / float(np.prod(fine))) ** (1.0 / 3.0))))
+    sub = fine * s_
     u = unit_lattice((int(sub[0]), int(sub[1]), int(sub[2]))).reshape(-1, 3)
     exact = parent(child.at_unit(u) @ a[:3, :3].T + a[:3, 3])
     sampled = float(np.linalg.norm(composed.at_unit(u) - exact, axis=1).max())
