@@ -91,6 +91,24 @@ _EXPORTS: dict[str, str] = {
     "TubeAttachment": "deformgl.trilinear.attachments",
     "uv_sphere": "deformgl.trilinear.shapes",
     "tube": "deformgl.trilinear.shapes",
+    "compose_within": "deformgl.trilinear.errorbound",
+    "composition_bound": "deformgl.trilinear.grid",
+    # scene-graph files (docs/SCENEGRAPH.md)
+    "SceneGraph": "deformgl.trilinear.graphspec",
+    "NodeSpec": "deformgl.trilinear.graphspec",
+    "GraphTransform": "deformgl.trilinear.graphspec",
+    "GraphMesh": "deformgl.trilinear.graphspec",
+    "Deformation": "deformgl.trilinear.graphspec",
+    "Keyframe": "deformgl.trilinear.graphspec",
+    "GraphView": "deformgl.trilinear.graphspec",
+    "GraphBody": "deformgl.trilinear.graphspec",
+    "load_graph": "deformgl.trilinear.graphfile",
+    "save_graph": "deformgl.trilinear.graphfile",
+    "compose_graph": "deformgl.trilinear.graphbuild",
+    "render_graph": "deformgl.trilinear.graphbuild",
+    "render_frames": "deformgl.trilinear.graphbuild",
+    "graph_mesh": "deformgl.trilinear.graphbuild",
+    "render_graph_file": "deformgl.scene.graphs",
     # errors
     "DeformglError": "deformgl.errors",
     "InputError": "deformgl.errors",
@@ -128,7 +146,14 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.trilinear.batches import ComposedScene
     from deformgl.trilinear.cuboid import Box
     from deformgl.trilinear.deformations import Bend, Helix, Taper, TorusWrap, Twist
-    from deformgl.trilinear.grid import Trilinear, compose
+    from deformgl.scene.graphs import render_graph_file
+    from deformgl.trilinear.errorbound import compose_within
+    from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_frames, render_graph
+    from deformgl.trilinear.graphfile import load_graph, save_graph
+    from deformgl.trilinear.graphspec import (
+        Deformation, GraphBody, GraphMesh, GraphTransform, GraphView, Keyframe, NodeSpec, SceneGraph,
+    )
+    from deformgl.trilinear.grid import Trilinear, compose, composition_bound
     from deformgl.trilinear.nodes import Geometry, GeometryNode, GroupNode, Node, TransformNode
     from deformgl.trilinear.renderer import TrilinearRenderer
     from deformgl.trilinear.scenegraph import compose_scene

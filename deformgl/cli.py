@@ -47,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     diff_cli.add_parser(sub)
 
     r = sub.add_parser("render", help="simulate a scene and write a PNG",
-                       description="Simulate a scene file (TOML) on the GPU and render it to PNG. "
+                       description="Simulate a scene file (TOML) on the GPU and render it to PNG, or render a scene-graph "
+                                   "file (one with a [graph] table, docs/SCENEGRAPH.md). "
                                    "The PNG is written to a temporary file and renamed, so a failed "
                                    "run never leaves a partial image.")
     r.add_argument("scene", type=Path,
@@ -87,6 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
+    r.add_argument("--time", type=float, default=None, metavar="T",
+                   help="scene-graph files: the still at time T seconds of the keyframed deformations "
+                        "(default 0)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
 
     t = sub.add_parser("trilinear", help="render a trilinear scene-graph scene to PNG",
@@ -180,6 +184,12 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.scene.schema import load_scene, parse_size
 
     source = _scene_file(args.scene)
+    from deformgl.trilinear.graphfile import is_graph_file
+
+    if is_graph_file(source):
+        return _render_graph(args, source)
+    if args.time is not None:
+        raise InputError(f"{source}: --time applies to scene-graph files (docs/SCENEGRAPH.md)")
     scene = load_scene(source)
     size = None
     if args.size is not None:
@@ -207,6 +217,34 @@ def _render(args: argparse.Namespace) -> int:
         render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
                       export=args.export_mesh, pack=args.pack_inputs,
                       log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
+    finally:
+        ctx.release()
+    print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
+    return 0
+
+
+def _render_graph(args: argparse.Namespace, source: Path) -> int:
+    """``deformgl render`` of a scene-graph file (a ``[graph]`` table; docs/SCENEGRAPH.md)."""
+    from deformgl.files import check_writable
+    from deformgl.gl.context import create_context
+    from deformgl.scene.graphs import graph_output, graph_to_png
+    from deformgl.scene.schema import parse_size
+
+    refused = {"--steps": args.steps, "--mesh": args.mesh, "--mapping": args.mapping, "--integrator": args.integrator,
+               "--backend": args.backend, "--allow-unstable/--subdivide": args.unstable,
+               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs}
+    out = graph_output(source, args.output, args.export_mesh, args.time, refused)
+    try:
+        size = parse_size(args.size) if args.size is not None else None
+    except ValueError as exc:
+        raise InputError(f"--size: {exc}") from None
+    outputs = [p for p in (out, args.export_mesh) if p is not None]
+    for path in outputs:
+        check_writable(path)
+    _clean_leftovers(outputs)
+    ctx = create_context(args.device)
+    try:
+        graph_to_png(ctx, source, out, size=size, time=args.time or 0.0, export=args.export_mesh)
     finally:
         ctx.release()
     print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))

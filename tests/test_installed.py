@@ -95,3 +95,15 @@ def test_a_shipped_scene_without_output_writes_into_the_working_folder(installed
     assert missing.returncode == 2  # an input error
     lines = missing.stderr.strip().splitlines()
     assert len(lines) == 1 and "no_such.toml: scene file not found" in lines[0] and "dragon.toml" in lines[0]
+
+
+def test_a_shipped_scene_graph_renders_installed_outside_the_checkout(installed):
+    """The demo scene-graph files ship in the wheel: ``deformgl render`` finds one by name and
+    ``deformgl trilinear`` renders from it."""
+    from deformgl.files import read_png
+
+    bindir, work, env = installed
+    _run([str(bindir / "deformgl"), "render", "trilinear_helix.toml", "--size", "64x48"], work, env)
+    assert read_png(work / "trilinear_helix.png").shape == (48, 64, 3)
+    _run([str(bindir / "deformgl"), "trilinear", "tile", "-o", str(work / "tile.png"), "--size", "64x48"], work, env)
+    assert read_png(work / "tile.png").shape == (48, 64, 3)

@@ -340,11 +340,15 @@ def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
 
 
 def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh: bool = False,
-           pack: bool = False, log: Callable[[str], None] | None = None) -> Rendered:
+           pack: bool = False, log: Callable[[str], None] | None = None,
+           overlay: Callable[[SceneModel, np.ndarray, View, Lighting], None] | None = None) -> Rendered:
     """Simulate (or drive) a scene's nodes and render it.
 
     Args:
         mesh: also capture the deformed detailed mesh from the mapping vertex shader.
+        overlay: also draws into the image, after the body and its attachments, given the
+            model, the deformed detailed mesh's (V, 3) vertices, the view and the lighting
+            (a scene graph's attachments, :mod:`deformgl.scene.graphs`).
         pack: also collect the inputs of the shader pack's example program.
         log: receives human-readable notes (the binding report), if given.
     """
@@ -380,7 +384,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
                 draw_obstacles(ctx, constraints, state.run.time, built.bbox[0], built.bbox[1],
                                built.grid.spacing, view, lighting)
         captured: tuple[np.ndarray, np.ndarray] | None = None
-        if scene.attach or mesh:
+        if scene.attach or mesh or overlay is not None:
             captured = draw_pass.capture(state.position_texture)
             if not np.isfinite(captured[0]).all():
                 bad = int(np.argmax(~np.isfinite(captured[0]).all(axis=1)))
@@ -388,6 +392,9 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         if scene.attach and captured is not None:  # (captured whenever scene.attach)
             target.fbo.use()
             draw_attachments(ctx, scene, built, captured[0].astype(np.float64), view, lighting)
+        if overlay is not None and captured is not None:  # (captured whenever overlay)
+            target.fbo.use()
+            overlay(built, captured[0].astype(np.float64), view, lighting)
         result = Rendered(target.read_rgb())
         if mesh and captured is not None:  # (captured whenever mesh)
             result.mesh = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)

@@ -9,6 +9,11 @@ Scenes (:data:`SCENES`):
 * ``tile``: figure 9, a detailed tile (grooved floor with a ring and a column, made with trimesh)
   repeated by translations under a torus-wrap grid: seamless C0 joins;
 * ``helix``: section 6, a helix of many small spheres.
+
+The three are shipped as scene-graph files (``scenes/trilinear_<name>.toml``, docs/SCENEGRAPH.md),
+which :func:`render_trilinear_scene` renders; the builders here make the same graphs in Python
+(the benchmark's variants: linear transforms, other counts); ``scene_view``, ``render_composed``
+and ``LIGHT`` are re-exported from :mod:`deformgl.trilinear.graphbuild`.
 """
 
 from __future__ import annotations
@@ -19,22 +24,24 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from deformgl.render.camera import View, frame_box
+from deformgl.data import packaged_scene
 from deformgl.errors import InputError
 from deformgl.files import write_png_atomic
-from deformgl.render.passes import Lighting, RenderTarget
-from deformgl.trilinear.scenegraph import (
-    ComposedScene, GeometryNode, GroupNode, Node, TransformNode, TrilinearRenderer, compose_scene,
-)
+from deformgl.trilinear.graphbuild import LIGHT, render_composed, render_graph, scene_view
+from deformgl.trilinear.graphfile import load_graph
+from deformgl.trilinear.scenegraph import GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
 from deformgl.trilinear.cuboid import Box, Function
 from deformgl.trilinear.deformations import Helix, Taper, TorusWrap, Twist, tangent_affine
 from deformgl.trilinear.grid import Trilinear
 from deformgl.trilinear.normals import NORMAL_MODES
 
+__all__ = ["BACKGROUND", "COLOURS", "LIGHT", "MODES", "SCENES", "Z_UP_TO_Y_UP", "BuiltScene", "demo_graph_file",
+           "depth_scene", "helix_scene", "render_composed", "render_trilinear_scene", "scene_view",
+           "spheres_scene", "tile_scene", "tubes_scene", "write_trilinear_scene"]
+
 MODES = ("linear", "trilinear")
 BACKGROUND = (1.0, 1.0, 1.0)
-LIGHT = Lighting(direction=(0.3, 0.8, 0.6), ambient=0.25)
 COLOURS = ((0.85, 0.55, 0.3), (0.35, 0.55, 0.8), (0.55, 0.75, 0.45))
 
 #: Torus axis z -> y, so that the default camera (y up) sees the ring from above at an angle.
@@ -178,39 +185,16 @@ SCENES: dict[str, str] = {
 
 
 # ---- rendering -----------------------------------------------------------------------------------
-def scene_view(scene: ComposedScene | list[ComposedScene], size: tuple[int, int], *, azimuth: float = 20.0,
-               elevation: float = 35.0, distance: float = 1.25) -> View:
-    """A perspective camera framing one or several composed scenes."""
-    scenes = scene if isinstance(scene, list) else [scene]
-    los, his = zip(*(s.bounds() for s in scenes))
-    lo, hi = np.min(los, axis=0), np.max(his, axis=0)
-    aspect = size[0] / size[1]
-    # the field of view is vertical: step back for images taller than wide
-    return frame_box(lo, hi, projection="perspective", azimuth=azimuth, elevation=elevation, fov=35.0,
-                     distance=distance * max(1.0, 1.0 / aspect), target=np.full(3, 0.5), aspect=aspect)
-
-
-def render_composed(ctx: moderngl.Context, scenes: list[ComposedScene], size: tuple[int, int], *,
-                    samples: int = 4, view: View | None = None) -> list[np.ndarray]:
-    """Render composed scenes with one shared camera; returns (H, W, 3) uint8 images."""
-    view = view or scene_view(scenes, size)
-    target = RenderTarget(ctx, size, samples)
-    renderer = TrilinearRenderer(ctx)
-    try:
-        images = []
-        for scene in scenes:
-            target.begin(BACKGROUND)
-            renderer.draw(scene, view, LIGHT)
-            images.append(target.read_rgb())
-        return images
-    finally:
-        renderer.release()
-        target.release()
+def demo_graph_file(name: str) -> Path:
+    """The shipped scene-graph file of the demo ``name`` (``scenes/trilinear_<name>.toml``)."""
+    if name not in SCENES:
+        raise InputError(f"unknown trilinear scene {name!r}; choose one of {', '.join(SCENES)}")
+    return packaged_scene(f"trilinear_{name}.toml")
 
 
 def render_trilinear_scene(ctx: moderngl.Context, name: str, size: tuple[int, int] = (960, 480), *,
                            samples: int = 4, normals: str = "direct") -> np.ndarray:
-    """Render one of :data:`SCENES` to an (H, W, 3) uint8 image.
+    """Render one of :data:`SCENES` from its shipped scene-graph file to an (H, W, 3) uint8 image.
 
     ``tubes`` is two halves side by side, linear left and trilinear right, same camera.
 
@@ -224,29 +208,12 @@ def render_trilinear_scene(ctx: moderngl.Context, name: str, size: tuple[int, in
     Raises:
         InputError: unknown scene name or normal mode, or a size below 16x16.
     """
-    if name not in SCENES:
-        raise InputError(f"unknown trilinear scene {name!r}; choose one of {', '.join(SCENES)}")
+    path = demo_graph_file(name)
     if normals not in NORMAL_MODES:
         raise InputError(f"normals must be one of {NORMAL_MODES}, got {normals!r}")
-    w, h = (int(v) for v in size)
-    if w < 16 or h < 16:
-        raise InputError(f"image size {w}x{h} is too small (at least 16x16)")
-    if name == "tubes":
-        half = (w // 2, h)
-        roots = [tubes_scene(m).root for m in MODES]
-        for root in roots:
-            root.normals = normals
-        scenes = [compose_scene(root) for root in roots]
-        view = scene_view(scenes, half, azimuth=0.0, elevation=50.0, distance=1.15)
-        left, right = render_composed(ctx, scenes, half, samples=samples, view=view)
-        if w % 2:
-            right = np.concatenate([right, right[:, -1:]], axis=1)
-        return np.concatenate([left, right], axis=1)
-    built = tile_scene(normals=normals) if name == "tile" else helix_scene("trilinear", 600, turns=6.0)
-    built.root.normals = normals
-    scene = compose_scene(built.root)
-    view = scene_view(scene, (w, h), azimuth=15.0, elevation=40.0, distance=1.0 if name == "tile" else 1.2)
-    return render_composed(ctx, [scene], (w, h), samples=samples, view=view)[0]
+    graph = load_graph(path)
+    graph.view.samples = samples
+    return render_graph(ctx, graph, path.parent, size=size, normals=normals, file=str(path))
 
 
 def write_trilinear_scene(ctx: moderngl.Context, name: str, output: str | Path,
