@@ -25,12 +25,11 @@ from pathlib import Path
 
 from deformgl.errors import InputError
 from deformgl.gl.preprocessor import preprocess
+from deformgl.gl.programs import ES_EMPTY_FRAGMENT
 from deformgl.pack.variants import Variant
 
 __all__ = ["ES_EMPTY_FRAGMENT", "Report", "glslang_path", "validate"]
 
-#: The fragment stage an ES transform-feedback program links with (ES needs one; it has no outputs).
-ES_EMPTY_FRAGMENT = "lib/empty.frag"
 _IDENT = re.compile(r"\b[A-Z_][A-Z0-9_]*\b")
 _BATCH = 150  # files per glslangValidator call
 
