@@ -88,6 +88,12 @@ class Chromium:
         r = self._send("Runtime.evaluate", {"expression": expression, "returnByValue": True}, session=self.session)
         return r.get("result", {}).get("value")
 
+    def mouse(self, kind: str, x: float, y: float) -> None:
+        """A mouse event at CSS pixel (x, y) of the page: kind "pressed", "moved" or "released"."""
+        self._send("Input.dispatchMouseEvent", {"type": f"mouse{kind.capitalize()}", "x": x, "y": y,
+                                                "button": "left", "buttons": 0 if kind == "released" else 1,
+                                                "clickCount": 1}, session=self.session)
+
     def wait_for(self, expression: str, timeout: float) -> object:
         """Poll until ``expression`` is truthy; returns its value."""
         end = time.monotonic() + timeout

@@ -113,3 +113,46 @@ def test_export_web_refuses_what_the_page_cannot_run(tmp_path):
                            str(tmp_path / "b")], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and proc.stderr.startswith("deformgl: error: ")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_node_follows_the_mouse_while_dragged(ctx, tmp_path):  # (ctx: marks it gl, for the export)
+    """The interactive page (no steps=): press on the mesh, move, the nearest node is held under
+    the pointer while the simulation runs, and is let go on release."""
+    root = tmp_path
+    for name in ("index.html", "main.js"):
+        shutil.copy(ROOT / "examples" / "web" / name, root / name)
+    proc = export(root / "data", "--steps", "2", "--size", "320x240", "--mapping", "constant")
+    assert proc.returncode == 0, proc.stderr
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_QuietHandler, directory=str(root)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    browser = Chromium()
+    try:
+        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?data=data")
+        browser.wait_for("window.deformglPage && window.deformglPage.steps() > 20", 60)
+        left, top, width, height = browser.evaluate(
+            "(() => { const r = document.getElementById('canvas').getBoundingClientRect();"
+            " return [r.left, r.top, r.width, r.height]; })()")
+        x, y = left + 0.45 * width, top + 0.5 * height
+        browser.mouse("pressed", x, y)
+        node = browser.evaluate("window.deformglPage.dragged()")
+        assert node is not None, browser.messages
+        start = browser.evaluate(f"window.deformglPage.position({node})")
+        target = (x + 0.15 * width, y - 0.1 * height)
+        browser.mouse("moved", *target)
+        steps = browser.evaluate("window.deformglPage.steps()")
+        browser.wait_for(f"window.deformglPage.steps() > {steps + 30}", 60)
+        ndc = browser.evaluate(f"window.deformglPage.ndc({node})")
+        want = (2 * (target[0] - left) / width - 1, 1 - 2 * (target[1] - top) / height)
+        assert abs(ndc[0] - want[0]) < 0.01 and abs(ndc[1] - want[1]) < 0.01, (ndc, want)
+        moved = browser.evaluate(f"window.deformglPage.position({node})")
+        assert np.linalg.norm(np.subtract(moved, start)) > 0.01
+        browser.mouse("released", *target)
+        assert browser.evaluate("window.deformglPage.dragged()") is None
+        steps = browser.evaluate("window.deformglPage.steps()")
+        browser.wait_for(f"window.deformglPage.steps() > {steps + 30}", 60)
+        assert browser.evaluate(f"window.deformglPage.position({node})") != moved  # free again
+        assert not [m for m in browser.messages if m.startswith(("log.error", "exception")) or "INVALID" in m]
+    finally:
+        browser.close()
+        server.shutdown()
+        server.server_close()

@@ -311,6 +311,14 @@ async function main() {
     status.textContent = `${stepsDone} steps: ${result.step_ms.toFixed(3)} ms per step, frame ${result.frame_ms.toFixed(1)} ms`;
     return;
   }
+  // for tests and the console: steps done, the dragged node, a node's position and its screen point
+  window.deformglPage = {
+    steps: () => stepsDone,
+    dragged: () => (drag ? drag.t : null),
+    position: (t) => Array.from(readState(current).slice(4 * t, 4 * t + 3)),
+    ndc: (t) => { const s = readState(current), c = transform(vp, [s[4 * t], s[4 * t + 1], s[4 * t + 2], 1]);
+                  return [c[0] / c[3], c[1] / c[3]]; },
+  };
   let last = performance.now();
   function frame() {
     step(STEPS_PER_FRAME);
