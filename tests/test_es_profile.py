@@ -12,8 +12,6 @@ import numpy as np
 import pytest
 
 from deformgl.pack import es_check
-from deformgl.scene.pipeline import render
-from deformgl.scene.schema import load_scene
 from deformgl.sim import integrators as I
 from deformgl.testing.imagediff import compare_images
 
