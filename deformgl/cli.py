@@ -45,6 +45,10 @@ def _parser() -> argparse.ArgumentParser:
     from deformgl.testing import diff_cli
 
     diff_cli.add_parser(sub)
+    from deformgl.pack import export_shaders, export_web
+
+    export_shaders.add_parser(sub)
+    export_web.add_parser(sub)
 
     r = sub.add_parser("render", help="simulate a scene and write a PNG",
                        description="Simulate a scene file (TOML) on the GPU and render it to PNG, or render a scene-graph "
@@ -525,8 +529,10 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)  # (a usage error exits here, one line, code 2)
     from deformgl.testing import diff_cli
 
+    from deformgl.pack import export_shaders, export_web
+
     commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run,
-                "plan": _plan}
+                "plan": _plan, "export-shaders": export_shaders.run, "export-web": export_web.run}
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             # non-finite values are found and named by the checks; numpy's own warnings only

@@ -75,6 +75,35 @@ def _no_gl_unless_marked(request: pytest.FixtureRequest, monkeypatch: pytest.Mon
     yield
 
 
+_KNOWN_VARIANTS: set | None = None
+
+
+@pytest.fixture(autouse=True)
+def _programs_are_known_variants(monkeypatch: pytest.MonkeyPatch):
+    """Every program a test builds must be one of the variants deformgl.pack.variants enumerates
+    (and tests/test_glslang.py validates): a new define combination cannot escape the check."""
+    from deformgl.gl.programs import Program
+
+    built: list[tuple] = []
+    original = Program.__init__
+
+    def recording(self, ctx, vertex, fragment=None, *, defines=None, varyings=(), **kw):
+        built.append((vertex, fragment, dict(defines or {}), tuple(varyings)))
+        original(self, ctx, vertex, fragment, defines=defines, varyings=varyings, **kw)
+
+    monkeypatch.setattr(Program, "__init__", recording)
+    yield
+    if built:
+        global _KNOWN_VARIANTS
+        from deformgl.pack.variants import all_variants, variant_key
+
+        if _KNOWN_VARIANTS is None:
+            _KNOWN_VARIANTS = {v.key for v in all_variants()}
+        unknown = {variant_key(*b) for b in built} - _KNOWN_VARIANTS
+        assert not unknown, (f"programs built that deformgl.pack.variants does not enumerate (so glslang "
+                             f"never checks them): {sorted(map(str, unknown))[:5]}")
+
+
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     if not (REQUIRE_GL or REQUIRE_EXTRAS):
         return

@@ -13,6 +13,12 @@ Rules, as in moderngl-window's ``ShaderSource`` and three.js' chunks:
   Every included file gets its own GLSL source-string number; :func:`explain_log` maps compiler
   messages back to file names.
 * A missing include is a :class:`~deformgl.errors.ShaderError` naming both files and the line.
+
+Two profiles (:data:`PROFILES`) of the same files: ``core`` keeps their ``#version 330 core``;
+``es`` emits ``#version 300 es`` (WebGL2, OpenGL ES 3.0) with explicit ``highp`` precision for
+every type that needs one (:data:`ES_PRECISION`), before the defines. The sources are written in
+the common subset (no implicit int-to-float conversions, ``flat`` integer varyings, explicit
+locations), so nothing else changes; ``#line N S`` with source-string numbers is valid in both.
 """
 
 from __future__ import annotations
@@ -26,6 +32,13 @@ from deformgl.errors import ShaderError
 MAX_INCLUDE_DEPTH = 16
 _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"\s*$')
 _VERSION = re.compile(r"^\s*#\s*version\s+\d+")
+
+#: The shader-language profiles :func:`preprocess` emits.
+PROFILES = ("core", "es")
+#: The ES profile's precision statements (right after ``#version``; all of them ``highp``).
+ES_PRECISION = tuple(f"precision highp {t};" for t in (
+    "float", "int", "sampler2D", "sampler3D", "sampler2DArray", "isampler2D", "isampler2DArray",
+    "usampler2D"))
 
 
 def read_shader_file(name: str) -> str:
@@ -75,12 +88,14 @@ def format_defines(defines: dict[str, object]) -> list[str]:
     return lines
 
 
-def preprocess(name: str, defines: dict[str, object] | None = None) -> Source:
+def preprocess(name: str, defines: dict[str, object] | None = None, profile: str = "core") -> Source:
     """Load ``shaders/<name>``, inject defines and resolve includes.
 
     Args:
         name: top-level shader file, relative to the shaders folder.
         defines: variant switches injected after ``#version``.
+        profile: ``"core"`` (GLSL 3.30 core, as written) or ``"es"`` (GLSL ES 3.00, see the
+            module docstring).
 
     Returns:
         The complete source and the file list for :meth:`Source.explain_log`.
@@ -89,8 +104,11 @@ def preprocess(name: str, defines: dict[str, object] | None = None) -> Source:
     lines = text.splitlines()
     if not lines or not _VERSION.match(lines[0]):
         raise ShaderError(f"shaders/{name}:1: #version must be the first line")
+    if profile not in PROFILES:
+        raise ShaderError(f"unknown shader profile {profile!r}; expected one of {', '.join(PROFILES)}")
     src = Source(text="", files=[name])
-    out = [lines[0], *format_defines(defines or {}), "#line 2 0"]
+    head = [lines[0]] if profile == "core" else ["#version 300 es", *ES_PRECISION]
+    out = [*head, *format_defines(defines or {}), "#line 2 0"]
     seen: set[str] = {name}
     _expand(lines[1:], name, 0, first_line=2, out=out, src=src, seen=seen, depth=0)
     src.text = "\n".join(out) + "\n"

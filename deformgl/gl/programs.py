@@ -9,6 +9,15 @@ import moderngl
 from deformgl.errors import ShaderError
 from deformgl.gl.preprocessor import Source, preprocess
 
+#: The fragment stage an OpenGL ES program without one gets (ES links no program without a
+#: fragment shader; transform-feedback passes discard the rasterizer anyway).
+ES_EMPTY_FRAGMENT = "lib/empty.frag"
+
+
+def profile_of(ctx: moderngl.Context) -> str:
+    """The shader profile of a context: "es" for OpenGL ES, else "core"."""
+    return "es" if str(ctx.info.get("GL_VERSION", "")).startswith("OpenGL ES") else "core"
+
 
 class Program:
     """A moderngl program built from shader files, owning its GL object.
@@ -22,14 +31,20 @@ class Program:
         fragment: fragment shader file, or ``None`` (transform feedback).
         defines: variant switches for both stages.
         varyings: transform-feedback outputs, in buffer order.
+
+    On an OpenGL ES context the sources are preprocessed in the ``es`` profile, and a program
+    without a fragment shader gets :data:`ES_EMPTY_FRAGMENT`.
     """
 
     def __init__(self, ctx: moderngl.Context, vertex: str, fragment: str | None = None, *,
                  defines: dict[str, object] | None = None, varyings: tuple[str, ...] = ()) -> None:
         self.name = f"{vertex}+{fragment}" if fragment else vertex
         self.defines = dict(defines or {})
-        self.vertex_source = preprocess(vertex, self.defines)
-        self.fragment_source = preprocess(fragment, self.defines) if fragment else None
+        self.profile = profile_of(ctx)
+        if fragment is None and self.profile == "es":
+            fragment = ES_EMPTY_FRAGMENT
+        self.vertex_source = preprocess(vertex, self.defines, self.profile)
+        self.fragment_source = preprocess(fragment, self.defines, self.profile) if fragment else None
         try:
             self.gl = ctx.program(
                 vertex_shader=self.vertex_source.text,

@@ -10,7 +10,7 @@ import numpy as np
 from deformgl.render.camera import View
 from deformgl.errors import GLError
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
-from deformgl.gl.programs import Program
+from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.surface import grid_surface
 
@@ -65,7 +65,9 @@ class RenderTarget(GLOwner):
         self.fbo.use()
         self.ctx.viewport = (0, 0, *self.size)
         self.fbo.clear(*background, 1.0, depth=1.0)
-        self.ctx.enable(moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
+        # (ES has no PROGRAM_POINT_SIZE switch: gl_PointSize always counts there)
+        self.ctx.enable(moderngl.DEPTH_TEST if profile_of(self.ctx) == "es"
+                        else moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
 
     def read_rgb(self) -> np.ndarray:
         """Resolve (if multisampled) and read the image: (height, width, 3) uint8, top row first."""
@@ -73,8 +75,11 @@ class RenderTarget(GLOwner):
         if self.resolve_fbo is not None:
             self.ctx.copy_framebuffer(self.resolve_fbo, self.fbo)
             source = self.resolve_fbo
-        data = source.read(components=3, alignment=1)
         w, h = self.size
+        if profile_of(self.ctx) == "es":  # (ES reads RGBA/UNSIGNED_BYTE; RGB is not guaranteed)
+            rgba = np.frombuffer(source.read(components=4, alignment=1), dtype=np.uint8).reshape(h, w, 4)
+            return rgba[::-1, :, :3].copy()
+        data = source.read(components=3, alignment=1)
         return np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)[::-1].copy()
 
 

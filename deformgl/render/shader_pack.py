@@ -9,6 +9,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
+from deformgl.gl.es_context import read_texture
 from deformgl.render.camera import View
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.files import write_atomic
@@ -21,7 +22,7 @@ def pack_inputs(state: moderngl.Texture, grid: NodeGrid, layout: AtlasLayout | C
                 size: tuple[int, int], background: tuple[float, float, float]) -> dict[str, np.ndarray | np.float32]:
     """The example's inputs (see its docstring for the keys); reads the state texture once."""
     w, h = layout.size
-    image = np.frombuffer(state.read(), dtype="f4").reshape(h, w, 4)
+    image = np.frombuffer(read_texture(state), dtype="f4").reshape(h, w, 4)
     texels = {f"texel{c + 1}": layout.texel(grid.ijk[data.tri_nodes[:, c]]).astype("i4") for c in range(3)}
     u = lighting.uniforms()
     arrays: dict[str, np.ndarray | np.float32] = dict(

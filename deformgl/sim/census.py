@@ -3,7 +3,10 @@
 A census is one fragment pass over ``row x rows`` fragments, fragment ``(i, j)`` being node
 ``j * row + i``, into a small framebuffer of its own (an R8 renderbuffer). Fragments whose
 predicate is false are discarded, those past the last node too, and an occlusion query counts
-the survivors: the only thing that crosses to the CPU is that one integer per query.
+the survivors: the only thing that crosses to the CPU is that one integer per query. OpenGL ES
+counts no samples (``GL_SAMPLES_PASSED`` is desktop only): there the query is
+``GL_ANY_SAMPLES_PASSED`` (:class:`~deformgl.gl.es_context.AnySamplesQuery`) and a count is 0
+or 1 ("at least one"), which is all the convergence stop and the blow-up guard ask (``== 0``).
 
 State textures are RGBA32F, read with ``texelFetch``; slot ``s`` of node ``n`` is texel
 ``(slots * (n % row) + s, n / row)``: ``slots = 1, row = layout.width`` for
@@ -19,7 +22,8 @@ from __future__ import annotations
 
 import moderngl
 
-from deformgl.gl.programs import Program
+from deformgl.gl.es_context import AnySamplesQuery
+from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, is_released
 
 __all__ = ["NodeCensus"]
@@ -49,7 +53,8 @@ class NodeCensus(GLOwner):
             marks = self.own(ctx.renderbuffer((self.row, self.rows), 1, dtype="f1"))
             self._fbo = self.own(ctx.framebuffer(color_attachments=[marks]))
             # moderngl 5.13 queries have no release(); one per census, freed with the context
-            self._query = ctx.query(samples=True)
+            self._query: moderngl.Query | AnySamplesQuery = (
+                self.own(AnySamplesQuery()) if profile_of(ctx) == "es" else ctx.query(samples=True))
 
     def _check(self, tex: moderngl.Texture, slots: int, slot: int, name: str) -> None:
         if not 0 <= slot < slots:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from deformgl.gl.es_context import is_es
 from deformgl.errors import GLError, InputError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
@@ -182,6 +183,11 @@ class TrilinearRenderer(GLOwner):
         offsets, size = pack_atlas(shapes, self.max_3d)
         image = atlas_image(grids, offsets, size)
         if self.atlas is None or self.atlas_size != size:
+            if is_es(self.ctx) and "GL_OES_texture_float_linear" not in self.ctx.extensions:
+                # without it an RGBA32F texture with LINEAR filtering is incomplete in ES: every
+                # fetch returns (0, 0, 0, 1) and grid-transformed vertices collapse to the origin
+                raise GLError("this OpenGL ES context has no OES_texture_float_linear: the trilinear "
+                              "grid path (hardware-filtered RGBA32F 3D atlas) cannot run on it")
             if self.atlas is not None:
                 self.disown(self.atlas)
             self.atlas = self.own(self.ctx.texture3d(size, 4, dtype="f4"))

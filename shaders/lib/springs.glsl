@@ -31,8 +31,8 @@ struct SpringSum {
 #ifdef COMPACT
 #ifdef COMPACT_DENSE
 uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
-#define NB_TEXEL(J, DX, DY, DZ) node_texel(((mask >> J) & 1u) != 0u \
-    ? self_node + DX * u_strides.x + DY * u_strides.y + DZ * u_strides.z : self_node)
+// (each macro on one line: a backslash line continuation is GLSL 4.20, not 3.30 nor ES 3.00)
+#define NB_TEXEL(J, DX, DY, DZ) node_texel(((mask >> J) & 1u) != 0u ? self_node + DX * u_strides.x + DY * u_strides.y + DZ * u_strides.z : self_node)
 #else
 uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
 #define NB_TEXEL(J, DX, DY, DZ) node_texel(nb[J])
@@ -49,17 +49,9 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 uniform sampler2DArray u_weights;
 #define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float inv = 1.0 / max(length(d), 1e-30); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
 #elif defined(NEIGHBOUR_BRANCH)
-#define NB_ACCUM(S, P, J, DX, DY, DZ) \
-    if ((mask & (1u << J)) != 0u) { \
-        vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; \
-        float len = length(d); \
-        S += d / max(len, 1e-30); P += d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float len = length(d); S += d / max(len, 1e-30); P += d; }
 #else
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { \
-        float w = float((mask >> J) & 1u); \
-        vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; \
-        float len = length(d); \
-        S += (w / max(len, 1e-30)) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float len = length(d); S += (w / max(len, 1e-30)) * d; P += w * d; }
 #endif
 
 SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {

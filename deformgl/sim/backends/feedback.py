@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from deformgl.gl.es_context import read_texture
 from deformgl.sim.base import SimulationBase
 
 from deformgl.errors import GLError
@@ -399,7 +400,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
     # -- read-back (explicit) ----------------------------------------------------------------
 
     def _read(self, tex: moderngl.Texture, slots: int) -> np.ndarray:
-        data = np.frombuffer(tex.read(), dtype=np.float32)
+        data = np.frombuffer(read_texture(tex), dtype=np.float32)
         return data.reshape(self.rows * self.node_row, slots, 4)[:self.count]
 
     def positions(self) -> np.ndarray:

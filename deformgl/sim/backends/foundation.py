@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import moderngl
 import numpy as np
 
+from deformgl.gl.es_context import read_texture
 from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
@@ -387,7 +388,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
             raise RuntimeError("FoundationVerlet: released")
         tex = self.textures.state[self.current if which is None else which]
         w, h = self.textures.size
-        image = np.frombuffer(tex.read(), dtype="f4").reshape(h, w, 4)
+        image = np.frombuffer(read_texture(tex), dtype="f4").reshape(h, w, 4)
         return self.textures.layout.gather(self.grid.ijk, image)
 
     def positions(self) -> np.ndarray:

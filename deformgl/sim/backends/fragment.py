@@ -41,6 +41,7 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
+from deformgl.gl.es_context import read_texture
 from deformgl.sim.base import SimulationBase
 
 from deformgl.errors import GLError
@@ -408,7 +409,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
     # -- read-back (explicit) ----------------------------------------------------------------
 
     def _read(self, index: int) -> np.ndarray:
-        data = np.frombuffer(self.pool[self.roles[index]].read(), dtype=np.float32)
+        data = np.frombuffer(read_texture(self.pool[self.roles[index]]), dtype=np.float32)
         return data.reshape(-1, 4)[: self.count, :3].copy()
 
     def positions(self) -> np.ndarray:

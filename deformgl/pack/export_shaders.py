@@ -1,0 +1,107 @@
+"""``deformgl export-shaders OUT --profile core|es``: the shader pack as a standalone folder.
+
+The folder holds every shader file of ``deformgl.shaders`` in its sub-folders, each with a
+license header, top-level stage files (``.vert``, ``.frag``) headed by the profile's ``#version``
+line (and, for ``es``, the precision statements of
+:data:`deformgl.gl.preprocessor.ES_PRECISION`), the contract ``README.md`` and ``pack.json``
+(pack version, profile, files). An application vendors it without deformgl: it pastes each
+``#include "x"`` (once per program) and puts its ``#define``s right after the header lines, as
+``README.md`` says. Written as one :class:`~deformgl.files.OutputSet`: all files or none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from importlib import resources
+from importlib.resources.abc import Traversable
+from pathlib import Path
+
+from deformgl.errors import InputError
+from deformgl.files import OutputSet, write_atomic
+from deformgl.gl.preprocessor import ES_PRECISION, PROFILES, read_shader_file
+
+__all__ = ["LICENSE_HEADER", "PACK_VERSION", "add_parser", "export_shaders", "pack_files", "shader_text"]
+
+#: The pack's version: the major number changes when an input, output or define of a shader
+#: changes incompatibly (shaders/README.md states it too; a test keeps them equal).
+PACK_VERSION = "1.1.0"
+LICENSE_HEADER = ("// deformgl shader pack {version}, profile {profile} (GLSL {language}).\n"
+                  "// SPDX-License-Identifier: MIT. Copyright (c) the deformgl authors.\n"
+                  "// Contract (inputs, outputs, defines, extensions): README.md of this folder.\n")
+_SUFFIXES = (".glsl", ".vert", ".frag", ".geom")
+_LANGUAGE = {"core": "3.30 core", "es": "ES 3.00"}
+
+
+def _walk(node: Traversable, prefix: str) -> list[str]:
+    out = []
+    for child in sorted(node.iterdir(), key=lambda c: c.name):
+        name = f"{prefix}{child.name}"
+        if child.is_dir() and not child.name.startswith("__"):
+            out += _walk(child, name + "/")
+        elif child.is_file() and child.name.endswith(_SUFFIXES):
+            out.append(name)
+    return out
+
+
+def pack_files() -> list[str]:
+    """Every shader file of the pack, relative to the shaders folder, sorted."""
+    return _walk(resources.files("deformgl.shaders"), "")
+
+
+def shader_text(name: str, profile: str) -> str:
+    """The exported text of ``shaders/<name>`` in ``profile``."""
+    if profile not in PROFILES:
+        raise InputError(f"--profile: {profile!r} is not one of {', '.join(PROFILES)}")
+    text = read_shader_file(name)
+    header = LICENSE_HEADER.format(version=PACK_VERSION, profile=profile, language=_LANGUAGE[profile])
+    lines = text.splitlines()
+    if lines and lines[0].lstrip().startswith("#version"):
+        head = [lines[0]] if profile == "core" else ["#version 300 es", *ES_PRECISION]
+        return "\n".join([*head, header.rstrip("\n"), *lines[1:]]) + "\n"
+    return header + text
+
+
+def _write(path: Path, text: str) -> None:
+    data = text.encode("utf-8")
+    write_atomic(path, lambda f: f.write(data))
+
+
+def export_shaders(out: Path, profile: str) -> list[Path]:
+    """Write the pack into folder ``out`` (created); returns the files written."""
+    if profile not in PROFILES:
+        raise InputError(f"--profile: {profile!r} is not one of {', '.join(PROFILES)}")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    names = pack_files()
+    targets = {name: out / name for name in names}
+    meta, readme = out / "pack.json", out / "README.md"
+    for path in {p.parent for p in targets.values()}:
+        path.mkdir(parents=True, exist_ok=True)
+    contract = resources.files("deformgl.shaders").joinpath("README.md").read_text(encoding="utf-8")
+    info = {"name": "deformgl shader pack", "version": PACK_VERSION, "profile": profile,
+            "language": f"GLSL {_LANGUAGE[profile]}", "license": "MIT", "files": names}
+    with OutputSet([*targets.values(), meta, readme], "shader pack file"):
+        for name, path in targets.items():
+            _write(path, shader_text(name, profile))
+        _write(readme, contract)
+        _write(meta, json.dumps(info, indent=1) + "\n")
+    return [*targets.values(), readme, meta]
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Adds ``export-shaders`` to a CLI's subparsers."""
+    p = subparsers.add_parser(
+        "export-shaders", help="write the shader pack as a standalone folder (core or es profile)",
+        description="Write every shader of the pack, with a license header, the contract README.md "
+                    "and pack.json, into OUT: GLSL 3.30 core (--profile core) or GLSL ES 3.00 for "
+                    "WebGL2 / OpenGL ES 3 (--profile es). All files or none are written.")
+    p.add_argument("out", type=Path, metavar="OUT", help="output folder (created)")
+    p.add_argument("--profile", choices=PROFILES, default="core", help="shader language profile (default core)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    files = export_shaders(args.out, args.profile)
+    print(f"wrote {len(files)} files of shader pack {PACK_VERSION} ({args.profile}) to {args.out}")
+    return 0

@@ -1,0 +1,222 @@
+"""Every GLSL program deformgl builds, in every define variant it builds, enumerated from the code.
+
+A :class:`Variant` is one program: its vertex and fragment files, its defines and its
+transform-feedback varyings, as :class:`deformgl.gl.programs.Program` receives them. The spaces
+come from the builders' own tables (the integrator specs of :mod:`deformgl.sim.stages`, the
+foundation pass's draw modes, the layouts' defines, the census modes, the mapping passes, the
+trilinear draw paths and normal modes, the profile stages), so a new stage or switch there adds
+its variants here.
+
+Two kinds of define are values rather than switches, and are reduced to classes in
+:func:`variant_key` (the test that every built program is known uses the same key):
+
+* counts (``DRAGS``, ``LOADS``, ``SPHERES``, ``PULLS``) size uniform arrays and bound loops:
+  the classes are 0, 1 and "2 up to the limit", enumerated at 0, 1 and the limit
+  (:data:`COUNT_LIMITS`: the scene file's limits, ``MAX_LOADS`` for loads and pulls);
+* texture row widths of the feedback backend (``NODE_ROW``, ``SPRING_ROW``) are powers of two
+  up to ``NODE_ROW_MAX`` / ``SPRING_ROW_MAX``, used only in ``%`` and ``/``: one class,
+  enumerated at the largest width.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+from deformgl.bench.profile import STAGES as PROFILE_STAGES
+from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
+from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
+from deformgl.sim.backends.foundation import DRAW_MODES, MAX_PULLS
+from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.springs import MAX_LOADS
+from deformgl.sim.stages import spec
+from deformgl.trilinear.batches import PATHS
+from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.renderer import shader_defines as trilinear_defines
+
+__all__ = ["COUNT_LIMITS", "ROW_LIMITS", "Variant", "all_variants", "variant_key"]
+
+#: Count defines and the largest value the code builds (the scene file's and the springs' limits).
+COUNT_LIMITS: dict[str, int] = {"DRAGS": MAX_DRAGS, "LOADS": MAX_LOADS, "SPHERES": MAX_SPHERES,
+                                "PULLS": MAX_PULLS}
+#: Row-width defines of the feedback backend and their largest value.
+ROW_LIMITS: dict[str, int] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX}
+#: Census pass modes (``NodeCensus``: snapshot copy, moved count, bad count).
+CENSUS_MODES = ("COPY", "MOVED", "BAD")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One program: shader files (fragment None for a vertex-only transform-feedback program),
+    the defines both stages get, and the captured varyings."""
+
+    vertex: str
+    fragment: str | None
+    defines: tuple[tuple[str, object], ...]
+    varyings: tuple[str, ...] = ()
+
+    @property
+    def define_map(self) -> dict[str, object]:
+        return dict(self.defines)
+
+    @property
+    def key(self) -> tuple:
+        return variant_key(self.vertex, self.fragment, self.define_map, self.varyings)
+
+    def label(self) -> str:
+        """``vertex+fragment [DEFINES] -> varyings``, for messages."""
+        names = " ".join(k if v is True else f"{k}={v}" for k, v in self.defines)
+        files = f"{self.vertex}+{self.fragment}" if self.fragment else self.vertex
+        return f"{files} [{names}]" + (f" -> {','.join(self.varyings)}" if self.varyings else "")
+
+
+def _count_class(name: str, value: object) -> object:
+    if isinstance(value, bool) or not isinstance(value, int):
+        return value
+    if value <= 1:
+        return value
+    return "many" if value <= COUNT_LIMITS[name] else value
+
+
+def variant_key(vertex: str, fragment: str | None, defines: Mapping[str, object],
+                varyings: tuple[str, ...] = ()) -> tuple:
+    """The class of a program (see the module docstring): defines that are False or None are
+    dropped (the preprocessor emits nothing for them), counts become 0, 1 or "many", row widths
+    "pow2" when they are a power of two within the limit."""
+    items = []
+    for name, value in sorted(defines.items()):
+        if value is False or value is None:
+            continue
+        if name in COUNT_LIMITS:
+            value = _count_class(name, value)
+        elif name in ROW_LIMITS and isinstance(value, int) and 0 < value <= ROW_LIMITS[name] \
+                and value & (value - 1) == 0:
+            value = "pow2"
+        items.append((name, value))
+    return (vertex, fragment, tuple(items), tuple(varyings))
+
+
+def _counts(name: str) -> tuple[int, ...]:
+    return (0, 1, COUNT_LIMITS[name])
+
+
+def _v(vertex: str, fragment: str | None, defines: Mapping[str, object],
+       varyings: tuple[str, ...] = ()) -> Variant:
+    return Variant(vertex, fragment, tuple(sorted(defines.items())), tuple(varyings))
+
+
+def _constraints() -> list[dict[str, object]]:
+    """The constraint switches both integrator backends set: none, or a ground and/or spheres."""
+    out: list[dict[str, object]] = [{"SPHERES": 0}]
+    for ground, spheres in itertools.product((False, True), _counts("SPHERES")):
+        if ground or spheres:
+            out.append({"CONSTRAINTS": True, "GROUND": ground, "SPHERES": spheres})
+    return out
+
+
+def _forces() -> Iterator[dict[str, object]]:
+    """Force switches shared by both backends: spring damping, wind, loads, drags."""
+    for damping, wind, loads, drags in itertools.product(
+            (False, True), (False, True), _counts("LOADS"), _counts("DRAGS")):
+        d: dict[str, object] = {"SPRING_DAMPING": damping, "LOADS": loads, "DRAGS": drags}
+        if wind:
+            d["WIND"] = True
+        yield d
+
+
+def fragment_backend() -> Iterator[Variant]:
+    """``FragmentIntegrator``: each integrator's stages (``_build``)."""
+    for name in INTEGRATORS:
+        sp = spec(name)
+        for (layers, count), dense, weights, forces in itertools.product(((5, 18), (6, 24)), (False, True),
+                                                                         (False, True), list(_forces())):
+            common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "DENSE": dense,
+                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces}
+            if sp.velocity:
+                common["VELOCITY"] = True
+            for stage in sp.stages:
+                for c in (_constraints() if stage.final else [{}]):
+                    yield _v("sim/fullscreen.vert", "sim/integrators/step.frag",
+                             {**common, **c, **stage.fragment_defines()})
+
+
+def feedback_backend() -> Iterator[Variant]:
+    """``FeedbackSimulation``: one vertex-only program per stage (``_add_pass``)."""
+    for name in INTEGRATORS:
+        sp = spec(name)
+        for forces, c in itertools.product(list(_forces()), _constraints()):
+            common: dict[str, object] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX, **forces, **c}
+            if not common["SPRING_DAMPING"]:
+                del common["SPRING_DAMPING"]
+            if sp.velocity:
+                common["VELOCITY"] = True
+            for stage in sp.stages:
+                yield _v(stage.vertex, None, {**common, **stage.feedback_defines()},
+                         tuple(_varying(b) for b in stage.writes))
+
+
+_LAYOUTS: tuple[dict[str, object], ...] = ({}, {"COMPACT": True, "COMPACT_DENSE": False},
+                                           {"COMPACT": True, "COMPACT_DENSE": True})
+
+
+def foundation() -> Iterator[Variant]:
+    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad") and
+    ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
+    verts = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert", "quad": "sim/fullscreen.vert"}
+    for draw, branch, pulls, layout, weights in itertools.product(DRAW_MODES, (False, True), _counts("PULLS"),
+                                                                  _LAYOUTS, (False, True)):
+        if layout and draw == "rects":
+            continue  # built as "quad"
+        yield _v(verts[draw], "sim/verlet.frag", {"NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points",
+                                                  "PULLS": pulls, "SPRING_WEIGHTS": weights, **layout})
+    for layout in _LAYOUTS:
+        yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
+
+
+def census() -> Iterator[Variant]:
+    for mode in CENSUS_MODES:
+        yield _v("sim/fullscreen.vert", "census/census.frag", {mode: True})
+
+
+def render() -> Iterator[Variant]:
+    """Grid surface, overlay, mapped mesh (one and two stages, capture), static mesh."""
+    yield _v("render/grid_surface.vert", "render/lit_surface.frag", {})
+    yield _v("render/grid_surface.vert", None, {}, ("v_world", "v_normal"))
+    yield _v("render/grid_lines.vert", "render/flat_colour.frag", {})
+    yield _v("render/static_mesh.vert", "render/mapped_mesh.frag", {})
+    for curvature, normal_map in itertools.product((False, True), (False, True)):
+        d = {"CURVATURE": curvature, "NORMAL_MAP": normal_map}
+        yield _v("render/mapped_mesh.vert", "render/mapped_mesh.frag", d)
+        yield _v("render/mapped_mesh.vert", None, d, ("v_world", "v_normal"))
+        names = ("v_world", "v_normal") + (("v_tangent", "v_handedness", "v_uv") if normal_map else ())
+        yield _v("render/mapped_mesh.vert", None, d, names)
+    for normal_map in (False, True):
+        yield _v("render/mapped_cached.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})
+
+
+def trilinear() -> Iterator[Variant]:
+    for path, normals, form in itertools.product(PATHS, NORMAL_MODES, (1, 4)):
+        d = trilinear_defines(path, normals, form)
+        yield _v("trilinear/transform.vert", "trilinear/lit.frag", d)
+        yield _v("trilinear/transform.vert", None, d, ("v_world", "v_normal"))
+
+
+def profile() -> Iterator[Variant]:
+    for stage, dense in itertools.product(range(len(PROFILE_STAGES)), (False, True)):
+        yield _v("sim/fullscreen.vert", "profile/step_ablation.frag", {"STAGE": stage, "DENSE": dense})
+
+
+#: The groups of :func:`all_variants`, by the code that builds them.
+GROUPS = {"fragment backend": fragment_backend, "feedback backend": feedback_backend,
+          "foundation and normals": foundation, "census": census, "render": render,
+          "trilinear": trilinear, "profile": profile}
+
+
+def all_variants() -> list[Variant]:
+    """Every program variant, deduplicated by :func:`variant_key`, in a stable order."""
+    seen: dict[tuple, Variant] = {}
+    for group in GROUPS.values():
+        for v in group():
+            seen.setdefault(v.key, v)
+    return list(seen.values())

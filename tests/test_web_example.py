@@ -1,0 +1,158 @@
+"""examples/web: the browser example runs the exported scene with the pack's ES shaders in
+headless Chromium (Debian chromium, software WebGL2 through SwiftShader) and draws the frame
+deformgl renders, within the golden-image tolerances, logging no WebGL error. Needs chromium
+(an optional system tool: apt-get install chromium; installed by .ci/run)."""
+
+from __future__ import annotations
+
+import base64
+import functools
+import http.server
+import io
+import json
+import shutil
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from chromium_pipe import Chromium, chromium_path
+from conftest import REQUIRE_EXTRAS, TESTS
+from deformgl.pack.export_web import web_scene
+from deformgl.scene.pipeline import render
+from deformgl.testing.imagediff import DEFAULT_CHANNEL_TOL, DEFAULT_MAX_FRACTION, compare_images
+
+ROOT = TESTS.parent
+SCENE = ROOT / "scenes" / "dragon.toml"
+STEPS, SIZE = 200, (320, 240)
+
+pytestmark = pytest.mark.skipif(chromium_path() is None and not REQUIRE_EXTRAS,
+                                reason="optional extra: chromium (apt-get install chromium) not installed")
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+def export(out, *args):
+    return subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(SCENE), str(out), *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory):
+    """The page's result after STEPS steps: served over HTTP (fetch needs it) with the export."""
+    root = tmp_path_factory.mktemp("web")
+    for name in ("index.html", "main.js"):
+        shutil.copy(ROOT / "examples" / "web" / name, root / name)
+    proc = export(root / "data", "--steps", str(STEPS), "--size", f"{SIZE[0]}x{SIZE[1]}", "--mapping", "curvature")
+    assert proc.returncode == 0, proc.stderr
+    handler = functools.partial(_QuietHandler, directory=str(root))
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    browser = Chromium()
+    try:
+        start = time.monotonic()
+        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?data=data&steps={STEPS}")
+        result = json.loads(browser.wait_for("document.getElementById('result').textContent", 120))
+        result["wall_s"] = time.monotonic() - start
+        result["messages"] = list(browser.messages)
+    finally:
+        browser.close()
+        server.shutdown()
+        server.server_close()
+    return result
+
+
+def _box(image):
+    h, w, c = image.shape
+    return (image.reshape(h // 2, 2, w // 2, 2, c).astype(np.float64).mean(axis=(1, 3)) + 0.5).astype(np.uint8)
+
+
+def test_the_page_runs_the_steps_and_logs_no_webgl_error(page):
+    assert page["errors"] == [], page["errors"]
+    assert page["steps"] == STEPS and page["step_ms"] > 0 and page["frame_ms"] > 0
+    # errors, exceptions and any WebGL/GL error report; performance notes ("GPU stall due to
+    # ReadPixels", the page's own one-pixel waits for timing) are warnings, not errors
+    bad = [m for m in page["messages"] if m.startswith(("log.error", "console.error", "exception"))
+           or "INVALID" in m or "GL ERROR" in m.upper()]
+    assert bad == [], bad
+    print(f"\nheadless Chromium (SwiftShader): {page['step_ms']:.3f} ms per step, frame {page['frame_ms']:.1f} ms")
+
+
+def test_the_canvas_is_deformgls_frame(ctx, page):
+    """Full size: the fraction of differing pixels within the golden tolerance; silhouette
+    pixels that flip between the two rasterizers (llvmpipe and SwiftShader place sub-pixel
+    edges differently) exceed the per-pixel limit one by one, so that limit, and all the others,
+    are checked after a 2x2 box filter of both images."""
+    web = np.asarray(Image.open(io.BytesIO(base64.b64decode(page["png"].split(",", 1)[1]))).convert("RGB"))
+    scene = web_scene(SCENE, steps=STEPS, size=SIZE, mapping="curvature")
+    ours = render(ctx, scene).image
+    assert web.shape == ours.shape == (SIZE[1], SIZE[0], 3)
+    differ = (np.abs(ours.astype(int) - web) > DEFAULT_CHANNEL_TOL).any(axis=2).mean()
+    assert differ <= DEFAULT_MAX_FRACTION, differ
+    diff = compare_images(_box(ours), _box(web))
+    assert diff.passed, diff.reason
+    assert (ours != ours[0, 0]).any(axis=2).mean() > 0.1  # the dragon fills the frame
+    # the steps moved it: the start frame differs
+    start = render(ctx, web_scene(SCENE, steps=1, size=SIZE, mapping="curvature")).image
+    assert not compare_images(_box(start), _box(ours)).passed
+    print(f"\nbrowser vs deformgl: {differ:.4%} pixels over {DEFAULT_CHANNEL_TOL}/255; box-filtered: {diff.reason}")
+
+
+def test_export_web_refuses_what_the_page_cannot_run(tmp_path):
+    proc = export(tmp_path / "a")  # dragon.toml maps one-to-one
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "mapping.mode" in proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(ROOT / "scenes" / "cloth_64.toml"),
+                           str(tmp_path / "b")], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stderr.startswith("deformgl: error: ")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_node_follows_the_mouse_while_dragged(ctx, tmp_path):  # (ctx: marks it gl, for the export)
+    """The interactive page (no steps=): press on the mesh, move, the nearest node is held under
+    the pointer while the simulation runs, and is let go on release."""
+    root = tmp_path
+    for name in ("index.html", "main.js"):
+        shutil.copy(ROOT / "examples" / "web" / name, root / name)
+    proc = export(root / "data", "--steps", "2", "--size", "320x240", "--mapping", "constant")
+    assert proc.returncode == 0, proc.stderr
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_QuietHandler, directory=str(root)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    browser = Chromium()
+    try:
+        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?data=data")
+        browser.wait_for("window.deformglPage && window.deformglPage.steps() > 20", 60)
+        left, top, width, height = browser.evaluate(
+            "(() => { const r = document.getElementById('canvas').getBoundingClientRect();"
+            " return [r.left, r.top, r.width, r.height]; })()")
+        x, y = left + 0.45 * width, top + 0.5 * height
+        browser.mouse("pressed", x, y)
+        node = browser.evaluate("window.deformglPage.dragged()")
+        assert node is not None, browser.messages
+        start = browser.evaluate(f"window.deformglPage.position({node})")
+        target = (x + 0.15 * width, y - 0.1 * height)
+        browser.mouse("moved", *target)
+        steps = browser.evaluate("window.deformglPage.steps()")
+        browser.wait_for(f"window.deformglPage.steps() > {steps + 30}", 60)
+        ndc = browser.evaluate(f"window.deformglPage.ndc({node})")
+        want = (2 * (target[0] - left) / width - 1, 1 - 2 * (target[1] - top) / height)
+        assert abs(ndc[0] - want[0]) < 0.01 and abs(ndc[1] - want[1]) < 0.01, (ndc, want)
+        moved = browser.evaluate(f"window.deformglPage.position({node})")
+        assert np.linalg.norm(np.subtract(moved, start)) > 0.01
+        browser.mouse("released", *target)
+        assert browser.evaluate("window.deformglPage.dragged()") is None
+        steps = browser.evaluate("window.deformglPage.steps()")
+        browser.wait_for(f"window.deformglPage.steps() > {steps + 30}", 60)
+        assert browser.evaluate(f"window.deformglPage.position({node})") != moved  # free again
+        assert not [m for m in browser.messages if m.startswith(("log.error", "exception")) or "INVALID" in m]
+    finally:
+        browser.close()
+        server.shutdown()
+        server.server_close()
