@@ -24,7 +24,7 @@ from chromium_pipe import Chromium, chromium_path
 from conftest import REQUIRE_EXTRAS, TESTS
 from deformgl.pack.export_web import web_scene
 from deformgl.scene.pipeline import render
-from deformgl.testing.imagediff import DEFAULT_CHANNEL_TOL, DEFAULT_MAX_FRACTION, compare_images
+from deformgl.testing.imagediff import DEFAULT_CHANNEL_TOL, DEFAULT_MAX_FRACTION, DEFAULT_PIXEL_MAX, compare_images
 
 ROOT = TESTS.parent
 SCENE = ROOT / "scenes" / "dragon.toml"
@@ -70,11 +70,6 @@ def page(tmp_path_factory):
     return result
 
 
-def _box(image):
-    h, w, c = image.shape
-    return (image.reshape(h // 2, 2, w // 2, 2, c).astype(np.float64).mean(axis=(1, 3)) + 0.5).astype(np.uint8)
-
-
 def test_the_page_runs_the_steps_and_logs_no_webgl_error(page):
     assert page["errors"] == [], page["errors"]
     assert page["steps"] == STEPS and page["step_ms"] > 0 and page["frame_ms"] > 0
@@ -87,23 +82,41 @@ def test_the_page_runs_the_steps_and_logs_no_webgl_error(page):
 
 
 def test_the_canvas_is_deformgls_frame(ctx, page):
-    """Full size: the fraction of differing pixels within the golden tolerance; silhouette
-    pixels that flip between the two rasterizers (llvmpipe and SwiftShader place sub-pixel
-    edges differently) exceed the per-pixel limit one by one, so that limit, and all the others,
-    are checked after a 2x2 box filter of both images."""
+    """The golden tolerances: at most 0.5 % of the pixels differ by more than 4/255, and no pixel
+    by more than 64/255 away from edges. Silhouette and crease pixels (those that differ from a
+    neighbour by more than 32/255 in deformgl's frame) flip between the two rasterizers
+    (llvmpipe and SwiftShader place sub-pixel edges differently), so the per-pixel limit leaves
+    them out; they still count in the fraction."""
     web = np.asarray(Image.open(io.BytesIO(base64.b64decode(page["png"].split(",", 1)[1]))).convert("RGB"))
     scene = web_scene(SCENE, steps=STEPS, size=SIZE, mapping="curvature")
     ours = render(ctx, scene).image
     assert web.shape == ours.shape == (SIZE[1], SIZE[0], 3)
-    differ = (np.abs(ours.astype(int) - web) > DEFAULT_CHANNEL_TOL).any(axis=2).mean()
+    delta = np.abs(ours.astype(int) - web).max(axis=2)
+    differ = (delta > DEFAULT_CHANNEL_TOL).mean()
     assert differ <= DEFAULT_MAX_FRACTION, differ
-    diff = compare_images(_box(ours), _box(web))
-    assert diff.passed, diff.reason
+    edges = _edges(ours)
+    interior = delta[~edges]
+    assert interior.max() <= DEFAULT_PIXEL_MAX, (interior.max(), np.argwhere((delta > DEFAULT_PIXEL_MAX) & ~edges)[:5])
+    assert edges.mean() < 0.2  # the mask leaves most of the frame in the check
     assert (ours != ours[0, 0]).any(axis=2).mean() > 0.1  # the dragon fills the frame
     # the steps moved it: the start frame differs
     start = render(ctx, web_scene(SCENE, steps=1, size=SIZE, mapping="curvature")).image
-    assert not compare_images(_box(start), _box(ours)).passed
-    print(f"\nbrowser vs deformgl: {differ:.4%} pixels over {DEFAULT_CHANNEL_TOL}/255; box-filtered: {diff.reason}")
+    assert not compare_images(start, ours).passed
+    print(f"\nbrowser vs deformgl: {differ:.4%} pixels over {DEFAULT_CHANNEL_TOL}/255; largest difference "
+          f"{delta.max()}/255, {interior.max()}/255 away from edges ({edges.mean():.1%} of pixels are edges)")
+
+
+def _edges(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels that differ from one of their 8 neighbours by more than 32/255."""
+    img = image.astype(int)
+    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = img.shape[:2]
+    out = np.zeros((h, w), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                out |= np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - img).max(axis=2) > 32
+    return out
 
 
 def test_export_web_refuses_what_the_page_cannot_run(tmp_path):

@@ -121,6 +121,8 @@ def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray]
         "state_previous.f32": tex(textures.state[fast.previous])}
     if textures.neighbours is not None:
         arrays["neighbours.i32"] = np.frombuffer(textures.neighbours.read(), dtype="<i4").reshape(5, h, w, 4)
+    if textures.weights is not None:  # a material's calibrated lattice (SPRING_WEIGHTS)
+        arrays["spring_weights.f32"] = np.frombuffer(textures.weights.read(), dtype="<f4").reshape(5, h, w, 4)
     n_pulls = fast.verlet.n_pulls
     dt = plan.dt / plan.substeps
     pulls = np.zeros((plan.steps * plan.substeps, max(n_pulls, 1), 3), np.float32)
@@ -141,8 +143,11 @@ def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray]
     view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
     dense = isinstance(layout, CompactLayout) and layout.dense
     defines = {"PULLS": n_pulls, **{k: v for k, v in layout.shader_defines().items() if v}}
+    if textures.weights is not None:
+        defines["SPRING_WEIGHTS"] = True
     uniforms = {"u_spacing": terms.spacing, "u_k_structural": terms.k_structural, "u_k_shear": terms.k_shear,
-                "u_damping": terms.damping, "u_gravity": list(terms.gravity), "u_dt": dt,
+                "u_damping": terms.damping, "u_mass_damping": terms.mass_damping, "u_gravity": list(terms.gravity),
+                "u_dt": dt,
                 **{k: (list(v) if isinstance(v, tuple) else v) for k, v in layout.shader_uniforms().items()
                    if k != "u_neighbours"}}
     info = {

@@ -151,6 +151,15 @@ async function main() {
     gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
   }
+  let springWeights = null;  // a material's calibrated lattice: per-spring weights (SPRING_WEIGHTS)
+  if (info.files["spring_weights.f32"]) {
+    springWeights = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D_ARRAY, springWeights);
+    gl.texImage3D(gl.TEXTURE_2D_ARRAY, 0, gl.RGBA32F, W, H, 5, 0, gl.RGBA, gl.FLOAT,
+                  await fetchArray("spring_weights.f32", info));
+    gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D_ARRAY, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+  }
   const pulls = await fetchArray("pulls.f32", info);
   const nPulls = info.verlet.defines.PULLS;
 
@@ -167,6 +176,7 @@ async function main() {
   gl.uniform1i(gl.getUniformLocation(verlet, "u_previous"), 1);
   gl.uniform1i(gl.getUniformLocation(verlet, "u_node"), 2);
   if (neighbours) gl.uniform1i(gl.getUniformLocation(verlet, "u_neighbours"), 3);
+  if (springWeights) gl.uniform1i(gl.getUniformLocation(verlet, "u_weights"), 4);
   const pullLoc = nPulls ? gl.getUniformLocation(verlet, "u_pull_force") : null;
   const emptyVao = gl.createVertexArray();
   let [current, previous, spare] = [0, 1, 2];
@@ -179,6 +189,7 @@ async function main() {
     gl.viewport(0, 0, W, H);
     gl.activeTexture(gl.TEXTURE2); gl.bindTexture(gl.TEXTURE_2D, nodeTex);
     if (neighbours) { gl.activeTexture(gl.TEXTURE3); gl.bindTexture(gl.TEXTURE_2D_ARRAY, neighbours); }
+    if (springWeights) { gl.activeTexture(gl.TEXTURE4); gl.bindTexture(gl.TEXTURE_2D_ARRAY, springWeights); }
     const rows = pulls.length / (3 * Math.max(nPulls, 1));
     for (let i = 0; i < n; i++) {
       if (pullLoc) {
