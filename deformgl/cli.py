@@ -41,6 +41,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="EGL device index (default: $DEFORMGL_DEVICE, else EGL's default)")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (a bug: please report it)")
+    from deformgl import __version__
+
+    p.add_argument("--version", action="version", version=f"deformgl {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     from deformgl.testing import diff_cli
 
@@ -88,6 +91,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    _animation_flags(r)
+
+    from deformgl.sweep import cli as sweep_cli
+
+    sweep_cli.add_parser(sub)
 
     t = sub.add_parser("trilinear", help="render a trilinear scene-graph scene to PNG",
                        description="Scenes of Knuth, Kohlhammer & Kuijper's trilinear scene graph: "
@@ -138,6 +146,33 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _animation_flags(r: argparse.ArgumentParser) -> None:
+    """``render``'s flags of animations, cameras, panels, overrides and the run record."""
+    a = r.add_argument_group("animation, camera and record (an animation output: -o out.mp4|out.gif|out.webp|"
+                             "frames/%%04d.png)")
+    a.add_argument("--frames", type=int, default=None, help="frames of one simulation run (default: the scene's "
+                   "[animation] frames, else 1: a still)")
+    a.add_argument("--fps", type=float, default=None, help="frames per second (default: animation.fps, 24)")
+    a.add_argument("--steps-per-frame", type=int, default=None, metavar="N",
+                   help="scene steps between frames (0: simulate physics.steps, then every frame of that state, "
+                        "e.g. a turntable; default: physics.steps spread over the frames)")
+    a.add_argument("--seconds-per-frame", type=float, default=None, metavar="S",
+                   help="simulated seconds between frames (rounded to whole steps of physics.dt)")
+    a.add_argument("--turntable", type=float, default=None, metavar="DEG",
+                   help="degrees of azimuth the camera turns over the animation (e.g. 360)")
+    a.add_argument("--camera", default=None, metavar="AZ,EL,DIST",
+                   help="camera azimuth and elevation (degrees) and distance (box diagonals), e.g. 30,15,1.4")
+    a.add_argument("--views", default=None, metavar="AZ,EL,DIST;...",
+                   help="several camera views side by side in one image, e.g. '0,15,1.3;90,15,1.3'")
+    a.add_argument("--compare", default=None, metavar="MODE,MODE,...",
+                   help="one row per mapping mode on the same frame, e.g. one-to-one,constant,curvature")
+    a.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
+                   help="set any scene key (TOML value), e.g. --set physics.dt=1e-3 --set render.size=[320,240]; "
+                        "repeatable")
+    a.add_argument("--json", nargs="?", const="", default=None, metavar="PATH",
+                   help="also write the run record as JSON (default path: next to the output, NAME.json)")
+
+
 def _scene_file(path: Path, flag: str = "") -> Path:
     """A scene file as given, else the shipped scene of that name; a one-line error if neither."""
     from deformgl.data import find_scene, scene_names
@@ -153,11 +188,15 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.data import is_packaged
     from deformgl.files import check_writable
     from deformgl.gl.context import create_context
-    from deformgl.scene.pipeline import render_to_png
+    from deformgl.scene.animation import frame_plan
+    from deformgl.scene.outputs import Job, check_job, default_record_path, render_job
+    from deformgl.scene.overrides import camera_overrides, parse_modes, parse_set, parse_view, parse_views
+    from deformgl.scene.record import summary_line
     from deformgl.scene.schema import load_scene, parse_size
 
     source = _scene_file(args.scene)
-    scene = load_scene(source)
+    overrides = parse_set(args.set) | camera_overrides(parse_view(args.camera) if args.camera else None)
+    scene = load_scene(source, overrides or None)
     size = None
     if args.size is not None:
         try:
@@ -169,24 +208,26 @@ def _render(args: argparse.Namespace) -> int:
                                  check_every=args.check_every)
     # a shipped scene writes into the working directory, never into the installed package
     out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
-    if out.suffix.lower() != ".png":
-        raise InputError(f"{out}: the output must be a .png file")
-    if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
-        raise InputError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
-    if args.pack_inputs is not None and args.pack_inputs.suffix.lower() != ".npz":
-        raise InputError(f"{args.pack_inputs}: --pack-inputs must end in .npz")
-    outputs = [p for p in (out, args.export_mesh, args.pack_inputs) if p is not None]
-    for path in outputs:
-        check_writable(path)  # before any work: render_to_png checks again, as a set
-    _clean_leftovers(outputs)
+    plan = frame_plan(scene, frames=args.frames, fps=args.fps, steps_per_frame=args.steps_per_frame,
+                      seconds_per_frame=args.seconds_per_frame, turntable=args.turntable)
+    record = None if args.json is None else (Path(args.json) if args.json else default_record_path(out))
+    job = Job(out, plan, modes=parse_modes(args.compare), views=parse_views(args.views), export=args.export_mesh,
+              pack=args.pack_inputs, record=record)
+    check_job(scene, job)
+    outputs = job.outputs(plan.frames)
+    for path in outputs[:1] + outputs[-3:]:
+        check_writable(path)  # before any work: render_job checks every one again, as a set
+    _clean_leftovers(outputs[:1] + outputs[-3:])
     ctx = create_context(args.device)
     try:
-        render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
-                      export=args.export_mesh, pack=args.pack_inputs,
-                      log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
+        done = render_job(ctx, scene, job, progress=not args.quiet and sys.stderr.isatty(),
+                          log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
     finally:
         ctx.release()
-    print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
+    if not args.quiet:
+        print(f"deformgl: {summary_line(done)}", file=sys.stderr)
+    extra = [p for p in (args.export_mesh, record) if p is not None]
+    print(f"wrote {out}" + (" and " + " and ".join(map(str, extra)) if extra else ""))
     return 0
 
 
@@ -408,7 +449,10 @@ def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)  # (a usage error exits here, one line, code 2)
     from deformgl.testing import diff_cli
 
-    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run}
+    from deformgl.sweep import cli as sweep_cli
+
+    commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run,
+                "sweep": sweep_cli.run}
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             # non-finite values are found and named by the checks; numpy's own warnings only

@@ -291,6 +291,7 @@ class Rendered:
     image: np.ndarray
     mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # vertices (world), normals, faces
     pack: dict[str, np.ndarray | np.float32] | None = None
+    record: dict[str, Any] = dataclasses.field(default_factory=dict)  # deformgl.scene.record.run_record
 
 
 def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
@@ -328,6 +329,11 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         flag = "--export-mesh" if mesh else "--pack-inputs"
         raise InputError(f"{scene.source}: {flag} needs a mapping of the detailed mesh "
                          f"(--mapping constant, curvature or auto), not one-to-one")
+    import time
+
+    from deformgl.scene.record import run_record
+
+    started = time.perf_counter()
     check_gl_limits(ctx, scene)
     check_scene(ctx, scene)  # host and GPU memory, render-target limits: before anything is built
     built = build_scene_model(scene)
@@ -368,6 +374,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
             result.pack = pack_inputs(state.position_texture, built.grid, state.layout, draw_pass.data,
                                       built.mesh.faces, view, lighting, scene.render.size,
                                       _vec3(scene.render.background))
+        result.record = run_record(scene, built, state.run, wall=time.perf_counter() - started, ctx=ctx)
         return result
     finally:
         for obj in (target, draw_pass):
