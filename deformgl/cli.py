@@ -117,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
     b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators", "trade", "mappings",
-                                    "scaling", "profile"],
+                                    "scaling", "profile", "animation"],
                    help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
@@ -129,7 +129,9 @@ def _parser() -> argparse.ArgumentParser:
                         "Pareto front; mappings: each mapping's error against an analytic bend and twist, and "
                         "its draw time; scaling: ms/step from 4k to 1M nodes, the fitted exponent, bytes/node; "
                         "profile: the step pass rebuilt stage by stage (own texels, neighbour lookup, 18 "
-                        "neighbour fetches, spring sums), what each costs")
+                        "neighbour fetches, spring sums), what each costs; animation: an N-frame animation from one "
+                        "run against a still and against N stills each simulated from step 0 (--scene, default the "
+                        "shipped dragon_motion.toml)")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
@@ -165,7 +167,8 @@ def _animation_flags(r: argparse.ArgumentParser) -> None:
     a.add_argument("--views", default=None, metavar="AZ,EL,DIST;...",
                    help="several camera views side by side in one image, e.g. '0,15,1.3;90,15,1.3'")
     a.add_argument("--compare", default=None, metavar="MODE,MODE,...",
-                   help="one row per mapping mode on the same frame, e.g. one-to-one,constant,curvature")
+                   help="the mapping modes side by side on the same frame (with --views: one row each), "
+                        "e.g. one-to-one,constant,curvature")
     a.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
                    help="set any scene key (TOML value), e.g. --set physics.dt=1e-3 --set render.size=[320,240]; "
                         "repeatable")
@@ -343,6 +346,12 @@ def _bench(args: argparse.Namespace) -> int:
         elif args.what in ("trade", "mappings", "scaling"):
             note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
             _study(args, ctx, note)
+        elif args.what == "animation":
+            from deformgl.bench.animation import bench_animation
+            from deformgl.data import packaged_scene
+
+            scene = _scene_file(args.scene, "--scene") if args.scene else packaged_scene("dragon_motion")
+            print(bench_animation(ctx, scene))
         elif args.what == "profile":
             from deformgl.bench.profile import profile_report
 

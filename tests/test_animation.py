@@ -255,3 +255,20 @@ def test_animation_table_in_a_scene(ctx, jelly, tmp_path, capsys):
     jelly.write_text(bad)
     with pytest.raises(SceneError, match=r"animation.seconds_per_frame: set at most one"):
         load_scene(jelly)
+
+
+def test_bench_animation_reports_the_cost_per_frame_against_a_still(ctx, jelly, capsys):
+    from deformgl.bench.animation import bench_animation
+
+    jelly.write_text(jelly.read_text() + "\n[animation]\nframes = 6\nsteps_per_frame = 20\n")
+    report = bench_animation(ctx, jelly)
+    lines = report.splitlines()
+    assert "renderer: llvmpipe" in lines[0] or "renderer:" in lines[0]
+    assert lines[1] == "jelly.toml: 6 frames of 160x120, 20 steps per frame (100 steps)"
+    import re
+
+    ms = [float(re.search(r"([0-9.]+) ms", ln)[1]) for ln in lines[2:6]]
+    assert all(t > 0 for t in ms)
+    ratio = float(re.search(r"= ([0-9.]+) x the still", lines[4])[1])
+    assert ratio == pytest.approx(ms[2] / 6 / ms[1], rel=0.02)
+    assert float(re.search(r"([0-9.]+) x the animation", lines[5])[1]) == pytest.approx(ms[3] / ms[2], rel=0.05)

@@ -10,7 +10,8 @@ positions are read once per frame and uploaded to the normals pass (counted in t
 
 A frame can be a grid of panels: rows of mapping modes (the paper's comparison of one-to-one,
 constant and curvature mappings on the same state, Mosegaard & Sørensen 2005, section 3) and
-columns of camera views, all drawn from the same node state.
+columns of camera views, all drawn from the same node state; modes without views stand side by
+side in one row.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ __all__ = ["FramePlan", "Frames", "View3", "compose_grid", "frame_plan", "render
 
 #: A camera view of the command line: (azimuth degrees, elevation degrees, distance in box diagonals).
 View3 = tuple[float, float, float]
+#: How a panel names its mapping mode (Mosegaard & Sørensen 2005, section 3).
+MODE_LABELS = {"one-to-one": "one-to-one: the node-grid surface", "constant": "constant basis (eq. 6)",
+               "curvature": "curvature-corrected basis (eq. 8)", "auto": "auto: eq. 8 or eq. 6 per vertex"}
 #: Most bytes of frames an animation keeps in memory before it is written.
 MAX_FRAME_BYTES = 4 << 30
 
@@ -211,7 +215,8 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     """Simulate ``scene`` once and draw the frames of ``plan`` (default :func:`frame_plan`).
 
     Args:
-        modes: mapping modes, one row of panels each (default: the scene's ``mapping.mode``).
+        modes: mapping modes, one row of panels each (default: the scene's ``mapping.mode``); without
+            ``views``, one panel each, side by side.
         views: camera views ``(azimuth, elevation, distance)``, one column each (default: the
             frame's camera); the turntable's azimuth is added to each.
         mesh: also capture each frame's deformed detailed mesh (from the first mode that draws the
@@ -264,11 +269,13 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 if capture and captured is not None:
                     meshes[k] = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)
                 row.append(image)
-                names.append(" ".join(x for x in (mode if len(modes) > 1 else "",
+                names.append(" ".join(x for x in (MODE_LABELS[mode] if len(modes) > 1 else "",
                                                   f"az {camera.azimuth:g} el {camera.elevation:g}"
                                                   if views and len(views) > 1 else "") if x))
             grid.append(row)
             labels.append(names)
+        if not views and len(modes) > 1:  # modes alone: side by side
+            grid, labels = [[row[0] for row in grid]], [[names[0] for names in labels]]
         images[k] = compose_grid(grid, labels if panels > 1 else None)
 
     with Progress(plan.frames, "frames", enabled=progress) as bar:

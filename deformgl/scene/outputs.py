@@ -19,10 +19,9 @@ import moderngl
 from deformgl.errors import InputError
 from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.mapped_setup import export_mesh
-from deformgl.render.shader_pack import write_pack_inputs
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.animation import FramePlan, View3, frame_plan, render_frames
-from deformgl.scene.pipeline import render
+from deformgl.scene.pipeline import render_still
 from deformgl.scene.record import write_record
 from deformgl.scene.spec import Scene
 
@@ -105,18 +104,14 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
     """Render ``scene`` as ``job`` says and write every file together; returns the run record
     (with ``outputs``: the files written)."""
     plan = check_job(scene, job)
-    outputs = OutputSet(job.outputs(plan.frames))  # every path checked before any work
     still = animation_kind(job.output) is None and not job.modes and not job.views and plan.frames == 1
-    if still:
-        result = render(ctx, scene, progress=progress, mesh=job.export is not None, pack=job.pack is not None,
-                        log=log)
-        record = result.record
-        images, meshes = [result.image], [result.mesh] if result.mesh is not None else None
-        pack = result.pack
-    else:
-        frames = render_frames(ctx, scene, plan, modes=job.modes, views=job.views, mesh=job.export is not None,
-                               progress=progress, log=log)
-        record, images, meshes, pack = frames.record, frames.images, frames.meshes, None
+    if still:  # the one-image path of render_to_png
+        return render_still(ctx, scene, job.output, progress=progress, export=job.export, pack=job.pack,
+                            record=job.record, log=log).record
+    outputs = OutputSet(job.outputs(plan.frames))  # every path checked before any work
+    frames = render_frames(ctx, scene, plan, modes=job.modes, views=job.views, mesh=job.export is not None,
+                           progress=progress, log=log)
+    record, images, meshes = frames.record, frames.images, frames.meshes
     record["outputs"] = [str(p) for p in job.outputs(plan.frames) if p != job.record]
     with outputs:
         if animation_kind(job.output) is None:
@@ -131,10 +126,6 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
             paths = frame_paths(job.export, len(meshes)) if _is_pattern(job.export) else [job.export]
             for path, mesh in zip(paths, meshes):
                 export_mesh(path, *mesh)
-        if job.pack is not None:
-            if pack is None:
-                raise RuntimeError("the render returned no inputs for --pack-inputs")  # it always does
-            write_pack_inputs(job.pack, pack)
         if job.record is not None:
             write_record(job.record, record)
     return record

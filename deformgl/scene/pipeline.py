@@ -394,8 +394,19 @@ def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: b
     """Render a scene and write the PNG, the optional mesh and shader-pack inputs as one
     :class:`~deformgl.files.OutputSet`: every path is checked before any work, and the files
     appear together when all are written, or none of them (a failed render or write, SIGTERM)."""
-    outputs = OutputSet([out, export, pack])
+    return render_still(ctx, scene, out, progress=progress, export=export, pack=pack, log=log).image
+
+
+def render_still(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
+                 export: Path | None = None, pack: Path | None = None, record: Path | None = None,
+                 log: Callable[[str], None] | None = None) -> Rendered:
+    """:func:`render_to_png`, also writing the run record as JSON to ``record`` (in the same
+    output set); returns what :func:`render` produced, its record with ``outputs``."""
+    from deformgl.scene.record import write_record
+
+    outputs = OutputSet([out, export, pack, record])
     result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
+    result.record["outputs"] = [str(p) for p in (out, export, pack) if p is not None]
     with outputs:
         write_png_atomic(out, result.image)
         if export is not None:
@@ -406,4 +417,6 @@ def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: b
             if result.pack is None:
                 raise RuntimeError("render() returned no inputs for --pack-inputs")  # it always does
             write_pack_inputs(pack, result.pack)
-    return result.image
+        if record is not None:
+            write_record(record, result.record)
+    return result

@@ -142,7 +142,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike[str], *, workers: int = 2,
 def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, product: dict[str, list[Any]] | None = None,
           variants: Sequence[dict[str, Any]] | None = None, common: dict[str, Any] | None = None,
           outputs: Sequence[str] = ("png", "record"), workers: int = 2, scheduler: str | None = None, client=None,
-          table: bool = True, ctx=None) -> SweepResult:
+          table: bool = True, ctx=None, on_result: Callable[[dict[str, Any]], None] | None = None) -> SweepResult:
     """A sweep from Python, without a sweep file: ``scene`` over the ``product`` of values and/or
     the ``variants`` (dicts of dotted scene keys; a ``"name"`` key names one), every variant with
     ``common`` set; run as :func:`run_sweep` runs it, and with ``table`` the CSV, JSON and
@@ -166,7 +166,7 @@ def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, p
     spec = SweepSpec(Path(scene).resolve(), Path(scene).resolve(),
                      tuple(Variant(name or f"v{i:0{width}d}", _label(own), {**(common or {}), **own})
                            for i, (name, own) in enumerate(found)), tuple(outputs))
-    result = run_sweep(spec, out, workers=workers, scheduler=scheduler, client=client, ctx=ctx)
+    result = run_sweep(spec, out, workers=workers, scheduler=scheduler, client=client, ctx=ctx, on_result=on_result)
     if table:
         from deformgl.sweep.sheet import write_tables
 
