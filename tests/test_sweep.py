@@ -144,3 +144,22 @@ def test_a_worker_killed_mid_sweep_is_replaced_and_every_variant_is_in_the_table
     for i in range(8):
         assert read_png(out / f"v{i:02d}.png").shape == (48, 64, 3)
         assert json.loads((out / f"v{i:02d}.json").read_text())["steps"] == 200 + 10 * i
+
+
+def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monkeypatch):
+    """devices=[0, 7]: worker 0 renders on EGL device 0 (llvmpipe's), worker 1 on device 7, which
+    this machine does not have: its variants are rows with the GL error, not a failed sweep."""
+    need_dask()
+    from deformgl.sweep import runner
+
+    assert runner.detect_gpus() is None or len(runner.detect_gpus() or []) >= 2
+    result = runner.sweep_scene(jelly, tmp_path / "out", product={"physics.steps": [10, 20, 30, 40, 50, 60]},
+                                workers=2, devices=[0, 7], outputs=("record",))
+    devices = {r["device"] for r in result.records}
+    assert devices == {"0", "7"}, devices
+    for r in result.records:
+        if r["device"] == "0":
+            assert r["status"] == "ok" and "llvmpipe" in r["renderer"]
+        else:
+            assert r["status"] == "failed" and "EGL device 7" in r["error"]
+    assert not (tmp_path / "out" / "sweep.png").exists()  # no "png" output: no contact sheet

@@ -29,7 +29,8 @@ def add_parser(sub) -> None:
     s.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="use an existing Dask cluster, e.g. tcp://10.0.0.5:8786, instead of a LocalCluster")
     s.add_argument("--devices", default=None, metavar="I,J,...",
-                   help="GPUs to pin the workers to (DEFORMGL_DEVICE, round robin), e.g. 0,1,2,3")
+                   help="EGL devices to pin the workers to (DEFORMGL_DEVICE; worker i gets the (i mod n)-th), e.g. "
+                        "0,1,2,3 (default: every NVIDIA GPU when nvidia-smi lists several)")
     s.add_argument("--baseline", action="store_true",
                    help="first run every variant in this process, then on the workers, and print the ratio")
     s.add_argument("--no-sheet", action="store_true", help="no contact sheet")

@@ -22,7 +22,25 @@ from deformgl.files import remove_stale_temporaries
 from deformgl.sweep.spec import SweepSpec, Variant
 from deformgl.sweep.task import run_variant
 
-__all__ = ["SweepResult", "run_sweep", "sweep_client", "sweep_scene"]
+__all__ = ["SweepResult", "detect_gpus", "run_sweep", "sweep_client", "sweep_scene"]
+
+
+def detect_gpus() -> list[int] | None:
+    """The EGL device indices to pin LocalCluster workers to when this machine has several
+    NVIDIA GPUs (``nvidia-smi -L`` lists two or more: EGL lists the NVIDIA devices first), else
+    None (one GPU or none: every worker uses the default device)."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("nvidia-smi")
+    if exe is None:
+        return None
+    try:
+        listed = subprocess.run([exe, "-L"], capture_output=True, text=True, timeout=20).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    count = sum(1 for line in listed.splitlines() if line.startswith("GPU "))
+    return list(range(count)) if count >= 2 else None
 
 
 @dataclass
@@ -50,7 +68,7 @@ def _need_dask() -> None:
                          "pip install 'deformgl[sweep]'); --workers 0 runs the variants in this process") from None
 
 
-def sweep_client(workers: int = 2, scheduler: str | None = None, devices: Sequence[int] | None = None):
+def sweep_client(workers: int = 2, scheduler: str | None = None):
     """A Dask client: of the cluster at ``scheduler``, or of a new LocalCluster of ``workers``
     processes of one thread each (the caller closes the client and ``client.cluster``)."""
     _need_dask()
@@ -62,10 +80,6 @@ def sweep_client(workers: int = 2, scheduler: str | None = None, devices: Sequen
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=40)
         client = Client(cluster)
-    if devices:
-        for i, address in enumerate(sorted(client.scheduler_info()["workers"])):
-            device = int(devices[i % len(devices)])
-            client.run(lambda d=device: os.environ.__setitem__("DEFORMGL_DEVICE", str(d)), workers=[address])
     return client
 
 
@@ -78,7 +92,10 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike[str], *, workers: int = 2,
         workers: worker processes of the LocalCluster (0: in this process, one after another).
         scheduler: the address of an existing Dask scheduler (``tcp://host:8786``) instead.
         client: an existing :class:`distributed.Client` (the caller's; not closed).
-        devices: GPU indices to pin the workers to (``DEFORMGL_DEVICE``, round robin).
+        devices: EGL device indices to pin the workers to: worker NAME (a LocalCluster's are 0, 1,
+            ...; a worker the nanny restarts keeps its name) renders on ``devices[NAME % len]``
+            through ``DEFORMGL_DEVICE`` (default for a LocalCluster: :func:`detect_gpus`; a remote
+            cluster's workers keep their own ``DEFORMGL_DEVICE`` unless ``devices`` is given).
         retries: reruns of a task that raised (a worker that died is rerun by the scheduler).
         on_result: called with each record as it arrives.
         ctx: with ``workers=0``, the GL context to render in (default: one made and released here).
@@ -112,12 +129,15 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike[str], *, workers: int = 2,
         where, count, startup = "this process", 0, 0.0
     else:
         own = client is None
-        client = sweep_client(workers, scheduler, devices) if own else client
+        client = sweep_client(workers, scheduler) if own else client
+        if devices is None and own and scheduler is None:
+            devices = detect_gpus()
+        pin = tuple(int(d) for d in devices) if devices else None
         startup = time.perf_counter() - started
         try:
             from distributed import as_completed
 
-            futures = {client.submit(run_variant, *a, key=f"deformgl-{v.name}-{os.getpid()}-{started_at:.0f}",
+            futures = {client.submit(run_variant, *a, devices=pin, key=f"deformgl-{v.name}-{os.getpid()}-{started_at:.0f}",
                                      retries=retries, pure=False): v for v, a in zip(spec.variants, args)}
             for future in as_completed(futures):
                 variant = futures[future]
@@ -142,7 +162,7 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike[str], *, workers: int = 2,
 def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, product: dict[str, list[Any]] | None = None,
           variants: Sequence[dict[str, Any]] | None = None, common: dict[str, Any] | None = None,
           outputs: Sequence[str] = ("png", "record"), workers: int = 2, scheduler: str | None = None, client=None,
-          table: bool = True, ctx=None, on_result: Callable[[dict[str, Any]], None] | None = None) -> SweepResult:
+          devices: Sequence[int] | None = None, table: bool = True, ctx=None, on_result: Callable[[dict[str, Any]], None] | None = None) -> SweepResult:
     """A sweep from Python, without a sweep file: ``scene`` over the ``product`` of values and/or
     the ``variants`` (dicts of dotted scene keys; a ``"name"`` key names one), every variant with
     ``common`` set; run as :func:`run_sweep` runs it, and with ``table`` the CSV, JSON and
@@ -166,7 +186,8 @@ def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, p
     spec = SweepSpec(Path(scene).resolve(), Path(scene).resolve(),
                      tuple(Variant(name or f"v{i:0{width}d}", _label(own), {**(common or {}), **own})
                            for i, (name, own) in enumerate(found)), tuple(outputs))
-    result = run_sweep(spec, out, workers=workers, scheduler=scheduler, client=client, ctx=ctx, on_result=on_result)
+    result = run_sweep(spec, out, workers=workers, scheduler=scheduler, client=client, devices=devices, ctx=ctx,
+                       on_result=on_result)
     if table:
         from deformgl.sweep.sheet import write_tables
 

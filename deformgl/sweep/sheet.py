@@ -17,7 +17,7 @@ __all__ = ["COLUMNS", "contact_sheet", "write_tables"]
 
 #: The table's columns after the variant, its status, error and overrides.
 COLUMNS = ("mesh", "nodes", "springs", "integrator", "backend", "mapping", "steps", "dt_s", "substeps",
-           "simulated_time_s", "converged", "wall_time_s", "task_wall_time_s", "worker_pid", "renderer")
+           "simulated_time_s", "converged", "wall_time_s", "task_wall_time_s", "worker_pid", "device", "renderer")
 
 
 def _rows(records: list[dict[str, Any]]) -> tuple[list[str], list[list[Any]]]:

@@ -33,6 +33,14 @@ def _context():
     return ctx
 
 
+def _pin(devices: tuple[int, ...]) -> None:
+    from distributed import get_worker
+
+    name = get_worker().name
+    index = int(name) if isinstance(name, int) or str(name).isdigit() else sum(str(name).encode())
+    os.environ["DEFORMGL_DEVICE"] = str(devices[index % len(devices)])
+
+
 def variant_paths(out_dir: str | Path, name: str, outputs: tuple[str, ...]) -> dict[str, Path]:
     """The files a variant writes: ``png``, ``mesh`` (.ply), ``record`` (.json)."""
     folder = Path(out_dir)
@@ -41,19 +49,25 @@ def variant_paths(out_dir: str | Path, name: str, outputs: tuple[str, ...]) -> d
 
 
 def run_variant(scene_path: str, overrides: dict[str, Any], out_dir: str, name: str,
-                outputs: tuple[str, ...] = ("png", "record"), ctx=None) -> dict[str, Any]:
+                outputs: tuple[str, ...] = ("png", "record"), ctx=None,
+                devices: tuple[int, ...] | None = None) -> dict[str, Any]:
     """Render one variant; returns its record (``variant``, ``status``: ok, input error or failed,
     ``error``, the run record's keys, ``worker_pid``, ``task_wall_time_s``).
 
     Args:
         ctx: the GL context to use (default: this thread's own, made on first use).
+        devices: pin this Dask worker to ``devices[NAME % len(devices)]`` (``DEFORMGL_DEVICE``,
+            set before its context is made; NAME is the worker's name, a number on a LocalCluster,
+            else hashed).
     """
+    if devices:
+        _pin(devices)
     from deformgl.scene.outputs import Job, render_job
     from deformgl.scene.schema import load_scene
 
     started = time.perf_counter()
     base: dict[str, Any] = {"variant": name, "status": "ok", "error": "", "overrides": dict(overrides),
-                            "worker_pid": os.getpid()}
+                            "worker_pid": os.getpid(), "device": os.environ.get("DEFORMGL_DEVICE")}
     paths = variant_paths(out_dir, name, outputs)
     try:
         scene = load_scene(scene_path, overrides)
