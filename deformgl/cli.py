@@ -142,6 +142,11 @@ def _parser() -> argparse.ArgumentParser:
                         "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
+    b.add_argument("--workers", type=int, default=0,
+                   help="trade: run its workloads as tasks on a Dask LocalCluster of this many worker processes "
+                        "(the 'sweep' extra; default 0: in this process)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="trade: run its workloads on an existing Dask cluster")
     b.add_argument("--scene", type=Path, default=None,
                    help="render: the scene to draw (default: the shipped heart.toml); mappings: the scene whose "
                         "mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
@@ -288,7 +293,14 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     if args.what == "trade":
         from deformgl.bench.trade import trade_study
 
-        report = trade_study(ctx, quick=args.quick, progress=note)
+        if args.workers or args.scheduler:
+            from deformgl.sweep.runner import _need_dask
+            from deformgl.sweep.trade import distributed_trade
+
+            _need_dask()
+            report = distributed_trade(quick=args.quick, workers=args.workers or 2, scheduler=args.scheduler)
+        else:
+            report = trade_study(ctx, quick=args.quick, progress=note)
         print(report.format())
         if out is not None:
             with outputs:

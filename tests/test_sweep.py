@@ -163,3 +163,22 @@ def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monke
         else:
             assert r["status"] == "failed" and "EGL device 7" in r["error"]
     assert not (tmp_path / "out" / "sweep.png").exists()  # no "png" output: no contact sheet
+
+
+def test_bench_trade_on_dask_workers_measures_the_same_runs_as_in_process(ctx):
+    """One task per workload: the same rows (integrators, dts, steps) with the same errors as the
+    in-process study; only the costs differ (measured while the workloads share the machine)."""
+    need_dask()
+    from deformgl.bench.trade import trade_study
+    from deformgl.sweep.trade import distributed_trade
+
+    backends = ("numpy",)  # (the GPU backends' rows go the same way; numpy keeps the test short)
+    here = trade_study(ctx, quick=True, backends=backends, fractions=(0.6,))
+    there = distributed_trade(quick=True, backends=backends, fractions=(0.6,), workers=2)
+    key = [(r.workload, r.backend, r.integrator, r.steps, r.dt, r.status) for r in here.rows]
+    assert [(r.workload, r.backend, r.integrator, r.steps, r.dt, r.status) for r in there.rows] == key
+    for a, b in zip(here.rows, there.rows):
+        assert b.rms == pytest.approx(a.rms, rel=1e-6, abs=1e-12) or (np.isnan(a.rms) and np.isnan(b.rms))
+        assert b.ms_per_step > 0
+    assert [r.workload for r in there.references] == [r.workload for r in here.references]
+    assert "2 workloads on 2 Dask workers at once" in there.machine
