@@ -91,7 +91,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
-    _animation_flags(r)
+    from deformgl.scene.overrides import add_render_flags
+
+    add_render_flags(r)  # --frames, --fps, --camera, --views, --compare, --set, --json
 
     from deformgl.sweep import cli as sweep_cli
 
@@ -151,34 +153,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="render: the scene to draw (default: the shipped heart.toml); mappings: the scene whose "
                         "mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
     return p
-
-
-def _animation_flags(r: argparse.ArgumentParser) -> None:
-    """``render``'s flags of animations, cameras, panels, overrides and the run record."""
-    a = r.add_argument_group("animation, camera and record (an animation output: -o out.mp4|out.gif|out.webp|"
-                             "frames/%%04d.png)")
-    a.add_argument("--frames", type=int, default=None, help="frames of one simulation run (default: the scene's "
-                   "[animation] frames, else 1: a still)")
-    a.add_argument("--fps", type=float, default=None, help="frames per second (default: animation.fps, 24)")
-    a.add_argument("--steps-per-frame", type=int, default=None, metavar="N",
-                   help="scene steps between frames (0: simulate physics.steps, then every frame of that state, "
-                        "e.g. a turntable; default: physics.steps spread over the frames)")
-    a.add_argument("--seconds-per-frame", type=float, default=None, metavar="S",
-                   help="simulated seconds between frames (rounded to whole steps of physics.dt)")
-    a.add_argument("--turntable", type=float, default=None, metavar="DEG",
-                   help="degrees of azimuth the camera turns over the animation (e.g. 360)")
-    a.add_argument("--camera", default=None, metavar="AZ,EL,DIST",
-                   help="camera azimuth and elevation (degrees) and distance (box diagonals), e.g. 30,15,1.4")
-    a.add_argument("--views", default=None, metavar="AZ,EL,DIST;...",
-                   help="several camera views side by side in one image, e.g. '0,15,1.3;90,15,1.3'")
-    a.add_argument("--compare", default=None, metavar="MODE,MODE,...",
-                   help="the mapping modes side by side on the same frame (with --views: one row each), "
-                        "e.g. one-to-one,constant,curvature")
-    a.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
-                   help="set any scene key (TOML value), e.g. --set physics.dt=1e-3 --set render.size=[320,240]; "
-                        "repeatable")
-    a.add_argument("--json", nargs="?", const="", default=None, metavar="PATH",
-                   help="also write the run record as JSON (default path: next to the output, NAME.json)")
 
 
 def _scene_file(path: Path, flag: str = "") -> Path:

@@ -269,7 +269,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 if capture and captured is not None:
                     meshes[k] = (captured[0].astype(np.float64) + built.centre, captured[1], built.mesh.faces)
                 row.append(image)
-                names.append(" ".join(x for x in (MODE_LABELS[mode] if len(modes) > 1 else "",
+                names.append(", ".join(x for x in (MODE_LABELS[mode] if len(modes) > 1 else "",
                                                   f"az {camera.azimuth:g} el {camera.elevation:g}"
                                                   if views and len(views) > 1 else "") if x))
             grid.append(row)

@@ -8,13 +8,14 @@ checks them as it checks the file's own (:func:`deformgl.scene.schema.apply_over
 
 from __future__ import annotations
 
+import argparse
 import tomllib
 from typing import Any
 
 from deformgl.errors import InputError
 from deformgl.scene.spec import MAPPING_MODES
 
-__all__ = ["camera_overrides", "parse_modes", "parse_set", "parse_view", "parse_views"]
+__all__ = ["add_render_flags", "camera_overrides", "parse_modes", "parse_set", "parse_view", "parse_views"]
 
 
 def parse_value(text: str) -> Any:
@@ -74,3 +75,32 @@ def camera_overrides(view: tuple[float, float, float] | None) -> dict[str, Any]:
         return {}
     az, el, dist = view
     return {"render.camera.azimuth": az, "render.camera.elevation": el, "render.camera.distance": dist}
+
+
+def add_render_flags(r: argparse.ArgumentParser) -> None:
+    """``deformgl render``'s flags of animations, cameras, panels, overrides and the run record
+    (parsed by the functions above; wired by :mod:`deformgl.cli`)."""
+    a = r.add_argument_group("animation, camera and record (an animation output: -o out.mp4|out.gif|out.webp|"
+                             "frames/%04d.png)")
+    a.add_argument("--frames", type=int, default=None, help="frames of one simulation run (default: the scene's "
+                   "[animation] frames, else 1: a still)")
+    a.add_argument("--fps", type=float, default=None, help="frames per second (default: animation.fps, 24)")
+    a.add_argument("--steps-per-frame", type=int, default=None, metavar="N",
+                   help="scene steps between frames (0: simulate physics.steps, then every frame of that state, "
+                        "e.g. a turntable; default: physics.steps spread over the frames)")
+    a.add_argument("--seconds-per-frame", type=float, default=None, metavar="S",
+                   help="simulated seconds between frames (rounded to whole steps of physics.dt)")
+    a.add_argument("--turntable", type=float, default=None, metavar="DEG",
+                   help="degrees of azimuth the camera turns over the animation (e.g. 360)")
+    a.add_argument("--camera", default=None, metavar="AZ,EL,DIST",
+                   help="camera azimuth and elevation (degrees) and distance (box diagonals), e.g. 30,15,1.4")
+    a.add_argument("--views", default=None, metavar="AZ,EL,DIST;...",
+                   help="several camera views side by side in one image, e.g. '0,15,1.3;90,15,1.3'")
+    a.add_argument("--compare", default=None, metavar="MODE,MODE,...",
+                   help="the mapping modes side by side on the same frame (with --views: one row each), "
+                        "e.g. one-to-one,constant,curvature")
+    a.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
+                   help="set any scene key (TOML value), e.g. --set physics.dt=1e-3 --set render.size=[320,240]; "
+                        "repeatable")
+    a.add_argument("--json", nargs="?", const="", default=None, metavar="PATH",
+                   help="also write the run record as JSON (default path: next to the output, NAME.json)")
