@@ -209,7 +209,8 @@ def _render(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"deformgl: {summary_line(done)}", file=sys.stderr)
     extra = [p for p in (args.export_mesh, record) if p is not None]
-    print(f"wrote {out}" + (" and " + " and ".join(map(str, extra)) if extra else ""))
+    count = f"{plan.frames} frames " if plan.frames > 1 else ""
+    print(f"wrote {count}{out}" + (" and " + " and ".join(map(str, extra)) if extra else ""))
     return 0
 
 

@@ -52,6 +52,9 @@ def test_sweep_files_give_the_product_and_the_listed_variants(jelly, tmp_path):
                                           "grid.nodes_along_longest": 6}
     assert spec.variants[6].overrides == {"physics.steps": 10, "physics.stiffness": 50}
     assert spec.scene == jelly.resolve()
+    shipped = load_sweep(Path(__file__).resolve().parents[1] / "examples" / "sweeps" / "jelly16.toml")
+    assert len(shipped.variants) == 16 and shipped.scene.name == "jelly.toml"  # a shipped scene, by name
+    assert shipped.variants[15].overrides["physics.integrator"] == "rk4"
     for body, message in (("[product]\n", "no variants"), ("bogus = 1\n[[variant]]\n", "bogus: unknown key"),
                           ('[product]\n"physics.dt" = 3\n', "each an array of values"),
                           ('outputs = ["gif"]\n[[variant]]\n', "outputs: must be an array of")):
@@ -79,6 +82,16 @@ def test_variants_in_one_process_with_a_failed_one_in_the_table(ctx, jelly, tmp_
     assert rows[1]["status"] == "input error" and rows[1]["physics.dt"] == "-1" and rows[0]["nodes"] == str(ok["nodes"])
     sheet = read_png(out / "sweep.png")
     assert sheet.shape[1] == 3 * 200 and sheet.std() > 0
+    # the deformed mesh of a mapped variant, and only the files asked for
+    import trimesh
+
+    meshed = sweep_scene(jelly, tmp_path / "m", variants=[{"name": "bent", "physics.steps": 20, "mapping.mode": "constant"}],
+                         outputs=("mesh", "record"), workers=0, ctx=ctx, table=False)
+    assert meshed.records[0]["status"] == "ok", meshed.records[0]["error"]
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["bent.json", "bent.ply"]
+    assert meshed.records[0]["outputs"] == [str(tmp_path / "m" / "bent.ply")]
+    assert json.loads((tmp_path / "m" / "bent.json").read_text())["outputs"] == [str(tmp_path / "m" / "bent.ply")]
+    assert len(trimesh.load(tmp_path / "m" / "bent.ply", process=False).faces) > 0
 
 
 def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp_path, capsys):

@@ -76,6 +76,11 @@ def run_variant(scene_path: str, overrides: dict[str, Any], out_dir: str, name: 
         record = render_job(ctx if ctx is not None else _context(), scene, job)
         if "png" not in paths:  # measured only: the image was rendered, not kept
             png.unlink(missing_ok=True)
+            record["outputs"] = [p for p in record.get("outputs", []) if p != str(png)]
+            if "record" in paths:  # the record as kept, without the image
+                from deformgl.scene.record import write_record
+
+                write_record(paths["record"], record)
         base.update(record)
     except InputError as exc:
         base.update(status="input error", error=str(exc))
