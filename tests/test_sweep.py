@@ -195,3 +195,16 @@ def test_bench_trade_on_dask_workers_measures_the_same_runs_as_in_process(ctx):
         assert b.ms_per_step > 0
     assert [r.workload for r in there.references] == [r.workload for r in here.references]
     assert "2 workloads on 2 Dask workers at once" in there.machine
+
+
+def test_without_dask_the_sweep_says_which_extra_to_install(jelly, tmp_path, monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    sweep = write_sweep(tmp_path, '[[variant]]\n"physics.steps" = 1\n')
+    code = main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--workers", "2"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "needs Dask distributed (the 'sweep' extra: pip install 'deformgl[sweep]')" in err
+    assert "--workers 0 runs the variants in this process" in err
+    assert not (tmp_path / "out").exists()  # refused before any work

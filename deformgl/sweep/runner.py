@@ -100,6 +100,8 @@ def run_sweep(spec: SweepSpec, out: str | os.PathLike[str], *, workers: int = 2,
         on_result: called with each record as it arrives.
         ctx: with ``workers=0``, the GL context to render in (default: one made and released here).
     """
+    if workers or scheduler is not None or client is not None:
+        _need_dask()  # before any work or folder
     folder = Path(out)
     if not folder.is_dir():
         try:
