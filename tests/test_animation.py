@@ -272,3 +272,22 @@ def test_bench_animation_reports_the_cost_per_frame_against_a_still(ctx, jelly, 
     ratio = float(re.search(r"= ([0-9.]+) x the still", lines[4])[1])
     assert ratio == pytest.approx(ms[2] / 6 / ms[1], rel=0.02)
     assert float(re.search(r"([0-9.]+) x the animation", lines[5])[1]) == pytest.approx(ms[3] / ms[2], rel=0.05)
+
+
+def test_python_api_returns_the_frames_as_an_array_and_writes_the_file(ctx, jelly, tmp_path):
+    import deformgl as dg
+
+    images, record = dg.render_animation(jelly, tmp_path / "a.gif", frames=3, steps_per_frame=15, ctx=ctx,
+                                         overrides={"render.camera.azimuth": 60})
+    assert images.shape == (3, 120, 160, 3) and images.dtype == np.uint8
+    assert record["steps"] == 30 and record["frames"] == 3 and record["outputs"] == [str(tmp_path / "a.gif")]
+    frames, _ = gif_frames(tmp_path / "a.gif")
+    assert len(frames) == 3 and np.abs(frames[2].astype(int) - images[2]).mean() < 3.0
+    still, _ = dg.render_animation(dg.load_scene(jelly, {"render.camera.azimuth": 60, "physics.steps": 30}),
+                                   ctx=ctx)
+    assert still.shape == (1, 120, 160, 3)
+    assert np.abs(still[0].astype(int) - images[2]).max() <= 1  # the last frame is the still of step 30
+    with dg.AnimationWriter(tmp_path / "b.gif", fps=5) as writer:
+        for image in images:
+            writer.write_frame(image)
+    assert len(gif_frames(tmp_path / "b.gif")[0]) == 3
