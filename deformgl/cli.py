@@ -86,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
                         "with the step and a node, and writes no PNG")
     r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
                    help="also write the deformed detailed mesh as the mapping vertex shader computed "
-                        "it (captured with transform feedback)")
+                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, or "
+                        "one .glb animated by morph targets")
     r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")

@@ -291,3 +291,51 @@ def test_python_api_returns_the_frames_as_an_array_and_writes_the_file(ctx, jell
         for image in images:
             writer.write_frame(image)
     assert len(gif_frames(tmp_path / "b.gif")[0]) == 3
+
+
+def read_glb(path):
+    import struct
+
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<III", data)
+    assert (magic, version, length) == (0x46546C67, 2, len(data))
+    jlen, jtype = struct.unpack_from("<II", data, 12)
+    gltf = json.loads(data[20:20 + jlen])
+    blen, btype = struct.unpack_from("<II", data, 20 + jlen)
+    assert (jtype, btype) == (0x4E4F534A, 0x004E4942)
+    binary = data[28 + jlen:28 + jlen + blen]
+
+    def accessor(i):
+        a = gltf["accessors"][i]
+        view = gltf["bufferViews"][a["bufferView"]]
+        dtype = np.float32 if a["componentType"] == 5126 else np.uint32
+        width = {"SCALAR": 1, "VEC3": 3}[a["type"]]
+        flat = np.frombuffer(binary, dtype, a["count"] * width, view["byteOffset"])
+        return flat.reshape(a["count"], width) if width > 1 else flat
+    return gltf, accessor
+
+
+def test_export_mesh_as_one_animated_gltf_with_a_morph_target_per_frame(ctx, jelly, tmp_path, capsys):
+    import trimesh
+
+    (tmp_path / "m").mkdir()
+    args = ["render", jelly, "--frames", "4", "--steps-per-frame", "25", "--fps", "8", "--mapping", "constant",
+            "--quiet"]
+    assert cli(capsys, *args, "-o", tmp_path / "a.gif", "--export-mesh", tmp_path / "m" / "%d.ply")[0] == 0
+    code, _, err = cli(capsys, *args, "-o", tmp_path / "b.gif", "--export-mesh", tmp_path / "a.glb")
+    assert code == 0, err
+    gltf, accessor = read_glb(tmp_path / "a.glb")
+    primitive = gltf["meshes"][0]["primitives"][0]
+    base = accessor(primitive["attributes"]["POSITION"])
+    assert len(primitive["targets"]) == 3 and gltf["meshes"][0]["weights"] == [0.0] * 3
+    for k in range(4):  # frame k = base + target k-1: the mesh of that frame, as the .ply sequence has it
+        ply = trimesh.load(tmp_path / "m" / f"{k}.ply", process=False)
+        frame = base + (accessor(primitive["targets"][k - 1]["POSITION"]) if k else 0)
+        assert np.abs(frame - ply.vertices).max() < 1e-5
+    assert np.array_equal(accessor(primitive["indices"]).reshape(-1, 3), ply.faces)
+    sampler = gltf["animations"][0]["samplers"][0]
+    assert np.allclose(accessor(sampler["input"]), [0, 0.125, 0.25, 0.375])
+    weights = accessor(sampler["output"]).reshape(4, 3)
+    assert np.array_equal(weights, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    assert gltf["animations"][0]["channels"][0]["target"] == {"node": 0, "path": "weights"}
+    assert len(trimesh.load(tmp_path / "a.glb", force="mesh").faces) == len(ply.faces)  # a reader takes it

@@ -18,6 +18,7 @@ import moderngl
 
 from deformgl.errors import InputError
 from deformgl.files import OutputSet, write_png_atomic
+from deformgl.render.gltf_morph import write_morph_glb
 from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.animation import FramePlan, View3, frame_plan, render_frames
@@ -36,7 +37,8 @@ class Job:
         output: a .png still, or an animation: .mp4, .gif, .webp or a frame pattern DIR/%04d.png.
         plan: the frames (None: :func:`~deformgl.scene.animation.frame_plan` of the scene).
         modes, views: the panels of each frame (mapping modes by rows, camera views by columns).
-        export: the deformed mesh (.ply/.obj/.glb; for several frames a pattern DIR/%04d.ply).
+        export: the deformed mesh (.ply/.obj/.glb; for several frames a pattern DIR/%04d.ply, or
+            one .glb animated by morph targets).
         pack: the shader-pack inputs (.npz; a still only).
         record: where the run record goes as JSON (None: not written).
     """
@@ -84,9 +86,9 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
     if job.export is not None:
         if job.export.suffix.lower() not in (".ply", ".obj", ".glb"):
             raise InputError(f"{job.export}: --export-mesh must end in .ply, .obj or .glb")
-        if plan.frames > 1 and not _is_pattern(job.export):
+        if plan.frames > 1 and not _is_pattern(job.export) and job.export.suffix.lower() != ".glb":
             raise InputError(f"{job.export}: --export-mesh of {plan.frames} frames needs a pattern such as "
-                             f"meshes/%04d.ply (one mesh per frame)")
+                             f"meshes/%04d.ply (one mesh per frame) or one animated .glb (morph targets)")
     if job.pack is not None:
         if job.pack.suffix.lower() != ".npz":
             raise InputError(f"{job.pack}: --pack-inputs must end in .npz")
@@ -123,9 +125,13 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
         if job.export is not None:
             if not meshes:
                 raise RuntimeError("the render returned no mesh for --export-mesh")  # it always does
-            paths = frame_paths(job.export, len(meshes)) if _is_pattern(job.export) else [job.export]
-            for path, mesh in zip(paths, meshes):
-                export_mesh(path, *mesh)
+            if _is_pattern(job.export):
+                for path, mesh in zip(frame_paths(job.export, len(meshes)), meshes):
+                    export_mesh(path, *mesh)
+            elif len(meshes) > 1:  # one animated glTF: a morph target per frame
+                write_morph_glb(job.export, [(v, n) for v, n, _ in meshes], meshes[0][2], plan.fps)
+            else:
+                export_mesh(job.export, *meshes[0])
         if job.record is not None:
             write_record(job.record, record)
     return record
