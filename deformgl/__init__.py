@@ -44,6 +44,14 @@ _EXPORTS: dict[str, str] = {
     "BACKENDS": "deformgl.scene.spec",
     "render_scene": "deformgl.scene.body",
     "render_to_png": "deformgl.scene.body",
+    # animations, cameras, panels, sweeps
+    "render_animation": "deformgl.scene.outputs",
+    "render_frames": "deformgl.scene.animation",
+    "frame_plan": "deformgl.scene.animation",
+    "AnimationWriter": "deformgl.render.video",
+    "sweep_scene": "deformgl.sweep.runner",
+    "run_sweep": "deformgl.sweep.runner",
+    "load_sweep": "deformgl.sweep.spec",
     # meshes and grids
     "load_mesh": "deformgl.grid.meshio",
     "voxelize": "deformgl.grid.voxelize",
@@ -131,6 +139,11 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.grid.voxelize import voxelize
     from deformgl.render.camera import View, frame_box
     from deformgl.render.passes import Lighting
+    from deformgl.render.video import AnimationWriter
+    from deformgl.scene.animation import frame_plan, render_frames
+    from deformgl.scene.outputs import render_animation
+    from deformgl.sweep.runner import run_sweep, sweep_scene
+    from deformgl.sweep.spec import load_sweep
     from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
     from deformgl.scene.schema import load_scene
     from deformgl.scene.spec import BACKENDS, Region, Scene

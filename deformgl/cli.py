@@ -41,6 +41,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="EGL device index (default: $DEFORMGL_DEVICE, else EGL's default)")
     p.add_argument("--debug", action="store_true",
                    help="show the traceback of an unexpected error (a bug: please report it)")
+    from deformgl import __version__
+
+    p.add_argument("--version", action="version", version=f"deformgl {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     from deformgl.testing import diff_cli
 
@@ -88,7 +91,8 @@ def _parser() -> argparse.ArgumentParser:
                         "with the step and a node, and writes no PNG")
     r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
                    help="also write the deformed detailed mesh as the mapping vertex shader computed "
-                        "it (captured with transform feedback)")
+                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, or "
+                        "one .glb animated by morph targets")
     r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
@@ -96,6 +100,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="scene-graph files: the still at time T seconds of the keyframed deformations "
                         "(default 0)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    from deformgl.scene.overrides import add_render_flags
+
+    add_render_flags(r)  # --frames, --fps, --camera, --views, --compare, --set, --json
+
+    from deformgl.sweep import cli as sweep_cli
+
+    sweep_cli.add_parser(sub)
 
     t = sub.add_parser("trilinear", help="render a trilinear scene-graph scene to PNG",
                        description="Scenes of Knuth, Kohlhammer & Kuijper's trilinear scene graph: "
@@ -133,7 +144,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Benchmarks. Figures are ratios against a baseline measured in "
                                    "the same run, with the machine and renderer named.")
     b.add_argument("what", choices=["sim", "render", "binding", "trilinear", "integrators", "trade", "mappings",
-                                    "scaling", "profile", "accuracy"],
+                                    "scaling", "profile", "accuracy", "animation"],
                    help="sim: fragment-pass step vs the NumPy reference, then the integrators table; render: draw paths of the "
                         "heart-scale scene vs the static mesh, and a 15-step + draw frame; binding: "
                         "binding time of 23k- and 50k-vertex meshes to a 20k-node grid; trilinear: "
@@ -148,7 +159,9 @@ def _parser() -> argparse.ArgumentParser:
                         "neighbour fetches, spring sums), what each costs; accuracy: the calibrated lattice's static "
                         "equilibrium against converged hexahedral FEM (cantilever, compressed block, twisted bar) "
                         "at 2 to 17 nodes across, with the fitted order (needs the 'fem' extra: pip install "
-                        "'deformgl[fem]')")
+                        "'deformgl[fem]'); animation: an N-frame animation from one "
+                        "run against a still and against N stills each simulated from step 0 (--scene, default the "
+                        "shipped dragon_motion.toml)")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
@@ -163,6 +176,11 @@ def _parser() -> argparse.ArgumentParser:
                         "stepping and float32, against the fragment backend's cost per simulated second")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
+    b.add_argument("--workers", type=int, default=0,
+                   help="trade: run its workloads as tasks on a Dask LocalCluster of this many worker processes "
+                        "(the 'sweep' extra; default 0: in this process)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="trade: run its workloads on an existing Dask cluster")
     b.add_argument("--scene", type=Path, default=None,
                    help="render: the scene to draw (default: the shipped heart.toml); mappings: the scene whose "
                         "mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
@@ -184,7 +202,10 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.data import is_packaged
     from deformgl.files import check_writable
     from deformgl.gl.context import create_context
-    from deformgl.scene.pipeline import render_to_png
+    from deformgl.scene.animation import frame_plan
+    from deformgl.scene.outputs import Job, check_job, default_record_path, render_job
+    from deformgl.scene.overrides import camera_overrides, parse_modes, parse_set, parse_view, parse_views
+    from deformgl.scene.record import summary_line
     from deformgl.scene.schema import load_scene, parse_size
 
     source = _scene_file(args.scene)
@@ -194,7 +215,8 @@ def _render(args: argparse.Namespace) -> int:
         return _render_graph(args, source)
     if args.time is not None:
         raise InputError(f"{source}: --time applies to scene-graph files (docs/SCENEGRAPH.md)")
-    scene = load_scene(source)
+    overrides = parse_set(args.set) | camera_overrides(parse_view(args.camera) if args.camera else None)
+    scene = load_scene(source, overrides or None)
     size = None
     if args.size is not None:
         try:
@@ -206,24 +228,27 @@ def _render(args: argparse.Namespace) -> int:
                                  check_every=args.check_every)
     # a shipped scene writes into the working directory, never into the installed package
     out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
-    if out.suffix.lower() != ".png":
-        raise InputError(f"{out}: the output must be a .png file")
-    if args.export_mesh is not None and args.export_mesh.suffix.lower() not in (".ply", ".obj", ".glb"):
-        raise InputError(f"{args.export_mesh}: --export-mesh must end in .ply, .obj or .glb")
-    if args.pack_inputs is not None and args.pack_inputs.suffix.lower() != ".npz":
-        raise InputError(f"{args.pack_inputs}: --pack-inputs must end in .npz")
-    outputs = [p for p in (out, args.export_mesh, args.pack_inputs) if p is not None]
-    for path in outputs:
-        check_writable(path)  # before any work: render_to_png checks again, as a set
-    _clean_leftovers(outputs)
+    plan = frame_plan(scene, frames=args.frames, fps=args.fps, steps_per_frame=args.steps_per_frame,
+                      seconds_per_frame=args.seconds_per_frame, turntable=args.turntable)
+    record = None if args.json is None else (Path(args.json) if args.json else default_record_path(out))
+    job = Job(out, plan, modes=parse_modes(args.compare), views=parse_views(args.views), export=args.export_mesh,
+              pack=args.pack_inputs, record=record)
+    check_job(scene, job)
+    outputs = job.outputs(plan.frames)
+    for path in outputs[:1] + outputs[-3:]:
+        check_writable(path)  # before any work: render_job checks every one again, as a set
+    _clean_leftovers(outputs[:1] + outputs[-3:])
     ctx = create_context(args.device)
     try:
-        render_to_png(ctx, scene, out, progress=not args.quiet and sys.stderr.isatty(),
-                      export=args.export_mesh, pack=args.pack_inputs,
-                      log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
+        done = render_job(ctx, scene, job, progress=not args.quiet and sys.stderr.isatty(),
+                          log=None if args.quiet else (lambda line: print(line, file=sys.stderr)))
     finally:
         ctx.release()
-    print(f"wrote {out}" + (f" and {args.export_mesh}" if args.export_mesh else ""))
+    if not args.quiet:
+        print(f"deformgl: {summary_line(done)}", file=sys.stderr)
+    extra = [p for p in (args.export_mesh, record) if p is not None]
+    count = f"{plan.frames} frames " if plan.frames > 1 else ""
+    print(f"wrote {count}{out}" + (" and " + " and ".join(map(str, extra)) if extra else ""))
     return 0
 
 
@@ -319,7 +344,14 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     elif args.what == "trade":
         from deformgl.bench.trade import trade_study
 
-        report = trade_study(ctx, quick=args.quick, progress=note)
+        if args.workers or args.scheduler:
+            from deformgl.sweep.runner import _need_dask
+            from deformgl.sweep.trade import distributed_trade
+
+            _need_dask()
+            report = distributed_trade(quick=args.quick, workers=args.workers or 2, scheduler=args.scheduler)
+        else:
+            report = trade_study(ctx, quick=args.quick, progress=note)
         print(report.format())
         if out is not None:
             with outputs:
@@ -423,6 +455,12 @@ def _bench(args: argparse.Namespace) -> int:
         elif args.what in ("trade", "mappings", "scaling"):
             note = None if args.quiet else (lambda name: print(f"[bench] {name} ...", file=sys.stderr, flush=True))
             _study(args, ctx, note)
+        elif args.what == "animation":
+            from deformgl.bench.animation import bench_animation
+            from deformgl.data import packaged_scene
+
+            scene = _scene_file(args.scene, "--scene") if args.scene else packaged_scene("dragon_motion")
+            print(bench_animation(ctx, scene))
         elif args.what == "profile":
             from deformgl.bench.profile import profile_report
 
@@ -530,9 +568,11 @@ def _main(argv: list[str] | None) -> int:
     from deformgl.testing import diff_cli
 
     from deformgl.pack import export_shaders, export_web
+    from deformgl.sweep import cli as sweep_cli
 
     commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": _bench, "diff": diff_cli.run,
-                "plan": _plan, "export-shaders": export_shaders.run, "export-web": export_web.run}
+                "plan": _plan, "export-shaders": export_shaders.run, "export-web": export_web.run,
+                "sweep": sweep_cli.run}
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             # non-finite values are found and named by the checks; numpy's own warnings only

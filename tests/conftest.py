@@ -43,6 +43,7 @@ SLOW = (
     "tests/test_golden.py::test_cloth_on_sphere_matches_golden[rk4-feedback]",
     "tests/test_golden.py::test_cloth_on_sphere_matches_golden[verlet-fragment]",
     "tests/test_bench.py::test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart",
+    "tests/test_sweep.py::test_bench_trade_on_dask_workers",  # the quick trade study twice, ~30 s
 )
 #: (test file, fixture): the tests of that file using that fixture are slow (its setup is).
 SLOW_FIXTURES = (

@@ -9,8 +9,9 @@ a specular strength x 1.05 and a light tilted by 1 degree each fail). llvmpipe r
 byte-identical run to run and with any LP_NUM_THREADS. Failures leave actual, expected and diff
 images in tests/output/. Goldens change only with ``pytest --update-goldens`` (then look at them).
 
-Lighting paths covered: per-vertex grid surface (jelly, jelly_rest, cloth), mapped meshes with the
-constant, curvature-corrected and auto bases and tangent-space normal mapping (dragon_bend_*),
+Lighting paths covered: per-vertex grid surface (jelly, jelly_rest, cloth, and dragon_grid with its
+node-grid overlay), mapped meshes with the constant, curvature-corrected and auto bases (dragon,
+the default scene: auto) and tangent-space normal mapping (dragon_bend_*),
 the one-node-thin fin, the trilinear scene graph with direct normals (test_trilinear_scenes.py:
 trilinear_tile, trilinear_tubes) and with tangent-frame normals (trilinear_tile_tangent, here).
 """
@@ -31,7 +32,7 @@ def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("DEFORMGL_CACHE_DIR", str(tmp_path / "cache"))
 
 
-@pytest.mark.parametrize("name", ["jelly", "dragon", "dragon_bend_constant", "dragon_bend_curvature",
+@pytest.mark.parametrize("name", ["jelly", "dragon", "dragon_grid", "dragon_bend_constant", "dragon_bend_curvature",
                                   "dragon_bend_auto", "fin", "heart"])
 def test_scene_matches_golden(ctx, golden, name):
     image = render_scene(ctx, load_scene(SCENES / f"{name}.toml"))

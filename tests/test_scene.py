@@ -250,8 +250,8 @@ def test_relative_paths_are_relative_to_the_scene_file(scene_dir: Path, monkeypa
     ("[render.light]\ndirection = [1e200, 1, 0.7]\n", "render.light.direction[0]: must be in [-1e+06, 1e+06], got 1e+200"),
     ("[physics]\nmass = 1" + "0" * 400 + "\n", "physics.mass: is far out of range, got 100000...(401 digits)"),
     # output
-    ('[output]\npath = "out.jpg"\n', "output.path: must end in .png, got 'out.jpg'"),
-    ('[output]\npath = ".png"\n', "output.path: must end in .png, got '.png'"),
+    ('[output]\npath = "out.jpg"\n', "output.path: must end in .png (.gif, .webp or .mp4: an animation), got 'out.jpg'"),
+    ('[output]\npath = ".png"\n', "output.path: must end in .png (.gif, .webp or .mp4: an animation), got '.png'"),
 ])
 def test_errors_name_file_and_key(scene_dir: Path, text: str, message: str) -> None:
     assert _error(MESH + text) == f"jelly.toml: {message}"

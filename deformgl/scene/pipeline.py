@@ -315,6 +315,7 @@ class Rendered:
     image: np.ndarray
     mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # vertices (world), normals, faces
     pack: dict[str, np.ndarray | np.float32] | None = None
+    record: dict[str, Any] = dataclasses.field(default_factory=dict)  # deformgl.scene.record.run_record
 
 
 def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
@@ -356,6 +357,11 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
         flag = "--export-mesh" if mesh else "--pack-inputs"
         raise InputError(f"{scene.source}: {flag} needs a mapping of the detailed mesh "
                          f"(--mapping constant, curvature or auto), not one-to-one")
+    import time
+
+    from deformgl.scene.record import run_record
+
+    started = time.perf_counter()
     check_gl_limits(ctx, scene)
     check_scene(ctx, scene)  # host and GPU memory, render-target limits: before anything is built
     built = build_scene_model(scene)
@@ -402,6 +408,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
             result.pack = pack_inputs(state.position_texture, built.grid, state.layout, draw_pass.data,
                                       built.mesh.faces, view, lighting, scene.render.size,
                                       _vec3(scene.render.background))
+        result.record = run_record(scene, built, state.run, wall=time.perf_counter() - started, ctx=ctx)
         return result
     finally:
         for obj in (target, draw_pass):
@@ -421,8 +428,19 @@ def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: b
     """Render a scene and write the PNG, the optional mesh and shader-pack inputs as one
     :class:`~deformgl.files.OutputSet`: every path is checked before any work, and the files
     appear together when all are written, or none of them (a failed render or write, SIGTERM)."""
-    outputs = OutputSet([out, export, pack])
+    return render_still(ctx, scene, out, progress=progress, export=export, pack=pack, log=log).image
+
+
+def render_still(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: bool = False,
+                 export: Path | None = None, pack: Path | None = None, record: Path | None = None,
+                 log: Callable[[str], None] | None = None) -> Rendered:
+    """:func:`render_to_png`, also writing the run record as JSON to ``record`` (in the same
+    output set); returns what :func:`render` produced, its record with ``outputs``."""
+    from deformgl.scene.record import write_record
+
+    outputs = OutputSet([out, export, pack, record])
     result = render(ctx, scene, progress=progress, mesh=export is not None, pack=pack is not None, log=log)
+    result.record["outputs"] = [str(p) for p in (out, export, pack) if p is not None]
     with outputs:
         write_png_atomic(out, result.image)
         if export is not None:
@@ -433,4 +451,6 @@ def render_to_png(ctx: moderngl.Context, scene: Scene, out: Path, *, progress: b
             if result.pack is None:
                 raise RuntimeError("render() returned no inputs for --pack-inputs")  # it always does
             write_pack_inputs(pack, result.pack)
-    return result.image
+        if record is not None:
+            write_record(record, result.record)
+    return result

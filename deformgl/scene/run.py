@@ -188,7 +188,8 @@ def bad_limit(physics: Physics, box: SceneBox) -> float:
 
 def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: SpringSystem,
               loads: tuple[Load, ...], box: SceneBox, *, progress: bool, plan: StepPlan | None = None,
-              notes: list[str] | None = None, keep: bool = False) -> SceneRun:
+              notes: list[str] | None = None, keep: bool = False, frame_every: int = 0,
+              on_frame: Callable[[int, Any], None] | None = None) -> SceneRun:
     """Simulate a scene's nodes with its integrator on its backend through the one guarded run
     (:func:`deformgl.sim.run.run_guarded`: dt check, blow-up census, convergence stop,
     subdivision); positions are read once.
@@ -202,6 +203,8 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         keep: when the simulation's state texture carries the packed node normals (the fragment
             backend's Verlet fast path), return it in :attr:`SceneRun.sim` for drawing, unreleased
             and unread (``positions`` None); otherwise it is read once and released.
+        frame_every, on_frame: ``on_frame(step, sim)`` at step 0 and every ``frame_every`` scene
+            steps (:func:`deformgl.sim.run.run_guarded`): where an animation draws its frames.
     """
     physics = scene.physics
     drags = scene_drags(grid, physics, box)
@@ -222,7 +225,8 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         # every run ends with a blow-up check (census or NumPy), so its positions are finite
         result = run_guarded(system, physics, make, source=scene.source, limit=bad_limit(physics, box),
                              check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=converge,
-                             progress=progress, plan=plan, notes=notes)
+                             progress=progress, plan=plan, notes=notes, frame_every=frame_every,
+                             on_frame=on_frame)
         sim = made[-1]
         # a kept simulation is drawn from its state texture: nothing is read back
         kept = keep and bool(getattr(sim, "packed_normals", False))

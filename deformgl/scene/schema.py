@@ -29,14 +29,14 @@ from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _e
 from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
                                  MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
                                  UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
-                                 _SIZE, _STEPS, Attach, Camera, ClothSpec, Converge, DragSpec, GridSpec,
+                                 _SIZE, _STEPS, Animation, Attach, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
                                  parse_size)
 from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 
-__all__ = ["BACKENDS", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
+__all__ = ["Animation", "BACKENDS", "CameraKey", "apply_overrides", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
            "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",
            "SpringClass", "load_scene", "parse_size"]
 
@@ -254,6 +254,34 @@ _RENDER = _table({
     "camera": (_CAMERA, {}), "light": (_LIGHT, {}), "material": (_MATERIAL, {}),
 }, _plain(Render))
 
+#: Most frames of an animation (docs/SCENE_LIMITS.md).
+MAX_FRAMES = 100_000
+_ANIMATION = _table({
+    "frames": (_int(lo=1, sane=(1, MAX_FRAMES)), REQUIRED), "fps": (_num(lo=0.0, lo_open=True, sane=(0.0, 1000.0), unit="frames/s"), 24.0),
+    "steps_per_frame": (_int(lo=0, sane=(0, MAX_STEPS)), None),
+    "seconds_per_frame": (_num(lo=0.0, sane=(0.0, 1e6), unit="s"), None),
+    "turntable": (_ANGLE, 0.0),
+    "camera": (_array(_table({
+        "at": (_UNIT, REQUIRED), "azimuth": (_num(sane=(-3600.0, 3600.0), unit="degrees"), None),
+        "elevation": (_num(lo=-89.0, hi=89.0), None),
+        "distance": (_num(lo=0.0, lo_open=True, sane=(1e-3, 1e3), unit="box diagonals"), None),
+    }, _plain(CameraKey)), MAX_KEYFRAMES), []),
+}, lambda file, key, d: _build_animation(file, key, d))
+
+
+def _build_animation(file: str, key: str, d: dict[str, Any]) -> Animation:
+    if d["steps_per_frame"] is not None and d["seconds_per_frame"] is not None:
+        _fail(file, _join(key, "seconds_per_frame"), "set at most one of 'steps_per_frame' or 'seconds_per_frame'")
+    keys = d["camera"]
+    for i in range(1, len(keys)):
+        if keys[i].at <= keys[i - 1].at:
+            _fail(file, _join(key, f"camera[{i}].at"), f"must increase, got {keys[i].at:g} after {keys[i - 1].at:g}")
+    return Animation(**d)
+
+
+#: The file suffixes of an animation output (and a .png with a %d frame pattern).
+ANIMATION_SUFFIXES = (".gif", ".webp", ".mp4")
+
 
 _MOTION = _table({
     "kind": (_str(("rigid", "bend", "twist")), REQUIRED), "angle": (_ANGLE, 0.0),
@@ -311,10 +339,54 @@ def _check_depth(file: str, data: dict[str, Any]) -> None:
                 stack.append((x, depth + 1, where + (k if len(k) <= 40 else k[:40] + "...",)))
 
 
-def load_scene(path: str | Path) -> Scene:
+def apply_overrides(file: str, data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``data`` (a parsed scene file) with dotted keys set: ``{"physics.dt": 1e-3,
+    "render.camera.azimuth": 90, "physics.pull.0.force": [0, 1, 0]}`` (a number indexes an array
+    of tables). The values are checked afterwards by the scene's schema like the file's own, so a
+    bad one is the usual one-line error naming the key. Returns a new dict; ``data`` is untouched.
+
+    Raises:
+        SceneError: a key that does not name a place in the scene (``<file>: --set KEY: ...``).
+    """
+    import copy
+
+    out = copy.deepcopy(data)
+    for dotted, value in overrides.items():
+        parts = str(dotted).split(".")
+        if not all(parts):
+            raise SceneError(_one_line(f"{file}: --set {dotted}: not a dotted scene key (e.g. physics.dt)"))
+        node: Any = out
+        for i, part in enumerate(parts[:-1]):
+            where = ".".join(parts[: i + 1])
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise SceneError(_one_line(f"{file}: --set {dotted}: {where}: no entry {part} "
+                                               f"(the array has {len(node)})"))
+                node = node[int(part)]
+            elif isinstance(node, dict):
+                node = node.setdefault(part, {})
+            else:
+                raise SceneError(_one_line(f"{file}: --set {dotted}: {'.'.join(parts[:i])} is a value, not a table"))
+        last = parts[-1]
+        if isinstance(node, list):
+            if not last.isdigit() or int(last) >= len(node):
+                raise SceneError(_one_line(f"{file}: --set {dotted}: no entry {last} (the array has {len(node)})"))
+            node[int(last)] = value
+        elif isinstance(node, dict):
+            node[last] = value
+        else:
+            raise SceneError(_one_line(f"{file}: --set {dotted}: {'.'.join(parts[:-1])} is a value, not a table"))
+    return out
+
+
+def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
     """Reads and validates a scene file (named as given in ``path`` in error messages).
 
     Relative paths in it are relative to its directory; the returned scene's paths are absolute.
+
+    Args:
+        overrides: dotted scene keys to set before validation (:func:`apply_overrides`), e.g.
+            ``{"physics.integrator": "rk4", "grid.nodes_along_longest": 12}``.
 
     Raises:
         SceneError: For an unreadable file, invalid TOML, or any invalid, missing or unknown key.
@@ -344,6 +416,9 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{file}: invalid TOML: nested too deeply to parse "
                          f"(more than {MAX_DEPTH} levels are refused)") from None
     _check_depth(file, data)
+    if overrides:
+        data = apply_overrides(file, data, overrides)
+        _check_depth(file, data)
 
     def given_file(key: str, rel: str, suffixes: tuple[str, ...] | None = None) -> Path:
         if not rel:
@@ -355,8 +430,10 @@ def load_scene(path: str | Path) -> Scene:
 
     def build_output(file: str, key: str, d: dict[str, Any]) -> Output:
         out = d["path"] if d["path"] is not None else f"{source.stem}.png"
-        if not out.lower().endswith(".png") or Path(out).name.lower() == ".png":
-            _fail(file, _join(key, "path"), f"must end in .png, got {_short(out)}")
+        if (not out.lower().endswith((".png",) + ANIMATION_SUFFIXES)
+                or Path(out).stem == "" or Path(out).name.startswith(".")):
+            _fail(file, _join(key, "path"), f"must end in .png (.gif, .webp or .mp4: an animation), "
+                                            f"got {_short(out)}")
         return Output(_resolve(file, _join(key, "path"), source.parent, out))
 
     def build_mapping(file: str, key: str, d: dict[str, Any]) -> Mapping:
@@ -430,5 +507,6 @@ def load_scene(path: str | Path) -> Scene:
         "physics": (_PHYSICS, {}),
         "render": (_RENDER, {}),
         "output": (_table({"path": (_str(), None)}, build_output), {}),
+        "animation": (_ANIMATION, None),
     }, build_scene)
     return scene(file, "", data)

@@ -295,8 +295,35 @@ class Attach:
 
 
 @dataclass(frozen=True, slots=True)
+class CameraKey:
+    """A camera keyframe of an animation: at ``at`` (fraction 0..1 of the animation) the camera's
+    azimuth and elevation (degrees) and distance (box diagonals); None keeps ``render.camera``'s."""
+    at: float
+    azimuth: float | None
+    elevation: float | None
+    distance: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Animation:
+    """``[animation]``: ``frames`` images at ``fps`` from one simulation run, frame k at step
+    ``k * steps_per_frame`` (frame 0 is the start state; 0 steps per frame: ``physics.steps``,
+    then every frame of that one state, e.g. a turntable); ``seconds_per_frame`` (s of simulated
+    time) is the other way to say it (rounded to whole steps of ``physics.dt``). The camera adds
+    ``turntable`` degrees of azimuth over the animation and follows the ``camera`` keyframes
+    (linear between them)."""
+    frames: int
+    fps: float
+    steps_per_frame: int | None
+    seconds_per_frame: float | None
+    turntable: float
+    camera: tuple[CameraKey, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class Output:
-    """Where the PNG goes (absolute)."""
+    """Where the image goes (absolute): a .png, or for an animation .gif, .webp, .mp4 or a
+    frame pattern such as ``frames/%04d.png``."""
     path: Path
 
 
@@ -313,6 +340,7 @@ class Scene:
     nodes: Nodes = None  # type: ignore[assignment]
     attach: tuple[Attach, ...] = ()
     cloth: ClothSpec | None = None
+    animation: Animation | None = None
 
     @property
     def name(self) -> str:

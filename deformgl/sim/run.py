@@ -86,7 +86,8 @@ class _NoBar:
 
 
 def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | None = None,
-        progress=None, chunk: int = 25) -> RunResult:
+        progress=None, chunk: int = 25, frame_every: int = 0,
+        on_frame: Callable[[int, object], None] | None = None) -> RunResult:
     """``steps`` steps of ``sim`` with the guards and the convergence stop.
 
     Args:
@@ -99,6 +100,9 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
         progress: anything with ``update(done)`` (a :class:`~deformgl.progress.Progress`).
         chunk: most steps between progress updates on the GPU (the NumPy backend checks every
             step for non-finite positions, so it steps one at a time).
+        frame_every, on_frame: ``on_frame(done, sim)`` at the start (done 0) and after every
+            ``frame_every`` steps (an animation draws a frame from the simulation's GPU state
+            there; nothing is read back by the loop).
 
     Raises:
         BlowUp: a check counted bad nodes.
@@ -114,10 +118,15 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
 
         _, row, slots, _ = sim.position_slot()
         census = NodeCensus(ctx, count=sim.count, row=row, slots=slots)
+    framing = on_frame is not None and frame_every > 0
     try:
         done = 0
+        if on_frame is not None:
+            on_frame(0, sim)
         while done < steps:
             target = min(done + chunk, steps, watch.next_stop(done, steps) if watch else steps)
+            if framing:
+                target = min(target, (done // frame_every + 1) * frame_every)
             check_convergence = False
             if converge is not None:
                 at = (done // converge[1] + 1) * converge[1]
@@ -139,6 +148,8 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
             blown = not gpu and not np.isfinite(sim.last_moved)
             if watch is not None and (watch.due(done) or done == steps or blown):
                 watch.check(done)
+            if framing and on_frame is not None and done % frame_every == 0:
+                on_frame(done, sim)
             if check_convergence and converge is not None:  # (checks only when converging)
                 if census is not None and before is not None:  # (both set on the GPU path)
                     now, _, _, slot = sim.position_slot()
@@ -182,7 +193,8 @@ def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], 
 def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[float], Simulation], *,
                 source: object, limit: float, check_every: int, ctx=None, grid: NodeGrid | None = None,
                 converge: tuple[float, int] | None = None, progress: bool = False, plan: StepPlan | None = None,
-                notes: list[str] | None = None, wording: Wording = SCENE_WORDING) -> RunResult:
+                notes: list[str] | None = None, wording: Wording = SCENE_WORDING, frame_every: int = 0,
+                on_frame: Callable[[int, object], None] | None = None) -> RunResult:
     """The guarded run of ``settings.steps`` steps of ``settings.dt`` of ``system``.
 
     1. ``plan``, or :func:`~deformgl.sim.guards.plan_steps` of ``settings`` (refuses a dt above
@@ -212,6 +224,9 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
             carries them too).
         wording: how the messages name the dt and the policy
             (:data:`~deformgl.sim.guards.SCENE_WORDING` or :data:`~deformgl.sim.guards.API_WORDING`).
+        frame_every, on_frame: ``on_frame(step, sim)`` at step 0 and every ``frame_every`` steps
+            asked for (:func:`run`; with substeps, every ``frame_every * substeps`` substeps, the
+            step counted in steps asked for); a restart calls it again from step 0.
 
     Returns:
         :class:`RunResult`: steps done (of ``dt``), converged, the substeps used, the step ``dt``,
@@ -233,9 +248,11 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
         stop = None if converge is None else (converge[0] / p.substeps, converge[1] * p.substeps)
         watch = make_watch(gl, sim, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
                            wording=wording)
+        hook = None if on_frame is None else (lambda done, s: on_frame(done // p.substeps, s))
         try:
             with Progress(p.step_count, "steps", enabled=progress) as bar:
-                return run(sim, p.step_count, ctx=gl, watch=watch, converge=stop, progress=bar), sim
+                return run(sim, p.step_count, ctx=gl, watch=watch, converge=stop, progress=bar,
+                           frame_every=frame_every * p.substeps, on_frame=hook), sim
         finally:
             watch.release()
 

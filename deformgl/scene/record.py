@@ -1,0 +1,83 @@
+"""The record of a run: what ``deformgl render`` did, as one summary line (stderr) and as a
+machine-readable dict (``--json``; the rows of a sweep's table).
+
+Keys (SI, the unit in the name): ``mesh``, ``nodes``, ``springs``, ``integrator``, ``backend``,
+``steps`` (scene steps taken), ``frames``, ``fps``, ``dt_s`` (the scene step), ``substeps`` (per
+scene step), ``simulated_time_s``, ``wall_time_s``, ``converged``, ``mapping``, ``size``,
+``renderer``, ``deformgl`` (the version), and ``outputs`` once written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+from deformgl.files import write_atomic
+
+__all__ = ["run_record", "summary_line", "version", "write_record"]
+
+
+def version() -> str:
+    """deformgl's version (of the installed distribution; ``deformgl.__version__``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("deformgl")
+    except PackageNotFoundError:  # run from a checkout that is not installed
+        return "unknown"
+
+
+def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, wall: float = 0.0,
+               ctx=None) -> dict[str, Any]:
+    """The record of one render of ``scene`` (its :class:`~deformgl.scene.pipeline.SceneModel`
+    ``built`` and :class:`~deformgl.scene.run.SceneRun` ``run``, None when nothing was simulated)."""
+    physics = scene.physics
+    simulated = run is not None
+    return {
+        "scene": str(scene.source),
+        "mesh": scene.name,
+        "nodes": int(built.grid.count),
+        "springs": int(len(built.system.i)),
+        "integrator": physics.integrator if simulated else None,
+        "backend": physics.backend if simulated else None,
+        "nodes_source": scene.nodes.source,
+        "steps": int(run.steps) if simulated else 0,
+        "frames": int(frames),
+        "fps": fps if frames > 1 else None,
+        "dt_s": float(physics.dt),
+        "substeps": int(run.substeps) if simulated else 1,
+        "simulated_time_s": float(run.time) if simulated else 0.0,
+        "converged": run.converged if simulated else None,
+        "mapping": scene.mapping.mode,
+        "size": list(scene.render.size),
+        "wall_time_s": round(float(wall), 4),
+        "renderer": None if ctx is None else str(ctx.info.get("GL_RENDERER", "?")),
+        "deformgl": version(),
+    }
+
+
+def summary_line(record: dict[str, Any]) -> str:
+    """One line: ``dragon.ply: 5411 nodes, 61234 springs, verlet on fragment, 1600 steps of dt
+    0.00025 s (1 substep), 0.4 s simulated, 12.3 s wall``."""
+    parts = [f"{record['mesh']}: {record['nodes']} nodes, {record['springs']} springs"]
+    if record.get("integrator"):
+        sub = record["substeps"]
+        parts.append(f"{record['integrator']} on {record['backend']}")
+        parts.append(f"{record['steps']} steps of dt {record['dt_s']:g} s ({sub} substep{'s' if sub != 1 else ''})")
+        parts.append(f"{record['simulated_time_s']:.4g} s simulated")
+    else:
+        parts.append(f"nodes from {record['nodes_source']}")
+    if record.get("frames", 1) > 1:
+        parts.append(f"{record['frames']} frames at {record['fps']:g} fps")
+    parts.append(f"{record['wall_time_s']:.2f} s wall")
+    if record.get("renderer"):
+        parts.append(str(record["renderer"]))
+    return ", ".join(parts)
+
+
+def write_record(path: str | os.PathLike[str], record: dict[str, Any]) -> None:
+    """The record as indented JSON, atomically."""
+    text = json.dumps(record, indent=2, default=str) + "\n"
+    write_atomic(path, lambda stream: stream.write(text.encode()))

@@ -1,0 +1,58 @@
+"""``deformgl bench trade --workers N`` (or ``--scheduler ADDRESS``): the trade study's workloads
+as Dask tasks, one per workload (each runs every backend, integrator and dt of its workload in a
+worker with its own EGL context, its float64 reference included), gathered into one
+:class:`~deformgl.bench.trade.TradeReport` in the order of the in-process study.
+
+The errors are those of the in-process study (the same runs); the costs are measured with the
+workloads running at the same time, so on one machine they share its cores: the study's cost
+columns are comparable within a run, not with an in-process run. Use one worker per machine or
+GPU (a cluster's workers) for costs that mean the same as the in-process ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime, timezone
+
+from deformgl.bench.trade import BACKENDS, TradeReport, standard_workloads, trade_study
+from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sweep.runner import sweep_client
+
+__all__ = ["distributed_trade"]
+
+
+def _workload_study(index: int, quick: bool, backends: tuple[str, ...],
+                    fractions: tuple[float, ...] | None) -> TradeReport:
+    from deformgl.sweep.task import _context
+
+    workload = standard_workloads()[index]
+    return trade_study(_context(), backends=backends, quick=quick, workloads=[workload], fractions=fractions)
+
+
+def distributed_trade(*, quick: bool = False, backends: Sequence[str] = BACKENDS,
+                      fractions: Sequence[float] | None = None, workers: int = 2, scheduler: str | None = None,
+                      client=None) -> TradeReport:
+    """The trade study with one Dask task per workload (see the module docstring); a worker
+    that dies is replaced and its workload rerun."""
+    own = client is None
+    client = sweep_client(workers, scheduler) if own else client
+    try:
+        count = len(standard_workloads())
+        nworkers = len(client.scheduler_info()["workers"])
+        futures = [client.submit(_workload_study, i, quick, tuple(backends),
+                                 None if fractions is None else tuple(fractions), retries=2, pure=False)
+                   for i in range(count)]
+        parts: list[TradeReport] = client.gather(futures)
+    finally:
+        if own:
+            cluster = getattr(client, "cluster", None)
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    names = [p.rows[0].workload if p.rows else p.references[0].workload for p in parts]
+    rows = [r for p in parts for r in p.rows]
+    rows.sort(key=lambda r: (names.index(r.workload), list(backends).index(r.backend),
+                             INTEGRATORS.index(r.integrator), r.steps))
+    machine = parts[0].machine + f"; {count} workloads on {nworkers} Dask workers at once"
+    return TradeReport(rows, machine, datetime.now(timezone.utc).isoformat(timespec="seconds"), parts[0].sim_time,
+                       [ref for p in parts for ref in p.references])
