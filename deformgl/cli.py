@@ -361,7 +361,7 @@ def _plan(args: argparse.Namespace) -> int:
         try:
             material = ElasticMaterial(args.youngs_modulus, args.density)
         except ValueError as exc:
-            raise InputError(str(exc).replace("material.", "--")) from None
+            raise InputError(str(exc).replace("material.", "--").replace("_", "-")) from None
     source = _scene_file(args.scene)
     plan = plan_scene(source, args.tolerance, args.load, material)
     print(f"plan for {args.scene}:")
