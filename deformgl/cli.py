@@ -305,13 +305,14 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     if args.what == "trade" and args.resolution:
         from deformgl.bench.resolution import resolution_study
 
-        outputs = OutputSet([out / f"resolution.{ext}" for ext in ("csv", "json")] if out else [])
+        outputs = OutputSet([out / f"resolution.{ext}" for ext in ("csv", "json", "png")] if out else [])
         res = resolution_study(ctx, quick=args.quick, progress=note)
         print(res.format())
         if out is not None:
             with outputs:
                 res.write_csv(out / "resolution.csv")
                 res.write_json(out / "resolution.json")
+                _chart(lambda: res.write_chart(out / "resolution.png"))
     elif args.what == "trade":
         from deformgl.bench.trade import trade_study
 

@@ -69,3 +69,8 @@ def test_bench_trade_resolution_prints_the_study_and_writes_its_files(ctx, tmp_p
     rows = json.loads((tmp_path / "resolution.json").read_text())["rows"]
     assert len(rows) == 8 and {r["across"] for r in rows} == {2, 3}
     assert (tmp_path / "resolution.csv").read_text().startswith("across,spacing,nodes")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return
+    assert (tmp_path / "resolution.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
