@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
 __all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "Plan",
-           "fit", "make_plan", "plan_scene"]
+           "fit", "make_plan", "plan_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
 #: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
@@ -169,3 +170,42 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
     mesh = load_mesh(scene.mesh.path)
     extent = (mesh.bounds[1] - mesh.bounds[0]) * float(getattr(scene.mesh, "scale", 1.0))
     return make_plan(tuple(float(e) for e in extent), chosen, tolerance, load)  # type: ignore[arg-type]
+
+
+def add_parser(sub: Any) -> None:
+    """The ``plan`` subcommand on the CLI's subparsers."""
+    pl = sub.add_parser("plan", help="pick the coarsest grid, integrator and dt for an accuracy",
+                        description="Model only what a scene requires: from the measured lattice-vs-FEM errors "
+                                    "(bench accuracy) and time-stepping errors (bench trade --resolution), the "
+                                    "coarsest grid, the integrator and the largest dt whose predicted relative "
+                                    "deflection error is below --tolerance, and why (docs/ACCURACY.md).")
+    pl.add_argument("scene", type=Path, help="scene file (.toml) with a [material] table, or a shipped scene's name")
+    pl.add_argument("--tolerance", type=float, required=True, metavar="X",
+                    help="relative error of the deflection, e.g. 0.02 for 2 %%")
+    pl.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
+                    help="how the body deforms: which measured workload's error model applies "
+                         "(cantilever, compressed block, twisted bar; default bending)")
+    pl.add_argument("--preset", default=None, help="the material when the scene has no [material] table")
+    pl.add_argument("--youngs-modulus", type=float, default=None, metavar="PA",
+                    help="E in Pa when the scene has no [material] table (with --density)")
+    pl.add_argument("--density", type=float, default=None, metavar="KG_M3", help="rho in kg/m^3 (with --youngs-modulus)")
+
+
+def run(args: Any, source: Path) -> int:
+    """``deformgl plan``: the plan of the scene file ``source`` (found by the CLI), printed."""
+    material = None
+    if args.preset is not None:
+        if args.preset not in PRESETS:
+            raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {args.preset!r}")
+        material = PRESETS[args.preset]
+    elif args.youngs_modulus is not None or args.density is not None:
+        if args.youngs_modulus is None or args.density is None:
+            raise InputError("--youngs-modulus and --density: give both")
+        try:
+            material = ElasticMaterial(args.youngs_modulus, args.density)
+        except ValueError as exc:
+            raise InputError(str(exc).replace("material.", "--").replace("_", "-")) from None
+    plan = plan_scene(source, args.tolerance, args.load, material)
+    print(f"plan for {args.scene}:")
+    print("\n".join("  " + line for line in plan.lines()))
+    return 0
