@@ -124,21 +124,9 @@ def _parser() -> argparse.ArgumentParser:
                                "texture size, vertex texture units and whether RGBA32F render "
                                "targets work.")
 
-    pl = sub.add_parser("plan", help="pick the coarsest grid, integrator and dt for an accuracy",
-                        description="Model only what a scene requires: from the measured lattice-vs-FEM errors "
-                                    "(bench accuracy) and time-stepping errors (bench trade --resolution), the "
-                                    "coarsest grid, the integrator and the largest dt whose predicted relative "
-                                    "deflection error is below --tolerance, and why (docs/ACCURACY.md).")
-    pl.add_argument("scene", type=Path, help="scene file (.toml) with a [material] table, or a shipped scene's name")
-    pl.add_argument("--tolerance", type=float, required=True, metavar="X",
-                    help="relative error of the deflection, e.g. 0.02 for 2 %%")
-    pl.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
-                    help="how the body deforms: which measured workload's error model applies "
-                         "(cantilever, compressed block, twisted bar; default bending)")
-    pl.add_argument("--preset", default=None, help="the material when the scene has no [material] table")
-    pl.add_argument("--youngs-modulus", type=float, default=None, metavar="PA",
-                    help="E in Pa when the scene has no [material] table (with --density)")
-    pl.add_argument("--density", type=float, default=None, metavar="KG_M3", help="rho in kg/m^3 (with --youngs-modulus)")
+    from deformgl.bench.plan import add_parser as add_plan_parser
+
+    add_plan_parser(sub)
 
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
                        description="Benchmarks. Figures are ratios against a baseline measured in "
@@ -334,13 +322,14 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     if args.what == "trade" and args.resolution:
         from deformgl.bench.resolution import resolution_study
 
-        outputs = OutputSet([out / f"resolution.{ext}" for ext in ("csv", "json")] if out else [])
+        outputs = OutputSet([out / f"resolution.{ext}" for ext in ("csv", "json", "png")] if out else [])
         res = resolution_study(ctx, quick=args.quick, progress=note)
         print(res.format())
         if out is not None:
             with outputs:
                 res.write_csv(out / "resolution.csv")
                 res.write_json(out / "resolution.json")
+                _chart(lambda: res.write_chart(out / "resolution.png"))
     elif args.what == "trade":
         from deformgl.bench.trade import trade_study
 
@@ -383,45 +372,9 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
 
 
 def _plan(args: argparse.Namespace) -> int:
-    from deformgl.bench.plan import plan_scene
-    from deformgl.sim.materials import PRESETS, ElasticMaterial
+    from deformgl.bench.plan import run
 
-    material = None
-    if args.preset is not None:
-        if args.preset not in PRESETS:
-            raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {args.preset!r}")
-        material = PRESETS[args.preset]
-    elif args.youngs_modulus is not None or args.density is not None:
-        if args.youngs_modulus is None or args.density is None:
-            raise InputError("--youngs-modulus and --density: give both")
-        try:
-            material = ElasticMaterial(args.youngs_modulus, args.density)
-        except ValueError as exc:
-            raise InputError(str(exc).replace("material.", "--")) from None
-    source = _scene_file(args.scene)
-    plan = plan_scene(source, args.tolerance, args.load, material)
-    print(f"plan for {args.scene}:")
-    print("\n".join("  " + line for line in plan.lines()))
-    return 0
-
-
-def _accuracy(args: argparse.Namespace) -> int:
-    """``bench accuracy``: the lattice-vs-FEM tables, and with ``--out`` accuracy.csv/.json."""
-    from deformgl.bench.accuracy import accuracy_study
-    from deformgl.bench.fem import require_skfem
-    from deformgl.files import OutputSet
-
-    require_skfem()
-    out = args.out
-    outputs = OutputSet([out / f"accuracy.{ext}" for ext in ("csv", "json")] if out else [])
-    note = None if args.quiet else (lambda line: print(f"[bench] {line} ...", file=sys.stderr, flush=True))
-    report = accuracy_study(quick=args.quick, progress=note)
-    print(report.format())
-    if out is not None:
-        with outputs:
-            report.write_csv(out / "accuracy.csv")
-            report.write_json(out / "accuracy.json")
-    return 0
+    return run(args, _scene_file(args.scene))
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -432,7 +385,9 @@ def _bench(args: argparse.Namespace) -> int:
     if args.resolution and args.what != "trade":
         raise InputError(f"--resolution: only for bench trade, not bench {args.what}")
     if args.what == "accuracy":  # CPU only: no GL context
-        return _accuracy(args)
+        from deformgl.bench.accuracy import run_cli
+
+        return run_cli(args)
     from deformgl.bench.studies import bench_render, bench_sim, format_render, format_sim, machine_line
     from deformgl.gl.context import create_context
 

@@ -55,3 +55,22 @@ def test_resolution_is_an_option_of_bench_trade_only(capsys):
 
     assert main(["bench", "sim", "--resolution"]) == 2
     assert "--resolution" in capsys.readouterr().err
+
+
+def test_bench_trade_resolution_prints_the_study_and_writes_its_files(ctx, tmp_path, capsys):
+    """(``ctx``: a GL test; the command makes its own context.)"""
+    import json
+
+    from deformgl.cli import main
+
+    assert main(["bench", "trade", "--resolution", "--quick", "--quiet", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "Pareto front" in out and "discr." in out and "float32" in out
+    rows = json.loads((tmp_path / "resolution.json").read_text())["rows"]
+    assert len(rows) == 8 and {r["across"] for r in rows} == {2, 3}
+    assert (tmp_path / "resolution.csv").read_text().startswith("across,spacing,nodes")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return
+    assert (tmp_path / "resolution.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -211,3 +211,23 @@ def accuracy_study(*, quick: bool = False, workloads: Sequence[str] = tuple(WORK
             poisson_rows.append(PoissonRow(name, nu, fv, finest, finest / fv))
     date = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return AccuracyReport(rows, fem, refs, poisson_rows, cpu_line(), date)
+
+
+def run_cli(args: Any) -> int:
+    """``deformgl bench accuracy [--quick] [--quiet] [--out DIR]``: the tables, and with
+    ``--out`` DIR/accuracy.csv and accuracy.json, written together or not at all."""
+    import sys
+
+    from deformgl.files import OutputSet
+
+    require_skfem()
+    out = args.out
+    outputs = OutputSet([out / f"accuracy.{ext}" for ext in ("csv", "json")] if out else [])
+    note = None if args.quiet else (lambda line: print(f"[bench] {line} ...", file=sys.stderr, flush=True))
+    report = accuracy_study(quick=args.quick, progress=note)
+    print(report.format())
+    if out is not None:
+        with outputs:
+            report.write_csv(out / "accuracy.csv")
+            report.write_json(out / "accuracy.json")
+    return 0

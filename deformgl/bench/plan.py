@@ -9,11 +9,12 @@ relative error of the body's deflection is below the tolerance, and say why:
   of the workload that deforms like the body (:data:`MEASURED`: bending, the cantilever;
   compression, the block; torsion, the twisted bar). The grid gets the fewest nodes across the
   thickness with ``e_d <= tolerance - e_t - e_32``;
-* time stepping: Verlet (the cheapest step on every grid of the resolution study) at the largest
-  dt = f x :func:`~deformgl.sim.materials.critical_dt` (f <= :data:`MAX_FRACTION`) with the
-  measured time-stepping error ``e_t = D f`` (first order: the mass damping's velocity is a
-  backward difference) below a tenth of the tolerance;
-* float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured.
+* time stepping: Verlet (the cheapest step of the resolution study) at dt = 0.9 x
+  :func:`~deformgl.sim.materials.critical_dt` when its measured time-stepping error
+  ``e_t = D f`` (first order: the mass damping's velocity is a backward difference) is below a
+  tenth of the tolerance; else semi-implicit Euler at the largest f that keeps it so (float32
+  Verlet gets *less* accurate at smaller dt: the positions' rounding swallows a dt^2);
+* float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured at 0.9 x.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +30,7 @@ from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
 __all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "Plan",
-           "fit", "make_plan", "plan_scene"]
+           "fit", "make_plan", "plan_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
 #: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
@@ -39,10 +41,12 @@ MEASURED: dict[str, dict[int, float]] = {
 }
 LOADS = tuple(MEASURED)
 MAX_FRACTION = 0.9
-#: Verlet's time-stepping error of the tip per unit dt / critical dt (``bench trade
-#: --resolution``: 3.3e-4 at 0.9, 1.8e-4 at 0.5 on the 2-across cantilever; first order).
-TIME_STEP_ERROR = 4.0e-4
-FLOAT32_ERROR = 1.0e-4
+#: Time-stepping error of the tip per unit dt / critical dt (``bench trade --resolution``, first
+#: order): Verlet 3.3e-4 at 0.9, semi-implicit Euler 8.6e-4 at 0.9 (2 across, the largest).
+TIME_STEP_ERROR = {"verlet": 4.0e-4, "semi-implicit": 1.0e-3}
+#: The largest float32 error (fragment vs NumPy) measured at 0.9 x the critical dt; float32
+#: Verlet's grows as dt shrinks (3e-2 at 0.25 x), so Verlet is only used at 0.9 x.
+FLOAT32_ERROR = {"verlet": 1.0e-4, "semi-implicit": 1.0e-5}
 MAX_ACROSS = 257
 
 
@@ -117,12 +121,18 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
         raise InputError(f"--load: one of {', '.join(LOADS)}, got {load!r}")
     if min(size) <= 0:
         raise InputError(f"the body's bounding box {size} m has no thickness")
-    fraction = min(MAX_FRACTION, 0.1 * tolerance / TIME_STEP_ERROR)
-    e_t, e_32 = TIME_STEP_ERROR * fraction, FLOAT32_ERROR
+    # Verlet at 0.9 x critical while its time-stepping error fits a tenth of the tolerance; a
+    # smaller dt with float32 Verlet is less accurate (module docstring), so then semi-implicit
+    integrator = "verlet"
+    fraction = MAX_FRACTION
+    if TIME_STEP_ERROR["verlet"] * fraction > 0.1 * tolerance:
+        integrator = "semi-implicit"
+        fraction = min(MAX_FRACTION, 0.1 * tolerance / TIME_STEP_ERROR[integrator])
+    e_t, e_32 = TIME_STEP_ERROR[integrator] * fraction, FLOAT32_ERROR[integrator]
     budget = tolerance - e_t - e_32
     c, p = fit(load)
     if budget <= 0:
-        raise InputError(f"--tolerance {tolerance}: below the float32 error {FLOAT32_ERROR:g}")
+        raise InputError(f"--tolerance {tolerance}: below the float32 error {e_32:g}")
     cells = max(1, math.ceil((c / budget) ** (1.0 / p)))  # cells across: e_d(1/cells) <= budget
     if cells + 1 > MAX_ACROSS:
         raise InputError(f"--tolerance {tolerance}: needs {cells + 1} nodes across the thickness "
@@ -130,8 +140,8 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     thickness = min(size)
     h = thickness / cells
     along = int(round(max(size) / h)) + 1
-    crit = critical_dt(material, h, "verlet")
-    return Plan(tolerance, load, size, material, cells + 1, h, along, "verlet", fraction,
+    crit = critical_dt(material, h, integrator)
+    return Plan(tolerance, load, size, material, cells + 1, h, along, integrator, fraction,
                 fraction * crit, crit, c * (1.0 / cells) ** p, e_t, e_32, (c, p))
 
 
@@ -148,8 +158,8 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
 
     scene = load_scene(path)
     if scene.cloth is not None or scene.mesh is None:
-        raise InputError(f"{path}: plan models volume bodies (a mesh and an [material] solid); "
-                         "this scene is a cloth")
+        raise InputError(f"{path}: plan models volume bodies (a mesh and a solid "
+                         "[material]); this scene is a cloth")
     found = getattr(scene.physics, "material", None)
     if found is not None and not isinstance(found, ElasticMaterial):
         raise InputError(f"{path}: material: plan needs a solid (youngs_modulus, density)")
@@ -160,3 +170,42 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
     mesh = load_mesh(scene.mesh.path)
     extent = (mesh.bounds[1] - mesh.bounds[0]) * float(getattr(scene.mesh, "scale", 1.0))
     return make_plan(tuple(float(e) for e in extent), chosen, tolerance, load)  # type: ignore[arg-type]
+
+
+def add_parser(sub: Any) -> None:
+    """The ``plan`` subcommand on the CLI's subparsers."""
+    pl = sub.add_parser("plan", help="pick the coarsest grid, integrator and dt for an accuracy",
+                        description="Model only what a scene requires: from the measured lattice-vs-FEM errors "
+                                    "(bench accuracy) and time-stepping errors (bench trade --resolution), the "
+                                    "coarsest grid, the integrator and the largest dt whose predicted relative "
+                                    "deflection error is below --tolerance, and why (docs/ACCURACY.md).")
+    pl.add_argument("scene", type=Path, help="scene file (.toml) with a [material] table, or a shipped scene's name")
+    pl.add_argument("--tolerance", type=float, required=True, metavar="X",
+                    help="relative error of the deflection, e.g. 0.02 for 2 %%")
+    pl.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
+                    help="how the body deforms: which measured workload's error model applies "
+                         "(cantilever, compressed block, twisted bar; default bending)")
+    pl.add_argument("--preset", default=None, help="the material when the scene has no [material] table")
+    pl.add_argument("--youngs-modulus", type=float, default=None, metavar="PA",
+                    help="E in Pa when the scene has no [material] table (with --density)")
+    pl.add_argument("--density", type=float, default=None, metavar="KG_M3", help="rho in kg/m^3 (with --youngs-modulus)")
+
+
+def run(args: Any, source: Path) -> int:
+    """``deformgl plan``: the plan of the scene file ``source`` (found by the CLI), printed."""
+    material = None
+    if args.preset is not None:
+        if args.preset not in PRESETS:
+            raise InputError(f"--preset: one of {', '.join(PRESETS)}, got {args.preset!r}")
+        material = PRESETS[args.preset]
+    elif args.youngs_modulus is not None or args.density is not None:
+        if args.youngs_modulus is None or args.density is None:
+            raise InputError("--youngs-modulus and --density: give both")
+        try:
+            material = ElasticMaterial(args.youngs_modulus, args.density)
+        except ValueError as exc:
+            raise InputError(str(exc).replace("material.", "--").replace("_", "-")) from None
+    plan = plan_scene(source, args.tolerance, args.load, material)
+    print(f"plan for {args.scene}:")
+    print("\n".join("  " + line for line in plan.lines()))
+    return 0

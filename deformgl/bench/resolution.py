@@ -147,6 +147,65 @@ class ResolutionReport:
         """:meth:`to_dict` as JSON, atomically."""
         report_files.write_json(path, self.to_dict())
 
+    @classmethod
+    def read_json(cls, path: str | os.PathLike) -> ResolutionReport:
+        """A report written by :meth:`write_json`."""
+        import json
+
+        with open(path, encoding="utf-8") as f:
+            d = json.load(f)
+        return cls([ResolutionRow(**r) for r in d["rows"]], d["fem_tip"], d["fem_source"],
+                    d["machine"], d["date"], d["sim_time"])
+
+    def write_chart(self, path: str | os.PathLike) -> None:
+        """PNG: left, the total error against ms per simulated second (a colour per grid, a
+        marker per integrator, the front dashed); right, the time-stepping (dashed) and float32
+        (solid) errors against dt / critical dt, per grid and integrator.
+
+        Raises:
+            DeformglError: matplotlib is not installed (``pip install 'deformgl[plot]'``).
+        """
+        import textwrap
+
+        from deformgl.bench.charts import new_figure, save_png
+
+        fig, axes = new_figure(1, 2, width=5.5, height=4.4, what="resolution")
+        left, right = axes[0]
+        grids = sorted({r.across for r in self.rows})
+        names = list(dict.fromkeys(r.integrator for r in self.rows))
+        markers = {"verlet": "o", "semi-implicit": "s", "rk4": "D"}
+        colours = {n: f"C{i}" for i, n in enumerate(grids)}
+        for n in grids:
+            for name in names:
+                rows = sorted((r for r in self.rows if r.across == n and r.integrator == name),
+                              key=lambda r: r.fraction)
+                if not rows:
+                    continue
+                left.plot([r.ms_per_sim_s for r in rows], [r.error for r in rows], ls="none",
+                          marker=markers.get(name, "o"), color=colours[n], ms=5,
+                          label=f"{n} across, {name}")
+                fr = [r.fraction for r in rows]
+                right.plot(fr, [max(r.float32, 1e-12) for r in rows], marker=markers.get(name, "o"),
+                           color=colours[n], lw=1, ms=4, label=f"{n} across, {name}")
+                right.plot(fr, [max(r.time_stepping, 1e-12) for r in rows], ls="--",
+                           marker=markers.get(name, "o"), color=colours[n], lw=0.8, ms=3)
+        front = self.front()
+        left.plot([r.ms_per_sim_s for r in front], [r.error for r in front], drawstyle="steps-post",
+                  color="k", ls="--", lw=0.8, label="Pareto front")
+        left.set(xscale="log", yscale="log", xlabel="ms per simulated second (fragment backend)",
+                 ylabel="tip error vs FEM (discretisation + time + float32)",
+                 title="cantilever: grid x integrator x dt")
+        right.set(yscale="log", xlabel="dt / critical dt",
+                  ylabel="relative tip error (solid: float32, dashed: time stepping)",
+                  title="the errors that dt controls")
+        for ax in (left, right):
+            ax.grid(True, which="both", lw=0.3, alpha=0.5)
+            ax.legend(fontsize=5, ncol=2)
+        fig.suptitle(textwrap.fill(f"{self.machine} ({self.date}); tip at T = {self.sim_time:g} s, "
+                                   f"FEM tip {self.fem_tip:.5e} m", 150), fontsize=7)
+        fig.tight_layout()
+        save_png(fig, path)
+
 
 def _tip_at(case: LatticeCase, integrator: str, dt: float, steps: int, backend: str = "numpy",
             ctx: moderngl.Context | None = None) -> float:
