@@ -114,7 +114,7 @@ _EXPORTS: dict[str, str] = {
     "save_graph": "deformgl.trilinear.graphfile",
     "compose_graph": "deformgl.trilinear.graphbuild",
     "render_graph": "deformgl.trilinear.graphbuild",
-    "render_frames": "deformgl.trilinear.graphbuild",
+    "render_graph_frames": "deformgl.trilinear.graphbuild",
     "graph_mesh": "deformgl.trilinear.graphbuild",
     "render_graph_file": "deformgl.scene.graphs",
     # errors
@@ -161,7 +161,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.trilinear.deformations import Bend, Helix, Taper, TorusWrap, Twist
     from deformgl.scene.graphs import render_graph_file
     from deformgl.trilinear.errorbound import compose_within
-    from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_frames, render_graph
+    from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_graph, render_graph_frames
     from deformgl.trilinear.graphfile import load_graph, save_graph
     from deformgl.trilinear.graphspec import (
         Deformation, GraphBody, GraphMesh, GraphTransform, GraphView, Keyframe, NodeSpec, SceneGraph,

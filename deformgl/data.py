@@ -82,3 +82,18 @@ def find_scene(path: str | Path) -> Path:
         except DeformglError:
             pass
     return path
+
+
+def scene_file(path: str | Path, flag: str = "") -> Path:
+    """A scene file as given, else the shipped scene of that name.
+
+    Raises:
+        InputError: neither exists (one line naming the folder searched and the shipped scenes).
+    """
+    from deformgl.errors import InputError
+
+    found = find_scene(path)
+    if not found.exists():
+        raise InputError(f"{path}: {flag + ': ' if flag else ''}scene file not found (not in "
+                         f"{Path.cwd()} nor among the shipped scenes: {', '.join(scene_names())})")
+    return found

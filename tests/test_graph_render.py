@@ -12,7 +12,7 @@ from deformgl.cli import main
 from deformgl.files import read_png
 from deformgl.scene.graphs import render_graph_file
 from deformgl.trilinear.cuboid import CORNERS, trilinear_corners
-from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_frames, render_graph
+from deformgl.trilinear.graphbuild import compose_graph, graph_mesh, render_graph_frames, render_graph
 from deformgl.trilinear.graphfile import load_graph, save_graph
 from deformgl.trilinear.graphspec import Deformation, Keyframe, GraphMesh, NodeSpec, SceneGraph, GraphTransform, GraphView
 
@@ -67,7 +67,7 @@ def test_a_deep_graph_renders_the_same_from_python_from_its_file_and_from_the_cl
 def test_frames_follow_the_keyframes_and_match_the_stills(ctx):
     graph = deep_graph()
     assert graph.frame_times(3) == [0.0, 1.0, 2.0] and graph.frame_times(1) == [0.0]
-    frames = render_frames(ctx, graph, graph.frame_times(3))
+    frames = render_graph_frames(ctx, graph, graph.frame_times(3))
     assert len(frames) == 3
     assert all(np.abs(a.astype(int) - b).max() > 50 for a, b in zip(frames, frames[1:]))  # it moves
     # the frame at t = 1 s is the still with the twist rate set to the interpolated 1.5 rad/m
@@ -175,3 +175,42 @@ def test_the_shipped_demo_files_render_the_goldens(ctx, golden):
     for name in ("tubes", "tile"):
         graph = load_graph(SCENES / f"trilinear_{name}.toml")
         golden(render_graph(ctx, graph, SCENES, size=(320, 240)), f"trilinear_{name}")
+
+
+def test_a_keyframed_graph_animates_through_the_animation_writer(ctx, tmp_path, capsys):
+    """``deformgl render GRAPH.toml -o frames/%02d.png --frames N``: frame k is the still at the
+    k-th of N times from 0 to the last keyframe (the graph's own ``--time`` stills), and a GIF
+    holds the N frames."""
+    from PIL import Image
+
+    scene = SCENES / "graph_bend_twist.toml"
+    graph = load_graph(scene)
+    times = graph.frame_times(3)
+    assert times == [0.0, 1.0, 2.0]
+    (tmp_path / "f").mkdir()
+    code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "f" / "%02d.png", "--frames", 3)
+    assert code == 0, err
+    frames = [read_png(tmp_path / "f" / f"{k:02d}.png") for k in range(3)]
+    for k, t in enumerate(times):
+        code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / f"still{k}.png", "--time", t)
+        assert code == 0, err
+        assert np.array_equal(frames[k], read_png(tmp_path / f"still{k}.png"))
+    assert not np.array_equal(frames[0], frames[2])  # the bend and twist move it
+    code, _, err = run_cli(capsys, "render", scene, "-o", tmp_path / "bar.gif", "--frames", 3, "--fps", 6)
+    assert code == 0, err
+    with Image.open(tmp_path / "bar.gif") as gif:
+        assert gif.n_frames == 3
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--frames", "2", "-o", "x.png"], "an animation must end in .mp4, .gif or .webp"),
+    (["--frames", "2", "-o", "x.gif", "--time", "1"], "--time: not with --frames"),
+    (["--frames", "0", "-o", "x.gif"], "--frames: must be >= 1"),
+])
+def test_graph_animation_options_are_checked_in_one_line(ctx, tmp_path, capsys, args, message):
+    args = [a if not a.startswith("x.") else str(tmp_path / a) for a in args]
+    code, _, err = run_cli(capsys, "render", SCENES / "graph_bend_twist.toml", *args)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    code, _, err = run_cli(capsys, "render", SCENES / "graph_dragon_beads.toml", "--frames", "2", "-o",
+                           str(tmp_path / "b.gif"))
+    assert code == 2 and "renders stills" in err

@@ -22,12 +22,13 @@ from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.camera import View
 from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.passes import Lighting
+from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.pipeline import SceneModel, render
 from deformgl.scene.schema import load_scene
 from deformgl.trilinear.attachments import TubeAttachment
 from deformgl.trilinear.batches import ComposedScene
 from deformgl.trilinear.cuboid import Box
-from deformgl.trilinear.graphbuild import ATTACH_BOX, compose_graph, draw_composed, graph_mesh
+from deformgl.trilinear.graphbuild import ATTACH_BOX, compose_graph, draw_composed, graph_mesh, render_graph_frames
 from deformgl.trilinear.graphfile import load_graph
 from deformgl.trilinear.graphspec import SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
@@ -97,7 +98,7 @@ def render_graph_file(ctx: moderngl.Context, path: str | Path, *, size: tuple[in
 
 
 def graph_output(source: Path, output: Path | None, export: Path | None, time: float | None,
-                 refused: dict[str, object]) -> Path:
+                 refused: dict[str, object], frames: int | None = None) -> Path:
     """The checks of ``deformgl render GRAPH.toml`` before any work, and its PNG path: the
     ``-o`` given, else the graph's ``output`` (for a shipped graph, its name in the working folder).
 
@@ -114,11 +115,43 @@ def graph_output(source: Path, output: Path | None, export: Path | None, time: f
         raise InputError(f"--time: must be a finite time >= 0 s, got {time}")
     named = Path(graph.output) if graph.output else Path(f"{source.stem}.png")
     out = output or (Path(named.name) if is_packaged(source) else source.parent / named)
+    if frames is not None:
+        if frames < 1:
+            raise InputError(f"--frames: must be >= 1, got {frames}")
+        if graph.body is not None:
+            raise InputError(f"{source}: --frames: a graph attached to a simulated [body] renders stills "
+                             f"(--time T); animate a graph without one")
+        if time is not None:
+            raise InputError("--time: not with --frames (the frames span the graph's keyframes)")
+        if animation_kind(out) is None:
+            raise InputError(f"{out}: an animation must end in .mp4, .gif or .webp, or be a frame pattern "
+                             f"such as frames/%04d.png")
+        if export is not None:
+            raise InputError(f"{export}: --export-mesh of a graph animation is not supported; export a still (--time T)")
+        check_encoder(out)
+        return out
     if out.suffix.lower() != ".png":
         raise InputError(f"{out}: the output must be a .png file")
     if export is not None and export.suffix.lower() not in (".ply", ".obj", ".glb"):
         raise InputError(f"{export}: --export-mesh must end in .ply, .obj or .glb")
     return out
+
+
+def graph_animation(ctx: moderngl.Context, path: str | Path, out: Path, *, frames: int, fps: float = 24.0,
+                    size: tuple[int, int] | None = None) -> int:
+    """``deformgl render GRAPH.toml -o out.gif --frames N``: N frames spread over the graph's
+    keyframes (:meth:`~deformgl.trilinear.graphspec.SceneGraph.frame_times`), through the
+    animation writer, written atomically (the frames of a pattern as one output set). Returns
+    the frame count."""
+    path = Path(path)
+    graph = load_graph(path)
+    times = graph.frame_times(frames)
+    images = render_graph_frames(ctx, graph, times, path.parent, size=size, file=path.name)
+    with OutputSet([out] if animation_kind(out) != "frames" else frame_paths(out, len(images))):
+        with AnimationWriter(out, fps) as writer:
+            for image in images:
+                writer.write_frame(image)
+    return len(images)
 
 
 def graph_to_png(ctx: moderngl.Context, path: str | Path, out: Path, *, size: tuple[int, int] | None = None,

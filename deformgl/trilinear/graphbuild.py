@@ -288,8 +288,8 @@ def render_graph(ctx: moderngl.Context, graph: SceneGraph, base: str | Path = ".
     return draw_composed(ctx, graph, scenes, size)
 
 
-def render_frames(ctx: moderngl.Context, graph: SceneGraph, times: Sequence[float], base: str | Path = ".", *,
-                  size: tuple[int, int] | None = None, file: str = "<graph>") -> list[np.ndarray]:
+def render_graph_frames(ctx: moderngl.Context, graph: SceneGraph, times: Sequence[float], base: str | Path = ".", *,
+                        size: tuple[int, int] | None = None, file: str = "<graph>") -> list[np.ndarray]:
     """Frames of an animated graph at ``times`` (s): one (H, W, 3) uint8 image each, the graph
     composed anew at every time (keyframed deformations interpolated, section 4.1 on the CPU)."""
     return [render_graph(ctx, graph, base, size=size, time=float(t), file=file) for t in times]
