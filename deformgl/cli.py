@@ -99,6 +99,12 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--time", type=float, default=None, metavar="T",
                    help="scene-graph files: the still at time T seconds of the keyframed deformations "
                         "(default 0)")
+    r.add_argument("--tolerance", type=float, default=None, metavar="X",
+                   help="model only what the scene requires: run it on the coarsest grid, integrator and "
+                        "largest dt whose predicted relative deflection error is below X (deformgl plan; "
+                        "needs a [material]); the simulated time is kept")
+    r.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
+                   help="with --tolerance: which measured workload's error model applies (default bending)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     from deformgl.scene.overrides import add_render_flags
 
@@ -169,6 +175,12 @@ def _render(args: argparse.Namespace) -> int:
     scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
                                  integrator=args.integrator, backend=args.backend, unstable=args.unstable,
                                  check_every=args.check_every)
+    if args.tolerance is not None:
+        from deformgl.bench.plan import planned_scene
+
+        scene, chosen = planned_scene(scene, args.tolerance, args.load)
+        if not args.quiet:
+            print("\n".join(f"deformgl: plan: {line}" for line in chosen.lines()[:-1]), file=sys.stderr)
     # a shipped scene writes into the working directory, never into the installed package
     out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
     plan = frame_plan(scene, frames=args.frames, fps=args.fps, steps_per_frame=args.steps_per_frame,
@@ -204,7 +216,7 @@ def _render_graph(args: argparse.Namespace, source: Path) -> int:
 
     refused = {"--steps": args.steps, "--mesh": args.mesh, "--mapping": args.mapping, "--integrator": args.integrator,
                "--backend": args.backend, "--allow-unstable/--subdivide": args.unstable,
-               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs}
+               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs, "--tolerance": args.tolerance}
     out = graph_output(source, args.output, args.export_mesh, args.time, refused, frames=args.frames)
     try:
         size = parse_size(args.size) if args.size is not None else None

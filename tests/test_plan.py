@@ -80,3 +80,29 @@ def test_the_plan_command(capsys):
     assert "nodes across the thickness" in out and "verlet" in out and "<= 5.00%" in out
     assert main(["plan", "jelly.toml", "--tolerance", "5"]) == 2
     assert "--tolerance" in capsys.readouterr().err
+
+
+def test_render_runs_the_plan_and_keeps_the_simulated_time(ctx, tmp_path, capsys):
+    """``deformgl render SCENE --tolerance X``: the scene runs on the plan's grid, integrator and
+    dt, for as many steps as keep its simulated time, and says what it chose."""
+    import json
+    from pathlib import Path
+
+    from deformgl.scene.schema import load_scene
+
+    jelly = Path(__file__).resolve().parent.parent / "scenes" / "jelly.toml"
+    scene = load_scene(jelly)
+    plan = plan_scene(jelly, 0.05)
+    code = main(["render", str(jelly), "-o", str(tmp_path / "j.png"), "--tolerance", "0.05",
+                 "--json", str(tmp_path / "j.json")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "deformgl: plan: grid: " in err and "deformgl: plan: integrator: verlet" in err
+    record = json.loads((tmp_path / "j.json").read_text())
+    assert record["dt_s"] == pytest.approx(plan.dt) and record["integrator"] == plan.integrator
+    assert record["simulated_time_s"] == pytest.approx(scene.physics.dt * scene.physics.steps, rel=0.01)
+    code = main(["render", str(jelly.with_name("jelly_springs.toml")), "-o", str(tmp_path / "s.png"),
+                 "--tolerance", "0.05"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--tolerance: needs a volume body with a solid [material]" in err
+    assert not (tmp_path / "s.png").exists()

@@ -30,7 +30,7 @@ from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
 __all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "Plan",
-           "fit", "make_plan", "plan_scene", "add_parser", "run"]
+           "fit", "make_plan", "plan_scene", "planned_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
 #: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
@@ -170,6 +170,31 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
     mesh = load_mesh(scene.mesh.path)
     extent = (mesh.bounds[1] - mesh.bounds[0]) * float(getattr(scene.mesh, "scale", 1.0))
     return make_plan(tuple(float(e) for e in extent), chosen, tolerance, load)  # type: ignore[arg-type]
+
+
+def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[Any, Plan]:
+    """``deformgl render SCENE --tolerance X``: the scene on the plan's grid, integrator and dt,
+    with as many steps as keep its simulated time (``physics.dt x physics.steps``), and the plan.
+
+    Raises:
+        InputError: the scene has no solid ``[material]`` or is a cloth (see :func:`make_plan`).
+    """
+    import dataclasses
+
+    from deformgl.grid.meshio import load_mesh
+    from deformgl.scene.spec import GridSpec
+
+    material = getattr(scene.physics, "material", None)
+    if scene.mesh is None or not isinstance(material, ElasticMaterial):
+        raise InputError(f"{scene.source.name}: --tolerance: needs a volume body with a solid [material] "
+                         f"(youngs_modulus, density); see deformgl plan --help")
+    mesh = load_mesh(scene.mesh.path)
+    extent = (mesh.bounds[1] - mesh.bounds[0]) * float(scene.mesh.scale)
+    plan = make_plan(tuple(float(e) for e in extent), material, tolerance, load)  # type: ignore[arg-type]
+    simulated = scene.physics.dt * scene.physics.steps
+    steps = max(1, math.ceil(simulated / plan.dt - 1e-9))
+    physics = dataclasses.replace(scene.physics, integrator=plan.integrator, dt=plan.dt, steps=steps)
+    return dataclasses.replace(scene, grid=GridSpec(plan.nodes_along_longest, None), physics=physics), plan
 
 
 def add_parser(sub: Any) -> None:
