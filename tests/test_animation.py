@@ -24,7 +24,7 @@ def jelly(tmp_path):
     (tmp_path / "assets").mkdir()
     shutil.copy(SCENES / "assets" / "jelly_block.obj", tmp_path / "assets")
     scene = tmp_path / "jelly.toml"
-    text = (SCENES / "jelly.toml").read_text().replace("steps = 300", "steps = 120")
+    text = (SCENES / "jelly_springs.toml").read_text().replace("steps = 300", "steps = 120")
     scene.write_text(text.replace("size = [320, 240]", "size = [160, 120]"))
     return scene
 

@@ -97,7 +97,7 @@ def test_variants_in_one_process_with_a_failed_one_in_the_table(ctx, jelly, tmp_
 def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp_path, capsys):
     need_dask()
     sweep = write_sweep(tmp_path, '[set]\n"physics.steps" = 30\n[product]\n"physics.integrator" = '
-                                  '["verlet", "semi-implicit"]\n"grid.nodes_along_longest" = [5, 6]\n')
+                                  '["verlet", "semi-implicit"]\n"grid.nodes_along_longest" = [6, 8]\n')
     code = main(["sweep", str(sweep), "-o", str(tmp_path / "dask"), "--workers", "2", "--quiet"])
     err = capsys.readouterr().err
     assert code == 0, err
