@@ -183,6 +183,11 @@ def _render(args: argparse.Namespace) -> int:
             print("\n".join(f"deformgl: plan: {line}" for line in chosen.lines()[:-1]), file=sys.stderr)
     # a shipped scene writes into the working directory, never into the installed package
     out = args.output or (Path(scene.output.path.name) if is_packaged(source) else scene.output.path)
+    if (args.steps is not None and args.steps_per_frame is None and args.seconds_per_frame is None
+            and scene.animation is not None and (scene.animation.steps_per_frame is not None
+                                                 or scene.animation.seconds_per_frame is not None)):
+        raise InputError(f"{source}: --steps: the scene's [animation] sets the steps between frames; "
+                         f"give --steps-per-frame (or --seconds-per-frame) instead")
     plan = frame_plan(scene, frames=args.frames, fps=args.fps, steps_per_frame=args.steps_per_frame,
                       seconds_per_frame=args.seconds_per_frame, turntable=args.turntable)
     record = None if args.json is None else (Path(args.json) if args.json else default_record_path(out))
@@ -216,7 +221,14 @@ def _render_graph(args: argparse.Namespace, source: Path) -> int:
 
     refused = {"--steps": args.steps, "--mesh": args.mesh, "--mapping": args.mapping, "--integrator": args.integrator,
                "--backend": args.backend, "--allow-unstable/--subdivide": args.unstable,
-               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs, "--tolerance": args.tolerance}
+               "--check-every": args.check_every, "--pack-inputs": args.pack_inputs, "--tolerance": args.tolerance,
+               "--set": args.set, "--camera": args.camera, "--views": args.views, "--compare": args.compare,
+               "--json": args.json, "--turntable": args.turntable, "--steps-per-frame": args.steps_per_frame,
+               "--seconds-per-frame": args.seconds_per_frame}
+    if args.fps is not None and args.frames is None:
+        raise InputError("--fps: only with --frames for a scene-graph file")
+    if args.fps is not None and not 0 < args.fps <= 1000:
+        raise InputError(f"--fps: must be in (0, 1000], got {args.fps:g}")
     out = graph_output(source, args.output, args.export_mesh, args.time, refused, frames=args.frames)
     try:
         size = parse_size(args.size) if args.size is not None else None

@@ -1,6 +1,6 @@
 """Scene graphs rendered (issue 17): a hand-written graph of depth >= 4 with grids and instancing
 from Python and the CLI, keyframed frames, the composed mesh exported from the GPU against a
-float64 eq. 1, and a graph attached to a simulated body."""
+float64 Knuth, Kohlhammer & Kuijper, eq. 1, and a graph attached to a simulated body."""
 
 from pathlib import Path
 
@@ -95,7 +95,7 @@ def test_exported_one_cell_cuboid_matches_float64_eq1(ctx, tmp_path, capsys):
     from deformgl.trilinear.shapes import uv_sphere
 
     ball = uv_sphere(0.5, 24, 16)
-    want = trilinear_corners(corners, ball.vertices + 0.5)          # eq. 1, float64, box -> unit cube
+    want = trilinear_corners(corners, ball.vertices + 0.5)          # Knuth, Kohlhammer & Kuijper, eq. 1, float64, box -> unit cube
     diagonal = float(np.linalg.norm(want.max(0) - want.min(0)))
     assert mesh.vertices.shape == want.shape and np.array_equal(mesh.faces, ball.triangles)
     assert np.abs(mesh.vertices - want).max() <= 1e-6 * diagonal

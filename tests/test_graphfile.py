@@ -22,7 +22,7 @@ from deformgl.trilinear.grid import Trilinear
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 SHIPPED = ["trilinear_tubes.toml", "trilinear_tile.toml", "trilinear_helix.toml", "trilinear_helix_4617.toml",
-           "graph_dragon_beads.toml"]
+           "graph_dragon_beads.toml", "graph_bend_twist.toml"]
 
 
 def every_kind_graph(tmp_path: Path) -> SceneGraph:
@@ -107,7 +107,7 @@ def test_instancing_shares_nodes_and_arrays_colour_their_instances(tmp_path):
     assert colours[:4] == [(1.0, 0.0, 0.0)] * 2 + [(0.0, 1.0, 0.0)] * 2  # (i + j) mod 2, x outer
     grids = [n for n in root.walk() if isinstance(n, TransformNode) and isinstance(n.transform, Trilinear)]
     assert {g.name for g in grids} == {"c", "d", "e", "g"}
-    # the coefficient matrix C (eq. 2-4) evaluates as v' = C v on the unit cube of its box
+    # the coefficient matrix C (Knuth, Kohlhammer & Kuijper, eq. 2-4) evaluates as v' = C v on the unit cube of its box
     d = next(g for g in grids if g.name == "d").transform
     u = np.array([[0.25, 0.5, 0.75]])
     x, y, z = u[0]

@@ -355,6 +355,15 @@ def test_the_python_api_takes_a_material(ctx):
         assert mm.grid.spacing == pytest.approx(0.1e-3 / 4, rel=1e-6)
     with pytest.raises(Exception, match="material must be an ElasticMaterial or one of"):
         Body(box, material="jelly", ctx=ctx)
+    with pytest.raises(Exception, match="stiffness: not used with material="):
+        Body(box, material="gelatin", stiffness=300.0, ctx=ctx)
+    # the Python API's dt refusal speaks in the material's terms too
+    import deformgl as dg
+    from deformgl.errors import RefusedStepError
+    with Body(box, resolution=9, material="gelatin", fixed=below("y", 0.1), ctx=ctx) as body:
+        sim = body.simulate(dt=0.05)
+        with pytest.raises(RefusedStepError, match=r"in material terms the limit is [0-9.]+ h sqrt\(rho/E\) with E = 1e\+04 Pa"):
+            dg.run(sim, 10)
 
 
 def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_normals(ctx):
@@ -393,3 +402,22 @@ def test_the_cpu_peers_refuse_the_calibrated_lattice_rather_than_step_it_wrong()
     system, _ = lattice_system(block((3, 3, 3)), GEL)
     with pytest.raises(ValueError, match="per-spring stiffness"):
         PeerStepper(system, dt=1e-4)  # (the check every peer's constructor runs first)
+
+
+def test_flexion_springs_keep_the_sheets_membrane_modulus():
+    """Flexion springs (2h) of r k_d add 4 r k_d to C11; the edges give it up, so the sheet keeps
+    Y and nu = 1/3: exactly under shear, and under stretch up to the row ends' missing flexion
+    springs (a deficit that falls as 1/n; 41 x 41 nodes: under 2 %)."""
+    grid = NodeGrid(np.zeros(3), 0.01, np.ones((41, 1, 41), bool))
+    lam = mu = 3.0 * 200.0 / 8.0
+    for r in (0.3, 0.5):
+        system, report = sheet_system(grid, SheetMaterial(200.0, 0.2, flexion_ratio=r))
+        assert (system.spring_class == 2).any()
+        area = report.cells * 0.01 ** 2
+        for e2, tol in ((np.array([[1e-3, 0.0], [0.0, 0.0]]), 0.02), (np.array([[0.0, 1e-3], [1e-3, 0.0]]), 1e-9)):
+            eps = np.zeros((3, 3))
+            eps[np.ix_([0, 2], [0, 2])] = e2
+            expected = area * (0.5 * lam * np.trace(e2) ** 2 + mu * np.sum(e2 * e2))
+            assert linear_energy(system, eps) == pytest.approx(expected, rel=tol)
+    with pytest.raises(ValueError, match="flexion_ratio must be at most 0.5"):
+        SheetMaterial(200.0, 0.2, flexion_ratio=0.6)

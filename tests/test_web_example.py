@@ -120,7 +120,8 @@ def _edges(image: np.ndarray) -> np.ndarray:
 
 
 def test_export_web_refuses_what_the_page_cannot_run(tmp_path):
-    proc = export(tmp_path / "a")  # dragon.toml maps one-to-one
+    proc = subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(ROOT / "scenes" / "dragon_grid.toml"),
+                           str(tmp_path / "a")], capture_output=True, text=True, timeout=300)  # one-to-one
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "mapping.mode" in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(ROOT / "scenes" / "cloth_64.toml"),
                            str(tmp_path / "b")], capture_output=True, text=True, timeout=300)

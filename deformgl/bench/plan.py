@@ -139,7 +139,7 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
                          f"(more than {MAX_ACROSS}); the lattice error falls as h^{p:.2f}")
     thickness = min(size)
     h = thickness / cells
-    along = int(round(max(size) / h)) + 1
+    along = math.ceil(max(size) / h - 1e-9) + 1  # the built spacing is at most the planned one
     crit = critical_dt(material, h, integrator)
     return Plan(tolerance, load, size, material, cells + 1, h, along, integrator, fraction,
                 fraction * crit, crit, c * (1.0 / cells) ** p, e_t, e_32, (c, p))

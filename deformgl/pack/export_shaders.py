@@ -67,8 +67,8 @@ def _write(path: Path, text: str) -> None:
     write_atomic(path, lambda f: f.write(data))
 
 
-def export_shaders(out: Path, profile: str) -> list[Path]:
-    """Write the pack into folder ``out`` (created); returns the files written."""
+def pack_contents(out: Path, profile: str) -> dict[Path, str]:
+    """Every file of the pack in folder ``out`` (its folders created) and its text."""
     if profile not in PROFILES:
         raise InputError(f"--profile: {profile!r} is not one of {', '.join(PROFILES)}")
     if out.exists() and not out.is_dir():
@@ -81,12 +81,24 @@ def export_shaders(out: Path, profile: str) -> list[Path]:
     contract = resources.files("deformgl.shaders").joinpath("README.md").read_text(encoding="utf-8")
     info = {"name": "deformgl shader pack", "version": PACK_VERSION, "profile": profile,
             "language": f"GLSL {_LANGUAGE[profile]}", "license": "MIT", "files": names}
-    with OutputSet([*targets.values(), meta, readme], "shader pack file"):
-        for name, path in targets.items():
-            _write(path, shader_text(name, profile))
-        _write(readme, contract)
-        _write(meta, json.dumps(info, indent=1) + "\n")
-    return [*targets.values(), readme, meta]
+    files = {path: shader_text(name, profile) for name, path in targets.items()}
+    files[readme] = contract
+    files[meta] = json.dumps(info, indent=1) + "\n"
+    return files
+
+
+def write_pack(files: dict[Path, str]) -> None:
+    """Write :func:`pack_contents` (atomically each; in the active output set, if any)."""
+    for path, text in files.items():
+        _write(path, text)
+
+
+def export_shaders(out: Path, profile: str) -> list[Path]:
+    """Write the pack into folder ``out`` (created), all files or none; returns the files written."""
+    files = pack_contents(out, profile)
+    with OutputSet(list(files), "shader pack file"):
+        write_pack(files)
+    return list(files)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:

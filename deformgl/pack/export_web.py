@@ -11,7 +11,8 @@ detailed mesh (constant, curvature or auto). OUT_DIR receives, written as one
 * little-endian binary files, row-major, exactly the textures and buffers deformgl uploads:
   ``node.f32`` (H, W, 4) node data, ``state_current.f32`` / ``state_previous.f32`` (H, W, 4) the
   start state (xyz, w packed normal), ``neighbours.i32`` (5, H, W, 4) (only for a compact layout
-  that is not dense), ``pulls.f32`` (steps, PULLS, 3) the pull force of each group at each step
+  that is not dense), ``spring_weights.f32`` (5, H, W, 4) (only for a material scene: the
+  per-spring weights of ``SPRING_WEIGHTS``), ``pulls.f32`` (steps, PULLS, 3) the pull force of each group at each step
   (N per node), ``texel1..3.i32`` (V, 2), ``weights``/``offset``/``offset_world``/``normal``/
   ``normal_world.f32`` (V, 3), ``curvature.f32`` (V,), ``faces.u32`` (F, 3).
 
@@ -33,7 +34,7 @@ from deformgl.files import OutputSet, write_atomic
 from deformgl.gl.context import create_context
 from deformgl.gl.es_context import read_texture
 from deformgl.grid.nodes import CompactLayout
-from deformgl.pack.export_shaders import PACK_VERSION, export_shaders
+from deformgl.pack.export_shaders import PACK_VERSION, pack_contents, write_pack
 from deformgl.scene.pipeline import build_scene_model, make_draw_pass, scene_lighting, scene_view
 from deformgl.scene.run import SceneBox, scene_constraints, scene_drags
 from deformgl.scene.schema import load_scene
@@ -72,6 +73,8 @@ def export_web(path: Path, out: Path, *, steps: int | None = None, size: tuple[i
     scene = web_scene(path, steps=steps, size=size, mapping=mapping)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
+    shaders = pack_contents(out / "shaders", "es")
+    OutputSet(list(shaders) + [out / "scene.json"], "web export file")  # every path checked before the GL work
     ctx = create_context()
     try:
         built = build_scene_model(scene)
@@ -90,15 +93,15 @@ def export_web(path: Path, out: Path, *, steps: int | None = None, size: tuple[i
             sim.release()
     finally:
         ctx.release()
-    export_shaders(out / "shaders", "es")
     targets = {name: out / name for name in arrays}
-    with OutputSet([*targets.values(), out / "scene.json"], "web export file"):
+    with OutputSet([*shaders, *targets.values(), out / "scene.json"], "web export file"):  # all or none
+        write_pack(shaders)
         for name, arr in arrays.items():
             data = np.ascontiguousarray(arr).astype(arr.dtype.newbyteorder("<")).tobytes()
             write_atomic(targets[name], lambda f, d=data: f.write(d))  # type: ignore[misc]
         text = json.dumps(info, indent=1) + "\n"
         write_atomic(out / "scene.json", lambda f: f.write(text.encode("utf-8")))
-    return [*targets.values(), out / "scene.json"]
+    return [*shaders, *targets.values(), out / "scene.json"]
 
 
 def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray], dict]:
@@ -186,7 +189,10 @@ def run(args: argparse.Namespace) -> int:
     from deformgl.data import find_scene
     from deformgl.scene.spec import parse_size
 
-    size = parse_size(args.size) if args.size else None
+    try:
+        size = parse_size(args.size) if args.size else None
+    except ValueError as exc:
+        raise InputError(f"--size: {exc}") from None
     files = export_web(find_scene(args.scene), args.out, steps=args.steps, size=size, mapping=args.mapping)
     print(f"wrote {len(files)} files and the es shader pack to {args.out}")
     return 0

@@ -41,8 +41,8 @@ __all__ = ["FramePlan", "Frames", "View3", "compose_grid", "frame_plan", "render
 #: A camera view of the command line: (azimuth degrees, elevation degrees, distance in box diagonals).
 View3 = tuple[float, float, float]
 #: How a panel names its mapping mode (Mosegaard & Sørensen 2005, section 3).
-MODE_LABELS = {"one-to-one": "one-to-one: the node-grid surface", "constant": "constant basis (eq. 6)",
-               "curvature": "curvature-corrected basis (eq. 8)", "auto": "auto: eq. 8 or eq. 6 per vertex"}
+MODE_LABELS = {"one-to-one": "one-to-one: the node-grid surface", "constant": "constant triangle basis",
+               "curvature": "curvature-corrected basis", "auto": "auto: curvature or constant basis per vertex"}
 #: Most bytes of frames an animation keeps in memory before it is written.
 MAX_FRAME_BYTES = 4 << 30
 

@@ -124,7 +124,7 @@ class Body:
     """
 
     def __init__(self, mesh: trimesh.Trimesh, *, resolution: int | None = 8, spacing: float | None = None,
-                 stiffness: float = 500.0, damping: float = 0.5, mass: float = 0.01,
+                 stiffness: float | None = None, damping: float | None = None, mass: float | None = None,
                  gravity: Sequence[float] = (0.0, -9.81, 0.0), fixed: Region | Sequence[Region] | None = None,
                  material: ElasticMaterial | str | None = None, scale: float = 1.0,
                  ctx: moderngl.Context | None = None, source: str = "<arrays>") -> None:
@@ -132,6 +132,14 @@ class Body:
             resolution = None
         elif resolution is None or int(resolution) < 2:
             raise InputError(f"{source}: resolution must be at least 2 nodes along the longest side, got {resolution}")
+        given = [name for name, value in (("stiffness", stiffness), ("damping", damping), ("mass", mass))
+                 if value is not None]
+        if material is not None and given:
+            raise InputError(f"{source}: {given[0]}: not used with material= (the springs, masses and damping "
+                             f"come from its Young's modulus, density and Rayleigh damping)")
+        stiffness = 500.0 if stiffness is None else stiffness
+        damping = 0.5 if damping is None else damping
+        mass = 0.01 if mass is None else mass
         if isinstance(material, str):
             if material not in PRESETS:
                 raise InputError(f"{source}: material must be an ElasticMaterial or one of {', '.join(PRESETS)}, "

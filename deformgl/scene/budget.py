@@ -161,11 +161,19 @@ def _mesh_counts(scene: Any) -> tuple[np.ndarray, int, int]:
     return tri.max(axis=(0, 1)) - tri.min(axis=(0, 1)), len(mesh.vertices), len(faces)
 
 
+#: Host bytes per node that a ``[material]`` scene's lattice assembly adds at its peak, measured
+#: on a 125k-node block: +456 over ``from_grid``'s peak for the cell counts and the weighted
+#: stiffness, +1,258 for the spring-weight table and its lookup keys; 2,000 with a margin.
+MATERIAL_HOST_BYTES_PER_NODE = 2000
+
+
 def estimate(scene: Any) -> Budget:
     """The memory ``scene`` (a :class:`~deformgl.scene.schema.Scene`) will need, from the scene
     alone: the grid box bounds the node count, nothing is voxelized or allocated."""
     physics = scene.physics
-    flexion = physics.flexion.stiffness > 0
+    material = getattr(physics, "material", None)
+    flexion = (physics.flexion.stiffness > 0 if material is None
+               else bool(getattr(material, "flexion_ratio", 0.0)))
     if scene.cloth is not None:
         nx, nz = scene.cloth.nodes
         shape = (int(nx), 1, int(nz))
@@ -201,11 +209,16 @@ def estimate(scene: Any) -> Budget:
         "binding and mesh": int(MESH_BYTES["vertex"] * vertices + MESH_BYTES["face"] * faces),
         "render read-back": w * h * 3 * 2,
     }
+    if material is not None:
+        # the cell assembly (a second (S,) stiffness and its temporaries) and the (N, 18 or 24)
+        # float64 spring weights with their lookup keys (MATERIAL_HOST_BYTES_PER_NODE)
+        host["material lattice"] = int(MATERIAL_HOST_BYTES_PER_NODE * nodes)
     texels = _texels(nodes)
     if physics.backend == "fragment":
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
-        sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers
+        weights = (6 if flexion else 5) if material is not None else 0  # the spring-weight layers
+        sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights
                         + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))
     elif physics.backend == "feedback":
         sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))

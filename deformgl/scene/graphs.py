@@ -97,6 +97,10 @@ def render_graph_file(ctx: moderngl.Context, path: str | Path, *, size: tuple[in
     return GraphRender(result.image, made), (captured[0] if captured else None)
 
 
+#: The most frames of a graph animation (they are kept in memory until written).
+MAX_GRAPH_FRAMES = 10000
+
+
 def graph_output(source: Path, output: Path | None, export: Path | None, time: float | None,
                  refused: dict[str, object], frames: int | None = None) -> Path:
     """The checks of ``deformgl render GRAPH.toml`` before any work, and its PNG path: the
@@ -110,14 +114,14 @@ def graph_output(source: Path, output: Path | None, export: Path | None, time: f
     for flag, value in refused.items():
         if value is not None:
             raise InputError(f"{source}: {flag} applies to simulation scenes, not to scene-graph files "
-                             f"(set them in the [body] scene)")
+                             f"(a graph file sets its camera in [view], its simulation in its [body] scene)")
     if time is not None and not (math.isfinite(time) and time >= 0.0):
         raise InputError(f"--time: must be a finite time >= 0 s, got {time}")
     named = Path(graph.output) if graph.output else Path(f"{source.stem}.png")
     out = output or (Path(named.name) if is_packaged(source) else source.parent / named)
     if frames is not None:
-        if frames < 1:
-            raise InputError(f"--frames: must be >= 1, got {frames}")
+        if not 1 <= frames <= MAX_GRAPH_FRAMES:
+            raise InputError(f"--frames: must be in 1..{MAX_GRAPH_FRAMES}, got {frames}")
         if graph.body is not None:
             raise InputError(f"{source}: --frames: a graph attached to a simulated [body] renders stills "
                              f"(--time T); animate a graph without one")

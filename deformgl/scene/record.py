@@ -9,6 +9,8 @@ scene step), ``simulated_time_s``, ``wall_time_s``, ``converged``, ``mapping``, 
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import os
 from typing import Any
@@ -27,6 +29,16 @@ def version() -> str:
         return installed("deformgl")
     except PackageNotFoundError:  # run from a checkout that is not installed
         return "unknown"
+
+
+def material_fields(scene) -> dict[str, Any]:
+    """The body's material and mesh scale for the record (None in the per-spring form)."""
+    material = getattr(scene.physics, "material", None)
+    fields: dict[str, Any] = {"material": None, "mesh_scale_m": None if scene.mesh is None else float(scene.mesh.scale)}
+    if material is not None:
+        fields["material"] = {k: (float(v) if isinstance(v, (int, float)) else v)
+                              for k, v in dataclasses.asdict(material).items() if k != "source"}
+    return fields
 
 
 def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, wall: float = 0.0,
@@ -51,6 +63,7 @@ def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, 
         "simulated_time_s": float(run.time) if simulated else 0.0,
         "converged": run.converged if simulated else None,
         "mapping": scene.mapping.mode,
+        **material_fields(scene),
         "size": list(scene.render.size),
         "wall_time_s": round(float(wall), 4),
         "renderer": None if ctx is None else str(ctx.info.get("GL_RENDERER", "?")),

@@ -194,7 +194,7 @@ _MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
     "density": (_num(lo=0.0, lo_open=True, sane=(1e-3, 1e5), unit="kg/m^3"), None),
     "stretch_modulus": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e10), unit="N/m"), None),
     "areal_density": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e4), unit="kg/m^2"), None),
-    "flexion_ratio": (_num(lo=0.0, sane=(0.0, 10.0)), None),
+    "flexion_ratio": (_num(lo=0.0, hi=0.5), None),
     "mass_damping": (_num(lo=0.0, sane=(0.0, 1e6), unit="1/s"), 0.0),
     "stiffness_damping": (_num(lo=0.0, sane=(0.0, 1e3), unit="s"), 0.0),
 }
@@ -214,6 +214,9 @@ def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMater
         return SheetMaterial(d["stretch_modulus"], d["areal_density"], d["mass_damping"],
                              d["stiffness_damping"], d["flexion_ratio"] or 0.0)
     base = PRESETS[d["preset"]] if d["preset"] is not None else None
+    if base is not None and d["youngs_modulus"] is not None and d["density"] is not None:
+        _fail(file, _join(key, "preset"), "not used when youngs_modulus and density are both given "
+              "(a preset gives the values one of them leaves out)")
     values = {}
     for k in ("youngs_modulus", "density"):
         value = d[k] if d[k] is not None else (getattr(base, k) if base is not None else None)

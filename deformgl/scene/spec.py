@@ -373,7 +373,8 @@ class Scene:
         if mesh is not None:
             if scene.cloth is not None:
                 _fail(file, "--mesh", "a cloth scene has no mesh to replace")
-            scene = dataclasses.replace(scene, mesh=MeshSpec(_existing(file, "--mesh", Path(mesh).resolve())))
+            scale = scene.mesh.scale if scene.mesh is not None else 1.0  # the mesh.scale stays
+            scene = dataclasses.replace(scene, mesh=MeshSpec(_existing(file, "--mesh", Path(mesh).resolve()), scale))
         for flag, key, value, check in (("--integrator", "integrator", integrator, _INTEGRATOR),
                                         ("--backend", "backend", backend, _BACKEND)):
             if value is not None:

@@ -148,7 +148,7 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
     refusal = check_dt(system, physics.integrator, dt)
     if refusal is None:
         return StepPlan(dt, physics.steps)
-    where = f"{source}: {w.where}{refusal.message}{material_terms(system, getattr(physics, 'material', None), refusal.limit.dt)}"
+    where = f"{source}: {w.where}{refusal.message}{material_terms(system, getattr(physics, 'material', None) or system.material, refusal.limit.dt)}"
     if policy == "refuse":
         hint = ""
         if refusal.limit.bound == "gershgorin":

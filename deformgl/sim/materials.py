@@ -34,7 +34,8 @@ Cloth (one node thick, in a plane) uses the 2D lattice of 4 edges and 4 diagonal
 With edge constant k_e and diagonal constant k_d it is isotropic when ``k_e = 2 k_d``, with 2D
 Lamé constants lambda = mu = k_d: Poisson's ratio 1/3 and the 2D (membrane) Young's modulus
 ``Y = 8 k_d / 3`` in N/m. Per square cell an edge carries k_e/2 (2 cells share it) and each
-diagonal k_d; a cell gives ``rho_A h^2 / 4`` to each corner.
+diagonal k_d; a cell gives ``rho_A h^2 / 4`` to each corner. Flexion springs (``flexion_ratio``
+r) of r k_d, weighted by the cells of their two unit edges, take 4 r k_d of C11 from the edges.
 """
 
 from __future__ import annotations
@@ -96,10 +97,11 @@ class ElasticMaterial:
 class SheetMaterial:
     """A membrane (cloth): 2D Young's modulus ``stretch_modulus`` in N/m (E times thickness),
     ``areal_density`` in kg/m^2, Rayleigh damping as :class:`ElasticMaterial`, and
-    ``flexion_ratio``: flexion springs (2h along an axis) of that fraction of the edge
-    constant (0: none). A flat sheet's flexion springs resist bending only through the
-    geometry (at second order in the out-of-plane displacement), so the ratio is a shape knob,
-    not a calibrated bending modulus."""
+    ``flexion_ratio`` r in [0, 0.5]: flexion springs (2h along an axis) of r k_d, the edges
+    reduced to (2 - 4r) k_d so the membrane keeps its modulus (0: none). A flat sheet's flexion
+    springs resist bending only through the geometry (at second order in the out-of-plane
+    displacement), so r is a shape knob, not a calibrated bending modulus: deformgl has no
+    bending modulus for cloth."""
 
     stretch_modulus: float
     areal_density: float
@@ -118,6 +120,9 @@ class SheetMaterial:
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+        if self.flexion_ratio > 0.5:
+            raise ValueError(f"material.flexion_ratio must be at most 0.5 (the edges keep (2 - 4 r) k_d), "
+                             f"got {self.flexion_ratio}")
 
 
 #: Named materials (E in Pa, rho in kg/m^3) with the source of the values. Soft tissues span
@@ -234,7 +239,8 @@ def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLik
     thin_nodes = node_cells == 0
     mass = material.density * h ** 3 / 8.0 * np.maximum(node_cells, 1)
     system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
-                                 mass=mass, mass_damping=material.mass_damping)
+                                 mass=mass, mass_damping=material.mass_damping,
+                                 material=material)
     report = LatticeReport(int(full.sum()), int(thin_nodes.sum()), int(thin_springs.sum()), k,
                            material.density * h ** 3)
     return system, report
@@ -266,23 +272,35 @@ def sheet_system(grid: NodeGrid, material: SheetMaterial, *, fixed: ArrayLike | 
     a, b = ijk[base.i], ijk[base.j]
     lo = np.minimum(a, b)
     differs = a != b
-    counts = np.zeros(base.spring_count, np.int64)
-    for off in product((-1, 0), repeat=2):
-        o = np.array(off)
-        valid = ~(differs & (o != 0)).any(axis=1)
-        idx = lo + np.where(differs, 0, o) + 1
-        counts += valid & padded[idx[:, 0], idx[:, 1]]
+    def cells_of_edge(start: np.ndarray, along: np.ndarray) -> np.ndarray:
+        """Full cells that hold the unit edge from ``start`` along the axes ``along`` spans."""
+        found = np.zeros(len(start), np.int64)
+        for off in product((-1, 0), repeat=2):
+            o = np.array(off)
+            valid = ~(along & (o != 0)).any(axis=1)
+            idx = start + np.where(along, 0, o) + 1
+            found += valid & padded[idx[:, 0], idx[:, 1]]
+        return found
+
+    counts = cells_of_edge(lo, differs)
+    flex = base.spring_class == FLEXION
+    # a flexion spring (2h along an axis) is weighted by the cells of its two unit edges
+    unit = differs.astype(np.int64)
+    halves = cells_of_edge(lo, differs) + cells_of_edge(lo + unit, differs)
     node_cells = np.zeros(grid.count, np.int64)
     for off in product((-1, 0), repeat=2):
         idx = ijk + np.array(off) + 1
         node_cells += padded[idx[:, 0], idx[:, 1]]
     edge = base.spring_class == STRUCTURAL
-    flex = base.spring_class == FLEXION
-    stiffness = np.where(edge, k_e * np.maximum(counts, 1) / 2.0, k_d * np.maximum(counts, 1))
-    stiffness = np.where(flex, material.flexion_ratio * k_e, stiffness)
+    # flexion springs of r k_d add 4 r k_d to C11 (length 2h): the edges give that up, k_e = (2 - 4r) k_d,
+    # so the membrane keeps Y and nu = 1/3 (exactly in the interior and along straight borders)
+    r = material.flexion_ratio
+    stiffness = np.where(edge, (k_e - 4.0 * r * k_d) * np.maximum(counts, 1) / 2.0, k_d * np.maximum(counts, 1))
+    stiffness = np.where(flex, r * k_d * np.maximum(halves, 1) / 4.0, stiffness)
     mass = material.areal_density * h ** 2 / 4.0 * np.maximum(node_cells, 1)
     system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
-                                 mass=mass, mass_damping=material.mass_damping)
+                                 mass=mass, mass_damping=material.mass_damping,
+                                 material=material)
     thin_springs = int(((counts == 0) & ~flex).sum())
     report = LatticeReport(int(full.sum()), int((node_cells == 0).sum()), thin_springs, k_d,
                            material.areal_density * h ** 2)

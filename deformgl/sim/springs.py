@@ -69,6 +69,9 @@ class SpringSystem:
         grid: the node grid the system was built from (:func:`from_grid`, :func:`cloth`; node
             order is the grid's), or None (a triangle mesh, or springs listed by hand). The
             fragment backend needs it.
+        material: the :mod:`deformgl.sim.materials` material the springs were assembled from
+            (:func:`~deformgl.sim.materials.lattice_system`), or None (per-spring constants); the
+            dt check words its refusal in the material's terms.
     """
 
     rest_positions: np.ndarray
@@ -87,6 +90,7 @@ class SpringSystem:
     wind_drag: float = 0.0
     spacing: float = 1.0
     grid: NodeGrid | None = None
+    material: object = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]

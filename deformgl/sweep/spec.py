@@ -11,7 +11,7 @@
     "grid.nodes_along_longest" = [6, 8]
     [[variant]]                       # and these variants (a set), after the product's
     name = "stiff"
-    "physics.stiffness" = 2000
+    "material.youngs_modulus" = 20000.0
 
 Keys are any scene keys, dotted (:func:`deformgl.scene.schema.apply_overrides`); a variant's
 values are checked when it runs, and a bad one is that variant's error in the table, not the
@@ -110,8 +110,10 @@ def load_sweep(path: str | Path) -> SweepSpec:
     for i, v in enumerate(explicit):
         v = dict(v)
         name = v.pop("name", None)
-        if name is not None and (not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name)):
-            raise _fail(file, f"variant[{i}].name", "must be 1-64 letters, digits, '_', '-' or '.'")
+        if name is not None and (not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]{0,63}", name)):
+            raise _fail(file, f"variant[{i}].name", "must be 1-64 letters, digits, '_', '-' or '.', not starting with '.'")
+        if name == "sweep":
+            raise _fail(file, f"variant[{i}].name", "'sweep' is reserved (sweep.csv, sweep.json and sweep.png are the tables)")
         found.append((name, v))
     if not found:
         raise _fail(file, "product", "no variants: give [product] values or [[variant]] tables")

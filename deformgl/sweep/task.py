@@ -72,7 +72,11 @@ def run_variant(scene_path: str, overrides: dict[str, Any], out_dir: str, name: 
     try:
         scene = load_scene(scene_path, overrides)
         png = paths.get("png") or Path(out_dir) / f".{name}.unused.png"
-        job = Job(png, export=paths.get("mesh"), record=paths.get("record"))
+        from deformgl.scene.animation import frame_plan
+
+        # a variant is a still: physics.steps simulated, then drawn (an animated scene too)
+        job = Job(png, plan=frame_plan(scene, frames=1, steps_per_frame=0), export=paths.get("mesh"),
+                  record=paths.get("record"))
         record = render_job(ctx if ctx is not None else _context(), scene, job)
         if "png" not in paths:  # measured only: the image was rendered, not kept
             png.unlink(missing_ok=True)
