@@ -205,7 +205,10 @@ def test_a_keyframed_graph_animates_through_the_animation_writer(ctx, tmp_path, 
 @pytest.mark.parametrize("args, message", [
     (["--frames", "2", "-o", "x.png"], "an animation must end in .mp4, .gif or .webp"),
     (["--frames", "2", "-o", "x.gif", "--time", "1"], "--time: not with --frames"),
-    (["--frames", "0", "-o", "x.gif"], "--frames: must be >= 1"),
+    (["--frames", "0", "-o", "x.gif"], "--frames: must be in 1.."),
+    (["--frames", "2", "-o", "x.gif", "--fps", "0"], "--fps: must be in (0, 1000]"),
+    (["-o", "x.png", "--camera", "90,10,2"], "--camera applies to simulation scenes"),
+    (["-o", "x.png", "--json"], "--json applies to simulation scenes"),
 ])
 def test_graph_animation_options_are_checked_in_one_line(ctx, tmp_path, capsys, args, message):
     args = [a if not a.startswith("x.") else str(tmp_path / a) for a in args]

@@ -263,6 +263,8 @@ def test_a_material_scene_refuses_per_spring_keys(tmp_path):
     (lambda t: t.replace("density = 1030.0", "density = 1030.0\npreset = \"jelly\""), r"material.preset: must be one of"),
     (lambda t: t.replace("density = 1030.0", "stretch_modulus = 3.0"), r"material.stretch_modulus: a sheet"),
     (lambda t: t.replace("density = 1030.0", "densty = 1030.0"), r"material.densty: unknown key"),
+    (lambda t: t.replace("density = 1030.0", "density = 1030.0\npreset = \"liver\""),
+     r"material.preset: not used when youngs_modulus and density are both given"),
 ])
 def test_bad_material_tables_name_the_key(tmp_path, edit, message):
     with pytest.raises(SceneError, match=message):
@@ -421,3 +423,14 @@ def test_flexion_springs_keep_the_sheets_membrane_modulus():
             assert linear_energy(system, eps) == pytest.approx(expected, rel=tol)
     with pytest.raises(ValueError, match="flexion_ratio must be at most 0.5"):
         SheetMaterial(200.0, 0.2, flexion_ratio=0.6)
+
+
+def test_replacing_the_mesh_keeps_its_scale_and_the_record_names_the_material(tmp_path):
+    from deformgl.scene.record import material_fields
+    path = scene_copy(tmp_path, edit=lambda t: t.replace('path = "assets/jelly_block.obj"',
+                                                         'path = "assets/jelly_block.obj"\nscale = 0.5'))
+    scene = load_scene(path).with_overrides(mesh=SCENES / "assets" / "jelly_block.obj")
+    assert scene.mesh.scale == 0.5
+    fields = material_fields(scene)
+    assert fields["mesh_scale_m"] == 0.5 and fields["material"]["youngs_modulus"] == 5000.0
+    assert material_fields(load_scene(SCENES / "jelly_springs.toml"))["material"] is None

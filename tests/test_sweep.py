@@ -57,7 +57,9 @@ def test_sweep_files_give_the_product_and_the_listed_variants(jelly, tmp_path):
     assert shipped.variants[15].overrides["physics.integrator"] == "rk4"
     for body, message in (("[product]\n", "no variants"), ("bogus = 1\n[[variant]]\n", "bogus: unknown key"),
                           ('[product]\n"physics.dt" = 3\n', "each an array of values"),
-                          ('outputs = ["gif"]\n[[variant]]\n', "outputs: must be an array of")):
+                          ('outputs = ["gif"]\n[[variant]]\n', "outputs: must be an array of"),
+                          ('[[variant]]\nname = "sweep"\n', "'sweep' is reserved"),
+                          ('[[variant]]\nname = ".hidden"\n', "not starting with '.'")):
         with pytest.raises(InputError, match=message):
             load_sweep(write_sweep(tmp_path, body))
 
