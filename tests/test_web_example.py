@@ -81,6 +81,47 @@ def test_the_page_runs_the_steps_and_logs_no_webgl_error(page):
     print(f"\nheadless Chromium (SwiftShader): {page['step_ms']:.3f} ms per step, frame {page['frame_ms']:.1f} ms")
 
 
+def test_deformgls_own_step_and_frame_of_the_same_scene(ctx):
+    """The figures the page's are compared with (printed, not asserted: a measurement, as the page's):
+    the same scene, steps and mapping on llvmpipe, timed the way main.js times them (the steps
+    after the first, synchronised by a one-texel read; the best of 4 frames after a first)."""
+    import time as _time
+
+    from deformgl.render.passes import RenderTarget
+    from deformgl.scene.pipeline import build_scene_model, make_draw_pass, scene_lighting, scene_view
+    from deformgl.sim.simulation import make_simulation
+
+    scene = web_scene(SCENE, steps=STEPS, size=SIZE, mapping="curvature")
+    built = build_scene_model(scene)
+    sim = make_simulation(built.system, "verlet", "fragment", dt=scene.physics.dt, ctx=ctx, loads=built.loads)
+    try:
+        assert sim.fast is not None  # the page runs the same pass
+        sim.step(1)
+        sim.positions()
+        t0 = _time.perf_counter()
+        sim.step(STEPS - 1)
+        sim.position_texture.read()
+        step_ms = (_time.perf_counter() - t0) * 1e3 / (STEPS - 1)
+        draw = make_draw_pass(ctx, scene, built, sim.textures.layout)
+        target = RenderTarget(ctx, SIZE, 0)
+        try:
+            view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
+            frames = []
+            for _ in range(5):
+                t = _time.perf_counter()
+                target.begin((1.0, 1.0, 1.0))
+                draw.draw(sim.position_texture, view, lighting)
+                target.read_rgb()
+                frames.append((_time.perf_counter() - t) * 1e3)
+            assert np.isfinite(frames).all()
+        finally:
+            draw.release()
+            target.release()
+    finally:
+        sim.release()
+    print(f"\ndeformgl on llvmpipe, the same scene: {step_ms:.3f} ms per step, frame {min(frames[1:]):.1f} ms")
+
+
 def test_the_canvas_is_deformgls_frame(ctx, page):
     """The golden tolerances: at most 0.5 % of the pixels differ by more than 4/255, and no pixel
     by more than 64/255 away from edges. Silhouette and crease pixels (those that differ from a
