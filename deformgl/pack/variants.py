@@ -220,3 +220,19 @@ def all_variants() -> list[Variant]:
         for v in group():
             seen.setdefault(v.key, v)
     return list(seen.values())
+
+
+def implicit() -> Iterator[Variant]:
+    """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
+    from deformgl.sim.backends.implicit_gpu import PASSES
+
+    for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
+        common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
+                                     "SPHERES": 0, **forces}
+        for name in PASSES:
+            for c in (_constraints() if name == "FINAL" else [{}]):
+                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**common, **c, name: True})
+    yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
+
+
+GROUPS["implicit"] = implicit

@@ -45,12 +45,16 @@ from numpy.typing import ArrayLike
 
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
+__all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
 
 INTEGRATORS = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
+#: Integrators that solve a system each step (no explicit dt limit; :mod:`deformgl.sim.implicit`).
+IMPLICIT_INTEGRATORS: tuple[str, ...] = ("implicit-euler",)
+#: Every integrator :func:`deformgl.sim.simulation.make_simulation` builds.
+ALL_INTEGRATORS = INTEGRATORS + IMPLICIT_INTEGRATORS
 
 #: Bytes of one RGBA32F texel or one vec4 vertex attribute.
 VEC4_BYTES = 16

@@ -1,0 +1,143 @@
+"""Implicit (backward) Euler: the float64 reference against a direct solve and FEM statics, the
+GPU backend against the reference, stability far above the explicit limit, constraints, loads,
+drags, and the report of an unconverged solve (issue 15)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deformgl.bench.fem import MATERIAL, WORKLOADS, lattice_case, lattice_value
+from deformgl.sim.implicit import implicit_step
+from deformgl.sim.integrators import Constraints, initial_state
+from deformgl.sim.limits import check_dt
+from deformgl.sim.materials import ElasticMaterial, critical_dt
+from deformgl.sim.simulation import SimulationSetupError, make_simulation
+from deformgl.sim.springs import Drag, Load
+
+TISSUE = ElasticMaterial(3.0e3, 1060.0, mass_damping=1.0, stiffness_damping=1e-3)
+
+
+def _case(material=TISSUE, across=3):
+    return lattice_case(WORKLOADS["cantilever"], across, material)
+
+
+def test_cg_converges_to_the_direct_solve():
+    s = _case(MATERIAL).system
+    st = initial_state(s, 1e-3)
+    direct, dv_d, _ = implicit_step(s, st, 1e-3, 0.0, solver="direct")
+    cg, dv_c, report = implicit_step(s, st, 1e-3, 0.0, iterations=300, tolerance=1e-12, check_every=1)
+    assert report.converged and report.residual <= 1e-12 and 0 < report.iterations < 300
+    assert np.abs(dv_c - dv_d).max() <= 1e-9 * np.abs(dv_d).max()
+    assert np.abs(cg.x - direct.x).max() <= 1e-12
+
+
+def test_gpu_matches_numpy_one_step(ctx):
+    case = _case()
+    s = case.system
+    loads = (Load(case.grid.rest_positions[:, 0] > 0.9, lambda t: (0.0, 0.01, 0.0)),)
+    drags = (Drag(100, lambda t: (0.5, 0.08, 0.05), 0.5),)
+    opts = dict(dt=1 / 60, loads=loads, drags=drags, constraints=Constraints(ground=-0.02), cg_iterations=5)
+    ref = make_simulation(s, "implicit-euler", "numpy", **opts)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, **opts) as gpu:
+        for _ in range(2):   # the second step runs from the warm start on both sides
+            ref.step()
+            gpu.step()
+            dv = gpu.velocity_change()
+            assert np.abs(dv - ref.dv).max() <= 1e-5 * np.abs(ref.dv).max()
+            assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-5 * case.spacing
+        assert np.array_equal(gpu.positions()[s.fixed], s.rest_positions[s.fixed].astype(np.float32))
+        assert np.all(gpu.velocities()[s.fixed] == 0.0)
+
+
+def test_stable_far_above_the_explicit_limit_and_settles():
+    case = _case(MATERIAL)
+    s = case.system
+    dt = 100 * critical_dt(MATERIAL, case.spacing)
+    assert check_dt(s, "verlet", dt) is not None and check_dt(s, "implicit-euler", dt) is None
+    sim = make_simulation(s, "implicit-euler", "numpy", dt=dt, solver="direct")
+    sim.step(300)
+    x = sim.positions()
+    assert np.all(np.isfinite(x))
+    assert np.abs(sim.velocities()).max() < 1e-3 * case.spacing / dt
+
+
+def test_static_limit_is_the_lattice_static_solve():
+    case = _case(MATERIAL)
+    s = case.system
+    static = lattice_value(case)
+    sim = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=200)
+    sim.step(60)
+    sag = lattice_value(case, sim.positions() - s.rest_positions)
+    assert sag == pytest.approx(static, rel=2e-3)   # the FEM tolerance of docs/ACCURACY.md is 2 %
+
+
+def test_geometric_term_dropped_blows_up_projected_does_not():
+    case = _case(MATERIAL)
+    s, static = case.system, lattice_value(case)
+    dropped = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=50, geometric="none")
+    dropped.step(60)
+    projected = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, solver="direct")
+    projected.step(60)
+    assert np.abs(dropped.positions() - s.rest_positions).max() > 100 * static
+    assert lattice_value(case, projected.positions() - s.rest_positions) == pytest.approx(static, rel=2e-3)
+
+
+def test_ground_load_and_drag(ctx):
+    case = _case()
+    s = case.system
+    tip = case.grid.rest_positions[:, 0] > 0.9
+    drag = Drag(int(np.flatnonzero(tip)[0]), lambda t: (1.0, 0.3, 0.05), 50.0)
+    up = (Load(tip, lambda t: (0.0, 0.5, 0.0)),)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, dt=1 / 60, cg_iterations=30,
+                         constraints=Constraints(ground=-0.01)) as fall:
+        fall.step(60)
+        assert fall.positions()[:, 1].min() >= -0.01 - 1e-6
+    free = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, solver="direct")
+    free.step(30)
+    lifted = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, loads=up, solver="direct")
+    lifted.step(30)
+    assert lifted.positions()[tip, 1].mean() > free.positions()[tip, 1].mean() + 0.05
+    dragged = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, drags=(drag,), solver="direct")
+    dragged.step(30)
+    assert dragged.positions()[drag.node, 1] > free.positions()[drag.node, 1] + 0.05
+
+
+def test_unconverged_solve_is_reported(ctx):
+    s = _case(MATERIAL).system
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, dt=1 / 60, cg_iterations=3,
+                         cg_tolerance=1e-6, cg_check_every=1) as gpu:
+        gpu.step(2)
+        assert gpu.unconverged == 2 and gpu.last_report.residual > 1e-6
+        assert "did not reach the tolerance" in gpu.solver_note()
+    ref = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=300, cg_tolerance=1e-6)
+    ref.step(2)
+    assert ref.solver_note() is None and ref.last_report.converged
+
+
+def test_setup_errors():
+    s = _case().system
+    with pytest.raises(SimulationSetupError, match="not on feedback"):
+        make_simulation(s, "implicit-euler", "feedback", dt=0.01, ctx=object())
+    with pytest.raises(SimulationSetupError, match="cg_iterations"):
+        make_simulation(s, "implicit-euler", "numpy", dt=0.01, cg_iterations=0)
+    with pytest.raises(SimulationSetupError, match="unknown option"):
+        make_simulation(s, "implicit-euler", "numpy", dt=0.01, path="general")
+
+
+def test_scene_keys(tmp_path):
+    from deformgl.errors import DeformglError
+    from deformgl.scene.schema import load_scene
+
+    from pathlib import Path
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    base = tmp_path / "s.toml"
+    head = f'[mesh]\npath = "{mesh.as_posix()}"\n'
+    base.write_text(head + '[physics]\nintegrator = "implicit-euler"\n[physics.implicit]\niterations = 7\ntolerance = 1e-4\n')
+    scene = load_scene(base)
+    assert scene.physics.integrator == "implicit-euler"
+    assert scene.physics.implicit.options() == {"cg_iterations": 7, "cg_tolerance": 1e-4}
+    base.write_text(head + '[physics.implicit]\niterations = 0\n')
+    with pytest.raises(DeformglError, match="physics.implicit.iterations"):
+        load_scene(base)
