@@ -141,3 +141,18 @@ def test_scene_keys(tmp_path):
     base.write_text(head + '[physics.implicit]\niterations = 0\n')
     with pytest.raises(DeformglError, match="physics.implicit.iterations"):
         load_scene(base)
+
+
+def test_stiff_study_quick(ctx):
+    from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
+
+    cases = [c for c in stiff_cases(quick=True) if c.youngs_modulus == 1.0e6]
+    assert cases and cases[0].omega1 > 100.0 and cases[0].linear_gap < 1e-3
+    rows = stiff_study(ctx, quick=True, cases=cases)
+    implicit = [r for r in rows if r.integrator == "implicit-euler"]
+    explicit = [r for r in rows if r.integrator != "implicit-euler"]
+    assert implicit and explicit and all(r.converged_at is not None for r in rows)
+    assert all(r.final_error <= 0.05 for r in rows)
+    assert all(0.0 <= r.mode_decay < 1e-6 for r in implicit) and all(r.mode_decay == 1.0 for r in explicit)
+    assert all(r.dt > 10 * max(e.dt for e in explicit) for r in implicit)
+    assert "in favour of" in format_stiff(rows, cases=cases)

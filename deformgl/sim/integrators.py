@@ -73,6 +73,10 @@ GPU_BUFFERS: dict[str, tuple[str, ...]] = {
     "rk4": ("x", "v", "x_stage_a", "v_stage_a", "x_stage_b", "v_stage_b",
             "sum_x_a", "sum_v_a", "sum_x_b", "sum_v_b"),
     "verlet": ("x", "x_prev", "x_out"),
+    # backward Euler (deformgl.sim.backends.implicit_gpu): x, v in and out, the CG's b, P^-1,
+    # dv, r, p (each ping-pong but b and P^-1), q and the per-texel dot product
+    "implicit-euler": ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p", "p_out",
+                       "q", "prod"),
 }
 
 
