@@ -1,6 +1,6 @@
 """Implicit (backward) Euler on a :class:`SpringSystem`, float64 reference (scipy.sparse).
 
-One step linearises the forces at the start of the step (Baraff & Witkin 1998, eq. 6; the
+One step linearises the forces at the start of the step (Baraff & Witkin 1998; the
 method SOFA's default ``EulerImplicitSolver`` uses) and solves for the velocity change::
 
     (M + dt C + dt^2 H) dv = dt (f(x, v, t + dt) - dt H v),   v' = v + dv,   x' = x + dt v'

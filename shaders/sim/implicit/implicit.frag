@@ -17,53 +17,11 @@ uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 f
 uniform sampler2D u_x;      // xyz position at t
 uniform sampler2D u_v;      // xyz velocity at t
 uniform float u_dt;
-uniform isampler2DArray u_neighbours;
-uniform vec3 u_k;
-uniform vec3 u_rest;
-#ifdef SPRING_DAMPING
-uniform vec3 u_c;
-#endif
-#ifdef SPRING_WEIGHTS
-uniform sampler2DArray u_weights;
-#endif
-#include "lib/node_forces.glsl"
-#include "lib/node_texel.glsl"
-#include "sim/implicit/system.glsl"
-
-#ifdef SETUP
 #define EVAL_X(T) texelFetch(u_x, T, 0).xyz
 #define EVAL_V(T) texelFetch(u_v, T, 0).xyz
-#include "lib/spring_force.glsl"
-vec3 class_spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
-#ifdef SPRING_DAMPING
-    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], u_c[cls], vi - EVAL_V(tj));
-#else
-    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], 0.0, vec3(0.0));
-#endif
-}
-// f at (x, v): the springs (weighted) and the node forces, as sim/integrators/forces.glsl
-vec3 node_force(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
-    vec3 f = vec3(0.0);
-    for (int layer = 0; layer < NB_LAYERS; ++layer) {
-        ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
-#ifdef SPRING_WEIGHTS
-        vec4 w = texelFetch(u_weights, ivec3(texel, layer), 0);
-#else
-        vec4 w = vec4(1.0);
-#endif
-        for (int c = 0; c < 4; ++c) {
-            int j = 4 * layer + c;
-            if (j >= NB_COUNT) {
-                break;
-            }
-            int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-            f += w[c] * class_spring_force(node_texel(nb[c]), xi, vi, cls);
-        }
-    }
-    add_node_forces(f, texel_node(texel), groups, xi, vi, m);
-    return f;
-}
-#endif
+// the neighbour and weight textures, the class uniforms and a = f / m (SETUP's f)
+#include "sim/integrators/forces.glsl"
+#include "sim/implicit/system.glsl"
 
 #if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
 uniform sampler2D u_inv;    // xyz 1 / diag(A)
@@ -142,7 +100,7 @@ void main() {
     spring_sums(texel, xi, vi, sk, sc, dk, dc);   // u_vec is v: sk = H_springs v
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
-    vec3 b = dt * (node_force(texel, xi, vi, m, int(node.b)) - dt * hv);
+    vec3 b = dt * (m * grid_acceleration(texel, xi, vi, m, int(node.b)) - dt * hv);
     vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
     vec3 inv = 1.0 / diag;
     o_0 = vec4(b, 0.0);
