@@ -52,7 +52,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="trade: instead, implicit Euler (dt 1/60 ... 1/1000 s x CG iterations) against Verlet and "
                         "semi-implicit Euler at their limits on a tissue block at E = 3 kPa and 1 MPa at two "
                         "resolutions: wall time per simulated second and to a visually converged sag (every node "
-                        "within 0.05 h of the equilibrium), and implicit Euler's damping of the lowest mode")
+                        "within 0.05 h of the equilibrium), and implicit Euler's damping of the lowest mode; then (not with --quick) "
+                        "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--workers", type=int, default=0,
@@ -87,6 +88,13 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
 
         cases = stiff_cases(args.quick)
         print(format_stiff(stiff_study(ctx, quick=args.quick, progress=note, cases=cases), machine_line(ctx), cases))
+        if not args.quick:  # the heart-scale scene in real time (--scene: another one)
+            from deformgl.bench.implicit import format_realtime, realtime
+
+            heart = str(args.scene) if args.scene else "heart.toml"
+            timing, gap, nodes = realtime(ctx, heart, progress=note)
+            print()
+            print(format_realtime(timing, gap, nodes, heart, machine_line(ctx)))
         return
     if args.what == "trade" and args.resolution:
         from deformgl.bench.resolution import resolution_study

@@ -156,3 +156,13 @@ def test_stiff_study_quick(ctx):
     assert all(0.0 <= r.mode_decay < 1e-6 for r in implicit) and all(r.mode_decay == 1.0 for r in explicit)
     assert all(r.dt > 10 * max(e.dt for e in explicit) for r in implicit)
     assert "in favour of" in format_stiff(rows, cases=cases)
+
+
+def test_realtime_frames(ctx):
+    from deformgl.bench.implicit import format_realtime, realtime
+
+    rows, gap, nodes = realtime(ctx, "jelly.toml", frames=2, iterations=(20,))
+    assert [r.integrator for r in rows] == ["implicit-euler", "verlet"] and nodes > 100
+    assert rows[0].steps_per_frame == 1 and rows[1].steps_per_frame > 1
+    assert all(r.fps > 0 for r in rows) and 0.0 <= rows[0].residual < 0.1
+    assert np.isfinite(gap) and "fps" in format_realtime(rows, gap, nodes, "jelly.toml")
