@@ -166,3 +166,21 @@ def test_realtime_frames(ctx):
     assert rows[0].steps_per_frame == 1 and rows[1].steps_per_frame > 1
     assert all(r.fps > 0 for r in rows) and 0.0 <= rows[0].residual < 0.1
     assert np.isfinite(gap) and "fps" in format_realtime(rows, gap, nodes, "jelly.toml")
+
+
+def test_guarded_run_notes_the_solver_and_the_census_catches_nan(ctx):
+    from deformgl.errors import SimulationError
+    from deformgl.scene.stepping import make_simulation as guarded, run
+    from deformgl.sim.integrators import State
+
+    s = _case(MATERIAL).system
+    sim = guarded(s, "implicit-euler", "fragment", dt=1 / 60, ctx=ctx, cg_iterations=3, cg_tolerance=1e-6,
+                  cg_check_every=1)
+    result = run(sim, 4)   # 200x the explicit limit: accepted, and the unconverged solves noted
+    assert any("did not reach the tolerance 1e-06 in 4 of 4 steps" in n for n in result.notes)
+    start = initial_state(s, 1 / 60)
+    x = start.x.copy()
+    x[50] = np.nan
+    bad = guarded(s, "implicit-euler", "fragment", dt=1 / 60, ctx=ctx, state=State(x, start.v, start.x_prev))
+    with pytest.raises(SimulationError, match="non-finite"):
+        run(bad, 3)
