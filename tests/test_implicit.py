@@ -184,3 +184,22 @@ def test_guarded_run_notes_the_solver_and_the_census_catches_nan(ctx):
     bad = guarded(s, "implicit-euler", "fragment", dt=1 / 60, ctx=ctx, state=State(x, start.v, start.x_prev))
     with pytest.raises(SimulationError, match="non-finite"):
         run(bad, 3)
+
+
+def test_moving_sphere_gpu_matches_numpy(ctx):
+    from deformgl.sim.integrators import Sphere
+
+    case = _case()
+    s = case.system
+    sphere = Sphere(lambda t: (0.62, -0.02 + 0.5 * t, 0.035), 0.06)  # no node at its apex (a tie)
+    opts = dict(dt=1 / 60, constraints=Constraints(spheres=(sphere,)), cg_iterations=5)
+    ref = make_simulation(s, "implicit-euler", "numpy", **opts)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, **opts) as gpu:
+        ref.step(3)
+        gpu.step(3)
+        x = gpu.positions().astype(np.float64)
+        centre = np.array([0.62, -0.02 + 0.5 * 3 / 60, 0.035])
+        assert np.linalg.norm(x - centre, axis=1).min() >= 0.06 - 1e-5
+        hit = np.linalg.norm(ref.positions() - centre, axis=1) <= 0.06 + 1e-9
+        assert hit.any()
+        assert np.abs(x - ref.positions()).max() <= 1e-4 * case.spacing
