@@ -203,3 +203,17 @@ def test_moving_sphere_gpu_matches_numpy(ctx):
         hit = np.linalg.norm(ref.positions() - centre, axis=1) <= 0.06 + 1e-9
         assert hit.any()
         assert np.abs(x - ref.positions()).max() <= 1e-4 * case.spacing
+
+
+def test_cli_integrator_and_unconverged_note(ctx, tmp_path, capsys):  # ctx: marks it gl (the CLI makes its own)
+    from deformgl.cli import main
+    from deformgl.data import scene_file
+
+    out = tmp_path / "j.png"
+    code = main(["render", str(scene_file("jelly.toml")), "-o", str(out), "--integrator", "implicit-euler",
+                 "--set", "physics.dt=0.0166667", "--set", "physics.steps=4",
+                 "--set", "physics.implicit.iterations=2", "--set", "physics.implicit.tolerance=1e-6"])
+    err = capsys.readouterr().err
+    assert code == 0 and out.exists()
+    assert "implicit-euler on fragment, 4 steps of dt 0.0166667 s" in err
+    assert "CG did not reach the tolerance 1e-06 in 4 of 4 steps" in err
