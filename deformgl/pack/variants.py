@@ -229,9 +229,13 @@ def implicit() -> Iterator[Variant]:
     for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
                                      "SPHERES": 0, **forces}
-        for name in PASSES:
+        nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
+        for name in PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
+            if name in ("INIT", "MATVEC") and forces["LOADS"]:
+                continue
+            defines = common if name in ("SETUP", "INIT", "MATVEC") else nb
             for c in (_constraints() if name == "FINAL" else [{}]):
-                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**common, **c, name: True})
+                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**defines, **c, name: True})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
 
 

@@ -68,7 +68,12 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
                                  "DRAGS": drags, "LOADS": loads, "SPHERES": 0}
     if system.wind_drag > 0:
         common["WIND"] = True
-    out = {name: {**common, name: True} for name in PASSES}
+    # only what each pass uses: the loads enter b (SETUP), the spring and node terms A (SETUP,
+    # INIT, MATVEC); UPDATE, DIRECTION and FINAL combine vectors (FINAL: and the constraints)
+    nb = {"NB_LAYERS": common["NB_LAYERS"], "NB_COUNT": common["NB_COUNT"], "SPHERES": 0}
+    product = {**common, "LOADS": 0}
+    out = {name: {**(common if name == "SETUP" else product if name in ("INIT", "MATVEC") else nb), name: True}
+           for name in PASSES}
     c = constraints
     if c is not None and (c.ground is not None or c.spheres):
         out["FINAL"].update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
