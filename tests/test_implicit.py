@@ -217,3 +217,40 @@ def test_cli_integrator_and_unconverged_note(ctx, tmp_path, capsys):  # ctx: mar
     assert code == 0 and out.exists()
     assert "implicit-euler on fragment, 4 steps of dt 0.0166667 s" in err
     assert "CG did not reach the tolerance 1e-06 in 4 of 4 steps" in err
+
+
+def test_lowest_mode_decays_as_backward_euler_predicts():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from deformgl.bench.fem import stiffness_matrix
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.sim.integrators import State
+    from deformgl.sim.materials import lattice_system
+
+    grid = NodeGrid(np.zeros(3), 0.025, np.ones((5, 5, 5), bool))
+    system, _ = lattice_system(grid, ElasticMaterial(3.0e3, 1060.0), fixed=grid.ijk[:, 1] == 0, gravity=(0, 0, 0))
+    dof = np.repeat(~system.fixed, 3)
+    m = np.repeat(system.mass, 3)[dof]
+    w2, vec = spla.eigsh(stiffness_matrix(system)[dof][:, dof].tocsc(), k=1, M=sp.diags(m).tocsc(), sigma=0.0)
+    w, phi = float(np.sqrt(w2[0])), np.zeros(3 * system.count)
+    phi[dof] = vec[:, 0] / np.abs(vec[:, 0]).max() * 1e-6          # 1 um: linear
+    dt = 1 / 60
+    x0 = system.rest_positions + phi.reshape(-1, 3)
+    sim = make_simulation(system, "implicit-euler", "numpy", dt=dt, solver="direct",
+                          state=State(x0, np.zeros_like(x0), x0))
+    mass = np.repeat(system.mass, 3)
+
+    def coordinate(x):
+        return float(((x - system.rest_positions).ravel() * mass) @ phi / (phi * mass @ phi))
+
+    a, b = 1.0, 0.0
+    for _ in range(60):
+        sim.step()
+        b = (b - dt * w * w * a) / (1 + (w * dt) ** 2)   # the mode's backward-Euler step
+        a = a + dt * b
+        assert coordinate(sim.positions()) == pytest.approx(a, abs=2e-3)
+    # its amplitude after 1 s: the bench's mode_decay formula, (1 + (w dt)^2)^(-1/(2 dt))
+    radius = max(abs(np.linalg.eigvals(np.array([[1 - (w * dt) ** 2 / (1 + (w * dt) ** 2), dt / (1 + (w * dt) ** 2)],
+                                                 [-dt * w * w / (1 + (w * dt) ** 2), 1 / (1 + (w * dt) ** 2)]]))))
+    assert radius ** 60 == pytest.approx((1 + (w * dt) ** 2) ** (-0.5 / dt), rel=1e-9)
