@@ -254,3 +254,18 @@ def test_lowest_mode_decays_as_backward_euler_predicts():
     radius = max(abs(np.linalg.eigvals(np.array([[1 - (w * dt) ** 2 / (1 + (w * dt) ** 2), dt / (1 + (w * dt) ** 2)],
                                                  [-dt * w * w / (1 + (w * dt) ** 2), 1 / (1 + (w * dt) ** 2)]]))))
     assert radius ** 60 == pytest.approx((1 + (w * dt) ** 2) ** (-0.5 / dt), rel=1e-9)
+
+
+@pytest.mark.parametrize("constraint", ["none", "sphere"])
+def test_flexion_wind_damping_gpu_matches_numpy(ctx, constraint):
+    from deformgl.pack.es_check import integrator_case
+
+    system, grid, state, c = integrator_case(constraint)   # flexion springs, spring damping, wind
+    opts = dict(dt=1e-2, state=state, constraints=c, cg_iterations=10)
+    ref = make_simulation(system, "implicit-euler", "numpy", **opts)
+    with make_simulation(system, "implicit-euler", "fragment", ctx=ctx, cg_tolerance=1e-9, cg_check_every=2,
+                         **opts) as gpu:
+        ref.step(5)
+        gpu.step(5)
+        assert gpu.last_report.converged and gpu.last_report.iterations < 10
+        assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-6
