@@ -46,6 +46,7 @@ def test_gpu_matches_numpy_one_step(ctx):
             dv = gpu.velocity_change()
             assert np.abs(dv - ref.dv).max() <= 1e-5 * np.abs(ref.dv).max()
             assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-5 * case.spacing
+            assert gpu.residual() == pytest.approx(ref.last_report.residual, rel=1e-3)  # 2 scalar reads
         assert np.array_equal(gpu.positions()[s.fixed], s.rest_positions[s.fixed].astype(np.float32))
         assert np.all(gpu.velocities()[s.fixed] == 0.0)
 

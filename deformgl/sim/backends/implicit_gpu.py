@@ -17,8 +17,8 @@ The matrix-vector product of a node is computed from its 18 (+6 flexion) grid ne
 the calibrated lattice). Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
 (``shaders/sim/implicit/reduce.frag``) that the next pass samples: with a fixed iteration count
 (``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
-scalar (``r . P^-1 r``) every ``cg_check_every`` iterations, and the step's residual once after
-the last iteration.
+scalar (``r . P^-1 r``) every ``cg_check_every`` iterations, and ``b . P^-1 b`` once per step;
+without one :meth:`ImplicitFragment.residual` reads the last step's two scalars on request.
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
 
@@ -283,8 +283,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self._set_time(self.passes["SETUP"], self.t + self.dt)
         self._draw("SETUP", {"u_v": "v", "u_vec": "v"}, ("b", "inv", "prod"))
         tol = self.tolerance > 0
-        if tol:
-            self._sum("bpb")
+        self._sum("bpb")  # (also without a tolerance: residual() reads it)
         self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv"}, ("r", "p", "prod"))
         self._sum("rz")
         bpb = self._scalar("bpb") if tol else 0.0
@@ -338,19 +337,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         """The last step's relative residual ``sqrt(r.P^-1 r / b.P^-1 b)`` (two scalar reads)."""
         if self.tolerance > 0:
             return self.last_report.residual
-        previous = self.ctx.fbo
-        try:
-            self._sum_saved_bpb()
-        finally:
-            restore_framebuffer(self.ctx, previous)
         return self._residual(self._scalar("rz"), self._scalar("bpb"))
-
-    def _sum_saved_bpb(self) -> None:
-        """b . P^-1 b of the last step (from its b and P^-1, still in their textures)."""
-        b = np.frombuffer(read_texture(self.tex["b"]), np.float32).reshape(-1, 4)[: self.count, :3].astype(float)
-        inv = np.frombuffer(read_texture(self.tex["inv"]), np.float32).reshape(-1, 4)[: self.count, :3].astype(float)
-        value = np.float32((b * inv * b).sum())
-        self.scalars["bpb"].write(np.array([value, value, value, value], np.float32).tobytes())
 
     def solver_note(self) -> str | None:
         """What the run loop notes about the solves (CG missed its tolerance), or None."""
