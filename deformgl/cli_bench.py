@@ -48,6 +48,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="trade: instead, the grid-resolution study: the FEM-checked cantilever at several grid "
                         "resolutions x integrator x dt, its error against FEM split into discretisation, time "
                         "stepping and float32, against the fragment backend's cost per simulated second")
+    b.add_argument("--stiff", action="store_true",
+                   help="trade: instead, implicit Euler (dt 1/60 ... 1/1000 s x CG iterations) against Verlet and "
+                        "semi-implicit Euler at their limits on a tissue block at E = 3 kPa and 1 MPa at two "
+                        "resolutions: wall time per simulated second and to a visually converged sag (every node "
+                        "within 0.05 h of the equilibrium), and implicit Euler's damping of the lowest mode; then (not with --quick) "
+                        "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--workers", type=int, default=0,
@@ -77,6 +83,19 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     out = args.out
     # the study's CSV, JSON and chart: checked before the study runs, written together or not at all
     outputs = OutputSet([out / f"{args.what}.{ext}" for ext in ("csv", "json", "png")] if out else [])
+    if args.what == "trade" and args.stiff:
+        from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
+
+        cases = stiff_cases(args.quick)
+        print(format_stiff(stiff_study(ctx, quick=args.quick, progress=note, cases=cases), machine_line(ctx), cases))
+        if not args.quick:  # the heart-scale scene in real time (--scene: another one)
+            from deformgl.bench.implicit import format_realtime, realtime
+
+            heart = str(args.scene) if args.scene else "heart.toml"
+            timing, gap, nodes = realtime(ctx, heart, progress=note)
+            print()
+            print(format_realtime(timing, gap, nodes, heart, machine_line(ctx)))
+        return
     if args.what == "trade" and args.resolution:
         from deformgl.bench.resolution import resolution_study
 
@@ -135,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
         raise InputError(f"--out: {args.out} is not a folder")
+    if args.stiff and (args.what != "trade" or args.resolution or args.out is not None):
+        raise InputError("--stiff: only for bench trade, without --resolution and --out (it prints its table)")
     if args.resolution and args.what != "trade":
         raise InputError(f"--resolution: only for bench trade, not bench {args.what}")
     if args.what == "accuracy":  # CPU only: no GL context

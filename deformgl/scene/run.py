@@ -32,6 +32,7 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.guards import StepPlan
 from deformgl.sim.run import run_guarded
+from deformgl.sim.integrators import IMPLICIT_INTEGRATORS
 from deformgl.sim.simulation import make_simulation
 from deformgl.errors import SceneError
 from deformgl.scene.schema import Keyframes, Physics, Region, Scene
@@ -214,8 +215,9 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
     def make(dt: float):
         while made:  # a restart starts from the start state: the blown-up attempt is done with
             made.pop().release()
+        extra = physics.implicit.options() if physics.integrator in IMPLICIT_INTEGRATORS else {}
         made.append(make_simulation(system, physics.integrator, physics.backend, dt=dt, ctx=ctx, grid=grid,
-                                    constraints=constraints, drags=drags, loads=loads))
+                                    constraints=constraints, drags=drags, loads=loads, **extra))
         return made[-1]
 
     converge = None

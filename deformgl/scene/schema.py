@@ -29,7 +29,7 @@ from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _e
 from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
                                  MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
                                  UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
-                                 _SIZE, _STEPS, Animation, Attach, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
+                                 _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
                                  parse_size)
@@ -184,6 +184,8 @@ _PHYSICS = _table({
     "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_CHECK_EVERY, 100),
                        "bad_distance": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e6), unit="box lengths"), 1000.0)},
                       _plain(Safety)), {}),
+    "implicit": (_table({"iterations": (_int(lo=1, sane=(1, 10000)), 20),
+                         "tolerance": (_num(lo=0.0, sane=(0.0, 1.0)), 0.0)}, _plain(Implicit)), {}),
 }, _build_physics)
 
 

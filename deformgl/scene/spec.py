@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import ALL_INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 
 Vec3 = tuple[float, float, float]
@@ -34,7 +34,7 @@ MAX_KEYFRAMES = 10_000
 # the checkers the command-line overrides share with the scene file's tables
 _STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
 _CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
-_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
+_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(ALL_INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,6 +170,19 @@ class Safety:
 
 
 @dataclass(frozen=True, slots=True)
+class Implicit:
+    """The solver of ``integrator = "implicit-euler"`` (``[physics.implicit]``): at most
+    ``iterations`` conjugate-gradient iterations per step, stopping early at the relative
+    residual ``tolerance`` (0: always ``iterations``, nothing read back while stepping)."""
+    iterations: int = 20
+    tolerance: float = 0.0
+
+    def options(self) -> dict[str, object]:
+        """The :func:`~deformgl.sim.simulation.make_simulation` options."""
+        return {"cg_iterations": self.iterations, "cg_tolerance": self.tolerance}
+
+
+@dataclass(frozen=True, slots=True)
 class Physics:
     """Time step (s), steps, spring stiffness (N/m), velocity damping (N*s/m), mass per node (kg),
     gravity (m/s^2), fixed regions and pulls; the integrator and backend; springs by class, wind
@@ -195,6 +208,7 @@ class Physics:
     drag: tuple[DragSpec, ...] = ()
     converge: Converge | None = None
     safety: Safety = Safety()
+    implicit: Implicit = Implicit()
     #: the body's material (a top-level ``[material]`` table): the springs, masses and damping
     #: come from it (:mod:`deformgl.sim.materials`) instead of ``stiffness``, ``mass``,
     #: ``damping`` and ``springs``; each pull's ``force`` is then the total force in N on its

@@ -45,12 +45,16 @@ from numpy.typing import ArrayLike
 
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
+__all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
 
 INTEGRATORS = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
+#: Integrators that solve a system each step (no explicit dt limit; :mod:`deformgl.sim.implicit`).
+IMPLICIT_INTEGRATORS: tuple[str, ...] = ("implicit-euler",)
+#: Every integrator :func:`deformgl.sim.simulation.make_simulation` builds.
+ALL_INTEGRATORS = INTEGRATORS + IMPLICIT_INTEGRATORS
 
 #: Bytes of one RGBA32F texel or one vec4 vertex attribute.
 VEC4_BYTES = 16
@@ -69,6 +73,10 @@ GPU_BUFFERS: dict[str, tuple[str, ...]] = {
     "rk4": ("x", "v", "x_stage_a", "v_stage_a", "x_stage_b", "v_stage_b",
             "sum_x_a", "sum_v_a", "sum_x_b", "sum_v_b"),
     "verlet": ("x", "x_prev", "x_out"),
+    # backward Euler (deformgl.sim.backends.implicit_gpu): x, v in and out, the CG's b, P^-1,
+    # dv, r, p (each ping-pong but b and P^-1), q and the per-texel dot product
+    "implicit-euler": ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p", "p_out",
+                       "q", "prod"),
 }
 
 

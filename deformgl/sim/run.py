@@ -257,4 +257,8 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
             watch.release()
 
     (result, sim), used = run_with_retries(plan, settings.safety.unstable, attempt, noted, wording=wording)
+    solver_note = getattr(sim, "solver_note", None)  # an implicit integrator's unconverged solves
+    note = solver_note() if callable(solver_note) else None
+    if note:
+        noted.append(note)
     return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]))

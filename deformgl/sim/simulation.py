@@ -17,7 +17,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.sim import integrators
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.integrators import INTEGRATORS, Constraints, State
+from deformgl.sim.integrators import ALL_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
 from deformgl.sim.springs import Drag, Load, SpringSystem
 
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
@@ -25,6 +25,9 @@ __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", 
 BACKENDS = ("fragment", "feedback", "numpy")
 #: Options only the fragment backend takes (its Verlet fast path and the pass variants).
 FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
+#: Options of the implicit integrators (:mod:`deformgl.sim.implicit`); the NumPy backend also
+#: takes ``solver`` ("cg", "direct") and ``geometric`` ("projected", "full", "none").
+IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every")
 
 
 class SimulationSetupError(InputError, ValueError):
@@ -132,7 +135,9 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
 
     Args:
         system: the spring system.
-        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
+        integrator: one of :data:`~deformgl.sim.integrators.ALL_INTEGRATORS` ("implicit-euler":
+            backward Euler with conjugate gradients, :mod:`deformgl.sim.implicit`; fragment and
+            numpy backends).
         backend: "fragment" (a system with a node grid: :func:`~deformgl.sim.springs.from_grid`,
             :func:`~deformgl.sim.springs.cloth`), "feedback" or "numpy".
         dt: step in s, > 0.
@@ -141,16 +146,20 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; on the fragment
             backend also ``path`` ("auto": the foundation pass for Verlet where it models the
             system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
-            ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`).
+            ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
+            "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``
+            (:data:`IMPLICIT_OPTIONS`) and on numpy ``solver`` and ``geometric``.
 
     Raises:
         SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
             fragment backend without a grid, or an unknown option.
     """
-    if integrator not in INTEGRATORS:
-        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+    if integrator not in ALL_INTEGRATORS:
+        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(ALL_INTEGRATORS)}")
     if backend not in BACKENDS:
         raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
+    if integrator in IMPLICIT_INTEGRATORS:
+        return _make_implicit(system, backend, dt=dt, ctx=ctx, grid=grid, **options)
     known = {"constraints", "drags", "loads", "state", "t0"}
     if backend == "fragment":
         known |= set(FRAGMENT_OPTIONS)
@@ -175,3 +184,37 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     from deformgl.sim.backends.feedback import FeedbackSimulation
 
     return FeedbackSimulation(ctx, system, integrator, dt, **options)
+
+
+def _make_implicit(system: SpringSystem, backend: str, *, dt: float, ctx, grid, **options) -> Simulation:
+    """Backward Euler on the fragment or the NumPy backend (:func:`make_simulation`)."""
+    known = {"constraints", "drags", "loads", "state", "t0", *IMPLICIT_OPTIONS}
+    if backend == "numpy":
+        known |= {"solver", "geometric"}
+    unknown = set(options) - known
+    if unknown:
+        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))} "
+                                   f"for implicit-euler on {backend}")
+    try:
+        if backend == "numpy":
+            from deformgl.sim.implicit import ImplicitNumpySimulation
+
+            return ImplicitNumpySimulation(system, dt, **options)
+        if backend == "feedback":
+            raise SimulationSetupError("implicit-euler runs on the fragment and numpy backends, not on "
+                                       "feedback (its matrix-free product needs the node grid)")
+        if ctx is None:
+            raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
+        grid = system.grid if grid is None else grid
+        if grid is None:
+            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
+                                       "(springs.from_grid or springs.cloth) or grid=...")
+        from deformgl.sim.backends.implicit_gpu import ImplicitFragment
+
+        return ImplicitFragment(ctx, system, grid, dt, **options)
+    except SimulationSetupError:
+        raise
+    except ValueError as exc:
+        if "cg_" in str(exc):
+            raise SimulationSetupError(str(exc)) from None
+        raise

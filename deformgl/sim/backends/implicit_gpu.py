@@ -1,0 +1,382 @@
+"""Implicit (backward) Euler on the fragment backend: matrix-free Jacobi-preconditioned conjugate
+gradients in fragment passes over the compact node texture, the dot products summed on the GPU.
+
+The same method as the float64 reference :mod:`deformgl.sim.implicit` (same iteration, same warm
+start, same stopping test), in float32. A step is (``shaders/sim/implicit/implicit.frag``):
+
+1. SETUP: ``b = dt (f - dt H v)`` and the Jacobi preconditioner ``1 / diag(A)`` at the step's
+   start state (forces at ``t + dt``), and ``b . P^-1 b`` per texel;
+2. INIT: ``r = b - A dv`` from the previous step's dv (warm start), ``p = P^-1 r``, ``r . P^-1 r``;
+3. per iteration: MATVEC ``q = A p`` (and ``p . q``), the sum of ``p . q``, UPDATE (dv, r and
+   ``r . P^-1 r``), its sum, DIRECTION (``p = P^-1 r + beta p``);
+4. FINAL: ``v' = v + dv``, ``x' = x + dt v'``, the constraints, fixed nodes.
+
+The matrix-vector product of a node is computed from its 18 (+6 flexion) grid neighbours
+(Mosegaard & Sørensen 2005, section 3.1: the neighbour-index texture of
+:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, with the per-spring weight texture of
+the calibrated lattice). Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
+(``shaders/sim/implicit/reduce.frag``) that the next pass samples: with a fixed iteration count
+(``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
+scalar (``r . P^-1 r``) every ``cg_check_every`` iterations, and ``b . P^-1 b`` once per step;
+without one :meth:`ImplicitFragment.residual` reads the last step's two scalars on request.
+
+GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
+
+* static: node data (R mass, G flags, B load-group bits), neighbours RGBA32I array (5 or 6
+  layers), spring weights array (with SPRING_WEIGHTS), as the fragment backend's;
+* state: x, v and x', v' (xyz; the pairs swap after a step);
+* solver: b (xyz), P^-1 (xyz), dv (two, ping-pong; the latest is the next step's warm start),
+  r (two), p (two), q (xyz), a per-texel product (R, all channels equal), the reduction levels
+  (R; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and four 1x1 scalars (R:
+  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update).
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from deformgl.errors import GLError
+from deformgl.gl.es_context import read_texture
+from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, restore_framebuffer
+from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.sim.backends.grid_springs import check_topology, class_values, grid_neighbours, spring_weights
+from deformgl.sim.base import SimulationBase
+from deformgl.sim.implicit import SolveReport, check_cg, solver_note
+from deformgl.sim.integrators import Constraints, State, initial_state
+from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+
+__all__ = ["ImplicitFragment", "PASSES"]
+
+#: The passes of ``implicit.frag`` (one define each).
+PASSES = ("SETUP", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
+_UNITS = {"u_node": 0, "u_neighbours": 1, "u_weights": 2, "u_x": 3, "u_v": 4, "u_vec": 5, "u_inv": 6,
+          "u_b": 7, "u_dv": 8, "u_r": 9, "u_p": 10, "u_q": 11, "u_rz": 12, "u_pq": 13, "u_rz_new": 14}
+_REDUCE_UNIT = 15
+
+
+def _array(values: list) -> object:
+    return values[0] if len(values) == 1 else values
+
+
+def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
+                 constraints: Constraints | None) -> dict[str, dict[str, object]]:
+    """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists)."""
+    common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
+                                 "SPRING_DAMPING": bool(np.any(system.damping > 0)), "SPRING_WEIGHTS": weights,
+                                 "DRAGS": drags, "LOADS": loads, "SPHERES": 0}
+    if system.wind_drag > 0:
+        common["WIND"] = True
+    # only what each pass uses: the loads enter b (SETUP), the spring and node terms A (SETUP,
+    # INIT, MATVEC); UPDATE, DIRECTION and FINAL combine vectors (FINAL: and the constraints)
+    nb = {"NB_LAYERS": common["NB_LAYERS"], "NB_COUNT": common["NB_COUNT"], "SPHERES": 0}
+    product = {**common, "LOADS": 0}
+    out = {name: {**(common if name == "SETUP" else product if name in ("INIT", "MATVEC") else nb), name: True}
+           for name in PASSES}
+    c = constraints
+    if c is not None and (c.ground is not None or c.spheres):
+        out["FINAL"].update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
+    return out
+
+
+class ImplicitFragment(SimulationBase, GLOwner):
+    """A grid :class:`SpringSystem` stepped by backward Euler on the GPU.
+
+    Args:
+        ctx, system, grid, dt, constraints, drags, loads, state, t0: as
+            :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`.
+        cg_iterations: CG iterations per step (the most, with a tolerance).
+        cg_tolerance: relative preconditioned residual to stop at (0: always ``cg_iterations``,
+            no read-back).
+        cg_check_every: iterations between residual read-backs (with a tolerance).
+
+    Attributes:
+        last_report: the last step's :class:`~deformgl.sim.implicit.SolveReport` (with a
+            tolerance; without one the residual is read only by :meth:`residual`).
+        unconverged, worst_residual: steps that missed the tolerance, and their worst residual.
+    """
+
+    backend = "fragment"
+    integrator = "implicit-euler"
+    packed_normals = False
+
+    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid | None, dt: float, *,
+                 constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
+                 loads: tuple[Load, ...] = (), state: State | None = None, t0: float = 0.0,
+                 cg_iterations: int = 20, cg_tolerance: float = 0.0, cg_check_every: int = 4) -> None:
+        grid = system.grid if grid is None else grid
+        if grid is None:
+            raise ValueError("ImplicitFragment: the system has no node grid (build it with springs.from_grid, "
+                             "springs.cloth or materials.lattice_system)")
+        if not dt > 0:
+            raise ValueError(f"ImplicitFragment: dt must be > 0, got {dt}")
+        check_cg(cg_iterations, cg_tolerance, cg_check_every)
+        self.ctx, self.system, self.grid = ctx, system, grid
+        self._start_clock(dt, t0)
+        self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
+        self.count = grid.count
+        for drag in self.drags:
+            if not 0 <= drag.node < self.count:
+                raise ValueError(f"ImplicitFragment: drag node {drag.node} outside the system")
+        self.iterations, self.tolerance, self.check_every = int(cg_iterations), float(cg_tolerance), int(cg_check_every)
+        self.flexion = bool(np.any(system.spring_class == FLEXION))
+        self.neighbour_table = grid_neighbours(grid, self.flexion)
+        check_topology(system, grid, self.neighbour_table)
+        self.classes = [class_values(system, c, name) for c, name in
+                        ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
+        try:
+            self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+        except ValueError as exc:
+            raise GLError(f"{exc}; use a coarser grid") from None
+        self.last_report = SolveReport(0, 0.0, True)
+        self.unconverged, self.worst_residual = 0, 0.0
+        self.last_moved = float("inf")
+        self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
+        GLOwner.__init__(self, ctx)
+        with self.building():
+            self._build(state)
+
+    # -- construction ------------------------------------------------------------------------
+
+    def _texture(self, size: tuple[int, int], image: np.ndarray | None = None) -> moderngl.Texture:
+        data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
+        tex = self.own(self.ctx.texture(size, 4, data, dtype="f4"))
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        tex.repeat_x = tex.repeat_y = False
+        return tex
+
+    def _image(self, values: np.ndarray) -> np.ndarray:
+        w, h = self.layout.size
+        img = np.zeros((h * w, 4), np.float32)
+        img[: self.count, : values.shape[1]] = values
+        return img.reshape(h, w, 4)
+
+    def _array_texture(self, values: np.ndarray, dtype: str) -> moderngl.TextureArray:
+        w, h = self.layout.size
+        n, layers = self.count, -(-values.shape[1] // 4)
+        padded = np.zeros((n, 4 * layers), values.dtype)
+        padded[:, : values.shape[1]] = values
+        img = np.zeros((layers, h * w, 4), values.dtype)
+        img[:, :n, :] = padded.reshape(n, layers, 4).transpose(1, 0, 2)
+        tex = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(), dtype=dtype))
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return tex
+
+    def _build(self, state: State | None) -> None:
+        system, n, size = self.system, self.count, self.layout.size
+        nb = self.neighbour_table
+        own = np.arange(n)[:, None]
+        table = np.where(nb >= 0, nb, own).astype(np.int32)
+        layers = -(-nb.shape[1] // 4)
+        table = np.concatenate([table, np.repeat(own, 4 * layers - nb.shape[1], axis=1).astype(np.int32)], axis=1)
+        self.tex_neighbours = self._array_texture(table, "i4")
+        weights = spring_weights(system, nb, [c[0] for c in self.classes])
+        self.tex_weights = None if weights is None else self._array_texture(weights.astype(np.float32), "f4")
+        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), np.zeros(n)], axis=1)
+        self.tex_node = self._texture(size, self._image(node))
+        s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
+        x = np.asarray(s.x, np.float64)
+        v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
+        if x.shape != (n, 3) or v.shape != (n, 3):
+            raise ValueError(f"ImplicitFragment: state of shape {x.shape}, expected ({n}, 3)")
+        zero = np.zeros((n, 3))
+        names = ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p", "p_out", "q", "prod")
+        start = {"x": x, "v": v, "x_out": x, "v_out": v}
+        self.tex = {name: self._texture(size, self._image(start.get(name, zero))) for name in names}
+        # reduction levels: 4x4 blocks down to 1x1, then the scalars
+        self.levels: list[tuple[moderngl.Texture, tuple[int, int]]] = []
+        w, h = size
+        while (w, h) != (1, 1):
+            w, h = -(-w // 4), -(-h // 4)
+            if (w, h) != (1, 1):
+                self.levels.append((self._texture((w, h)), (w, h)))
+        self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new")}
+        defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
+                               drags=len(self.drags), loads=len(self.loads), constraints=self.constraints)
+        self.passes = {name: self._program(d) for name, d in defines.items()}
+        self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
+        self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
+        self._reduce_vao = self.own(self.ctx.vertex_array(self.reduce.gl, []))
+        self.reduce.set(u_src=_REDUCE_UNIT)
+        texels = size[0] * size[1]
+        self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 if weights is None else 2)
+                                     + sum(a * b for _, (a, b) in self.levels) + len(self.scalars))
+
+    def _program(self, defines: dict[str, object]) -> Program:
+        program = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/implicit.frag", defines=defines))
+        (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
+        system = self.system
+        values: dict[str, object] = {
+            **_UNITS, "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
+            "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3), "u_c": (c1, c2, c3),
+            "u_gravity": tuple(float(g) for g in system.gravity), "u_velocity_damping": system.velocity_damping,
+            "u_mass_damping": system.mass_damping, "u_wind": tuple(float(g) for g in system.wind),
+            "u_wind_drag": system.wind_drag}
+        if self.drags:
+            values["u_drag_node"] = _array([d.node for d in self.drags])
+            values["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+        c = self.constraints
+        if c is not None and c.ground is not None:
+            values["u_ground"] = float(c.ground)
+        members = program.members
+        program.set(**{k: v for k, v in values.items() if k in members})
+        return program
+
+    # -- stepping ----------------------------------------------------------------------------
+
+    def _fbo(self, *targets: moderngl.Texture) -> moderngl.Framebuffer:
+        key = tuple(t.glo for t in targets)
+        fbo = self._fbos.get(key)
+        if fbo is None:
+            fbo = self.own(self.ctx.framebuffer(color_attachments=list(targets)))
+            self._fbos[key] = fbo
+        return fbo
+
+    def _draw(self, name: str, reads: dict[str, str], writes: tuple[str, ...]) -> None:
+        for sampler, tex in reads.items():
+            (self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]).use(_UNITS[sampler])
+        self._fbo(*(self.tex[w] for w in writes)).use()
+        self._vaos[name].render(moderngl.TRIANGLES, vertices=3)
+
+    def _sum(self, target: str) -> None:
+        """Sum the product texture's R into the 1x1 scalar ``target``."""
+        src, size = self.tex["prod"], self.layout.size
+        for tex, level_size in self.levels + [(self.scalars[target], (1, 1))]:
+            src.use(_REDUCE_UNIT)
+            self.reduce.set(u_size=size)
+            self._fbo(tex).use()
+            self._reduce_vao.render(moderngl.TRIANGLES, vertices=3)
+            src, size = tex, level_size
+
+    def _swap(self, a: str, b: str) -> None:
+        self.tex[a], self.tex[b] = self.tex[b], self.tex[a]
+
+    def _scalar(self, name: str) -> float:
+        return float(np.frombuffer(read_texture(self.scalars[name]), dtype=np.float32)[0])
+
+    def _set_time(self, program: Program, t: float) -> None:
+        if self.loads:
+            program.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+                                       for load in self.loads]))
+        if self.drags:
+            program.set(u_drag_target=_array([tuple(float(c) for c in np.asarray(d.target(t), float))
+                                              for d in self.drags]))
+
+    def _set_spheres(self) -> None:
+        c = self.constraints
+        if c is None or not c.spheres:
+            return
+        spheres, velocities = [], []
+        for sphere in c.spheres:
+            end = sphere.centre_at(self.t + self.dt)
+            spheres.append((*map(float, end), float(sphere.radius)))
+            velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
+        self.passes["FINAL"].set(u_spheres=_array(spheres), u_sphere_velocity=_array(velocities))
+
+    def _one_step(self) -> None:
+        self.tex_node.use(_UNITS["u_node"])
+        self.tex_neighbours.use(_UNITS["u_neighbours"])
+        if self.tex_weights is not None:
+            self.tex_weights.use(_UNITS["u_weights"])
+        self.tex["x"].use(_UNITS["u_x"])
+        self._set_time(self.passes["SETUP"], self.t + self.dt)
+        self._draw("SETUP", {"u_v": "v", "u_vec": "v"}, ("b", "inv", "prod"))
+        tol = self.tolerance > 0
+        self._sum("bpb")  # (also without a tolerance: residual() reads it)
+        self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv"}, ("r", "p", "prod"))
+        self._sum("rz")
+        bpb = self._scalar("bpb") if tol else 0.0
+        done = 0
+        for k in range(self.iterations):
+            if tol and k % self.check_every == 0 and self._residual(self._scalar("rz"), bpb) <= self.tolerance:
+                break
+            self._draw("MATVEC", {"u_vec": "p"}, ("q", "prod"))
+            self._sum("pq")
+            self._draw("UPDATE", {"u_dv": "dv", "u_r": "r", "u_p": "p", "u_q": "q", "u_inv": "inv", "u_rz": "$rz",
+                                  "u_pq": "$pq"}, ("dv_out", "r_out", "prod"))
+            self._swap("dv", "dv_out")
+            self._swap("r", "r_out")
+            self._sum("rz_new")
+            self._draw("DIRECTION", {"u_r": "r", "u_p": "p", "u_inv": "inv", "u_rz": "$rz", "u_rz_new": "$rz_new"},
+                       ("p_out",))
+            self._swap("p", "p_out")
+            self.scalars["rz"], self.scalars["rz_new"] = self.scalars["rz_new"], self.scalars["rz"]
+            done = k + 1
+        self._set_spheres()
+        self._draw("FINAL", {"u_v": "v", "u_dv": "dv"}, ("x_out", "v_out"))
+        self._swap("x", "x_out")
+        self._swap("v", "v_out")
+        if tol:
+            res = self._residual(self._scalar("rz"), bpb)
+            self.last_report = SolveReport(done, res, res <= self.tolerance)
+            if not self.last_report.converged:
+                self.unconverged += 1
+                self.worst_residual = max(self.worst_residual, res)
+        else:
+            self.last_report = SolveReport(done, float("nan"), True)
+
+    @staticmethod
+    def _residual(rz: float, bpb: float) -> float:
+        return float(np.sqrt(max(rz, 0.0) / bpb)) if bpb > 0 else 0.0
+
+    def step(self, n: int = 1) -> None:
+        """``n`` steps on the GPU; with a tolerance, one scalar read every ``cg_check_every``
+        iterations, none without."""
+        if self._released:
+            raise RuntimeError("ImplicitFragment: released")
+        previous = self.ctx.fbo
+        try:
+            for _ in range(n):
+                self._one_step()
+                self._tick()
+        finally:
+            restore_framebuffer(self.ctx, previous)
+
+    def residual(self) -> float:
+        """The last step's relative residual ``sqrt(r.P^-1 r / b.P^-1 b)`` (two scalar reads)."""
+        if self.tolerance > 0:
+            return self.last_report.residual
+        return self._residual(self._scalar("rz"), self._scalar("bpb"))
+
+    def solver_note(self) -> str | None:
+        """What the run loop notes about the solves (CG missed its tolerance), or None."""
+        return solver_note(self.unconverged, self.steps_done, self.worst_residual, self.tolerance)
+
+    # -- read-back (explicit) ----------------------------------------------------------------
+
+    def _read(self, name: str) -> np.ndarray:
+        data = np.frombuffer(read_texture(self.tex[name]), dtype=np.float32)
+        return data.reshape(-1, 4)[: self.count, :3].copy()
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 positions (one read-back)."""
+        return self._read("x")
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) float32 velocities (one read-back)."""
+        return self._read("v")
+
+    def velocity_change(self) -> np.ndarray:
+        """(N, 3) float32 dv of the last step (one read-back)."""
+        return self._read("dv")
+
+    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
+        """(texture, nodes per row, 1 slot per node, slot 0), as the fragment backend."""
+        return self.tex["x"], self.layout.width, 1, 0
+
+    @property
+    def position_texture(self) -> moderngl.Texture:
+        return self.tex["x"]
+
+    @property
+    def bytes_per_node(self) -> float:
+        return self.bytes_allocated / self.count
+
+    def release(self) -> None:
+        """Release every GL object (idempotent)."""
+        for fbo in self._fbos.values():
+            if self.ctx.fbo is fbo:
+                self.ctx.detect_framebuffer(0).use()
+        GLOwner.release(self)
+        self._fbos.clear()

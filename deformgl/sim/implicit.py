@@ -1,0 +1,297 @@
+"""Implicit (backward) Euler on a :class:`SpringSystem`, float64 reference (scipy.sparse).
+
+One step linearises the forces at the start of the step (Baraff & Witkin 1998; the
+method SOFA's default ``EulerImplicitSolver`` uses) and solves for the velocity change::
+
+    (M + dt C + dt^2 H) dv = dt (f(x, v, t + dt) - dt H v),   v' = v + dv,   x' = x + dt v'
+
+with ``H = -df/dx`` the spring stiffness matrix and ``C = -df/dv`` the damping matrix
+(docs/EQUATIONS.md, "Implicit Euler"). Per spring (i, j), ``d = x_i - x_j``, ``u = d/|d|``:
+
+* ``H_s = k (u u^T + g (I - u u^T))`` with the geometric factor ``g = 1 - L/|d|``. Compressed
+  springs have ``g < 0`` and can make H indefinite, so the default ``geometric="projected"``
+  clamps it to ``max(0, g)`` (H positive semidefinite, the system SPD; the measured choice, see
+  docs/EQUATIONS.md); "full" keeps g, "none" drops the term (``g = 0``).
+* ``C_s = c_s u u^T`` (spring damping along the spring; its dependence on x is dropped).
+
+Per node: ``C`` has ``c + alpha m_i + wind_drag`` on the diagonal (global, Rayleigh mass and wind
+damping), a drag of stiffness ``k_d`` adds ``k_d I`` to H at its node. Fixed nodes have no rows:
+the solve is over the free nodes only (their dv is 0). Ground and spheres are applied after the
+solve as the explicit integrators do (:func:`deformgl.sim.integrators.apply_constraints`), a
+projection of the new positions and velocities; the solve does not see them.
+
+The solver is Jacobi-preconditioned conjugate gradients, warm-started from the previous step's dv,
+written out here (not ``scipy.sparse.linalg.cg``) so the GPU backend
+(:mod:`deformgl.sim.backends.implicit_gpu`) runs the same iteration and can be matched against it
+step for step: ``iterations`` is the most iterations per step; with ``tolerance`` > 0 it stops
+when the preconditioned residual ``sqrt(r.P^-1 r / b.P^-1 b)`` is at most ``tolerance``, tested
+every ``check_every`` iterations. ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from deformgl.sim.base import SimulationBase
+from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
+from deformgl.sim.springs import Drag, Load, SpringSystem, forces
+
+__all__ = ["GEOMETRIC", "CG_DEFAULTS", "SolveReport", "LinearSystem", "assemble", "pcg", "implicit_step",
+           "ImplicitNumpySimulation", "solver_note"]
+
+#: How the geometric stiffness of a spring enters H.
+GEOMETRIC = ("projected", "full", "none")
+#: Default CG settings: iterations per step, relative tolerance (0: always ``iterations``), and
+#: how many iterations between residual tests.
+CG_DEFAULTS = {"cg_iterations": 20, "cg_tolerance": 0.0, "cg_check_every": 4}
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """One step's linear solve.
+
+    Attributes:
+        iterations: CG iterations done.
+        residual: ``sqrt(r.P^-1 r / b.P^-1 b)`` after them (0 for a zero right-hand side).
+        converged: residual <= tolerance (True without a tolerance).
+    """
+
+    iterations: int
+    residual: float
+    converged: bool
+
+
+@dataclass(frozen=True)
+class LinearSystem:
+    """``A dv = b`` of one step over the free nodes.
+
+    Attributes:
+        matrix: (3F, 3F) scipy CSR A (F free nodes, x y z of each).
+        rhs: (3F,) b.
+        free: (N,) bool, the nodes that have rows.
+        hessian: (3N, 3N) CSR H (all nodes; the rhs uses it).
+    """
+
+    matrix: sp.csr_matrix
+    rhs: np.ndarray
+    free: np.ndarray
+    hessian: sp.csr_matrix
+
+
+def _blocks(system: SpringSystem, x: np.ndarray, geometric: str) -> tuple[np.ndarray, np.ndarray]:
+    """(S, 3, 3) H_s and C_s of every spring."""
+    if geometric not in GEOMETRIC:
+        raise ValueError(f"geometric must be one of {', '.join(GEOMETRIC)}, got {geometric!r}")
+    d = x[system.i] - x[system.j]
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.where(length > 0, length, 1.0)[:, None]
+    uu = u[:, :, None] * u[:, None, :]
+    g = np.where(length > 0, 1.0 - system.rest_length / np.where(length > 0, length, 1.0), 0.0)
+    if geometric == "projected":
+        g = np.maximum(g, 0.0)
+    elif geometric == "none":
+        g = np.zeros_like(g)
+    eye = np.eye(3)[None]
+    h = system.stiffness[:, None, None] * (uu + g[:, None, None] * (eye - uu))
+    return h, system.damping[:, None, None] * uu
+
+
+def _spread(system: SpringSystem, blocks: np.ndarray) -> sp.csr_matrix:
+    """The (3N, 3N) matrix of per-spring blocks B: +B at (i, i), (j, j), -B at (i, j), (j, i)."""
+    n = system.count
+    a, b = system.i, system.j
+    rows_n = np.concatenate([a, b, a, b])
+    cols_n = np.concatenate([a, b, b, a])
+    vals = np.concatenate([blocks, blocks, -blocks, -blocks])
+    r = (3 * rows_n[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    c = (3 * cols_n[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    return sp.csr_matrix((vals.ravel(), (r.ravel(), c.ravel())), shape=(3 * n, 3 * n))
+
+
+def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: float, *,
+             drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
+             geometric: str = "projected") -> LinearSystem:
+    """The step's linear system (module docstring); forces at time ``t + dt``."""
+    n = system.count
+    h_blocks, c_blocks = _blocks(system, x, geometric)
+    node_h = np.zeros(n)
+    for drag in drags:
+        node_h[drag.node] += drag.stiffness
+    hess = _spread(system, h_blocks) + sp.diags(np.repeat(node_h, 3))
+    node_c = system.velocity_damping + system.mass_damping * system.mass + system.wind_drag
+    a_full = (_spread(system, dt * dt * h_blocks + dt * c_blocks)
+              + sp.diags(np.repeat(system.mass + dt * node_c + dt * dt * node_h, 3)))
+    f = forces(system, x, v, t + dt, drags, loads)
+    b_full = dt * (f.ravel() - dt * (hess @ v.ravel()))
+    free = ~system.fixed
+    dof = np.repeat(free, 3)
+    return LinearSystem(a_full.tocsr()[dof][:, dof].tocsr(), b_full[dof], free, hess.tocsr())
+
+
+def pcg(a: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, *, iterations: int, tolerance: float = 0.0,
+        check_every: int = 4) -> tuple[np.ndarray, SolveReport]:
+    """Jacobi-preconditioned CG from ``x0``, the iteration of the GPU backend (module docstring)."""
+    inv = 1.0 / a.diagonal()
+    x = x0.copy()
+    r = b - a @ x
+    z = inv * r
+    p = z.copy()
+    rz = float(r @ z)
+    bpb = float(b @ (inv * b))
+    done = 0
+
+    def residual(value: float) -> float:
+        return float(np.sqrt(max(value, 0.0) / bpb)) if bpb > 0 else 0.0
+
+    for k in range(iterations):
+        if tolerance > 0 and k % check_every == 0 and residual(rz) <= tolerance:
+            break
+        q = a @ p
+        pq = float(p @ q)
+        alpha = rz / pq if pq != 0 else 0.0
+        x += alpha * p
+        r -= alpha * q
+        z = inv * r
+        rz_new = float(r @ z)
+        beta = rz_new / rz if rz != 0 else 0.0
+        p = z + beta * p
+        rz = rz_new
+        done = k + 1
+    res = residual(rz)
+    return x, SolveReport(done, res, tolerance <= 0 or res <= tolerance)
+
+
+def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv0: np.ndarray | None = None,
+                  constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
+                  loads: tuple[Load, ...] = (), iterations: int = 20, tolerance: float = 0.0,
+                  check_every: int = 4, solver: str = "cg",
+                  geometric: str = "projected") -> tuple[State, np.ndarray, SolveReport]:
+    """One backward-Euler step from t to t + dt.
+
+    Args:
+        dv0: (N, 3) warm start of dv (default 0).
+        solver: "cg" (:func:`pcg`) or "direct".
+        the rest: as :func:`deformgl.sim.integrators.step` and :func:`pcg`.
+
+    Returns:
+        (the state at t + dt, dv (N, 3) for the next warm start, the solve's report).
+    """
+    if not dt > 0:
+        raise ValueError(f"implicit_step: dt must be > 0, got {dt}")
+    fixed = system.fixed[:, None]
+    v = np.where(fixed, 0.0, state.v)
+    lin = assemble(system, state.x, v, t, dt, drags=drags, loads=loads, geometric=geometric)
+    dof = np.repeat(lin.free, 3)
+    start = np.zeros(3 * system.count) if dv0 is None else np.asarray(dv0, np.float64).ravel()
+    if solver == "direct":
+        sol = np.asarray(spla.spsolve(lin.matrix.tocsc(), lin.rhs)) if lin.rhs.size else lin.rhs
+        report = SolveReport(0, 0.0, True)
+    elif solver == "cg":
+        sol, report = pcg(lin.matrix, lin.rhs, start[dof], iterations=iterations, tolerance=tolerance,
+                          check_every=check_every)
+    else:
+        raise ValueError(f"solver must be 'cg' or 'direct', got {solver!r}")
+    dv = np.zeros(3 * system.count)
+    dv[dof] = sol
+    dv3 = dv.reshape(-1, 3)
+    v_new = v + dv3
+    x_new = state.x + dt * v_new
+    if constraints is not None:
+        apply_constraints(constraints, x_new, v_new, t, dt)
+    x_new = np.where(fixed, state.x, x_new)
+    return State(x=x_new, v=np.where(fixed, 0.0, v_new), x_prev=state.x), dv3, report
+
+
+def solver_note(unconverged: int, steps: int, worst: float, tolerance: float) -> str | None:
+    """The run's note when CG missed its tolerance in some steps (None when it never did)."""
+    if unconverged == 0:
+        return None
+    return (f"implicit-euler: CG did not reach the tolerance {tolerance:g} in {unconverged} of {steps} steps "
+            f"(worst relative residual {worst:.3g}); raise physics.implicit.iterations")
+
+
+class ImplicitNumpySimulation(SimulationBase):
+    """Backward Euler (:func:`implicit_step`) behind the :class:`~deformgl.sim.simulation.Simulation`
+    interface, float64. Holds no GL objects: ``position_slot()`` is None.
+
+    Args:
+        system, dt, constraints, drags, loads, state, t0: as
+            :class:`~deformgl.sim.simulation.NumpySimulation`.
+        cg_iterations, cg_tolerance, cg_check_every: see :func:`pcg`.
+        solver, geometric: see :func:`implicit_step`.
+
+    Attributes:
+        last_report: the last step's :class:`SolveReport`; unconverged: steps that missed the
+        tolerance; worst_residual: the largest residual of those.
+    """
+
+    backend = "numpy"
+    integrator = "implicit-euler"
+
+    def __init__(self, system: SpringSystem, dt: float, *, constraints: Constraints | None = None,
+                 drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (), state: State | None = None,
+                 t0: float = 0.0, cg_iterations: int = 20, cg_tolerance: float = 0.0, cg_check_every: int = 4,
+                 solver: str = "cg", geometric: str = "projected") -> None:
+        if not dt > 0:
+            raise ValueError(f"ImplicitNumpySimulation: dt must be > 0, got {dt}")
+        check_cg(cg_iterations, cg_tolerance, cg_check_every)
+        self.system = system
+        self._start_clock(dt, t0)
+        self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
+        self.count = system.count
+        self.state = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
+                      if state is None else state)
+        self.tolerance = float(cg_tolerance)
+        self.options: dict[str, Any] = dict(iterations=int(cg_iterations), tolerance=float(cg_tolerance),
+                            check_every=int(cg_check_every), solver=solver, geometric=geometric)
+        self.dv = np.zeros((self.count, 3))
+        self.last_moved = float("inf")
+        self.last_report = SolveReport(0, 0.0, True)
+        self.unconverged, self.worst_residual = 0, 0.0
+
+    def step(self, n: int = 1) -> None:
+        for _ in range(n):
+            new, self.dv, report = implicit_step(self.system, self.state, self.dt, self.t, dv0=self.dv,
+                                                 constraints=self.constraints, drags=self.drags,
+                                                 loads=self.loads, **self.options)
+            self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
+            self.state, self.last_report = new, report
+            if not report.converged:
+                self.unconverged += 1
+                self.worst_residual = max(self.worst_residual, report.residual)
+            self._tick()
+
+    def solver_note(self) -> str | None:
+        """What the run loop notes about the solves (CG missed its tolerance), or None."""
+        return solver_note(self.unconverged, self.steps_done, self.worst_residual, self.tolerance)
+
+    def positions(self) -> np.ndarray:
+        return self.state.x.copy()
+
+    def velocities(self) -> np.ndarray:
+        return self.state.v.copy()
+
+    def position_slot(self) -> None:
+        return None
+
+    @property
+    def bytes_per_node(self) -> float:
+        return 0.0
+
+    def release(self) -> None:
+        """Nothing to release."""
+
+
+def check_cg(iterations: object, tolerance: object, check_every: object) -> None:
+    """ValueError unless iterations >= 1, tolerance >= 0 and check_every >= 1."""
+    if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
+        raise ValueError(f"cg_iterations must be an integer >= 1, got {iterations!r}")
+    if not isinstance(tolerance, (int, float)) or isinstance(tolerance, bool) or not tolerance >= 0:
+        raise ValueError(f"cg_tolerance must be a number >= 0, got {tolerance!r}")
+    if not isinstance(check_every, int) or isinstance(check_every, bool) or check_every < 1:
+        raise ValueError(f"cg_check_every must be an integer >= 1, got {check_every!r}")

@@ -1,0 +1,136 @@
+#version 330 core
+// The passes of a backward-Euler step on the node grid (docs/EQUATIONS.md "Implicit Euler";
+// float64 reference deformgl/sim/implicit.py; host deformgl/sim/backends/implicit_gpu.py):
+// Jacobi-preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
+// (sim/implicit/system.glsl). One define selects the pass:
+//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1 = 1 / diag(A), and b . P^-1 b per texel
+//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel
+//   MATVEC     q = A p, and p . q per texel
+//   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
+//   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
+//   FINAL      v' = v + dv, x' = x + dt v', then the constraints (CONSTRAINTS)
+// The scalars rz, pq, rz_new are 1x1 textures (R) reduced on the GPU (sim/implicit/reduce.frag).
+// Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
+#include "lib/node_flags.glsl"
+
+uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups
+uniform sampler2D u_x;      // xyz position at t
+uniform sampler2D u_v;      // xyz velocity at t
+uniform float u_dt;
+#define EVAL_X(T) texelFetch(u_x, T, 0).xyz
+#define EVAL_V(T) texelFetch(u_v, T, 0).xyz
+// the neighbour and weight textures, the class uniforms and a = f / m (SETUP's f)
+#include "sim/integrators/forces.glsl"
+#include "sim/implicit/system.glsl"
+
+#if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
+uniform sampler2D u_inv;    // xyz 1 / diag(A)
+#endif
+#if defined(INIT)
+uniform sampler2D u_b;      // xyz right-hand side
+#endif
+#if defined(UPDATE) || defined(FINAL)
+uniform sampler2D u_dv;     // xyz dv so far
+#endif
+#if defined(UPDATE) || defined(DIRECTION)
+uniform sampler2D u_r;      // xyz residual
+uniform sampler2D u_p;      // xyz search direction
+uniform sampler2D u_rz;     // 1x1 R: r . P^-1 r before this iteration's update
+#endif
+#ifdef UPDATE
+uniform sampler2D u_q;      // xyz A p
+uniform sampler2D u_pq;     // 1x1 R: p . q
+#endif
+#ifdef DIRECTION
+uniform sampler2D u_rz_new; // 1x1 R: r . P^-1 r after the update
+#endif
+#ifdef FINAL
+#define VELOCITY
+#include "lib/constraints.glsl"
+#endif
+
+layout(location = 0) out vec4 o_0;
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(FINAL)
+layout(location = 1) out vec4 o_1;
+#endif
+#if defined(SETUP) || defined(INIT) || defined(UPDATE)
+layout(location = 2) out vec4 o_2;
+#endif
+
+float scalar(sampler2D s) {
+    return texelFetch(s, ivec2(0, 0), 0).r;
+}
+
+void main() {
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 node = texelFetch(u_node, texel, 0);
+    int flags = int(node.g);
+    bool inactive = (flags & FLAG_EXISTS) == 0 || (flags & FLAG_FIXED) != 0;
+#ifdef FINAL
+    vec4 x = texelFetch(u_x, texel, 0);
+    if (inactive) {
+        o_0 = x;
+        o_1 = vec4(0.0);
+        return;
+    }
+    vec3 v1 = texelFetch(u_v, texel, 0).xyz + texelFetch(u_dv, texel, 0).xyz;
+    vec3 x1 = x.xyz + u_dt * v1;
+#ifdef CONSTRAINTS
+    constrain(x1, v1);
+#endif
+    o_0 = vec4(x1, 0.0);
+    o_1 = vec4(v1, 0.0);
+#else
+    if (inactive) {
+        o_0 = vec4(0.0);
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE)
+        o_1 = vec4(0.0);
+#endif
+#if defined(SETUP) || defined(INIT) || defined(UPDATE)
+        o_2 = vec4(0.0);
+#endif
+        return;
+    }
+    float m = node.r;
+    vec3 xi = texelFetch(u_x, texel, 0).xyz;
+    float dt = u_dt;
+#if defined(SETUP)
+    vec3 vi = texelFetch(u_v, texel, 0).xyz;
+    vec3 sk, sc, dk, dc;
+    spring_sums(texel, xi, vi, sk, sc, dk, dc);   // u_vec is v: sk = H_springs v
+    float kd = node_drag_stiffness(texel_node(texel));
+    vec3 hv = sk + kd * vi;
+    vec3 b = dt * (m * grid_acceleration(texel, xi, vi, m, int(node.b)) - dt * hv);
+    vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
+    vec3 inv = 1.0 / diag;
+    o_0 = vec4(b, 0.0);
+    o_1 = vec4(inv, 0.0);
+    o_2 = vec4(dot(b, inv * b));
+#elif defined(INIT)
+    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv
+    vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, dv, m);
+    vec3 z = texelFetch(u_inv, texel, 0).xyz * r;
+    o_0 = vec4(r, 0.0);
+    o_1 = vec4(z, 0.0);
+    o_2 = vec4(dot(r, z));
+#elif defined(MATVEC)
+    vec3 p = texelFetch(u_vec, texel, 0).xyz;      // u_vec is p
+    vec3 q = apply_system(texel, xi, p, m);
+    o_0 = vec4(q, 0.0);
+    o_1 = vec4(dot(p, q));
+#elif defined(UPDATE)
+    float pq = scalar(u_pq);
+    float alpha = pq != 0.0 ? scalar(u_rz) / pq : 0.0;
+    vec3 p = texelFetch(u_p, texel, 0).xyz;
+    vec3 r = texelFetch(u_r, texel, 0).xyz - alpha * texelFetch(u_q, texel, 0).xyz;
+    o_0 = vec4(texelFetch(u_dv, texel, 0).xyz + alpha * p, 0.0);
+    o_1 = vec4(r, 0.0);
+    o_2 = vec4(dot(r, texelFetch(u_inv, texel, 0).xyz * r));
+#elif defined(DIRECTION)
+    float rz = scalar(u_rz);
+    float beta = rz != 0.0 ? scalar(u_rz_new) / rz : 0.0;
+    vec3 z = texelFetch(u_inv, texel, 0).xyz * texelFetch(u_r, texel, 0).xyz;
+    o_0 = vec4(z + beta * texelFetch(u_p, texel, 0).xyz, 0.0);
+#endif
+#endif
+}

@@ -1,0 +1,272 @@
+"""Implicit (backward) Euler: the float64 reference against a direct solve and FEM statics, the
+GPU backend against the reference, stability far above the explicit limit, constraints, loads,
+drags, and the report of an unconverged solve (issue 15)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from deformgl.bench.fem import MATERIAL, WORKLOADS, lattice_case, lattice_value
+from deformgl.sim.implicit import implicit_step
+from deformgl.sim.integrators import Constraints, initial_state
+from deformgl.sim.limits import check_dt, dt_limit
+from deformgl.sim.materials import ElasticMaterial, critical_dt
+from deformgl.sim.simulation import SimulationSetupError, make_simulation
+from deformgl.sim.springs import Drag, Load
+
+TISSUE = ElasticMaterial(3.0e3, 1060.0, mass_damping=1.0, stiffness_damping=1e-3)
+
+
+def _case(material=TISSUE, across=3):
+    return lattice_case(WORKLOADS["cantilever"], across, material)
+
+
+def test_cg_converges_to_the_direct_solve():
+    s = _case(MATERIAL).system
+    st = initial_state(s, 1e-3)
+    direct, dv_d, _ = implicit_step(s, st, 1e-3, 0.0, solver="direct")
+    cg, dv_c, report = implicit_step(s, st, 1e-3, 0.0, iterations=300, tolerance=1e-12, check_every=1)
+    assert report.converged and report.residual <= 1e-12 and 0 < report.iterations < 300
+    assert np.abs(dv_c - dv_d).max() <= 1e-9 * np.abs(dv_d).max()
+    assert np.abs(cg.x - direct.x).max() <= 1e-12
+
+
+def test_gpu_matches_numpy_one_step(ctx):
+    case = _case()
+    s = case.system
+    loads = (Load(case.grid.rest_positions[:, 0] > 0.9, lambda t: (0.0, 0.01, 0.0)),)
+    drags = (Drag(100, lambda t: (0.5, 0.08, 0.05), 0.5),)
+    opts = dict(dt=1 / 60, loads=loads, drags=drags, constraints=Constraints(ground=-0.02), cg_iterations=5)
+    ref = make_simulation(s, "implicit-euler", "numpy", **opts)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, **opts) as gpu:
+        for _ in range(2):   # the second step runs from the warm start on both sides
+            ref.step()
+            gpu.step()
+            dv = gpu.velocity_change()
+            assert np.abs(dv - ref.dv).max() <= 1e-5 * np.abs(ref.dv).max()
+            assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-5 * case.spacing
+            assert gpu.residual() == pytest.approx(ref.last_report.residual, rel=1e-3)  # 2 scalar reads
+        assert np.array_equal(gpu.positions()[s.fixed], s.rest_positions[s.fixed].astype(np.float32))
+        assert np.all(gpu.velocities()[s.fixed] == 0.0)
+
+
+def test_stable_far_above_the_explicit_limit_and_settles():
+    case = _case(MATERIAL)
+    s = case.system
+    dt = 100 * critical_dt(MATERIAL, case.spacing)
+    assert dt_limit(s, "verlet", exact=False).dt < dt / 50 and check_dt(s, "implicit-euler", dt) is None
+    sim = make_simulation(s, "implicit-euler", "numpy", dt=dt, solver="direct")
+    sim.step(300)
+    x = sim.positions()
+    assert np.all(np.isfinite(x))
+    assert np.abs(sim.velocities()).max() < 1e-3 * case.spacing / dt
+
+
+def test_static_limit_is_the_lattice_static_solve():
+    case = _case(MATERIAL)
+    s = case.system
+    static = lattice_value(case)
+    sim = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=200)
+    sim.step(60)
+    sag = lattice_value(case, sim.positions() - s.rest_positions)
+    assert sag == pytest.approx(static, rel=2e-3)   # the FEM tolerance of docs/ACCURACY.md is 2 %
+
+
+def test_geometric_term_dropped_blows_up_projected_does_not():
+    case = _case(MATERIAL)
+    s, static = case.system, lattice_value(case)
+    dropped = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=50, geometric="none")
+    dropped.step(60)
+    projected = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, solver="direct")
+    projected.step(60)
+    assert np.abs(dropped.positions() - s.rest_positions).max() > 100 * static
+    assert lattice_value(case, projected.positions() - s.rest_positions) == pytest.approx(static, rel=2e-3)
+
+
+def test_ground_load_and_drag(ctx):
+    case = _case()
+    s = case.system
+    tip = case.grid.rest_positions[:, 0] > 0.9
+    drag = Drag(int(np.flatnonzero(tip)[0]), lambda t: (1.0, 0.3, 0.05), 50.0)
+    up = (Load(tip, lambda t: (0.0, 0.5, 0.0)),)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, dt=1 / 60, cg_iterations=30,
+                         constraints=Constraints(ground=-0.01)) as fall:
+        fall.step(60)
+        assert fall.positions()[:, 1].min() >= -0.01 - 1e-6
+    free = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, solver="direct")
+    free.step(30)
+    lifted = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, loads=up, solver="direct")
+    lifted.step(30)
+    assert lifted.positions()[tip, 1].mean() > free.positions()[tip, 1].mean() + 0.05
+    dragged = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, drags=(drag,), solver="direct")
+    dragged.step(30)
+    assert dragged.positions()[drag.node, 1] > free.positions()[drag.node, 1] + 0.05
+
+
+def test_unconverged_solve_is_reported(ctx):
+    s = _case(MATERIAL).system
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, dt=1 / 60, cg_iterations=3,
+                         cg_tolerance=1e-6, cg_check_every=1) as gpu:
+        gpu.step(2)
+        assert gpu.unconverged == 2 and gpu.last_report.residual > 1e-6
+        assert "did not reach the tolerance" in gpu.solver_note()
+    ref = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=300, cg_tolerance=1e-6)
+    ref.step(2)
+    assert ref.solver_note() is None and ref.last_report.converged
+
+
+def test_setup_errors():
+    s = _case().system
+    with pytest.raises(SimulationSetupError, match="not on feedback"):
+        make_simulation(s, "implicit-euler", "feedback", dt=0.01, ctx=object())
+    with pytest.raises(SimulationSetupError, match="cg_iterations"):
+        make_simulation(s, "implicit-euler", "numpy", dt=0.01, cg_iterations=0)
+    with pytest.raises(SimulationSetupError, match="unknown option"):
+        make_simulation(s, "implicit-euler", "numpy", dt=0.01, path="general")
+
+
+def test_scene_keys(tmp_path):
+    from deformgl.errors import DeformglError
+    from deformgl.scene.schema import load_scene
+
+    from pathlib import Path
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    base = tmp_path / "s.toml"
+    head = f'[mesh]\npath = "{mesh.as_posix()}"\n'
+    base.write_text(head + '[physics]\nintegrator = "implicit-euler"\n[physics.implicit]\niterations = 7\ntolerance = 1e-4\n')
+    scene = load_scene(base)
+    assert scene.physics.integrator == "implicit-euler"
+    assert scene.physics.implicit.options() == {"cg_iterations": 7, "cg_tolerance": 1e-4}
+    base.write_text(head + '[physics.implicit]\niterations = 0\n')
+    with pytest.raises(DeformglError, match="physics.implicit.iterations"):
+        load_scene(base)
+
+
+def test_stiff_study_quick(ctx):
+    from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
+
+    cases = [c for c in stiff_cases(quick=True) if c.youngs_modulus == 1.0e6]
+    assert cases and cases[0].omega1 > 100.0 and cases[0].linear_gap < 1e-3
+    rows = stiff_study(ctx, quick=True, cases=cases)
+    implicit = [r for r in rows if r.integrator == "implicit-euler"]
+    explicit = [r for r in rows if r.integrator != "implicit-euler"]
+    assert implicit and explicit and all(r.converged_at is not None for r in rows)
+    assert all(r.final_error <= 0.05 for r in rows)
+    assert all(0.0 <= r.mode_decay < 1e-6 for r in implicit) and all(r.mode_decay == 1.0 for r in explicit)
+    assert all(r.dt > 10 * max(e.dt for e in explicit) for r in implicit)
+    assert "in favour of" in format_stiff(rows, cases=cases)
+
+
+def test_realtime_frames(ctx):
+    from deformgl.bench.implicit import format_realtime, realtime
+
+    rows, gap, nodes = realtime(ctx, "jelly.toml", frames=2, iterations=(20,))
+    assert [r.integrator for r in rows] == ["implicit-euler", "verlet"] and nodes > 100
+    assert rows[0].steps_per_frame == 1 and rows[1].steps_per_frame > 1
+    assert all(r.fps > 0 for r in rows) and 0.0 <= rows[0].residual < 0.1
+    assert np.isfinite(gap) and "fps" in format_realtime(rows, gap, nodes, "jelly.toml")
+
+
+def test_guarded_run_notes_the_solver_and_the_census_catches_nan(ctx):
+    from deformgl.errors import SimulationError
+    from deformgl.scene.stepping import make_simulation as guarded, run
+    from deformgl.sim.integrators import State
+
+    s = _case(MATERIAL).system
+    sim = guarded(s, "implicit-euler", "fragment", dt=1 / 60, ctx=ctx, cg_iterations=3, cg_tolerance=1e-6,
+                  cg_check_every=1)
+    result = run(sim, 4)   # 200x the explicit limit: accepted, and the unconverged solves noted
+    assert any("did not reach the tolerance 1e-06 in 4 of 4 steps" in n for n in result.notes)
+    start = initial_state(s, 1 / 60)
+    x = start.x.copy()
+    x[50] = np.nan
+    bad = guarded(s, "implicit-euler", "fragment", dt=1 / 60, ctx=ctx, state=State(x, start.v, start.x_prev))
+    with pytest.raises(SimulationError, match="non-finite"):
+        run(bad, 3)
+
+
+def test_moving_sphere_gpu_matches_numpy(ctx):
+    from deformgl.sim.integrators import Sphere
+
+    case = _case()
+    s = case.system
+    sphere = Sphere(lambda t: (0.62, -0.02 + 0.5 * t, 0.035), 0.06)  # no node at its apex (a tie)
+    opts = dict(dt=1 / 60, constraints=Constraints(spheres=(sphere,)), cg_iterations=5)
+    ref = make_simulation(s, "implicit-euler", "numpy", **opts)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, **opts) as gpu:
+        ref.step(3)
+        gpu.step(3)
+        x = gpu.positions().astype(np.float64)
+        centre = np.array([0.62, -0.02 + 0.5 * 3 / 60, 0.035])
+        assert np.linalg.norm(x - centre, axis=1).min() >= 0.06 - 1e-5
+        hit = np.linalg.norm(ref.positions() - centre, axis=1) <= 0.06 + 1e-9
+        assert hit.any()
+        assert np.abs(x - ref.positions()).max() <= 1e-4 * case.spacing
+
+
+def test_cli_integrator_and_unconverged_note(ctx, tmp_path, capsys):  # ctx: marks it gl (the CLI makes its own)
+    from deformgl.cli import main
+    from deformgl.data import scene_file
+
+    out = tmp_path / "j.png"
+    code = main(["render", str(scene_file("jelly.toml")), "-o", str(out), "--integrator", "implicit-euler",
+                 "--set", "physics.dt=0.0166667", "--set", "physics.steps=4",
+                 "--set", "physics.implicit.iterations=2", "--set", "physics.implicit.tolerance=1e-6"])
+    err = capsys.readouterr().err
+    assert code == 0 and out.exists()
+    assert "implicit-euler on fragment, 4 steps of dt 0.0166667 s" in err
+    assert "CG did not reach the tolerance 1e-06 in 4 of 4 steps" in err
+
+
+def test_lowest_mode_decays_as_backward_euler_predicts():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from deformgl.bench.fem import stiffness_matrix
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.sim.integrators import State
+    from deformgl.sim.materials import lattice_system
+
+    grid = NodeGrid(np.zeros(3), 0.025, np.ones((5, 5, 5), bool))
+    system, _ = lattice_system(grid, ElasticMaterial(3.0e3, 1060.0), fixed=grid.ijk[:, 1] == 0, gravity=(0, 0, 0))
+    dof = np.repeat(~system.fixed, 3)
+    m = np.repeat(system.mass, 3)[dof]
+    w2, vec = spla.eigsh(stiffness_matrix(system)[dof][:, dof].tocsc(), k=1, M=sp.diags(m).tocsc(), sigma=0.0)
+    w, phi = float(np.sqrt(w2[0])), np.zeros(3 * system.count)
+    phi[dof] = vec[:, 0] / np.abs(vec[:, 0]).max() * 1e-6          # 1 um: linear
+    dt = 1 / 60
+    x0 = system.rest_positions + phi.reshape(-1, 3)
+    sim = make_simulation(system, "implicit-euler", "numpy", dt=dt, solver="direct",
+                          state=State(x0, np.zeros_like(x0), x0))
+    mass = np.repeat(system.mass, 3)
+
+    def coordinate(x):
+        return float(((x - system.rest_positions).ravel() * mass) @ phi / (phi * mass @ phi))
+
+    a, b = 1.0, 0.0
+    for _ in range(60):
+        sim.step()
+        b = (b - dt * w * w * a) / (1 + (w * dt) ** 2)   # the mode's backward-Euler step
+        a = a + dt * b
+        assert coordinate(sim.positions()) == pytest.approx(a, abs=2e-3)
+    # its amplitude after 1 s: the bench's mode_decay formula, (1 + (w dt)^2)^(-1/(2 dt))
+    radius = max(abs(np.linalg.eigvals(np.array([[1 - (w * dt) ** 2 / (1 + (w * dt) ** 2), dt / (1 + (w * dt) ** 2)],
+                                                 [-dt * w * w / (1 + (w * dt) ** 2), 1 / (1 + (w * dt) ** 2)]]))))
+    assert radius ** 60 == pytest.approx((1 + (w * dt) ** 2) ** (-0.5 / dt), rel=1e-9)
+
+
+@pytest.mark.parametrize("constraint", ["none", "sphere"])
+def test_flexion_wind_damping_gpu_matches_numpy(ctx, constraint):
+    from deformgl.pack.es_check import integrator_case
+
+    system, grid, state, c = integrator_case(constraint)   # flexion springs, spring damping, wind
+    opts = dict(dt=1e-2, state=state, constraints=c, cg_iterations=10)
+    ref = make_simulation(system, "implicit-euler", "numpy", **opts)
+    with make_simulation(system, "implicit-euler", "fragment", ctx=ctx, cg_tolerance=1e-9, cg_check_every=2,
+                         **opts) as gpu:
+        ref.step(5)
+        gpu.step(5)
+        assert gpu.last_report.converged and gpu.last_report.iterations < 10
+        assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-6
