@@ -1,5 +1,5 @@
-"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi and
-NVIDIA Warp on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
+"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi,
+NVIDIA Warp and Numba on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
 
 Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (Mosegaard &
 Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
@@ -15,6 +15,8 @@ The peer packages are optional (``pip install deformgl[peers]``) and imported la
   without ``ti.reset()``.
 * Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
   the calling thread (one thread).
+* Numba (:mod:`deformgl.bench.peer_numba`) runs an ``@njit(parallel=True)`` kernel whose
+  ``prange`` over the nodes uses Numba's thread pool (the core count).
 
 On dense grids (every node of the box exists: blocks, cloth sheets) both peers find neighbour
 ``j`` of node ``i`` at ``i + offsets[j]`` when bit ``j`` of the node's mask is set, like the
@@ -31,14 +33,14 @@ from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
 from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.springs import Load, SpringSystem, load_groups
 
-PEERS = ("taichi", "warp")
+PEERS = ("taichi", "warp", "numba")
 
 
 def available_peers() -> dict[str, str | None]:
     """Version of each installed peer package; None where it cannot be imported.
 
     Returns:
-        ``{"taichi": "1.7.4" | None, "warp": "1.19.0" | None}``; use :func:`peer_import_errors`
+        ``{"taichi": "1.7.4" | None, "warp": "1.19.0" | None, "numba": "0.68.1" | None}``; use :func:`peer_import_errors`
         for the reason of a None.
     """
     return {name: version for name, (version, _) in _probe().items()}
@@ -51,9 +53,9 @@ def peer_import_errors() -> dict[str, str]:
 
 def _probe() -> dict[str, tuple[str | None, str | None]]:
     out: dict[str, tuple[str | None, str | None]] = {}
-    for name, module in (("taichi", "taichi"), ("warp", "warp")):
+    for name in PEERS:
         try:
-            mod = __import__(module)
+            mod = __import__(name)
         except Exception as exc:  # ImportError, or a native library that fails to load
             out[name] = (None, f"{type(exc).__name__}: {exc}")
             continue
@@ -424,7 +426,7 @@ class WarpStepper(PeerStepper):
         return 1
 
 
-STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}
+STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}  # numba: imported lazily
 
 
 def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> PeerStepper:
@@ -433,8 +435,12 @@ def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, 
     Raises:
         ValueError: unknown peer. ImportError: the peer package is not installed.
     """
-    if peer not in STEPPERS:
+    if peer not in PEERS:
         raise ValueError(f"peer must be one of {PEERS}, got {peer!r}")
+    if peer == "numba":
+        from deformgl.bench.peer_numba import NumbaStepper
+
+        return NumbaStepper(system, dt, loads)
     return STEPPERS[peer](system, dt, loads)
 
 

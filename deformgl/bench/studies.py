@@ -367,7 +367,7 @@ def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
 def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32)),
                  rounds: int = 7) -> str:
     """``bench sim --peers``: the foundation's fragment Verlet step against the same step in Taichi
-    (CPU) and NVIDIA Warp (CPU) on the same grids, in the same process. All steppers of a grid
+    (CPU), NVIDIA Warp (CPU) and Numba (``parallel=True``) on the same grids, in the same process. All steppers of a grid
     are built and warmed up first; then ``rounds`` rounds time ``steps`` steps of each in turn,
     so load from other processes hits all alike. Best and median of the rounds; ratios are
     fragment throughput / peer throughput, of the medians."""
