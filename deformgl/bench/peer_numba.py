@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from deformgl.bench.peers import PeerStepper
+from deformgl.bench.peer_base import PeerStepper
 from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
 from deformgl.sim.springs import Load, SpringSystem
 
