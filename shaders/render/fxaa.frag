@@ -26,18 +26,22 @@ float luma_at(vec2 uv) {
     return luma(texture(u_colour, uv).rgb);
 }
 
-float luma_off(vec2 uv, float dx, float dy) {
-    return luma_at(uv + vec2(dx, dy) * u_texel);
+// the 3x3 neighbourhood by texelFetch (no filtering: cheaper than a bilinear tap on llvmpipe),
+// clamped to the image as the clamp-to-edge sampler does
+float luma_off(ivec2 p, int dx, int dy) {
+    ivec2 q = clamp(p + ivec2(dx, dy), ivec2(0), textureSize(u_colour, 0) - 1);
+    return luma(texelFetch(u_colour, q, 0).rgb);
 }
 
 void main() {
     vec2 pos = gl_FragCoord.xy * u_texel;
-    vec4 centre = texture(u_colour, pos);
+    ivec2 pixel = ivec2(gl_FragCoord.xy);
+    vec4 centre = texelFetch(u_colour, pixel, 0);
     float m = luma(centre.rgb);
-    float s = luma_off(pos, 0.0, 1.0);
-    float e = luma_off(pos, 1.0, 0.0);
-    float n = luma_off(pos, 0.0, -1.0);
-    float w = luma_off(pos, -1.0, 0.0);
+    float s = luma_off(pixel, 0, 1);
+    float e = luma_off(pixel, 1, 0);
+    float n = luma_off(pixel, 0, -1);
+    float w = luma_off(pixel, -1, 0);
     float range_max = max(max(max(n, w), max(e, s)), m);
     float range_min = min(min(min(n, w), min(e, s)), m);
     float range = range_max - range_min;
@@ -45,10 +49,10 @@ void main() {
         o_colour = vec4(centre.rgb, 1.0);
         return;
     }
-    float nw = luma_off(pos, -1.0, -1.0);
-    float se = luma_off(pos, 1.0, 1.0);
-    float ne = luma_off(pos, 1.0, -1.0);
-    float sw = luma_off(pos, -1.0, 1.0);
+    float nw = luma_off(pixel, -1, -1);
+    float se = luma_off(pixel, 1, 1);
+    float ne = luma_off(pixel, 1, -1);
+    float sw = luma_off(pixel, -1, 1);
     // edge orientation from the second differences of the 3x3 neighbourhood
     float edge_horz = abs(-2.0 * w + nw + sw) + 2.0 * abs(-2.0 * m + n + s) + abs(-2.0 * e + ne + se);
     float edge_vert = abs(-2.0 * s + sw + se) + 2.0 * abs(-2.0 * m + w + e) + abs(-2.0 * n + nw + ne);
