@@ -189,3 +189,15 @@ def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
     assert "renderer" in text and "2 alternating rounds" in text and "4x4x3 (48 nodes): fragment" in text
     for peer in peers.PEERS:
         assert f"-> fragment / {peer} = " in text
+
+
+def test_numba_runs_on_the_workqueue_layer(monkeypatch):
+    """Not OpenMP's spin-waiting pool (20x slower per step on a shared 2-core machine)."""
+    need("numba")
+    monkeypatch.delenv("NUMBA_THREADING_LAYER", raising=False)
+    sim = stepper("numba", jelly())
+    try:
+        sim.step(2)
+        assert sim.threading_layer == "workqueue" and sim.threads >= 1
+    finally:
+        sim.release()

@@ -6,7 +6,11 @@ peers (Mosegaard & Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of
 ``NodeGrid.neighbours``, per-class stiffness, velocity damping ``-c (x - x_prev)/dt``, gravity,
 pull groups, fixed nodes kept exactly). Every scalar is a float32 so Numba does not promote the
 arithmetic to float64. Numba runs the ``prange`` loop on its own thread pool
-(``numba.get_num_threads()``, by default the core count). Imported lazily by
+(``numba.get_num_threads()``, by default the core count), on the ``workqueue`` threading layer
+unless ``NUMBA_THREADING_LAYER`` says otherwise: with the OpenMP layer (libgomp, chosen by
+default where it is installed) a step of the 20k-node block took 21-27 ms instead of 1.1 ms on
+the shared 2-core machine, its threads spin-waiting at every parallel region's barrier against
+the other processes (``OMP_WAIT_POLICY=passive`` gave 1.1 ms as well). Imported lazily by
 :func:`deformgl.bench.peers.make_stepper`; ``import numba`` happens in :func:`_kernel`.
 """
 
@@ -28,8 +32,14 @@ def _kernel() -> tuple[Any, Callable[..., None]]:
     once per argument type signature)."""
     if _NB:
         return _NB["numba"], _NB["kernel"]
+    import os
+
     import numba
     from numba import prange
+
+    if "NUMBA_THREADING_LAYER" not in os.environ:
+        # (read at the first parallel launch; numba.config sets its names at import, unseen by mypy)
+        numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
     fixed_bit = np.int32(FLAG_FIXED)
     pull_shift = int(PULL_SHIFT)
@@ -131,3 +141,11 @@ class NumbaStepper(PeerStepper):
     @property
     def threads(self) -> int:
         return int(self._numba.get_num_threads())
+
+    @property
+    def threading_layer(self) -> str:
+        """Numba's threading layer (known after the first step)."""
+        try:
+            return str(self._numba.threading_layer())
+        except ValueError:  # no parallel launch yet
+            return str(self._numba.config.THREADING_LAYER)
