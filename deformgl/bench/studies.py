@@ -433,7 +433,8 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
         lines.append(f"{name} ({system.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
                      f"ms/step ({system.count / median['fragment'] / 1e3:.1f} M nodes/s)")
         for peer, st in steppers.items():
-            lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s): {best[peer]:.3f} / "
+            layer = f" ({st.threading_layer} layer)" if hasattr(st, "threading_layer") else ""
+            lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s){layer}: {best[peer]:.3f} / "
                          f"{median[peer]:.3f} ms/step ({system.count / median[peer] / 1e3:.1f} M nodes/s) "
                          f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x")
     return "\n".join(lines)
