@@ -95,6 +95,7 @@ _EXPORTS: dict[str, str] = {
     "GeometryNode": "deformgl.trilinear.nodes",
     "ComposedScene": "deformgl.trilinear.batches",
     "compose_scene": "deformgl.trilinear.scenegraph",
+    "SceneComposer": "deformgl.trilinear.scenegraph",
     "TrilinearRenderer": "deformgl.trilinear.renderer",
     "TubeAttachment": "deformgl.trilinear.attachments",
     "uv_sphere": "deformgl.trilinear.shapes",

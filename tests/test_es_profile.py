@@ -19,9 +19,11 @@ from conftest import GOLDEN_DIR
 
 SCENES = GOLDEN_DIR.parent.parent / "scenes"
 #: foundation Verlet + constant mapping; curvature mapping (Mosegaard & Sorensen 2005, eq. 8);
-#: the general fragment stages with flexion and a sphere; the trilinear grid path (3D atlas)
+#: the general fragment stages with flexion and a sphere; the trilinear grid path (3D atlas);
+#: the FXAA pass (render/fxaa.frag)
 CASES = [str(SCENES / "dragon_bend_constant.toml"), str(SCENES / "dragon_bend_curvature.toml"),
-         str(SCENES / "cloth_64.toml"), str(SCENES / "jelly.toml"), "trilinear:tubes"]
+         str(SCENES / "cloth_64.toml"), str(SCENES / "jelly.toml"), "trilinear:tubes",
+         f"fxaa:{SCENES / 'jelly.toml'}"]
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +40,7 @@ def test_the_context_is_opengl_es_3(es_run):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index", range(len(CASES)), ids=[c.rsplit("/", 1)[-1] for c in CASES])
+@pytest.mark.parametrize("index", range(len(CASES)), ids=[("fxaa-" if c.startswith("fxaa:") else "") + c.rsplit("/", 1)[-1] for c in CASES])
 def test_es_render_matches_the_desktop_render(ctx, es_run, index):
     name = CASES[index]
     desktop = es_check.render_named(ctx, name)

@@ -16,6 +16,7 @@ the one-node-thin fin, the trilinear scene graph with direct normals (test_trili
 trilinear_tile, trilinear_tubes) and with tangent-frame normals (trilinear_tile_tangent, here).
 """
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -58,3 +59,11 @@ def test_trilinear_tangent_frame_normals_match_golden(ctx, golden):
     to the deformed surface, seams at cell borders): the trilinear goldens of
     test_trilinear_scenes.py use the direct normals."""
     golden(render_trilinear_scene(ctx, "tile", (320, 240), normals="tangent"), "trilinear_tile_tangent")
+
+
+def test_fxaa_scene_matches_golden(ctx, golden):
+    """The default scene with ``[render] aa = "fxaa"``: the post-process pass of
+    shaders/render/fxaa.frag on the single-sampled image (the msaa goldens above are untouched)."""
+    scene = load_scene(SCENES / "dragon.toml")
+    scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, aa="fxaa"))
+    golden(render_scene(ctx, scene), "dragon_fxaa")

@@ -1,4 +1,4 @@
-"""The Taichi and Warp CPU peers of the Verlet step against the float64 NumPy reference."""
+"""The Taichi, Warp and Numba CPU peers of the Verlet step against the float64 NumPy reference."""
 
 import subprocess
 import sys
@@ -15,7 +15,7 @@ from deformgl.sim.springs import Load, from_grid
 
 H = 0.05
 #: float32 peers after 50 steps of the jelly block below: max |x - x_ref| <= TOL * spacing
-#: (measured ~3.5e-5 on both peers, with the nodes moving ~0.3 spacing).
+#: (measured ~3.5e-5 on every peer, with the nodes moving ~0.3 spacing).
 TOL = 2e-4
 
 
@@ -167,11 +167,12 @@ def test_available_peers_and_lazy_import(monkeypatch):
     assert peers.available_peers()["warp"] is None
     assert "import of warp halted" in peers.peer_import_errors()["warp"]
     with pytest.raises(ValueError, match="peer must be one of"):
-        peers.make_stepper("numba", jelly(), 1e-3)
-    # importing deformgl.bench.peers imports neither peer package
-    code = "import sys, deformgl.bench.peers; print('taichi' in sys.modules, 'warp' in sys.modules)"
+        peers.make_stepper("jax", jelly(), 1e-3)
+    # importing deformgl.bench.peers imports no peer package
+    code = ("import sys, deformgl.bench.peers, deformgl.bench.peer_numba; "
+            "print(*(p in sys.modules for p in ('taichi', 'warp', 'numba')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.split() == ["False", "False"]
+    assert out.split() == ["False", "False", "False"]
 
 
 def test_invalid_dt():
@@ -188,3 +189,15 @@ def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
     assert "renderer" in text and "2 alternating rounds" in text and "4x4x3 (48 nodes): fragment" in text
     for peer in peers.PEERS:
         assert f"-> fragment / {peer} = " in text
+
+
+def test_numba_runs_on_the_workqueue_layer(monkeypatch):
+    """Not OpenMP's spin-waiting pool (20x slower per step on a shared 2-core machine)."""
+    need("numba")
+    monkeypatch.delenv("NUMBA_THREADING_LAYER", raising=False)
+    sim = stepper("numba", jelly())
+    try:
+        sim.step(2)
+        assert sim.threading_layer == "workqueue" and sim.threads >= 1
+    finally:
+        sim.release()

@@ -1,5 +1,5 @@
-"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi and
-NVIDIA Warp on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
+"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi,
+NVIDIA Warp and Numba on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
 
 Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (Mosegaard &
 Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
@@ -15,6 +15,8 @@ The peer packages are optional (``pip install deformgl[peers]``) and imported la
   without ``ti.reset()``.
 * Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
   the calling thread (one thread).
+* Numba (:mod:`deformgl.bench.peer_numba`) runs an ``@njit(parallel=True)`` kernel whose
+  ``prange`` over the nodes uses Numba's thread pool (the core count).
 
 On dense grids (every node of the box exists: blocks, cloth sheets) both peers find neighbour
 ``j`` of node ``i`` at ``i + offsets[j]`` when bit ``j`` of the node's mask is set, like the
@@ -27,18 +29,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
-from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT, VerletTerms, node_flags, verlet_terms
-from deformgl.sim.springs import Load, SpringSystem, load_groups
+from deformgl.bench.peer_base import PeerStepper
+from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
+from deformgl.sim.springs import Load, SpringSystem
 
-PEERS = ("taichi", "warp")
+PEERS = ("taichi", "warp", "numba")
 
 
 def available_peers() -> dict[str, str | None]:
     """Version of each installed peer package; None where it cannot be imported.
 
     Returns:
-        ``{"taichi": "1.7.4" | None, "warp": "1.19.0" | None}``; use :func:`peer_import_errors`
+        ``{"taichi": "1.7.4" | None, "warp": "1.19.0" | None, "numba": "0.68.1" | None}``; use :func:`peer_import_errors`
         for the reason of a None.
     """
     return {name: version for name, (version, _) in _probe().items()}
@@ -51,9 +53,9 @@ def peer_import_errors() -> dict[str, str]:
 
 def _probe() -> dict[str, tuple[str | None, str | None]]:
     out: dict[str, tuple[str | None, str | None]] = {}
-    for name, module in (("taichi", "taichi"), ("warp", "warp")):
+    for name in PEERS:
         try:
-            mod = __import__(module)
+            mod = __import__(name)
         except Exception as exc:  # ImportError, or a native library that fails to load
             out[name] = (None, f"{type(exc).__name__}: {exc}")
             continue
@@ -62,100 +64,6 @@ def _probe() -> dict[str, tuple[str | None, str | None]]:
             version = ".".join(map(str, version))
         out[name] = (str(version), None)
     return out
-
-
-def _pull_rows(loads: tuple[Load, ...], t: float) -> np.ndarray:
-    """(MAX_PULLS, 3) float32 force per node of each load at time t, as the fragment pass gets it."""
-    out = np.zeros((MAX_PULLS, 3), np.float32)
-    for g, load in enumerate(loads):
-        out[g] = np.asarray(load.force(t), dtype=np.float64)
-    return out
-
-
-class PeerStepper:
-    """Common part of the peer steppers: system data in float32, rotation of three state buffers.
-
-    Args:
-        system: a grid spring system the foundation pass models (:func:`verlet_terms`).
-        dt: time step (s).
-        loads: at most ``MAX_PULLS`` scripted loads, evaluated at ``steps_done * dt`` before each
-            step (as the fragment pass).
-
-    Raises:
-        ValueError: dt <= 0, a system without a grid or with physics the pass does not model.
-    """
-
-    name = ""
-
-    def __init__(self, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> None:
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0, got {dt}")
-        grid = system.grid
-        if grid is None:
-            raise ValueError("the peers step grid systems (springs.from_grid or springs.cloth)")
-        terms = verlet_terms(system, grid, loads=tuple(loads))
-        if not isinstance(terms, VerletTerms):
-            raise ValueError(f"the peers do not model {terms}")
-        if terms.weights is not None or terms.mass_damping:
-            raise ValueError("the peers do not model per-spring stiffness or mass damping (a material's "
-                             "calibrated lattice): they step the per-spring form of the paper scenes")
-        self.system = system
-        self.dt = float(dt)
-        self.loads = tuple(loads)
-        self.steps_done = 0
-        self.rest32 = np.ascontiguousarray(grid.rest_positions, dtype=np.float32)
-        self._neighbours = np.ascontiguousarray(grid.neighbours, dtype=np.int32)
-        # dense grids (every node of the box exists): neighbour j of node i is i + offsets[j] when
-        # bit j of the mask is set, as the fragment pass's COMPACT_DENSE variant does
-        self.dense = grid.full
-        self._offsets = tuple(int(v) for v in NEIGHBOUR_OFFSETS @ np.array(node_strides(grid.shape)))
-        self._mask = np.ascontiguousarray(grid.neighbour_mask, dtype=np.int32)
-        self._mass = np.ascontiguousarray(system.mass, dtype=np.float32)
-        self._flags = np.ascontiguousarray(node_flags(system.fixed, load_groups(self.loads, grid.count)),
-                                           dtype=np.int32)
-        self._scalars = tuple(float(np.float32(v)) for v in (
-            grid.spacing, terms.k_structural, terms.k_shear, terms.damping, self.dt))
-        self._gravity = tuple(float(g) for g in np.asarray(terms.gravity, np.float32))
-        self._zero_pull = np.zeros((MAX_PULLS, 3), np.float32)
-
-    @property
-    def time(self) -> float:
-        """Simulated time (s)."""
-        return self.steps_done * self.dt
-
-    def _pull(self) -> np.ndarray:
-        if not self.loads:
-            return self._zero_pull
-        return _pull_rows(self.loads, self.time)
-
-    def step(self, n: int = 1) -> None:
-        """Advance n steps (state stays in the peer's arrays)."""
-        for _ in range(n):
-            self._launch(self._pull())
-            self.steps_done += 1
-        self._sync()
-
-    def _launch(self, pull: np.ndarray) -> None:
-        raise NotImplementedError
-
-    def _sync(self) -> None:
-        pass
-
-    def positions(self) -> np.ndarray:
-        """(N, 3) float32 current positions (one copy out)."""
-        raise NotImplementedError
-
-    def set_state(self, x: np.ndarray, x_prev: np.ndarray | None = None) -> None:
-        """Overwrite the current (and previous, default: same) positions, e.g. for a test."""
-        raise NotImplementedError
-
-    @property
-    def threads(self) -> int:
-        """Worker threads a step uses."""
-        raise NotImplementedError
-
-    def release(self) -> None:
-        """Free the peer's arrays now (otherwise they go with the stepper)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -424,7 +332,7 @@ class WarpStepper(PeerStepper):
         return 1
 
 
-STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}
+STEPPERS: dict[str, type[PeerStepper]] = {"taichi": TaichiStepper, "warp": WarpStepper}  # numba: imported lazily
 
 
 def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, ...] = ()) -> PeerStepper:
@@ -433,8 +341,12 @@ def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, 
     Raises:
         ValueError: unknown peer. ImportError: the peer package is not installed.
     """
-    if peer not in STEPPERS:
+    if peer not in PEERS:
         raise ValueError(f"peer must be one of {PEERS}, got {peer!r}")
+    if peer == "numba":
+        from deformgl.bench.peer_numba import NumbaStepper
+
+        return NumbaStepper(system, dt, loads)
     return STEPPERS[peer](system, dt, loads)
 
 

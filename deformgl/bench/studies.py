@@ -152,7 +152,8 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
     Returns:
         (rows, frame_ms, info): ms/frame of each draw path at ``size``² with ``samples``x MSAA;
         {MSAA samples: ms} of ``frame_steps`` simulation steps plus one curvature-corrected draw
-        at ``frame_size``², with ``samples``x MSAA and without; and a dict of scene sizes.
+        at ``frame_size``², with ``samples``x MSAA and without; and a dict of scene sizes, with "budgets": the frame split per AA mode
+        (:func:`deformgl.bench.aa.frame_budgets`).
     """
     from deformgl.render.mapped import MappedMeshPass, StaticMeshPass
     from deformgl.render.mapped_setup import get_binding, mapped_vertices
@@ -212,14 +213,24 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
                 frame_ms[frame_samples] = timed(frame, repeats) * 1e3
             finally:
                 small.release()
+        from deformgl.bench.aa import frame_budgets, reference_name
+
+        budgets = frame_budgets(ctx, lambda: sim.step(frame_steps),
+                                lambda: curvature.draw(sim.position_texture, view, lighting), frame_size,
+                                _rgb(scene.render.background), repeats)
     finally:
         target.release()
         for p in passes.values():
             p.release()
         sim.release()
     info = {"faces": len(mesh.faces), "vertices": len(mesh.vertices), "nodes": built.grid.count,
-            "size": size, "samples": samples, "frame_size": frame_size, "frame_steps": frame_steps}
+            "size": size, "samples": samples, "frame_size": frame_size, "frame_steps": frame_steps,
+            "budgets": budgets, "reference": reference_name(ctx)}
     return rows, frame_ms, info
+
+
+def _rgb(c) -> tuple[float, float, float]:
+    return float(c[0]), float(c[1]), float(c[2])
 
 
 def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict, machine: str) -> str:
@@ -239,6 +250,10 @@ def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict,
         lines.append(f"frame = {info['frame_steps']} simulation steps + one curvature-corrected draw at "
                      f"{info['frame_size']}x{info['frame_size']}, {msaa}: {ms:.1f} ms = {1e3 / ms:.1f} frames/s "
                      f"(the paper's 2005 GPU: 25 frames/s)")
+    if "budgets" in info:
+        from deformgl.bench.aa import format_budgets
+
+        lines += format_budgets(info["budgets"], info)
     return "\n".join(lines)
 
 
@@ -367,7 +382,7 @@ def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
 def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32)),
                  rounds: int = 7) -> str:
     """``bench sim --peers``: the foundation's fragment Verlet step against the same step in Taichi
-    (CPU) and NVIDIA Warp (CPU) on the same grids, in the same process. All steppers of a grid
+    (CPU), NVIDIA Warp (CPU) and Numba (``parallel=True``) on the same grids, in the same process. All steppers of a grid
     are built and warmed up first; then ``rounds`` rounds time ``steps`` steps of each in turn,
     so load from other processes hits all alike. Best and median of the rounds; ratios are
     fragment throughput / peer throughput, of the medians."""
@@ -418,7 +433,8 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
         lines.append(f"{name} ({system.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
                      f"ms/step ({system.count / median['fragment'] / 1e3:.1f} M nodes/s)")
         for peer, st in steppers.items():
-            lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s): {best[peer]:.3f} / "
+            layer = f" ({st.threading_layer} layer)" if hasattr(st, "threading_layer") else ""
+            lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s){layer}: {best[peer]:.3f} / "
                          f"{median[peer]:.3f} ms/step ({system.count / median[peer] / 1e3:.1f} M nodes/s) "
                          f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x")
     return "\n".join(lines)

@@ -16,7 +16,7 @@ from deformgl.bench.studies import machine_line
 from deformgl.render.camera import View
 from deformgl.render.passes import RenderTarget
 from deformgl.trilinear.renderer import TrilinearRenderer, shader_defines
-from deformgl.trilinear.scenegraph import ComposedScene, Node, compose_scene
+from deformgl.trilinear.scenegraph import ComposedScene, Node, SceneComposer, compose_scene
 from deformgl.trilinear.scenes import BACKGROUND, BuiltScene, LIGHT, depth_scene, helix_scene, scene_view, spheres_scene
 
 
@@ -55,6 +55,7 @@ class TrilinearRow:
     draw_ms: dict[str, float]
     paths: dict[str, dict[str, int]]
     grid_error: float
+    cold_ms: dict[str, float]
 
     def fps(self, mode: str) -> float:
         """Frames per second including the CPU composition."""
@@ -64,43 +65,53 @@ class TrilinearRow:
         """Trilinear over linear frames per second (the paper's figure)."""
         return self.fps("trilinear") / self.fps("linear")
 
+    def scratch_ratio(self) -> float:
+        """Trilinear over linear frames per second with both composed from scratch."""
+        return ((self.cold_ms["linear"] + self.draw_ms["linear"])
+                / (self.cold_ms["trilinear"] + self.draw_ms["trilinear"]))
+
     def draw_ratio(self) -> float:
         """Trilinear over linear, GPU draw only."""
         return self.draw_ms["linear"] / self.draw_ms["trilinear"]
 
 
 def time_frames(ctx: moderngl.Context, roots: dict[str, Node], size: tuple[int, int], repeats: int, *,
-                view: View | None = None) -> tuple[dict[str, tuple[float, float]], dict[str, ComposedScene]]:
+                view: View | None = None) -> tuple[dict[str, tuple[float, ...]], dict[str, ComposedScene]]:
     """Median compose and draw times (ms) of full frames of several scenes, interleaved frame by
     frame (in alternating order) so that all see the same machine load. A frame: compose on the
-    CPU, then upload, draw and ``ctx.finish()`` into a ``size`` offscreen target without MSAA.
-    The camera frames the first scene unless ``view`` is given; the first frame of each
-    (compiling programs, allocating buffers) is not counted.
+    CPU (each scene's :class:`SceneComposer`, which recomposes only what changed since its
+    previous frame: here nothing), then upload, draw and ``ctx.finish()`` into a ``size``
+    offscreen target without MSAA. Before each frame, the same scene is also composed from
+    scratch (:func:`compose_scene`: the cost of a frame in which every transform changed),
+    timed apart. The camera frames the first scene unless ``view`` is given; the first frame of
+    each (compiling programs, allocating buffers) is not counted.
 
     Returns:
-        Per key: (compose ms, draw ms); and the last composed scene of each.
+        Per key: (compose ms, draw ms, from-scratch compose ms); and the last composed scene of each.
     """
     target = RenderTarget(ctx, size, 0)
     renderer = TrilinearRenderer(ctx)
     try:
-        scenes = {key: compose_scene(root) for key, root in roots.items()}
+        composers = {key: SceneComposer() for key in roots}
+        scenes = {key: composers[key].compose(root) for key, root in roots.items()}
         view = view or scene_view(next(iter(scenes.values())), size)
-        times: dict[str, list[tuple[float, float]]] = {key: [] for key in roots}
+        times: dict[str, list[tuple[float, float, float]]] = {key: [] for key in roots}
         keys = list(roots)
         for i in range(repeats + 1):
             for key in keys if i % 2 else keys[::-1]:  # alternate the order: no position bias
                 root = roots[key]
+                c0 = time.perf_counter()
+                compose_scene(root)
                 t0 = time.perf_counter()
-                scenes[key] = compose_scene(root)
+                scenes[key] = composers[key].compose(root)
                 t1 = time.perf_counter()
                 target.begin(BACKGROUND)
                 renderer.draw(scenes[key], view, LIGHT)
                 ctx.finish()
                 t2 = time.perf_counter()
                 if i:
-                    times[key].append((t1 - t0, t2 - t1))
-        medians = {key: (statistics.median(c for c, _ in t) * 1e3, statistics.median(d for _, d in t) * 1e3)
-                   for key, t in times.items()}
+                    times[key].append((t1 - t0, t2 - t1, t0 - c0))
+        medians = {key: tuple(statistics.median(v[j] for v in t) * 1e3 for j in range(3)) for key, t in times.items()}
         return medians, scenes
     finally:
         renderer.release()
@@ -121,7 +132,7 @@ def bench_trilinear(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512)
         error = max((g.error for g in built["trilinear"].grids.values()), default=0.0)
         rows.append(TrilinearRow(setup, scenes["trilinear"].triangle_count,
                                  {m: medians[m][0] for m in medians}, {m: medians[m][1] for m in medians},
-                                 {m: s.paths() for m, s in scenes.items()}, error))
+                                 {m: s.paths() for m, s in scenes.items()}, error, {m: medians[m][2] for m in medians}))
     return rows
 
 
@@ -132,6 +143,7 @@ class DepthRow:
     depth: int
     compose_ms: float
     draw_ms: float
+    cold_ms: float
     cells: tuple[int, int, int]
     defines: dict[str, object]
     triangles: int
@@ -147,7 +159,8 @@ def bench_depth(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), re
         scene = scenes[str(d)]
         (batch,) = scene.batches
         cells = tuple(s - 1 for s in batch.grids[0].shape[1:4]) if batch.path == "grid" else (1, 1, 1)
-        rows.append(DepthRow(d, *medians[str(d)], cells, shader_defines(batch.path, batch.normals),
+        compose_ms, draw_ms, cold_ms = medians[str(d)]
+        rows.append(DepthRow(d, compose_ms, draw_ms, cold_ms, cells, shader_defines(batch.path, batch.normals),
                              scene.triangle_count))
     return rows
 
@@ -157,10 +170,12 @@ def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machi
     """The ``bench trilinear`` report."""
     lines = [machine,
              f"trilinear scene graph (Knuth et al., section 6): {size[0]}x{size[1]} offscreen, no MSAA, "
-             f"median of {repeats} frames; a frame = CPU composition + upload + draw + finish",
+             f"median of {repeats} frames; a frame = CPU composition (cached: only what changed since the "
+             "previous frame is recomposed, here nothing) + upload + draw + finish; scratch: composing "
+             "every leaf anew (a frame in which every transform changed)",
              f"{'scene':>8} {'objects':>7} {'triangles':>9} | {'linear':>6} {'compose':>8} {'draw':>8} | "
              f"{'trilin.':>7} {'compose':>8} {'draw':>8} {'paths (trilinear)':>22} | {'fps ratio':>9} "
-             f"{'draw ratio':>10} | {'paper':>5} | {'grid err':>8}"]
+             f"{'draw ratio':>10} | {'paper':>5} | {'grid err':>8} | {'scratch lin/tri':>15} {'ratio':>6}"]
     lines.append("-" * len(lines[-1]))
     for r in rows:
         p = r.paths["trilinear"]
@@ -170,17 +185,18 @@ def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machi
             f"{r.setup.scene:>8} {r.setup.objects:>7} {r.triangles:>9} | {r.fps('linear'):>6.2f} "
             f"{r.compose_ms['linear']:>6.1f}ms {r.draw_ms['linear']:>6.1f}ms | {r.fps('trilinear'):>7.2f} "
             f"{r.compose_ms['trilinear']:>6.1f}ms {r.draw_ms['trilinear']:>6.1f}ms {path_text:>22} | "
-            f"{r.ratio():>8.2f}x {r.draw_ratio():>9.2f}x | {paper:>5.2f} | {r.grid_error:>8.1e}")
+            f"{r.ratio():>8.2f}x {r.draw_ratio():>9.2f}x | {paper:>5.2f} | {r.grid_error:>8.1e} | "
+            f"{r.cold_ms['linear']:>5.1f}/{r.cold_ms['trilinear']:>5.1f}ms {r.scratch_ratio():>5.2f}x")
     lines.append("fps: frames/s; fps ratio = trilinear / linear (target >= 0.8); draw ratio: GPU part only; "
                  "paths: leaves drawn affine / one cuboid (Knuth, Kohlhammer & Kuijper, eq. 4) / 3D-texture grid; grid err: stated "
                  "approximation error of the root grid (scene units, objects have diameter 1)")
     if depth_rows:
         lines.append("")
         lines.append("shader cost vs depth: one sphere under nested 8^3 grids (twist/taper), composed per frame")
-        lines.append(f"{'depth':>5} {'triangles':>9} {'compose ms':>10} {'draw ms':>8} {'leaf grid':>9}  "
-                     "shader defines")
+        lines.append(f"{'depth':>5} {'triangles':>9} {'compose ms':>10} {'scratch ms':>10} {'draw ms':>8} "
+                     f"{'leaf grid':>9}  shader defines")
         for d in depth_rows:
-            lines.append(f"{d.depth:>5} {d.triangles:>9} {d.compose_ms:>10.2f} {d.draw_ms:>8.2f} "
+            lines.append(f"{d.depth:>5} {d.triangles:>9} {d.compose_ms:>10.3f} {d.cold_ms:>10.3f} {d.draw_ms:>8.2f} "
                          f"{'x'.join(map(str, d.cells)):>9}  {d.defines}")
     return "\n".join(lines)
 

@@ -13,6 +13,8 @@ both backends from :func:`integrator_case`'s start.
 
 from __future__ import annotations
 
+import dataclasses
+
 import sys
 import time
 from pathlib import Path
@@ -70,12 +72,17 @@ def integrators(ctx) -> dict[str, np.ndarray]:
 
 
 def render_named(ctx, name: str) -> np.ndarray:
-    """``deformgl render`` of a scene file, or ``trilinear:NAME`` at :data:`SIZE`."""
+    """``deformgl render`` of a scene file (``fxaa:PATH``: with ``[render] aa = "fxaa"``), or
+    ``trilinear:NAME`` at :data:`SIZE`."""
     if name.startswith("trilinear:"):
         from deformgl.trilinear.scenes import render_trilinear_scene
 
         return render_trilinear_scene(ctx, name.split(":", 1)[1], (2 * SIZE[0], SIZE[1]))
-    return render(ctx, load_scene(Path(name)).with_overrides(size=SIZE)).image
+    fxaa = name.startswith("fxaa:")
+    scene = load_scene(Path(name.split(":", 1)[1] if fxaa else name)).with_overrides(size=SIZE)
+    if fxaa:
+        scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, aa="fxaa"))
+    return render(ctx, scene).image
 
 
 def main(argv: list[str]) -> int:

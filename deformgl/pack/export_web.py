@@ -163,7 +163,7 @@ def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray]
         "view": {"view_projection_column_major": [float(v) for v in view.view_projection.T.ravel()],
                  "eye": [float(v) for v in view.eye]},
         "lighting": {k: np.asarray(v, dtype=np.float64).tolist() for k, v in lighting.uniforms().items()},
-        "size": list(scene.render.size), "antialias": scene.render.msaa > 1, "background": [float(v) for v in scene.render.background],
+        "size": list(scene.render.size), "antialias": scene.render.samples > 1 or scene.render.fxaa, "background": [float(v) for v in scene.render.background],
         "files": {name: {"dtype": name.rsplit(".", 1)[1], "shape": list(arr.shape)} for name, arr in arrays.items()},
     }
     return arrays, info

@@ -184,6 +184,7 @@ def render() -> Iterator[Variant]:
     yield _v("render/grid_surface.vert", "render/lit_surface.frag", {})
     yield _v("render/grid_surface.vert", None, {}, ("v_world", "v_normal"))
     yield _v("render/grid_lines.vert", "render/flat_colour.frag", {})
+    yield _v("sim/fullscreen.vert", "render/fxaa.frag", {})  # [render] aa = "fxaa"
     yield _v("render/static_mesh.vert", "render/mapped_mesh.frag", {})
     for curvature, normal_map in itertools.product((False, True), (False, True)):
         d = {"CURVATURE": curvature, "NORMAL_MAP": normal_map}

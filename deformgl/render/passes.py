@@ -1,4 +1,4 @@
-"""Offscreen rendering: an MSAA target resolved to RGB, and the draw passes that use it."""
+"""Offscreen rendering: an MSAA (or FXAA) target resolved to RGB, and the draw passes that use it."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from deformgl.errors import GLError
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, restore_framebuffer
+from deformgl.render.fxaa import FxaaPass
 from deformgl.grid.surface import grid_surface
 
 
@@ -35,30 +36,56 @@ class Lighting:
 
 
 class RenderTarget(GLOwner):
-    """Colour + depth framebuffer, multisampled when ``samples > 1``, resolved for read-back.
+    """Colour + depth framebuffer, multisampled when ``samples > 1``, resolved for read-back;
+    or, with ``fxaa``, single-sampled into a colour texture that :class:`FxaaPass` filters
+    into the read-back buffer.
 
     Args:
         ctx: GL context.
         size: (width, height) pixels.
         samples: MSAA samples (0 or 1: none).
+        fxaa: post-process anti-aliasing instead (requires ``samples`` 0 or 1).
     """
 
-    def __init__(self, ctx: moderngl.Context, size: tuple[int, int], samples: int = 4) -> None:
+    def __init__(self, ctx: moderngl.Context, size: tuple[int, int], samples: int = 4, *,
+                 fxaa: bool = False) -> None:
         super().__init__(ctx)
         self.size = size
         max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
         if samples > max_samples:
             raise GLError(f"{samples}x MSAA requested, the renderer supports at most {max_samples}x")
         self.samples = samples if samples > 1 else 0
+        if fxaa and self.samples:
+            raise GLError(f"FXAA and {samples}x MSAA requested together: choose one")
         self.resolved: moderngl.Renderbuffer | None = None
         self.resolve_fbo: moderngl.Framebuffer | None = None
+        self.fxaa: FxaaPass | None = None
+        self.colour: moderngl.Renderbuffer | moderngl.Texture
         with self.building():
-            self.colour = self.own(ctx.renderbuffer(size, 4, samples=self.samples))
+            if fxaa:
+                texture = self.own(ctx.texture(size, 4))
+                texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+                texture.repeat_x = texture.repeat_y = False
+                self.colour = texture
+                self.fxaa = self.own(FxaaPass(ctx))
+            else:
+                self.colour = self.own(ctx.renderbuffer(size, 4, samples=self.samples))
             self.depth = self.own(ctx.depth_renderbuffer(size, samples=self.samples))
             self.fbo = self.own(ctx.framebuffer(color_attachments=[self.colour], depth_attachment=self.depth))
-            if self.samples:
+            if self.samples or fxaa:
                 self.resolved = self.own(ctx.renderbuffer(size, 4))
                 self.resolve_fbo = self.own(ctx.framebuffer(color_attachments=[self.resolved]))
+
+    def resolve(self) -> moderngl.Framebuffer:
+        """The framebuffer holding the finished image: the MSAA resolve or the FXAA output
+        (written now), else the target itself."""
+        if self.resolve_fbo is None:
+            return self.fbo
+        if self.fxaa is not None and isinstance(self.colour, moderngl.Texture):
+            self.fxaa.apply(self.colour, self.resolve_fbo)
+        else:
+            self.ctx.copy_framebuffer(self.resolve_fbo, self.fbo)
+        return self.resolve_fbo
 
     def begin(self, background: tuple[float, float, float]) -> None:
         """Bind, clear to ``background`` and enable depth testing."""
@@ -69,12 +96,11 @@ class RenderTarget(GLOwner):
         self.ctx.enable(moderngl.DEPTH_TEST if profile_of(self.ctx) == "es"
                         else moderngl.DEPTH_TEST | moderngl.PROGRAM_POINT_SIZE)
 
-    def read_rgb(self) -> np.ndarray:
-        """Resolve (if multisampled) and read the image: (height, width, 3) uint8, top row first."""
-        source = self.fbo
-        if self.resolve_fbo is not None:
-            self.ctx.copy_framebuffer(self.resolve_fbo, self.fbo)
-            source = self.resolve_fbo
+    def read_rgb(self, source: moderngl.Framebuffer | None = None) -> np.ndarray:
+        """Resolve (if multisampled or FXAA) and read the image: (height, width, 3) uint8, top row
+        first. ``source``: read what :meth:`resolve` returned before, as it is."""
+        if source is None:
+            source = self.resolve()
         w, h = self.size
         if profile_of(self.ctx) == "es":  # (ES reads RGBA/UNSIGNED_BYTE; RGB is not guaranteed)
             rgba = np.frombuffer(source.read(components=4, alignment=1), dtype=np.uint8).reshape(h, w, 4)

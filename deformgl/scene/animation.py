@@ -169,7 +169,7 @@ class _Drawer:
             for mode in modes:
                 variant = dataclasses.replace(scene, mapping=dataclasses.replace(scene.mapping, mode=mode))
                 self.passes[mode] = make_draw_pass(ctx, variant, built, layout, log=log if not self.passes else None)
-            self.target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
+            self.target = RenderTarget(ctx, scene.render.size, scene.render.samples, fxaa=scene.render.fxaa)
         except BaseException:
             self.release()
             raise

@@ -199,7 +199,7 @@ def estimate(scene: Any) -> Budget:
     retained = part("retained")
     transient = max(part("simulation"), part("build"))
     w, h = (int(v) for v in scene.render.size)
-    samples = int(scene.render.msaa) if scene.render.msaa > 1 else 0
+    samples = scene.render.samples
     grid_bytes = int((24 + 12 + 72 + 5 / max(nodes, 1) * box) * nodes + 5 * mesh_box)
     spring_bytes = int(HOST_BYTES["retained"]["spring"] * springs + 33 * nodes)
     host = {
@@ -228,7 +228,7 @@ def estimate(scene: Any) -> Budget:
     gpu = {
         "simulation": int(sim),
         "draw buffers": int(8 * vertices + 12 * faces),
-        "render target": w * h * max(samples, 1) * (4 + 4) + (w * h * 4 if samples else 0),
+        "render target": w * h * max(samples, 1) * (4 + 4) + (w * h * 4 if samples or scene.render.fxaa else 0),
     }
     return Budget(source=Path(str(scene.source)).name, nodes=nodes, springs=springs, box=box,
                   host=host, gpu=gpu, size=(w, h), samples=samples, key=key)

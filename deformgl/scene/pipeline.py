@@ -322,8 +322,8 @@ def check_gl_limits(ctx: moderngl.Context, scene: Scene) -> None:
     """Limits a scene can exceed, checked before any work: MSAA samples, a normal map wider than
     a texture may be (read from the PNG header, not decoded)."""
     max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 1))
-    if scene.render.msaa > max(max_samples, 1):
-        raise InputError(f"{scene.source}: render.msaa: {scene.render.msaa}x is more than this renderer's "
+    if scene.render.samples > max(max_samples, 1):
+        raise InputError(f"{scene.source}: render.msaa: {scene.render.samples}x is more than this renderer's "
                          f"{max_samples}x")
     spec = scene.mapping.normal_map
     if spec is not None and spec != "procedural" and scene.mapping.mode != "one-to-one":
@@ -371,7 +371,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
     target = None
     try:
         draw_pass = make_draw_pass(ctx, scene, built, state.layout, log=log)
-        target = RenderTarget(ctx, scene.render.size, scene.render.msaa)
+        target = RenderTarget(ctx, scene.render.size, scene.render.samples, fxaa=scene.render.fxaa)
         target.begin(_vec3(scene.render.background))
         view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
         draw_pass.draw(state.position_texture, view, lighting)

@@ -26,7 +26,7 @@ import numpy as np
 from deformgl.errors import SceneError
 from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _existing, _fail, _int, _join,  # noqa: F401
                                    _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
-from deformgl.scene.spec import (AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
+from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
                                  MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
                                  UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
                                  _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
@@ -254,7 +254,7 @@ _MATERIAL = _table({
     "shininess": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e4)), 32.0),
 }, _plain(Material))
 _RENDER = _table({
-    "size": (_SIZE, [800, 600]), "msaa": (_int(choices=MSAA_CHOICES), 4),
+    "size": (_SIZE, [800, 600]), "msaa": (_int(choices=MSAA_CHOICES), 4), "aa": (_str(AA_CHOICES), "msaa"),
     "background": (_COLOUR, [1.0, 1.0, 1.0]), "show_grid": (_of(bool, "a boolean (true or false)"), False),
     "camera": (_CAMERA, {}), "light": (_LIGHT, {}), "material": (_MATERIAL, {}),
 }, _plain(Render))

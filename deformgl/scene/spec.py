@@ -248,9 +248,14 @@ class Material:
     shininess: float
 
 
+#: ``[render] aa``: "msaa" (``msaa`` samples, the default), "fxaa" (the post-process pass of
+#: ``shaders/render/fxaa.frag`` on a single-sampled image; ``msaa`` is then unused) or "none".
+AA_CHOICES = ("msaa", "fxaa", "none")
+
+
 @dataclass(frozen=True, slots=True)
 class Render:
-    """Image (width, height), multisampling, background and what to draw."""
+    """Image (width, height), anti-aliasing, background and what to draw."""
     size: tuple[int, int]
     msaa: int
     background: Vec3
@@ -258,6 +263,17 @@ class Render:
     camera: Camera
     light: Light
     material: Material
+    aa: str = "msaa"
+
+    @property
+    def samples(self) -> int:
+        """MSAA samples of the render target (0: single-sampled, as with aa = "fxaa" or "none")."""
+        return int(self.msaa) if self.aa == "msaa" and self.msaa > 1 else 0
+
+    @property
+    def fxaa(self) -> bool:
+        """Whether the image goes through the FXAA pass."""
+        return self.aa == "fxaa"
 
 
 @dataclass(frozen=True, slots=True)

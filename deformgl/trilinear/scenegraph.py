@@ -37,7 +37,7 @@ from deformgl.trilinear.grid import Trilinear, compose, lattice_matches
 __all__ = [
     "PATHS", "DEFAULT_COLOUR", "Batch", "ComposedScene", "Geometry", "GeometryNode", "GroupNode", "Node",
     "TransformNode", "TrilinearRenderer", "atlas_image", "instance_data", "pack_atlas", "shader_defines",
-    "compose_scene",
+    "compose_scene", "SceneComposer",
 ]
 
 _IDENTITY = np.identity(4)
@@ -45,35 +45,98 @@ _IDENTITY.flags.writeable = False
 
 
 # ---- traversal and composition (section 4.1) ------------------------------------------------------
-def _collect(root: Node) -> list[tuple[GeometryNode, Trilinear | None, np.ndarray, str]]:
-    """Depth-first from the world: (leaf, composed grid or None, affine after it, normal mode).
+#: One leaf found by the traversal: (leaf, composed grid or None, its chain key, affine slot, normals).
+_Leaf = tuple[GeometryNode, "Trilinear | None", object, int, str]
+
+
+def _grid_key(t: Trilinear) -> tuple:
+    """The content of a grid node's transform (changes when its lattice, box or error do)."""
+    return id(t), t.points.tobytes(), t.box.lo.tobytes(), t.box.hi.tobytes(), t.error
+
+
+class _Slots:
+    """The affine products of a traversal, multiplied after it, level by level, in one batched
+    ``matmul`` per depth: slot 0 is the identity, slot i = slot ``parent[i]`` @ ``mats[i]``, so
+    every leaf's affine is the product of the matrices on its chain since the last grid node,
+    in the same order as multiplying along the way (``affine @ t``)."""
+
+    def __init__(self) -> None:
+        self.parent = [0]
+        self.mats: list[np.ndarray] = [_IDENTITY]
+        self.depth = [0]
+        self._resolved: dict[int, np.ndarray] = {0: _IDENTITY}
+
+    def push(self, slot: int, matrix: np.ndarray) -> int:
+        self.parent.append(slot)
+        self.mats.append(matrix)
+        self.depth.append(self.depth[slot] + 1)
+        return len(self.mats) - 1
+
+    def one(self, slot: int) -> np.ndarray:
+        """The product at ``slot`` now (a grid node needs the affine before it during the walk)."""
+        if slot not in self._resolved:
+            self._resolved[slot] = self.one(self.parent[slot]) @ self.mats[slot]
+        return self._resolved[slot]
+
+    def all(self) -> np.ndarray:
+        """(slots, 4, 4) every product."""
+        out = np.empty((len(self.mats), 4, 4))
+        out[0] = _IDENTITY
+        if len(self.mats) == 1:
+            return out
+        depth, parent, mats = np.array(self.depth), np.array(self.parent), np.array(self.mats)
+        for d in range(1, int(depth.max()) + 1):
+            sel = np.flatnonzero(depth == d)
+            out[sel] = np.matmul(out[parent[sel]], mats[sel])
+        return out
+
+
+def _collect(root: Node, grids: dict | None = None) -> tuple[list[_Leaf], np.ndarray]:
+    """Depth-first from the world: the leaves in drawing order and the affine products.
 
     The composed transform of a leaf is ``grid * affine``; affine nodes multiply into
-    ``affine`` exactly, trilinear nodes are composed into a new grid (:func:`compose`).
+    ``affine`` (deferred to :meth:`_Slots.all`), trilinear nodes are composed into a new grid
+    (:func:`compose`). ``grids``: composed grids of a previous traversal by chain key, reused
+    where the chain (its grid nodes' content and the affines between) did not change; on
+    return it holds this traversal's.
     """
-    leaves: list[tuple[GeometryNode, Trilinear | None, np.ndarray, str]] = []
+    slots = _Slots()
+    previous = {} if grids is None else dict(grids)
+    made: dict = {}
+    seen: dict = {}
+    leaves: list[_Leaf] = []
     append = leaves.append
-    stack: list[tuple[Node, Trilinear | None, np.ndarray, str]] = [(root, None, np.identity(4), "direct")]
+    stack: list[tuple[Node, Trilinear | None, object, int, str]] = [(root, None, None, 0, "direct")]
     pop, push = stack.pop, stack.append
     while stack:
-        node, grid, affine, normals = pop()
+        node, grid, key, slot, normals = pop()
         normals = node.normals or normals
         if isinstance(node, GeometryNode):
-            append((node, grid, affine, normals))
+            append((node, grid, key, slot, normals))
             continue
         if isinstance(node, TransformNode):
             t = node._transform
             if isinstance(t, Trilinear):
-                if grid is None:
-                    grid = Trilinear(t.box, t.points @ affine[:3, :3].T + affine[:3, 3], t.error)
-                else:
-                    grid = compose(grid, t, between=affine)
-                affine = _IDENTITY
+                affine = slots.one(slot)
+                key = (key, id(node), affine.tobytes(), _grid_key(t))
+                seen[key] = seen.get(key, -1) + 1  # the same node twice on one chain: two grids
+                key = (key, seen[key])
+                composed = previous.get(key)
+                if composed is None:
+                    if grid is None:
+                        composed = Trilinear(t.box, t.points @ affine[:3, :3].T + affine[:3, 3], t.error)
+                    else:
+                        composed = compose(grid, t, between=affine)
+                made[key] = grid = composed
+                slot = 0
             else:
-                affine = affine @ t
+                slot = slots.push(slot, t)
         for child in reversed(node.children):
-            push((child, grid, affine, normals))
-    return leaves
+            push((child, grid, key, slot, normals))
+    if grids is not None:
+        grids.clear()
+        grids.update(made)
+    return leaves, slots.all()
 
 
 def _leaf_lattices(grid: Trilinear, mats: np.ndarray, box: Box) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -170,35 +233,83 @@ def compose_scene(root: Node, *, rtol: float = LINEAR_RTOL) -> ComposedScene:
 
     Returns:
         The batches; a leaf whose composed transform is linear is in an ``"affine"`` batch.
+        (:class:`SceneComposer` does the same, frame after frame, recomposing only what changed.)
     """
-    groups: dict[tuple, list] = {}
-    for leaf, grid, affine, normals in _collect(root):
-        key = (id(grid), id(leaf.geometry), normals, leaf.colour)
-        groups.setdefault(key, []).append((leaf, grid, affine))
-    builder = _BatchBuilder()
-    for (_, _, normals, colour), members in groups.items():
-        grid, geometry = members[0][1], members[0][0].geometry
-        leaves = [m[0] for m in members]
-        mats = np.array([m[2] for m in members])
-        if grid is None:
-            builder.add(geometry, "affine", normals, colour, leaves, affine=mats[:, :3])
-            continue
-        for sel, pts, box in _leaf_parts(grid, mats, geometry.box):
-            linear, exact = _classify(pts, rtol)
-            corners = grid_corners(pts)
-            for mask, path in ((linear, "affine"), (exact & ~linear, "cuboid"), (~exact, "grid")):
-                count = int(mask.sum())
-                if not count:
-                    continue
-                chosen = [leaves[i] for i in sel[mask]]
-                if path == "affine":
-                    builder.add(geometry, path, normals, colour, chosen,
-                                affine=_corners_to_affine(corners[mask], box))
-                    continue
-                boxes = {"box_lo": np.repeat(box.lo[None], count, 0),
-                         "box_size": np.repeat(box.size[None], count, 0)}
-                if path == "cuboid":
-                    builder.add(geometry, path, normals, colour, chosen, corners=corners[mask], **boxes)
-                else:
-                    builder.add(geometry, path, normals, colour, chosen, grids=pts[mask], **boxes)
-    return ComposedScene(builder.build())
+    return SceneComposer(rtol=rtol).compose(root)
+
+
+class SceneComposer:
+    """:func:`compose_scene` for a scene drawn frame after frame: what did not change since the
+    previous :meth:`compose` is not recomposed.
+
+    Remembered from the previous frame, by content (so changing a matrix or a lattice in place
+    counts too): each composed grid by its chain (the grid nodes' lattices and the affine
+    products between them), and each group's leaf stage (resampling, linearity test, batch
+    parts) by its leaves, their composed grid and the affine products of their chains (one
+    bytes comparison per group). Only the traversal and the affine products (one batched
+    product per depth) run every frame. The output is the one :func:`compose_scene` gives.
+
+    Args:
+        rtol: tolerance of the linearity test (3.2).
+
+    Attributes:
+        recomposed, reused: leaves whose leaf stage ran / was taken from the previous frame, in
+            the last :meth:`compose`.
+    """
+
+    def __init__(self, *, rtol: float = LINEAR_RTOL) -> None:
+        self.rtol = rtol
+        self._grids: dict = {}
+        self._groups: dict = {}
+        self.recomposed = 0
+        self.reused = 0
+
+    def compose(self, root: Node) -> ComposedScene:
+        """The composed scene of ``root`` now."""
+        found, affines = _collect(root, self._grids)
+        groups: dict[tuple, list] = {}
+        for leaf, grid, key, slot, normals in found:
+            groups.setdefault((id(grid), id(leaf.geometry), normals, leaf.colour), []).append((leaf, grid, key, slot))
+        builder = _BatchBuilder()
+        cache: dict = {}
+        self.recomposed = self.reused = 0
+        for (_, _, normals, colour), members in groups.items():
+            grid, geometry = members[0][1], members[0][0].geometry
+            leaves = [m[0] for m in members]
+            mats = affines[np.fromiter((m[3] for m in members), np.int64, len(members))]
+            if grid is None:
+                builder.add(geometry, "affine", normals, colour, leaves, affine=mats[:, :3])
+                continue
+            key = (members[0][2], id(geometry), normals, colour, tuple(leaves), mats.tobytes())
+            parts = self._groups.get(key)
+            if parts is None:
+                parts = list(_grid_parts(grid, geometry, mats, self.rtol))
+                self.recomposed += len(leaves)
+            else:
+                self.reused += len(leaves)
+            cache[key] = parts
+            for path, chosen, arrays in parts:
+                builder.add(geometry, path, normals, colour, [leaves[i] for i in chosen], **arrays)
+        self._groups = cache
+        return ComposedScene(builder.build())
+
+
+def _grid_parts(grid: Trilinear, geometry: Geometry, mats: np.ndarray,
+                rtol: float) -> Iterator[tuple[str, np.ndarray, dict[str, np.ndarray]]]:
+    """The leaf stage of one group under a composed grid: (path, leaf indices, batch arrays)."""
+    for sel, pts, box in _leaf_parts(grid, mats, geometry.box):
+        linear, exact = _classify(pts, rtol)
+        corners = grid_corners(pts)
+        for mask, path in ((linear, "affine"), (exact & ~linear, "cuboid"), (~exact, "grid")):
+            count = int(mask.sum())
+            if not count:
+                continue
+            chosen = sel[mask]
+            if path == "affine":
+                yield path, chosen, {"affine": _corners_to_affine(corners[mask], box)}
+                continue
+            boxes = {"box_lo": np.repeat(box.lo[None], count, 0), "box_size": np.repeat(box.size[None], count, 0)}
+            if path == "cuboid":
+                yield path, chosen, {"corners": corners[mask], **boxes}
+            else:
+                yield path, chosen, {"grids": pts[mask], **boxes}
