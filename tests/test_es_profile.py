@@ -29,8 +29,10 @@ CASES = [str(SCENES / "dragon_bend_constant.toml"), str(SCENES / "dragon_bend_cu
 @pytest.fixture(scope="module")
 def es_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("es") / "es.npz"
+    # (a working folder outside the checkout: python -m puts it first on sys.path, and the
+    # checkout's package has no shaders folder of its own)
     proc = subprocess.run([sys.executable, "-m", "deformgl.pack.es_check", str(out), "--integrators", *CASES],
-                          capture_output=True, text=True, timeout=600)
+                          capture_output=True, text=True, timeout=600, cwd=out.parent)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return dict(np.load(out))
 

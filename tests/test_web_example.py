@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,8 +41,10 @@ class _QuietHandler(http.server.SimpleHTTPRequestHandler):
 
 
 def export(out, *args):
+    # (a working folder outside the checkout: python -m puts it first on sys.path, and the
+    # checkout's package has no shaders folder of its own)
     return subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(SCENE), str(out), *args],
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=300, cwd=Path(out).parent)
 
 
 @pytest.fixture(scope="module")
@@ -162,10 +165,10 @@ def _edges(image: np.ndarray) -> np.ndarray:
 
 def test_export_web_refuses_what_the_page_cannot_run(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(ROOT / "scenes" / "dragon_grid.toml"),
-                           str(tmp_path / "a")], capture_output=True, text=True, timeout=300)  # one-to-one
+                           str(tmp_path / "a")], capture_output=True, text=True, timeout=300, cwd=tmp_path)  # one-to-one
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "mapping.mode" in proc.stderr
     proc = subprocess.run([sys.executable, "-m", "deformgl", "export-web", str(ROOT / "scenes" / "cloth_64.toml"),
-                           str(tmp_path / "b")], capture_output=True, text=True, timeout=300)
+                           str(tmp_path / "b")], capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 2 and proc.stderr.startswith("deformgl: error: ")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
