@@ -205,6 +205,8 @@ def estimate(scene: Any) -> Budget:
     if physics.backend == "fragment":
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
+        if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
+            layers = 2 * (6 if flexion else 5)
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers
                         + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))
     elif physics.backend == "feedback":

@@ -38,7 +38,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["xpbd_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -215,7 +215,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         while made:  # a restart starts from the start state: the blown-up attempt is done with
             made.pop().release()
         made.append(make_simulation(system, physics.integrator, physics.backend, dt=dt, ctx=ctx, grid=grid,
-                                    constraints=constraints, drags=drags, loads=loads))
+                                    constraints=constraints, drags=drags, loads=loads, **xpbd_options(physics)))
         return made[-1]
 
     converge = None
@@ -240,3 +240,11 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
     finally:
         for sim in made:
             sim.release()
+
+
+def xpbd_options(physics) -> dict[str, int]:
+    """``iterations`` and ``substeps`` of ``[physics.xpbd]`` for make_simulation (XPBD only)."""
+    if physics.integrator != "xpbd":
+        return {}
+    x = physics.xpbd
+    return {} if x is None else {"iterations": x.iterations, "substeps": x.substeps}

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import ALL_INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 
 Vec3 = tuple[float, float, float]
@@ -34,7 +34,7 @@ MAX_KEYFRAMES = 10_000
 # the checkers the command-line overrides share with the scene file's tables
 _STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
 _CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
-_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
+_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(ALL_INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +147,14 @@ class DragSpec:
 
 
 @dataclass(frozen=True, slots=True)
+class Xpbd:
+    """``[physics.xpbd]``: Jacobi sweeps per substep and substeps per step of the XPBD integrator
+    (:mod:`deformgl.sim.xpbd`; used with ``integrator = "xpbd"``)."""
+    iterations: int = 10
+    substeps: int = 1
+
+
+@dataclass(frozen=True, slots=True)
 class Converge:
     """Stop once no node moved more than ``threshold`` grid spacings in a step (checked every
     ``every`` steps, on the GPU); ``physics.steps`` is the limit."""
@@ -195,6 +203,8 @@ class Physics:
     drag: tuple[DragSpec, ...] = ()
     converge: Converge | None = None
     safety: Safety = Safety()
+    #: ``[physics.xpbd]`` (None: the defaults; only with ``integrator = "xpbd"``)
+    xpbd: Xpbd | None = None
     #: the body's material (a top-level ``[material]`` table): the springs, masses and damping
     #: come from it (:mod:`deformgl.sim.materials`) instead of ``stiffness``, ``mass``,
     #: ``damping`` and ``springs``; each pull's ``force`` is then the total force in N on its

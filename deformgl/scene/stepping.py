@@ -22,7 +22,7 @@ from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
 from deformgl.sim.guards import API_WORDING
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import ALL_INTEGRATORS
 from deformgl.sim.run import RunResult, run_guarded
 from deformgl.sim.simulation import Simulation as BackendSimulation
 from deformgl.sim.simulation import SimulationSetupError
@@ -44,8 +44,8 @@ class GuardedSimulation:
 
     def __init__(self, system: SpringSystem, integrator: str, backend: str, *, dt: float,
                  ctx: moderngl.Context | None, grid: NodeGrid | None, **options: Any) -> None:
-        if integrator not in INTEGRATORS:
-            raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+        if integrator not in ALL_INTEGRATORS:
+            raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(ALL_INTEGRATORS)}")
         if backend not in BACKENDS:
             raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
         if not dt > 0.0:
@@ -105,6 +105,11 @@ class GuardedSimulation:
     def velocities(self) -> np.ndarray:
         """(N, 3) node velocities (one read-back on the GPU backends)."""
         return np.asarray(self._live.velocities())[:, :3]
+
+    @property
+    def residual(self) -> float | None:
+        """The relative constraint residual of an iterative integrator's last step (XPBD), else None."""
+        return getattr(self._live, "residual", None)
 
     @property
     def backend_simulation(self) -> BackendSimulation:

@@ -45,12 +45,16 @@ from numpy.typing import ArrayLike
 
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
+__all__ = ["INTEGRATORS", "STABLE_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
 
 INTEGRATORS = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
+#: Integrators without an explicit step limit, outside the stage table (XPBD: deformgl.sim.xpbd).
+STABLE_INTEGRATORS = ("xpbd",)
+#: Every integrator name make_simulation, the scenes and the CLI take.
+ALL_INTEGRATORS = INTEGRATORS + STABLE_INTEGRATORS
 
 #: Bytes of one RGBA32F texel or one vec4 vertex attribute.
 VEC4_BYTES = 16
@@ -69,6 +73,10 @@ GPU_BUFFERS: dict[str, tuple[str, ...]] = {
     "rk4": ("x", "v", "x_stage_a", "v_stage_a", "x_stage_b", "v_stage_b",
             "sum_x_a", "sum_v_a", "sum_x_b", "sum_v_b"),
     "verlet": ("x", "x_prev", "x_out"),
+    # XPBD (deformgl/sim/backends/xpbd_gpu.py): x, v and x', v'; two iterates; two sets of up to
+    # 6 multiplier textures (one per 4 neighbour constraints); two drag multipliers
+    "xpbd": ("x", "v", "x_out", "v_out", "p_a", "p_b", *(f"lambda_{s}{layer}" for s in "ab" for layer in range(6)),
+             "lambda_drag_a", "lambda_drag_b"),
 }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.sim import integrators
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.integrators import INTEGRATORS, Constraints, State
+from deformgl.sim.integrators import ALL_INTEGRATORS, INTEGRATORS, Constraints, State
 from deformgl.sim.springs import Drag, Load, SpringSystem
 
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
@@ -25,6 +25,8 @@ __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", 
 BACKENDS = ("fragment", "feedback", "numpy")
 #: Options only the fragment backend takes (its Verlet fast path and the pass variants).
 FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
+#: Options only XPBD takes (:class:`deformgl.sim.xpbd.XpbdSettings`).
+XPBD_OPTIONS = ("iterations", "substeps", "omega")
 
 
 class SimulationSetupError(InputError, ValueError):
@@ -138,7 +140,8 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         dt: step in s, > 0.
         ctx: the GL context (the GPU backends).
         grid: the node grid (the fragment backend; default ``system.grid``).
-        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; on the fragment
+        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; with "xpbd" also
+            ``iterations``, ``substeps``, ``omega`` (:mod:`deformgl.sim.xpbd`); on the fragment
             backend also ``path`` ("auto": the foundation pass for Verlet where it models the
             system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
             ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`).
@@ -147,11 +150,13 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
             fragment backend without a grid, or an unknown option.
     """
-    if integrator not in INTEGRATORS:
-        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+    if integrator not in ALL_INTEGRATORS:
+        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(ALL_INTEGRATORS)}")
     if backend not in BACKENDS:
         raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     known = {"constraints", "drags", "loads", "state", "t0"}
+    if integrator == "xpbd":
+        return _make_xpbd(system, backend, dt, ctx, grid, known, options)
     if backend == "fragment":
         known |= set(FRAGMENT_OPTIONS)
     unknown = set(options) - known
@@ -175,3 +180,34 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     from deformgl.sim.backends.feedback import FeedbackSimulation
 
     return FeedbackSimulation(ctx, system, integrator, dt, **options)
+
+
+def _make_xpbd(system: SpringSystem, backend: str, dt: float, ctx, grid, known: set[str],
+               options: dict) -> Simulation:
+    """XPBD (:mod:`deformgl.sim.xpbd`) on the fragment or NumPy backend."""
+    unknown = set(options) - known - set(XPBD_OPTIONS)
+    if unknown:
+        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))} for xpbd")
+    if backend == "feedback":
+        raise SimulationSetupError("xpbd runs on the fragment and numpy backends, not feedback (its Jacobi sweep "
+                                   "gathers per-node neighbour multipliers from textures)")
+    try:
+        if backend == "numpy":
+            from deformgl.sim.xpbd import XpbdNumpy
+
+            return XpbdNumpy(system, dt, **options)
+        if ctx is None:
+            raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
+        grid = system.grid if grid is None else grid
+        if grid is None:
+            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
+                                       "(springs.from_grid or springs.cloth) or grid=...")
+        from deformgl.sim.backends.xpbd_gpu import XpbdFragment
+
+        return XpbdFragment(ctx, system, grid, dt, **options)
+    except SimulationSetupError:
+        raise
+    except ValueError as exc:
+        if str(exc).startswith("xpbd:"):
+            raise SimulationSetupError(str(exc)) from None
+        raise
