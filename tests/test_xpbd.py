@@ -246,3 +246,18 @@ def test_state_and_xpbd_system_replacement_keep_shapes():
     assert sim.time == pytest.approx(0.02) and sim.positions().shape == (system.count, 3)
     with pytest.raises(ValueError, match="dt must be > 0"):
         XpbdNumpy(dataclasses.replace(system), 0.0)
+
+
+@pytest.mark.slow
+def test_study_rows_place_xpbd_against_an_explicit_integrator(ctx):
+    from deformgl.bench.xpbd_study import CASES, format_rows, study_case
+
+    rows = study_case(ctx, CASES["tissue-1MPa"], 3, xpbd=((10, 1), (30, 30)), dts=(1.0 / 60.0,),
+                      explicit=(("verlet", 0.9),))
+    xpbd_few, xpbd_many, verlet = rows
+    assert [r.method for r in rows] == ["xpbd", "xpbd", "verlet"]
+    assert verlet.static_error < 0.01  # the explicit fixed point is the springs' equilibrium
+    assert xpbd_few.static_error > xpbd_many.static_error  # more sweeps and small steps: closer
+    assert abs(verlet.decay) < 0.5 < xpbd_many.decay  # symplectic Verlet keeps the amplitude; XPBD damps
+    assert all(r.cost > 0 and r.ms_per_step > 0 for r in rows)
+    assert "tissue-1MPa" in format_rows(rows)
