@@ -67,9 +67,9 @@ class _Case:
 
 
 CASES: dict[str, _Case] = {
-    "cantilever": _Case("cantilever", WORKLOADS["cantilever"], MATERIAL, (3, 5)),
     "tissue-3kPa": _Case("tissue-3kPa", _TISSUE, ElasticMaterial(3.0e3, 1060.0, name="tissue"), (3, 5)),
     "tissue-1MPa": _Case("tissue-1MPa", _TISSUE, ElasticMaterial(1.0e6, 1060.0, name="stiff tissue"), (3, 5)),
+    "cantilever": _Case("cantilever", WORKLOADS["cantilever"], MATERIAL, (3, 5)),
 }
 #: (iterations, substeps) of the XPBD rows, each at dt = 1/60 and 1/240 s.
 XPBD_SETTINGS = ((10, 1), (100, 1), (10, 10), (30, 30))
@@ -176,8 +176,9 @@ def _ms_per_step(ctx: moderngl.Context, case: LatticeCase, method: str, dt: floa
 
 def study_case(ctx: moderngl.Context, c: _Case, across: int, *,
                xpbd: Sequence[tuple[int, int]] = XPBD_SETTINGS, dts: Sequence[float] = XPBD_DTS,
-               explicit: Sequence[tuple[str, float]] = EXPLICIT) -> list[XpbdRow]:
-    """The rows of one workload at one resolution."""
+               explicit: Sequence[tuple[str, float]] = EXPLICIT,
+               progress: Callable[[str], None] | None = None) -> list[XpbdRow]:
+    """The rows of one workload at one resolution (``progress`` gets each row's line)."""
     case, static, omega1 = _setup(c, across)
     configs: list[tuple[str, float, int, int]] = [("xpbd", dt, it, sub) for dt in dts for it, sub in xpbd]
     configs += [(name, f * critical_dt(c.material, case.spacing, name), 1, 1) for name, f in explicit]
@@ -188,6 +189,8 @@ def study_case(ctx: moderngl.Context, c: _Case, across: int, *,
         ms = _ms_per_step(ctx, case, method, dt, it, sub)
         rows.append(XpbdRow(c.name, across, case.grid.count, method, dt, it, sub, abs(tip - static) / abs(static),
                             decay, ms, ms / dt))
+        if progress:
+            progress(format_rows(rows[-1:]).splitlines()[-1])
     return rows
 
 
@@ -203,7 +206,7 @@ def xpbd_study(ctx: moderngl.Context, *, quick: bool = False,
         for across in c.across:
             if progress:
                 progress(f"xpbd study: {c.name} at {across} across")
-            rows += study_case(ctx, c, across)
+            rows += study_case(ctx, c, across, progress=progress)
     return rows
 
 
@@ -227,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:  # python -m deformgl.bench.
 
     ctx = create_context()
     print(machine_line(ctx))
-    print(format_rows(xpbd_study(ctx, quick=args.quick, progress=print)))
+    print(format_rows(xpbd_study(ctx, quick=args.quick, progress=lambda line: print(line, flush=True))))
     return 0
 
 
