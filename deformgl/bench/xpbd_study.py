@@ -25,7 +25,8 @@ Per configuration, measured on the fragment backend (float32, llvmpipe):
   :data:`ROUNDS` timed batches.
 
 ``python -m deformgl.bench.xpbd_study [--quick]`` prints the table (``--quick``: one workload,
-one resolution, two XPBD settings, Verlet).
+one resolution, two XPBD settings, Verlet); ``--convergence`` the float64 cantilever's tip
+against the springs' static tip per (iterations, substeps) (:func:`cantilever_convergence`).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, critical_dt
 from deformgl.sim.simulation import make_simulation
 
-__all__ = ["CASES", "STRAIN", "SETTLE", "DECAY_PERIODS", "ROUNDS", "XpbdRow", "lowest_mode", "study_case",
+__all__ = ["CASES", "CONVERGENCE", "cantilever_convergence", "STRAIN", "SETTLE", "DECAY_PERIODS", "ROUNDS", "XpbdRow", "lowest_mode", "study_case",
            "xpbd_study", "format_rows"]
 
 STRAIN = 0.005
@@ -210,6 +211,29 @@ def xpbd_study(ctx: moderngl.Context, *, quick: bool = False,
     return rows
 
 
+#: (iterations, substeps) of :func:`cantilever_convergence`.
+CONVERGENCE = ((10, 1), (100, 1), (1, 50), (1, 200), (1, 400), (1, 800), (10, 50), (5, 200), (10, 200),
+               (5, 400), (10, 400))
+
+
+def cantilever_convergence(settings: Sequence[tuple[int, int]] = CONVERGENCE, *, across: int = 3,
+                           steps: int = 30, dt: float = 1.0 / 60.0) -> list[tuple[int, int, float, float]]:
+    """The float64 XPBD cantilever (E = 1e8 Pa, Rayleigh alpha 64 1/s) after ``steps`` steps of
+    ``dt``: (iterations, substeps, tip / the springs' static tip, relative residual) per setting."""
+    from deformgl.sim.xpbd import XpbdNumpy
+
+    material = ElasticMaterial(MATERIAL.youngs_modulus, MATERIAL.density, mass_damping=64.0)
+    case = lattice_case(WORKLOADS["cantilever"], across, material)
+    static = lattice_value(case)
+    out = []
+    for it, sub in settings:
+        sim = XpbdNumpy(case.system, dt, iterations=it, substeps=sub)
+        sim.step(steps)
+        out.append((it, sub, lattice_value(case, sim.positions() - case.system.rest_positions) / static,
+                    sim.residual))
+    return out
+
+
 def format_rows(rows: Sequence[XpbdRow]) -> str:
     """A fixed-width table, one line per row."""
     head = (f"{'case':<12} {'across':>6} {'nodes':>6} {'method':<7} {'dt s':>9} {'iter':>5} {'sub':>4} "
@@ -224,7 +248,14 @@ def format_rows(rows: Sequence[XpbdRow]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:  # python -m deformgl.bench.xpbd_study
     parser = argparse.ArgumentParser(description="XPBD against the explicit integrators on stiff workloads")
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--convergence", action="store_true",
+                        help="instead: the float64 cantilever's tip / static tip per (iterations, substeps)")
     args = parser.parse_args(argv)
+    if args.convergence:
+        for it, sub, ratio, residual in cantilever_convergence():
+            print(f"iterations {it:5d} substeps {sub:5d} sweeps/step {it * sub:6d}: tip / static {ratio:.4f}, "
+                  f"residual {residual:.3g}", flush=True)
+        return 0
     from deformgl.bench.studies import machine_line
     from deformgl.gl.context import create_context
 
