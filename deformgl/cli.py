@@ -72,10 +72,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
                         "curvature draw the detailed mesh through the triangle basis (Mosegaard & Sørensen 2005, eq. 6) or the "
                         "curvature-corrected basis (Mosegaard & Sørensen 2005, eq. 8); auto picks per vertex")
-    r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet", "implicit-euler"], default=None,
+    r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet", "implicit-euler", "xpbd"],
+                   default=None,
                    help="override physics.integrator (Movania & Feng 2012): explicit Euler, semi-implicit "
-                        "Euler, midpoint (RK2), classical RK4, position Verlet, or implicit (backward) Euler with "
-                        "conjugate gradients (no dt limit; [physics.implicit] iterations, tolerance)")
+                        "Euler, midpoint (RK2), classical RK4, position Verlet; implicit (backward) Euler with "
+                        "conjugate gradients (no dt limit; [physics.implicit] iterations, tolerance); or xpbd "
+                        "(Macklin, Müller & Chentanez 2016: no explicit dt limit; [physics.xpbd] iterations, substeps)")
     r.add_argument("--backend", choices=["fragment", "feedback", "numpy"], default=None,
                    help="override physics.backend: fragment passes on the node grid, transform feedback over "
                         "explicit neighbour lists, or the float64 NumPy reference")

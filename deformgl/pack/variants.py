@@ -141,6 +141,20 @@ def fragment_backend() -> Iterator[Variant]:
                              {**common, **c, **stage.fragment_defines()})
 
 
+def xpbd() -> Iterator[Variant]:
+    """``XpbdFragment`` (deformgl/sim/backends/xpbd_gpu.py): prediction, Jacobi sweep, velocity."""
+    for loads, wind in itertools.product(_counts("LOADS"), (False, True)):
+        d: dict[str, object] = {"LOADS": loads}
+        if wind:
+            d["WIND"] = True
+        yield _v("sim/fullscreen.vert", "sim/xpbd/predict.frag", d)
+    for (layers, count), damping, drags, c in itertools.product(((5, 18), (6, 24)), (False, True),
+                                                                _counts("DRAGS"), _constraints()):
+        yield _v("sim/fullscreen.vert", "sim/xpbd/iterate.frag",
+                 {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_DAMPING": damping, "DRAGS": drags, **c})
+    yield _v("sim/fullscreen.vert", "sim/xpbd/finish.frag", {})
+
+
 def feedback_backend() -> Iterator[Variant]:
     """``FeedbackSimulation``: one vertex-only program per stage (``_add_pass``)."""
     for name in INTEGRATORS:
@@ -209,7 +223,7 @@ def profile() -> Iterator[Variant]:
 
 
 #: The groups of :func:`all_variants`, by the code that builds them.
-GROUPS = {"fragment backend": fragment_backend, "feedback backend": feedback_backend,
+GROUPS = {"fragment backend": fragment_backend, "xpbd": xpbd, "feedback backend": feedback_backend,
           "foundation and normals": foundation, "census": census, "render": render,
           "trilinear": trilinear, "profile": profile}
 

@@ -218,6 +218,8 @@ def estimate(scene: Any) -> Budget:
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
         weights = (6 if flexion else 5) if material is not None else 0  # the spring-weight layers
+        if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
+            layers, weights = 2 * (6 if flexion else 5), 0
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights
                         + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))
     elif physics.backend == "feedback":

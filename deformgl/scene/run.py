@@ -39,7 +39,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["xpbd_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -217,7 +217,8 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
             made.pop().release()
         extra = physics.implicit.options() if physics.integrator in IMPLICIT_INTEGRATORS else {}
         made.append(make_simulation(system, physics.integrator, physics.backend, dt=dt, ctx=ctx, grid=grid,
-                                    constraints=constraints, drags=drags, loads=loads, **extra))
+                                    constraints=constraints, drags=drags, loads=loads, **extra,
+                                    **xpbd_options(physics)))
         return made[-1]
 
     converge = None
@@ -242,3 +243,11 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
     finally:
         for sim in made:
             sim.release()
+
+
+def xpbd_options(physics) -> dict[str, int]:
+    """``iterations`` and ``substeps`` of ``[physics.xpbd]`` for make_simulation (XPBD only)."""
+    if physics.integrator != "xpbd":
+        return {}
+    x = physics.xpbd
+    return {} if x is None else {"iterations": x.iterations, "substeps": x.substeps}

@@ -31,7 +31,7 @@ from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_
                                  UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
                                  _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
-                                 Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3,
+                                 Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3, Xpbd,
                                  parse_size)
 from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
@@ -150,6 +150,8 @@ def _build_sphere(file: str, key: str, d: dict[str, Any]) -> SphereSpec:
 
 def _build_physics(file: str, key: str, d: dict[str, Any]) -> Physics:
     springs = d.pop("springs")
+    if d["xpbd"] is not None and d["integrator"] != "xpbd":
+        _fail(file, _join(key, "xpbd"), f"only used with integrator = \"xpbd\" (the integrator is {d['integrator']!r})")
     return Physics(**d, **springs)
 
 
@@ -181,6 +183,8 @@ _PHYSICS = _table({
         MAX_DRAGS), []),
     "converge": (_table({"threshold": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e3), unit="grid spacings"), 0.001),
                          "every": (_int(lo=1, sane=(1, MAX_STEPS)), 10)}, _plain(Converge)), None),
+    "xpbd": (_table({"iterations": (_int(lo=1, sane=(1, 100_000)), 10),
+                     "substeps": (_int(lo=1, sane=(1, 1000)), 1)}, _plain(Xpbd)), None),
     "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_CHECK_EVERY, 100),
                        "bad_distance": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e6), unit="box lengths"), 1000.0)},
                       _plain(Safety)), {}),

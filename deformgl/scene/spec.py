@@ -147,6 +147,14 @@ class DragSpec:
 
 
 @dataclass(frozen=True, slots=True)
+class Xpbd:
+    """``[physics.xpbd]``: Jacobi sweeps per substep and substeps per step of the XPBD integrator
+    (:mod:`deformgl.sim.xpbd`; used with ``integrator = "xpbd"``)."""
+    iterations: int = 10
+    substeps: int = 1
+
+
+@dataclass(frozen=True, slots=True)
 class Converge:
     """Stop once no node moved more than ``threshold`` grid spacings in a step (checked every
     ``every`` steps, on the GPU); ``physics.steps`` is the limit."""
@@ -209,6 +217,8 @@ class Physics:
     converge: Converge | None = None
     safety: Safety = Safety()
     implicit: Implicit = Implicit()
+    #: ``[physics.xpbd]`` (None: the defaults; only with ``integrator = "xpbd"``)
+    xpbd: Xpbd | None = None
     #: the body's material (a top-level ``[material]`` table): the springs, masses and damping
     #: come from it (:mod:`deformgl.sim.materials`) instead of ``stiffness``, ``mass``,
     #: ``damping`` and ``springs``; each pull's ``force`` is then the total force in N on its

@@ -107,6 +107,11 @@ class GuardedSimulation:
         return np.asarray(self._live.velocities())[:, :3]
 
     @property
+    def residual(self) -> float | None:
+        """The relative constraint residual of an iterative integrator's last step (XPBD), else None."""
+        return getattr(self._live, "residual", None)
+
+    @property
     def backend_simulation(self) -> BackendSimulation:
         """The backend simulation it runs now (replaced by a subdivided :func:`run`)."""
         return self._live

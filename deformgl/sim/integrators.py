@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
+__all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "STABLE_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
@@ -53,8 +53,10 @@ __all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFER
 INTEGRATORS = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
 #: Integrators that solve a system each step (no explicit dt limit; :mod:`deformgl.sim.implicit`).
 IMPLICIT_INTEGRATORS: tuple[str, ...] = ("implicit-euler",)
-#: Every integrator :func:`deformgl.sim.simulation.make_simulation` builds.
-ALL_INTEGRATORS = INTEGRATORS + IMPLICIT_INTEGRATORS
+#: Integrators without an explicit step limit, outside the stage table (XPBD: deformgl.sim.xpbd).
+STABLE_INTEGRATORS: tuple[str, ...] = ("xpbd",)
+#: Every integrator name make_simulation, the scenes and the CLI take.
+ALL_INTEGRATORS = INTEGRATORS + IMPLICIT_INTEGRATORS + STABLE_INTEGRATORS
 
 #: Bytes of one RGBA32F texel or one vec4 vertex attribute.
 VEC4_BYTES = 16
@@ -77,6 +79,10 @@ GPU_BUFFERS: dict[str, tuple[str, ...]] = {
     # dv, r, p (each ping-pong but b and P^-1), q and the per-texel dot product
     "implicit-euler": ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p", "p_out",
                        "q", "prod"),
+    # XPBD (deformgl/sim/backends/xpbd_gpu.py): x, v and x', v'; two iterates; two sets of up to
+    # 6 multiplier textures (one per 4 neighbour constraints); two drag multipliers
+    "xpbd": ("x", "v", "x_out", "v_out", "p_a", "p_b", *(f"lambda_{s}{layer}" for s in "ab" for layer in range(6)),
+             "lambda_drag_a", "lambda_drag_b"),
 }
 
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.sim.integrators import IMPLICIT_INTEGRATORS, INTEGRATORS
+from deformgl.sim.integrators import IMPLICIT_INTEGRATORS, INTEGRATORS, STABLE_INTEGRATORS
 from deformgl.sim.spectrum import (
     DENSE_MAX_NODES, ExactFrequency, ModalDamping, _FORMULA, _RADIUS_TOL, _RK_POLY, _Y_MAX, _Y_MIN,
     _describe, _mass_normalised, exact_frequency, modal_damping)
@@ -265,14 +265,17 @@ def check_dt(system: SpringSystem, integrator: str, dt: float, *,
     below the limit; ~1 s for 20k nodes) up to ``lanczos_up_to``, else refused on the
     Gershgorin bound, whose message says so.
 
+    Integrators without an explicit limit (``integrators.STABLE_INTEGRATORS``: XPBD) are never
+    refused.
+
     Forward Euler and midpoint on an undamped system are always refused (no dt is stable: growth
     per step ``sqrt(1 + (w dt)^2)`` resp. ``sqrt(1 + (w dt)^4/4)``); with damping they get their
     damped limit, like the other three.
     """
     if not dt > 0:
         raise ValueError(f"check_dt: dt must be > 0, got {dt}")
-    if integrator in IMPLICIT_INTEGRATORS:
-        return None  # backward Euler: no explicit limit (its solve's residual is reported instead)
+    if integrator in IMPLICIT_INTEGRATORS or integrator in STABLE_INTEGRATORS:
+        return None  # no explicit limit: backward Euler's solve and XPBD's residual are reported instead
     cheap = _dt_limit(system, integrator, "gershgorin")
     if dt <= cheap.dt:
         return None

@@ -32,7 +32,7 @@ from deformgl.sim.guards import (SCENE_WORDING, BlowUp, BlowUpWatch, StepPlan, S
 from deformgl.sim.simulation import Simulation
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["RunResult", "NumpyWatch", "make_watch", "run", "run_guarded", "run_with_retries"]
+__all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run", "run_guarded", "run_with_retries"]
 
 T = TypeVar("T")
 
@@ -261,4 +261,17 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
     note = solver_note() if callable(solver_note) else None
     if note:
         noted.append(note)
+    residual_note(sim, noted)
     return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]))
+
+
+def residual_note(sim: Simulation, notes: list[str]) -> None:
+    """Note when an iterative integrator (XPBD) ended with a large relative constraint residual
+    (above :data:`deformgl.sim.xpbd.RESIDUAL_NOTE`): its solve did not converge in its iterations."""
+    from deformgl.sim.xpbd import RESIDUAL_NOTE
+
+    residual = getattr(sim, "residual", None)
+    if isinstance(residual, float) and residual > RESIDUAL_NOTE:
+        notes.append(f"{sim.integrator}: relative constraint residual {residual:.3g} after the last step "
+                     f"(above {RESIDUAL_NOTE:g}): the solve did not converge in its iterations, so the body is "
+                     f"softer than its material; raise physics.xpbd.iterations or substeps")

@@ -28,6 +28,8 @@ FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
 #: Options of the implicit integrators (:mod:`deformgl.sim.implicit`); the NumPy backend also
 #: takes ``solver`` ("cg", "direct") and ``geometric`` ("projected", "full", "none").
 IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every")
+#: Options only XPBD takes (:class:`deformgl.sim.xpbd.XpbdSettings`).
+XPBD_OPTIONS = ("iterations", "substeps", "omega")
 
 
 class SimulationSetupError(InputError, ValueError):
@@ -143,7 +145,8 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         dt: step in s, > 0.
         ctx: the GL context (the GPU backends).
         grid: the node grid (the fragment backend; default ``system.grid``).
-        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; on the fragment
+        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; with "xpbd" also
+            ``iterations``, ``substeps``, ``omega`` (:mod:`deformgl.sim.xpbd`); on the fragment
             backend also ``path`` ("auto": the foundation pass for Verlet where it models the
             system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
             ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
@@ -161,6 +164,8 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
     if integrator in IMPLICIT_INTEGRATORS:
         return _make_implicit(system, backend, dt=dt, ctx=ctx, grid=grid, **options)
     known = {"constraints", "drags", "loads", "state", "t0"}
+    if integrator == "xpbd":
+        return _make_xpbd(system, backend, dt, ctx, grid, known, options)
     if backend == "fragment":
         known |= set(FRAGMENT_OPTIONS)
     unknown = set(options) - known
@@ -216,5 +221,36 @@ def _make_implicit(system: SpringSystem, backend: str, *, dt: float, ctx, grid, 
         raise
     except ValueError as exc:
         if "cg_" in str(exc):
+            raise SimulationSetupError(str(exc)) from None
+        raise
+
+
+def _make_xpbd(system: SpringSystem, backend: str, dt: float, ctx, grid, known: set[str],
+               options: dict) -> Simulation:
+    """XPBD (:mod:`deformgl.sim.xpbd`) on the fragment or NumPy backend."""
+    unknown = set(options) - known - set(XPBD_OPTIONS)
+    if unknown:
+        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))} for xpbd")
+    if backend == "feedback":
+        raise SimulationSetupError("xpbd runs on the fragment and numpy backends, not feedback (its Jacobi sweep "
+                                   "gathers per-node neighbour multipliers from textures)")
+    try:
+        if backend == "numpy":
+            from deformgl.sim.xpbd import XpbdNumpy
+
+            return XpbdNumpy(system, dt, **options)
+        if ctx is None:
+            raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
+        grid = system.grid if grid is None else grid
+        if grid is None:
+            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
+                                       "(springs.from_grid or springs.cloth) or grid=...")
+        from deformgl.sim.backends.xpbd_gpu import XpbdFragment
+
+        return XpbdFragment(ctx, system, grid, dt, **options)
+    except SimulationSetupError:
+        raise
+    except ValueError as exc:
+        if str(exc).startswith("xpbd:"):
             raise SimulationSetupError(str(exc)) from None
         raise
