@@ -5,7 +5,7 @@ simulation of compliant constrained dynamics").
 Every spring s = (i, j) is a distance constraint ``C_s = |x_i - x_j| - L_s`` with compliance
 ``alpha_s = 1 / k_s`` (Macklin, Müller & Chentanez 2016, eq. 2-3: the potential
 ``U = 1/2 C^T alpha^-1 C`` is the spring's ``1/2 k (|d| - L)^2``), so the solution of the
-position-level equations (eq. 6-7) is an implicit (backward-Euler-like) step of the same springs
+position-level equations (Macklin, Müller & Chentanez 2016, eq. 6-7) is an implicit (backward-Euler-like) step of the same springs
 and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps of
 ``h = dt / substeps`` ("small steps"); each substep (docs/EQUATIONS.md, "XPBD"):
 
@@ -17,8 +17,8 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
 2. ``lambda = 0`` for every spring and drag;
 3. ``iterations`` Jacobi sweeps: every constraint from the same iterate x,
    ``d_lambda = -omega (C + at lambda + gs grad C . (x - x^n)) / ((1 + gs) n_s (w_i + w_j) + at)``
-   (eq. 18, with the damping term of eq. 26), ``at = alpha / h^2`` (eq. 4), ``gs = c_s / (k_s h)``
-   (eq. 26: ``gamma = at bt / h`` with ``bt = h^2 beta``, ``beta = c_s`` the spring damping),
+   (Macklin, Müller & Chentanez 2016, eq. 18, with the damping term of eq. 26), ``at = alpha / h^2`` (eq. 4), ``gs = c_s / (k_s h)``
+   (Macklin, Müller & Chentanez 2016, eq. 26: ``gamma = at bt / h`` with ``bt = h^2 beta``, ``beta = c_s`` the spring damping),
    ``w = 1/m``, ``grad C = +-u``, u = (x_i - x_j)/|x_i - x_j|. The Jacobi relaxation: the
    coupling term ``w_i + w_j`` is multiplied by ``n_s = max(n_i, n_j)``, n a node's constraint
    count (the averaging of Macklin, Müller, Chentanez & Kim 2014, "Unified particle physics",
@@ -27,7 +27,7 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
    ``0 < omega < 2``; a compliance-dominated (soft) constraint still converges at ``|1 - omega|``
    per sweep, a stiff one at about ``omega / n_s``. Every term is symmetric in i and j, so both
    copies of a spring's lambda on the GPU (one per end) stay equal. Then ``lambda += d_lambda``,
-   ``x_i += w_i u d_lambda``, ``x_j -= w_j u d_lambda`` (eq. 17), all at once; drags are
+   ``x_i += w_i u d_lambda``, ``x_j -= w_j u d_lambda`` (Macklin, Müller & Chentanez 2016, eq. 17), all at once; drags are
    zero-rest-length vector constraints ``C = x - target(t + h)`` of compliance ``1 / k_drag``
    (``n_s`` = the node's count); then spheres and the ground project x
    (``integrators.apply_constraints`` without the velocity rule);
@@ -36,7 +36,7 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
 XPBD has no explicit step limit: for any dt a sweep only redistributes bounded corrections. It
 trades accuracy instead: with few iterations a stiff body is too soft (the Jacobi sweep has not
 propagated the load) and the implicit step damps motion. :attr:`XpbdSolver.residual` is the
-relative residual ``|C + at lambda| / |C|`` of eq. 7 at the last iterate.
+relative residual ``|C + at lambda| / |C|`` of Macklin, Müller & Chentanez 2016, eq. 7 at the last iterate.
 """
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ class XpbdSolver:
         self.omega = float(settings.omega)
         self.count = np.maximum(counts[self.i], counts[self.j])  # n_s = max(n_i, n_j)
         self.drag_count = np.array([counts[d.node] for d in self.drags])
-        #: relative residual |C + at lambda| / |C| of eq. 7 after the last sweep (nan: no step yet)
+        #: relative residual |C + at lambda| / |C| of Macklin, Müller & Chentanez 2016, eq. 7 after the last sweep (nan: no step yet)
         self.residual = float("nan")
 
     def _external(self, t: float) -> np.ndarray:
@@ -245,7 +245,7 @@ class XpbdNumpy(SimulationBase):
 
     @property
     def residual(self) -> float:
-        """Relative residual of eq. 7 after the last sweep of the last substep."""
+        """Relative residual of Macklin, Müller & Chentanez 2016, eq. 7 after the last sweep of the last substep."""
         return self.solver.residual
 
     def step(self, n: int = 1) -> None:

@@ -317,7 +317,7 @@ class XpbdFragment(SimulationBase, GLOwner):
 
     @property
     def residual(self) -> float:
-        """Relative residual |C + at lambda| / |C| of eq. 7 at the last iterate of the last
+        """Relative residual |C + at lambda| / |C| of Macklin, Müller & Chentanez 2016, eq. 7 at the last iterate of the last
         substep (read back: the iterate and the multipliers; nan before a step)."""
         if self.steps_done == 0 or self._released:
             return float("nan")

@@ -4,7 +4,7 @@
 // deformgl/sim/xpbd.py XpbdSolver.substep, in float32. Every node gathers the corrections of its
 // NB_COUNT neighbour constraints (the 18 of Mosegaard & Sorensen 2005, section 3.1, then the 6
 // flexion neighbours), all from the same iterate u_p:
-//   C = |x_i - x_j| - L,  u = (x_i - x_j)/|x_i - x_j|,  at = 1 / (k_s h^2)      (eq. 4)
+//   C = |x_i - x_j| - L,  u = (x_i - x_j)/|x_i - x_j|,  at = 1 / (k_s h^2)      (Macklin, Müller & Chentanez 2016, eq. 4)
 //   d_lambda = -omega (C + at lambda + gs u . ((x_i - x_i^n) - (x_j - x_j^n)))
 //              / ((1 + gs) n_s (w_i + w_j) + at),  gs = c_s / (k_s h),  n_s = max(n_i, n_j)
 //   lambda' = lambda + d_lambda,  x_i' = x_i + sum w_i u d_lambda
