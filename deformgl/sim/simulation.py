@@ -208,12 +208,7 @@ def _make_implicit(system: SpringSystem, backend: str, *, dt: float, ctx, grid, 
         if backend == "feedback":
             raise SimulationSetupError("implicit-euler runs on the fragment and numpy backends, not on "
                                        "feedback (its matrix-free product needs the node grid)")
-        if ctx is None:
-            raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
-        grid = system.grid if grid is None else grid
-        if grid is None:
-            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
-                                       "(springs.from_grid or springs.cloth) or grid=...")
+        grid = _fragment_grid(ctx, system, grid)
         from deformgl.sim.backends.implicit_gpu import ImplicitFragment
 
         return ImplicitFragment(ctx, system, grid, dt, **options)
@@ -239,12 +234,7 @@ def _make_xpbd(system: SpringSystem, backend: str, dt: float, ctx, grid, known: 
             from deformgl.sim.xpbd import XpbdNumpy
 
             return XpbdNumpy(system, dt, **options)
-        if ctx is None:
-            raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
-        grid = system.grid if grid is None else grid
-        if grid is None:
-            raise SimulationSetupError("the fragment backend needs a system built on a node grid "
-                                       "(springs.from_grid or springs.cloth) or grid=...")
+        grid = _fragment_grid(ctx, system, grid)
         from deformgl.sim.backends.xpbd_gpu import XpbdFragment
 
         return XpbdFragment(ctx, system, grid, dt, **options)
@@ -254,3 +244,15 @@ def _make_xpbd(system: SpringSystem, backend: str, dt: float, ctx, grid, known: 
         if str(exc).startswith("xpbd:"):
             raise SimulationSetupError(str(exc)) from None
         raise
+
+
+def _fragment_grid(ctx, system: SpringSystem, grid):
+    """The node grid a fragment-backend solver runs on (``grid`` or the system's); a context and
+    a grid are required."""
+    if ctx is None:
+        raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
+    grid = system.grid if grid is None else grid
+    if grid is None:
+        raise SimulationSetupError("the fragment backend needs a system built on a node grid "
+                                   "(springs.from_grid or springs.cloth) or grid=...")
+    return grid
