@@ -54,6 +54,7 @@ from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, Ver
 from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, check_topology, class_values, grid_neighbours,
                                                 spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
+from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
 __all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
 
@@ -223,18 +224,10 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
 
     def _texture(self, image: np.ndarray | None) -> moderngl.Texture:
-        w, h = self.layout.size
-        data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
-        tex = self.own(self.ctx.texture((w, h), 4, data, dtype="f4"))
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        tex.repeat_x = tex.repeat_y = False
-        return tex
+        return float_texture(self, self.ctx, self.layout.size, image)
 
     def _image(self, values: np.ndarray) -> np.ndarray:
-        w, h = self.layout.size
-        img = np.zeros((h * w, 4), np.float32)
-        img[: self.count, : values.shape[1]] = values
-        return img.reshape(h, w, 4)
+        return compact_image(self.layout.size, values)
 
     def _build(self, state: State | None) -> None:
         system, n = self.system, self.count
@@ -248,25 +241,14 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             bits = (nb >= 0).astype(np.int64) << np.arange(nb.shape[1])
             mask = np.bitwise_or.reduce(bits, axis=1).astype(np.float64)
         else:
-            table = np.where(nb >= 0, nb, np.arange(n)[:, None])
-            table = np.concatenate([table, np.repeat(np.arange(n)[:, None], 4 * layers - nb.shape[1],
-                                                     axis=1)], axis=1)
-            img = np.zeros((layers, h * w, 4), np.int32)
-            img[:, :n, :] = table.reshape(n, layers, 4).transpose(1, 0, 2)
-            self.tex_neighbours = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(),
-                                                                   dtype="i4"))
-            self.tex_neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            # (columns past the table, never read: the loops stop at NB_COUNT)
+            self.tex_neighbours = layer_texture(self, self.ctx, (w, h), np.where(nb >= 0, nb, np.arange(n)[:, None]),
+                                                "i4", layers)
         #: per-spring stiffness as weights of the class's k (the calibrated lattice), or None
         self.tex_weights: moderngl.TextureArray | None = None
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
-            padded_w = np.zeros((n, 4 * layers), np.float32)
-            padded_w[:, : nb.shape[1]] = weights
-            wimg = np.zeros((layers, h * w, 4), np.float32)
-            wimg[:, :n, :] = padded_w.reshape(n, layers, 4).transpose(1, 0, 2)
-            self.tex_weights = self.own(self.ctx.texture_array((w, h, layers), 4, wimg.tobytes(),
-                                                                dtype="f4"))
-            self.tex_weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
 

@@ -46,6 +46,7 @@ from deformgl.sim.base import SimulationBase
 from deformgl.sim.implicit import SolveReport, check_cg, solver_note
 from deformgl.sim.integrators import Constraints, State, initial_state
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
 __all__ = ["ImplicitFragment", "PASSES"]
 
@@ -140,28 +141,13 @@ class ImplicitFragment(SimulationBase, GLOwner):
     # -- construction ------------------------------------------------------------------------
 
     def _texture(self, size: tuple[int, int], image: np.ndarray | None = None) -> moderngl.Texture:
-        data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
-        tex = self.own(self.ctx.texture(size, 4, data, dtype="f4"))
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        tex.repeat_x = tex.repeat_y = False
-        return tex
+        return float_texture(self, self.ctx, size, image)
 
     def _image(self, values: np.ndarray) -> np.ndarray:
-        w, h = self.layout.size
-        img = np.zeros((h * w, 4), np.float32)
-        img[: self.count, : values.shape[1]] = values
-        return img.reshape(h, w, 4)
+        return compact_image(self.layout.size, values)
 
     def _array_texture(self, values: np.ndarray, dtype: str) -> moderngl.TextureArray:
-        w, h = self.layout.size
-        n, layers = self.count, -(-values.shape[1] // 4)
-        padded = np.zeros((n, 4 * layers), values.dtype)
-        padded[:, : values.shape[1]] = values
-        img = np.zeros((layers, h * w, 4), values.dtype)
-        img[:, :n, :] = padded.reshape(n, layers, 4).transpose(1, 0, 2)
-        tex = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(), dtype=dtype))
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        return tex
+        return layer_texture(self, self.ctx, self.layout.size, values, dtype)
 
     def _build(self, state: State | None) -> None:
         system, n, size = self.system, self.count, self.layout.size

@@ -37,6 +37,7 @@ from deformgl.sim.backends.grid_springs import (
     spring_weights,
 )
 from deformgl.sim.base import SimulationBase
+from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, load_groups
 from deformgl.sim.xpbd import (
@@ -131,29 +132,13 @@ class XpbdFragment(SimulationBase, GLOwner):
     # -- construction ------------------------------------------------------------------------
 
     def _texture(self, image: np.ndarray | None) -> moderngl.Texture:
-        w, h = self.layout.size
-        data = None if image is None else np.ascontiguousarray(image, dtype="f4").tobytes()
-        tex = self.own(self.ctx.texture((w, h), 4, data, dtype="f4"))
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        tex.repeat_x = tex.repeat_y = False
-        return tex
+        return float_texture(self, self.ctx, self.layout.size, image)
 
     def _image(self, values: np.ndarray) -> np.ndarray:
-        w, h = self.layout.size
-        img = np.zeros((h * w, 4), np.float32)
-        img[: self.count, : values.shape[1]] = values
-        return img.reshape(h, w, 4)
+        return compact_image(self.layout.size, values)
 
     def _array_texture(self, table: np.ndarray, dtype: str) -> moderngl.TextureArray:
-        w, h = self.layout.size
-        n, layers = self.count, self.layers
-        padded = np.zeros((n, 4 * layers), table.dtype)
-        padded[:, : table.shape[1]] = table
-        img = np.zeros((layers, h * w, 4), np.int32 if dtype == "i4" else np.float32)
-        img[:, :n, :] = padded.reshape(n, layers, 4).transpose(1, 0, 2)
-        tex = self.own(self.ctx.texture_array((w, h, layers), 4, img.tobytes(), dtype=dtype))
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        return tex
+        return layer_texture(self, self.ctx, self.layout.size, table, dtype, self.layers)
 
     def _build(self, state: State | None) -> None:
         system, n, nb = self.system, self.count, self.nb
