@@ -7,8 +7,6 @@ of several repeats. Every report names the machine and the renderer.
 from __future__ import annotations
 
 import dataclasses
-import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -17,6 +15,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from deformgl.bench.accuracy import cpu_line
 from deformgl.gl.context import context_info
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.fragment import FragmentIntegrator
@@ -41,14 +40,7 @@ def bench_occupancy(spec: tuple[int, int, int] | str) -> np.ndarray:
 def machine_line(ctx: moderngl.Context) -> str:
     """One line naming the CPU, core count and GL renderer."""
     info = context_info(ctx)
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return f"machine: {cpu}, {os.cpu_count()} cores; renderer: {info.renderer}; GL {info.version}"
+    return f"{cpu_line()}; renderer: {info.renderer}; GL {info.version}"
 
 
 def timed(fn: Callable[[], None], repeats: int = 5) -> float:
