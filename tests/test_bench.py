@@ -79,3 +79,13 @@ def test_bench_profile_rebuilds_the_step_stage_by_stage(ctx):
     assert all(r.ms > 0 and r.nodes == 120 for r in rows)
     text = format_profile(rows, machine_line(ctx))
     assert "neighbours by index" in text and "neighbours by offsets" in text and "renderer" in text
+
+
+def test_bench_profile_times_the_lattice_weights_both_ways(ctx):
+    from deformgl.bench.profile import format_lattice_weights, lattice_weights
+
+    rows = lattice_weights(ctx, grids=((6, 5, 4),), steps=2, rounds=2)
+    assert [(name, nodes) for name, nodes, _, _ in rows] == [("6x5x4", 120)]
+    assert all(t > 0 and lv > 0 for _, _, t, lv in rows)
+    text = "\n".join(format_lattice_weights(rows))
+    assert "texture" in text and "levels" in text and "6x5x4 (120 nodes)" in text

@@ -368,19 +368,24 @@ def test_the_python_api_takes_a_material(ctx):
             dg.run(sim, 10)
 
 
-def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_normals(ctx):
+@pytest.mark.parametrize("weight_texture", [False, True], ids=["levels", "texture"])
+def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_normals(ctx, weight_texture):
     """The foundation pass (one pass per step, the packed Mosegaard & Sørensen 2005, eq. 3 normal with each position) takes
-    per-spring weights: the same positions as the reference, and normals that are still the
+    per-spring weights, as the levels code in the node texture (the default for the lattice) or as
+    the weight texture: the same positions as the reference, and normals that are still the
     unweighted unit-vector sums of Mosegaard & Sørensen 2005, eq. 3."""
+    from deformgl.sim.backends.fragment import FragmentIntegrator
     from deformgl.sim.normals import unit_sums, unpack_normals
     occ = np.ones((6, 4, 3), bool)
     occ[5, 3, 2] = False
     grid = NodeGrid(np.zeros(3), 0.01, occ)
     system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, mass_damping=4.0), fixed=grid.ijk[:, 0] == 0)
     ref = make_simulation(system, "verlet", "numpy", dt=1e-4)
-    sim = make_simulation(system, "verlet", "fragment", dt=1e-4, ctx=ctx)
+    sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, weight_texture=weight_texture)
     try:
-        assert sim.fast is not None and sim.textures.weights is not None
+        assert sim.fast is not None
+        assert sim.textures.weight_levels is not weight_texture
+        assert (sim.textures.weights is not None) is weight_texture
         ref.step(150)
         sim.step(150)
         moved = np.abs(ref.positions() - system.rest_positions).max()
@@ -397,6 +402,56 @@ def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_norma
         assert np.min(np.sum(got[surface] * expected, axis=1)) > 0.999
     finally:
         sim.release()
+
+
+def test_the_weight_levels_code_holds_the_lattices_cell_shares_and_nothing_else():
+    """weight_levels: 24 bits (exact in a float32) that decode, as SPRING_WEIGHT_LEVELS does, to
+    the very weights of the lattice; weights that are not cell shares (a third, a zero on an
+    existing neighbour, a weight where there is none) get no code, so the texture keeps them."""
+    from deformgl.sim.backends.foundation import weight_levels
+    from deformgl.sim.backends.grid_springs import spring_weights
+    occ = np.ones((5, 4, 3), bool)
+    occ[4, 3, 2] = occ[0, 0, 0] = False
+    grid = NodeGrid(np.zeros(3), 0.01, occ)
+    system, _ = lattice_system(grid, GEL)
+    k = [float(system.stiffness[system.spring_class == c].max()) for c in (0, 1)]
+    weights = spring_weights(system, grid.neighbours, [k[0], k[1], 0.0])
+    code = weight_levels(weights, grid.neighbour_mask)
+    assert code is not None and code.max() < 2 ** 24
+    assert np.array_equal(code.astype(np.float32).astype(np.int64), code)
+    mask = (grid.neighbour_mask[:, None] >> np.arange(18)) & 1
+    decoded = np.concatenate([0.25 * (((code[:, None] >> (2 * np.arange(6))) & 3) + 1),
+                              0.5 * (((code[:, None] >> (6 + np.arange(6, 18))) & 1) + 1)], axis=1) * mask
+    assert np.array_equal(decoded, weights)
+    assert len(np.unique(weights[mask == 1])) > 2  # (the block has edges in 1, 2 and 4 cells)
+    for bad in (1.0 / 3.0, 0.0):
+        other = weights.copy()
+        other[7, np.flatnonzero(mask[7])[0]] = bad
+        assert weight_levels(other, grid.neighbour_mask) is None
+    absent = np.flatnonzero(mask[0] == 0)[0]
+    other = weights.copy()
+    other[0, absent] = 0.5
+    assert weight_levels(other, grid.neighbour_mask) is None
+
+
+def test_the_verlet_pass_steps_the_same_with_levels_as_with_the_weight_texture(ctx):
+    """The two stores of the lattice's weights are the same function: bit-identical positions
+    and normals after 60 steps."""
+    from deformgl.sim.backends.fragment import FragmentIntegrator
+    occ = np.ones((7, 5, 4), bool)
+    occ[6, 4, 3] = False
+    grid = NodeGrid(np.zeros(3), 0.01, occ)
+    system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0), fixed=grid.ijk[:, 0] == 0)
+    sims = [FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, weight_texture=t) for t in (False, True)]
+    try:
+        for sim in sims:
+            sim.step(60)
+        a, b = (sim.fast.read_state() for sim in sims)
+        assert np.abs(a[:, :3] - system.rest_positions).max() > 1e-6
+        assert np.array_equal(a, b)
+    finally:
+        for sim in sims:
+            sim.release()
 
 
 def test_the_cpu_peers_refuse_the_calibrated_lattice_rather_than_step_it_wrong():

@@ -136,6 +136,60 @@ def format_profile(rows: list[ProfileRow], machine: str) -> str:
     return "\n".join(lines)
 
 
+def lattice_weights(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), steps: int = 30,
+                    rounds: int = 7) -> list[tuple[str, int, float, float]]:
+    """The full step of a material's calibrated lattice (per-spring weights, Young's modulus
+    and density of gelatin; :func:`deformgl.sim.materials.lattice_system`), its weights fetched
+    from the weight texture (5 RGBA32F fetches per node) or decoded from the node texture's
+    levels code (``SPRING_WEIGHT_LEVELS``, the default): (grid, nodes, texture ms, levels ms),
+    medians of ``rounds`` alternating rounds of ``steps`` steps."""
+    import statistics
+    import time
+
+    import numpy as np
+
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.materials import PRESETS, critical_dt, lattice_system
+
+    out = []
+    for spec in grids:
+        grid = NodeGrid(np.zeros(3), 0.002, np.ones(spec, bool))
+        system, _ = lattice_system(grid, PRESETS["gelatin"], fixed=grid.ijk[:, 1] == grid.ijk[:, 1].max())
+        dt = 0.5 * critical_dt(PRESETS["gelatin"], grid.spacing)
+        sims = {t: FragmentIntegrator(ctx, system, grid, "verlet", dt, path="foundation", weight_texture=t)
+                for t in (True, False)}
+        times: dict[bool, list[float]] = {t: [] for t in sims}
+        try:
+            for sim in sims.values():
+                sim.step(3)
+            ctx.finish()
+            for r in range(rounds):
+                for t in ((True, False) if r % 2 == 0 else (False, True)):
+                    t0 = time.perf_counter()
+                    sims[t].step(steps)
+                    ctx.finish()
+                    times[t].append((time.perf_counter() - t0) / steps * 1e3)
+        finally:
+            for sim in sims.values():
+                sim.release()
+        out.append(("x".join(map(str, spec)), grid.count, statistics.median(times[True]),
+                    statistics.median(times[False])))
+    return out
+
+
+def format_lattice_weights(rows: list[tuple[str, int, float, float]]) -> list[str]:
+    lines = ["material lattice (per-spring weights of the calibrated lattice, gelatin), full step, median ms of "
+             "alternating rounds: weights from the weight texture vs from the node texture's levels code "
+             "(SPRING_WEIGHT_LEVELS)"]
+    for name, nodes, texture_ms, levels_ms in rows:
+        lines.append(f"  {name} ({nodes} nodes): texture {texture_ms:.3f} ms, levels {levels_ms:.3f} ms "
+                     f"-> levels {texture_ms / levels_ms:.2f}x as fast")
+    return lines
+
+
 def profile_report(ctx: moderngl.Context) -> str:
-    """``bench profile``: the table for the 20k and 131k-node blocks."""
-    return format_profile(profile_step(ctx), machine_line(ctx))
+    """``bench profile``: the table for the 20k and 131k-node blocks, and the material lattice's
+    weight texture against its levels code."""
+    return "\n".join([format_profile(profile_step(ctx), machine_line(ctx)),
+                      *format_lattice_weights(lattice_weights(ctx))])

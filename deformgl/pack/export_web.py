@@ -11,8 +11,9 @@ detailed mesh (constant, curvature or auto). OUT_DIR receives, written as one
 * little-endian binary files, row-major, exactly the textures and buffers deformgl uploads:
   ``node.f32`` (H, W, 4) node data, ``state_current.f32`` / ``state_previous.f32`` (H, W, 4) the
   start state (xyz, w packed normal), ``neighbours.i32`` (5, H, W, 4) (only for a compact layout
-  that is not dense), ``spring_weights.f32`` (5, H, W, 4) (only for a material scene: the
-  per-spring weights of ``SPRING_WEIGHTS``), ``pulls.f32`` (steps, PULLS, 3) the pull force of each group at each step
+  that is not dense), ``spring_weights.f32`` (5, H, W, 4) (only for a material scene whose
+  per-spring weights of ``SPRING_WEIGHTS`` are not the lattice's cell shares; those travel as the
+  levels code in ``node.f32``'s alpha, ``SPRING_WEIGHT_LEVELS``), ``pulls.f32`` (steps, PULLS, 3) the pull force of each group at each step
   (N per node), ``texel1..3.i32`` (V, 2), ``weights``/``offset``/``offset_world``/``normal``/
   ``normal_world.f32`` (V, 3), ``curvature.f32`` (V,), ``faces.u32`` (F, 3).
 
@@ -146,8 +147,10 @@ def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray]
     view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
     dense = isinstance(layout, CompactLayout) and layout.dense
     defines = {"PULLS": n_pulls, **{k: v for k, v in layout.shader_defines().items() if v}}
-    if textures.weights is not None:
+    if textures.weights is not None or textures.weight_levels:
         defines["SPRING_WEIGHTS"] = True
+    if textures.weight_levels:  # the weights are the node texture's alpha (node.f32)
+        defines["SPRING_WEIGHT_LEVELS"] = True
     uniforms = {"u_spacing": terms.spacing, "u_k_structural": terms.k_structural, "u_k_shear": terms.k_shear,
                 "u_damping": terms.damping, "u_mass_damping": terms.mass_damping, "u_gravity": list(terms.gravity),
                 "u_dt": dt,

@@ -178,12 +178,14 @@ def foundation() -> Iterator[Variant]:
     """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad") and
     ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
     verts = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert", "quad": "sim/fullscreen.vert"}
+    # weights: none, the weight texture, the levels code (SPRING_WEIGHT_LEVELS)
     for draw, branch, pulls, layout, weights in itertools.product(DRAW_MODES, (False, True), _counts("PULLS"),
-                                                                  _LAYOUTS, (False, True)):
+                                                                  _LAYOUTS, (None, "texture", "levels")):
         if layout and draw == "rects":
             continue  # built as "quad"
         yield _v(verts[draw], "sim/verlet.frag", {"NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points",
-                                                  "PULLS": pulls, "SPRING_WEIGHTS": weights, **layout})
+                                                  "PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
+                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout})
     for layout in _LAYOUTS:
         yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
 

@@ -44,17 +44,24 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 // SPRING_WEIGHTS (the calibrated lattice of deformgl/sim/materials.py): spring J's stiffness is
 // its class's times wt[J] (u_weights: 5 layers RGBA32F, 4 neighbours per layer in neighbour
 // order, 0 where absent), so S and P are weighted sums; the Mosegaard & Sorensen 2005, eq. 3 normal stays the unweighted
-// sum of unit vectors over the existing neighbours (U).
+// sum of unit vectors over the existing neighbours (U). SPRING_WEIGHT_LEVELS (with SPRING_WEIGHTS):
+// the weights are the lattice's cell shares, decoded from the levels code in the node texture's
+// alpha (node_flags.glsl) instead of fetched: edge J < 6 weighs (bits 2J..2J+1 + 1) / 4, face
+// diagonal J >= 6 weighs (bit 12 + J - 6, + 1) / 2, both times mask bit J.
+// Unit vectors are d * inversesqrt(d.d): one reciprocal square root instead of a square root and a
+// division (it differs from d / |d| in the last bits, within GLSL's 2 ulp).
 #if defined(SPRING_WEIGHTS)
+#ifndef SPRING_WEIGHT_LEVELS
 uniform sampler2DArray u_weights;
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float inv = 1.0 / max(length(d), 1e-30); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
+#endif
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
 #elif defined(NEIGHBOUR_BRANCH)
-#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float len = length(d); S += d / max(len, 1e-30); P += d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
 #else
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; float len = length(d); S += (w / max(len, 1e-30)) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
 #endif
 
-SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
+SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask, uint levels) {
 #if defined(COMPACT_DENSE)
     int self_node = texel_node(texel);
 #elif defined(COMPACT)
@@ -73,11 +80,17 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask) {
     vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
 #ifdef SPRING_WEIGHTS
     vec3 U = vec3(0.0);
+#ifdef SPRING_WEIGHT_LEVELS
+    float wt[18];
+    for (int j = 0; j < 6; ++j) wt[j] = 0.25 * float(((levels >> (2 * j)) & 3u) + 1u) * float((mask >> j) & 1u);
+    for (int j = 6; j < 18; ++j) wt[j] = 0.5 * float(((levels >> (6 + j)) & 1u) + 1u) * float((mask >> j) & 1u);
+#else
     vec4 w0 = texelFetch(u_weights, ivec3(texel, 0), 0), w1 = texelFetch(u_weights, ivec3(texel, 1), 0);
     vec4 w2 = texelFetch(u_weights, ivec3(texel, 2), 0), w3 = texelFetch(u_weights, ivec3(texel, 3), 0);
     vec4 w4 = texelFetch(u_weights, ivec3(texel, 4), 0);
     float wt[18] = float[18](w0.x, w0.y, w0.z, w0.w, w1.x, w1.y, w1.z, w1.w, w2.x, w2.y, w2.z, w2.w,
                              w3.x, w3.y, w3.z, w3.w, w4.x, w4.y);
+#endif
 #endif
     NB_ACCUM(s1, p1, 0, 1, 0, 0)
     NB_ACCUM(s1, p1, 1, -1, 0, 0)

@@ -19,5 +19,5 @@ void main() {
         o_position = x;
         return;
     }
-    o_position = vec4(x.xyz, pack_normal(spring_sum(u_position, texel, x.xyz, uint(node.b)).unit_sum));
+    o_position = vec4(x.xyz, pack_normal(spring_sum(u_position, texel, x.xyz, uint(node.b), uint(node.a)).unit_sum));
 }

@@ -2,7 +2,8 @@
 // One position-Verlet step of the grid spring-mass system (Mosegaard & Sorensen 2005, 3.1;
 // Movania & Feng 2012): x' = 2x - x_prev + dt^2 a, a = (g + m*gravity + pull - (c + alpha m) v)/m,
 // v = (x - x_prev)/dt. Writes the new position and, in alpha, the packed normal at x (Mosegaard & Sorensen 2005, eq. 3).
-// Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
+// Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; with SPRING_WEIGHT_LEVELS from the node
+// texture's alpha; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
 // no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code).
 #include "lib/atlas.glsl"
 #include "lib/node_flags.glsl"
@@ -33,7 +34,7 @@ void main() {
         return;
     }
 #endif
-    SpringSum s = spring_sum(u_position, texel, x.xyz, uint(node.b));
+    SpringSum s = spring_sum(u_position, texel, x.xyz, uint(node.b), uint(node.a));
     float normal_code = pack_normal(s.unit_sum);  // Mosegaard & Sorensen 2005, eq. 3
     if ((flags & FLAG_FIXED) != 0) {
         o_position = vec4(x.xyz, normal_code);

@@ -11,7 +11,7 @@ the system uses nothing the pass does not model (:func:`verlet_terms`); nothing 
 Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
 * node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g),
-  B neighbour mask (18 bits), A 0.
+  B neighbour mask (18 bits), A the spring-weight levels code (:func:`weight_levels`) or 0.
 * state, three rotating RGBA32F (H, W, 4): xyz position, w packed Mosegaard & Sørensen 2005, eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
 
@@ -38,8 +38,8 @@ from deformgl.sim.stages import spec
 from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
-           "VerletTerms", "verlet_terms", "node_flags", "NodeTextures", "VerletPass", "FoundationVerlet",
-           "tile_rectangles"]
+           "VerletTerms", "verlet_terms", "node_flags", "weight_levels", "NodeTextures", "VerletPass",
+           "FoundationVerlet", "tile_rectangles"]
 
 DRAW_MODES = ("rects", "points", "quad")
 LAYOUTS = ("compact", "indexed", "atlas")
@@ -120,6 +120,27 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
                        weights=weights)
 
 
+def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
+    """(N,) int64 levels code of ``weights`` (N, 18) when every spring's weight is a cell share of
+    the calibrated lattice (:func:`deformgl.sim.materials.lattice_system`): an edge (columns 0-5)
+    1, 2, 3 or 4 quarters, a face diagonal (6-17) 1 or 2 halves, and 0 exactly where ``mask``
+    (the grid's neighbour bits) has no neighbour; else None. Edge j's quarters - 1 go to bits
+    2j..2j+1, diagonal j's halves - 1 to bit 6 + j: 24 bits, exact in the float32 alpha of the node
+    texture, decoded by SPRING_WEIGHT_LEVELS (shaders/lib/springs.glsl) in place of five fetches of
+    a weight texture per node."""
+    w = np.asarray(weights, np.float64)
+    present = ((np.asarray(mask, np.int64)[:, None] >> np.arange(18)) & 1).astype(bool)
+    units = np.where(np.arange(18) < 6, 4.0, 2.0)
+    shares = w * units
+    steps = np.rint(shares)
+    if np.any(w[~present] != 0.0) or np.any(steps != shares) or \
+            np.any(present & ((steps < 1) | (steps > units))):
+        return None
+    code = np.where(present, steps - 1, 0).astype(np.int64)
+    shift = np.where(np.arange(18) < 6, 2 * np.arange(18), 6 + np.arange(18))
+    return np.bitwise_or.reduce(code << shift, axis=1)
+
+
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
     """(N,) int64 flag bits of the static node texture: exists, fixed, load groups."""
     bits = FLAG_EXISTS + FLAG_FIXED * np.asarray(fixed, np.int64)
@@ -154,13 +175,18 @@ class NodeTextures(GLOwner):
             by tile arithmetic); see docs/ARCHITECTURE.md.
         positions: (n_state, N, 3) start positions of each state texture (default: the rest
             positions in all); the w channel gets the packed Mosegaard & Sørensen 2005, eq. 3 normal of those positions.
-        weights: (N, 18) spring weights (:class:`VerletTerms`), stored as a 5-layer RGBA32F
-            texture array in the layout (bound to :data:`WEIGHT_UNIT`), or None.
+        weights: (N, 18) spring weights (:class:`VerletTerms`), or None. Cell shares of the
+            calibrated lattice go into the node texture's alpha as a levels code
+            (:func:`weight_levels`; ``weight_levels`` is then True); other weights are stored as a
+            5-layer RGBA32F texture array in the layout (bound to :data:`WEIGHT_UNIT`).
+        weight_texture: store the weights in the texture array even where levels could hold
+            them (to measure what the levels save, and test they match).
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
                  flags: np.ndarray | None = None, n_state: int = 3, layout: str = "compact",
-                 positions: np.ndarray | None = None, weights: np.ndarray | None = None) -> None:
+                 positions: np.ndarray | None = None, weights: np.ndarray | None = None,
+                 weight_texture: bool = False) -> None:
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         super().__init__(ctx)
@@ -179,6 +205,9 @@ class NodeTextures(GLOwner):
         self.size = self.layout.size
         self.neighbours: moderngl.TextureArray | None = None
         self.weights: moderngl.TextureArray | None = None
+        levels = None if weights is None or weight_texture else weight_levels(weights, grid.neighbour_mask)
+        #: the spring weights are the levels code in the node texture's alpha (SPRING_WEIGHT_LEVELS)
+        self.weight_levels = levels is not None
         self.state: list[moderngl.Texture] = []
         self.framebuffers: list[moderngl.Framebuffer] = []
         with self.building():
@@ -187,7 +216,7 @@ class NodeTextures(GLOwner):
                 w, h = self.layout.size
                 self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            if weights is not None:
+            if weights is not None and levels is None:
                 padded = np.zeros((n, 20))
                 padded[:, :18] = weights
                 w, h = self.layout.size
@@ -196,7 +225,7 @@ class NodeTextures(GLOwner):
                                                           np.ascontiguousarray(images, dtype="f4").tobytes(),
                                                           dtype="f4"))
                 self.weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(n)], axis=1)
+            node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(n) if levels is None else levels], axis=1)
             self.node = self._texture(self.layout.scatter(grid.ijk, node))
             for x in starts:
                 image = np.concatenate([x, pack_normals(unit_sums(grid, x))[:, None]], axis=1)
@@ -265,8 +294,8 @@ class VerletPass(GLOwner):
         with self.building():
             self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
-                "SPRING_WEIGHTS": textures.weights is not None,
-                **layout.shader_defines()}))
+                "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
+                "SPRING_WEIGHT_LEVELS": textures.weight_levels, **layout.shader_defines()}))
             self.program.set(**layout.shader_uniforms(),
                              u_spacing=terms.spacing, u_k_structural=terms.k_structural,
                              u_k_shear=terms.k_shear, u_damping=terms.damping, u_mass_damping=terms.mass_damping,
@@ -324,7 +353,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         state: the start state (x and x_prev are uploaded; fixed nodes get x_prev = x).
         loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
         t0: time of the start state.
-        draw, branch: pass variants, see :class:`VerletPass`; layout: see :class:`NodeTextures`.
+        draw, branch: pass variants, see :class:`VerletPass`; layout, weight_texture: see :class:`NodeTextures`.
     """
 
     backend = "fragment"
@@ -334,7 +363,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, terms: VerletTerms,
                  dt: float, state: State, *, loads: tuple[Load, ...] = (), t0: float = 0.0,
-                 draw: str = "rects", branch: bool = False, layout: str = "compact") -> None:
+                 draw: str = "rects", branch: bool = False, layout: str = "compact",
+                 weight_texture: bool = False) -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         GLOwner.__init__(self, ctx)
@@ -347,7 +377,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
         with self.building():
             self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
-                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights))
+                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights,
+                                                  weight_texture=weight_texture))
             self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))

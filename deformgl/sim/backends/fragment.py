@@ -98,7 +98,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             models the system and options (:func:`~deformgl.sim.backends.foundation.verlet_terms`),
             every other case on the stages of :data:`deformgl.sim.stages.SPECS`; "general": the
             stages always; "foundation": the foundation pass or a ValueError saying why not.
-        draw, branch, layout: variants of the foundation pass
+        draw, branch, layout, weight_texture: variants of the foundation pass
             (:class:`~deformgl.sim.backends.foundation.VerletPass`,
             :class:`~deformgl.sim.backends.foundation.NodeTextures`); other values than the
             defaults need ``path="foundation"``.
@@ -116,7 +116,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                  integrator: str, dt: float, *, constraints: Constraints | None = None,
                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
                  state: State | None = None, t0: float = 0.0, path: str = "auto", draw: str = "rects",
-                 branch: bool = False, layout: str = "compact") -> None:
+                 branch: bool = False, layout: str = "compact", weight_texture: bool = False) -> None:
         grid = system.grid if grid is None else grid
         if grid is None:
             raise ValueError("FragmentIntegrator: the system has no node grid (build it with "
@@ -154,14 +154,15 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.passes: dict[str, Program] = {}
-        terms = self._fast_path(path, draw, branch, layout)
+        terms = self._fast_path(path, draw, branch, layout, weight_texture)
         if terms is not None:
             GLOwner.__init__(self, ctx)
             start = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                      if state is None else state)
             with self.building():
                 self.fast = self.own(FoundationVerlet(ctx, system, grid, terms, self.dt, start, loads=self.loads,
-                                                      t0=self.t, draw=draw, branch=branch, layout=layout))
+                                                      t0=self.t, draw=draw, branch=branch, layout=layout,
+                                                      weight_texture=weight_texture))
             return
         try:
             self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
@@ -177,13 +178,14 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     # -- construction ------------------------------------------------------------------------
 
-    def _fast_path(self, path: str, draw: str, branch: bool, layout: str) -> VerletTerms | None:
+    def _fast_path(self, path: str, draw: str, branch: bool, layout: str,
+                   weight_texture: bool) -> VerletTerms | None:
         """The foundation pass's terms when it runs this simulation, None for the stages."""
-        variant = (draw, branch, layout) != ("rects", False, "compact")
+        variant = (draw, branch, layout, weight_texture) != ("rects", False, "compact", False)
         verlet = self.spec is FoundationVerlet.spec  # the one integrator the pass implements
         if path == "general" or (path == "auto" and not verlet):
             if variant:
-                raise ValueError("FragmentIntegrator: draw, branch and layout are variants of the foundation "
+                raise ValueError("FragmentIntegrator: draw, branch, layout and weight_texture are variants of the foundation "
                                  "pass (path='foundation')")
             return None
         if not verlet:
