@@ -188,6 +188,7 @@ def test_relative_paths_are_relative_to_the_scene_file(scene_dir: Path, monkeypa
     ("[physics]\nsteps = 2.5\n", "physics.steps: must be an integer, got float 2.5"),
     ("[physics]\nsteps = false\n", "physics.steps: must be an integer, got boolean false"),
     ("[render]\nshow_grid = 1\n", "render.show_grid: must be a boolean (true or false), got integer 1"),
+    ('[render]\ncull = "yes"\n', "render.cull: must be a boolean (true or false), got string 'yes'"),
     ("[render]\nsize = [800, true]\n", "render.size[1]: must be an integer, got boolean true"),
     ('[physics]\ngravity = [0, "a", 0]\n', "physics.gravity[1]: must be a number, got string 'a'"),
     ("[physics]\ngravity = 9.81\n", "physics.gravity: must be an array of 3 values, got float 9.81"),

@@ -81,32 +81,40 @@ def reference_image(ctx: moderngl.Context, draw: Callable[[], None], size: int,
 
 
 def frame_budgets(ctx: moderngl.Context, step: Callable[[], None], draw: Callable[[], None], size: int,
-                  background: tuple[float, float, float], repeats: int = 5) -> dict[str, FrameBudget]:
+                  background: tuple[float, float, float], repeats: int = 5,
+                  culled: Callable[[], None] | None = None) -> dict[str, FrameBudget]:
     """Time ``step`` (the frame's simulation steps) and ``draw`` (one draw of the scene into the
     bound target) per stage for each of :data:`AA_MODES` at ``size``², and compare the images
-    of one and the same state (no step in between) with :func:`reference_image`'s."""
+    of one and the same state (no step in between) with :func:`reference_image`'s (of ``draw``).
+    ``culled``: the same draw with back faces culled ([render] cull), timed and compared too,
+    as the modes "<mode> + cull"."""
+    draws = {name: draw for name in AA_MODES}
+    if culled is not None:
+        draws.update({f"{name} + cull": culled for name in AA_MODES})
+    modes = {name: AA_MODES[name.removesuffix(" + cull")] for name in draws}
     targets: dict[str, RenderTarget] = {}
     try:
-        for name, (samples, fxaa) in AA_MODES.items():
+        for name, (samples, fxaa) in modes.items():
             targets[name] = RenderTarget(ctx, (size, size), samples, fxaa=fxaa)
 
-        def image(t: RenderTarget) -> np.ndarray:
+        def image(name: str) -> np.ndarray:
+            t = targets[name]
             t.begin(background)
-            draw()
+            draws[name]()
             return t.read_rgb()
 
         reference = reference_image(ctx, draw, size, background)
-        quality = {name: image_difference(image(targets[name]), reference) for name in AA_MODES}
-        stages: dict[str, list[list[float]]] = {name: [[], [], [], []] for name in AA_MODES}
+        quality = {name: image_difference(image(name), reference) for name in draws}
+        stages: dict[str, list[list[float]]] = {name: [[], [], [], []] for name in draws}
         for r in range(repeats):  # the modes alternate within each round
-            for name in (list(AA_MODES) if r % 2 == 0 else list(reversed(AA_MODES))):
+            for name in (list(draws) if r % 2 == 0 else list(reversed(draws))):
                 t = targets[name]
                 t0 = time.perf_counter()
                 step()
                 ctx.finish()
                 t1 = time.perf_counter()
                 t.begin(background)
-                draw()
+                draws[name]()
                 ctx.finish()
                 t2 = time.perf_counter()
                 source = t.resolve()
@@ -120,7 +128,7 @@ def frame_budgets(ctx: moderngl.Context, step: Callable[[], None], draw: Callabl
         for t in targets.values():
             t.release()
     out = {}
-    for name in AA_MODES:
+    for name in draws:
         steps_ms, draw_ms, aa_ms, read_ms = (statistics.median(s) for s in stages[name])
         out[name] = FrameBudget(steps_ms, draw_ms, aa_ms, read_ms, *quality[name])
     return out
@@ -132,9 +140,9 @@ def format_budgets(budgets: dict[str, FrameBudget], info: dict) -> list[str]:
     lines = [f"frame budget at {info['frame_size']}x{info['frame_size']}, {info['frame_steps']} steps + one "
              "curvature-corrected draw + AA + read-back (median ms per stage); image of the same state against "
              f"{info.get('reference', 'the reference')}: mean |difference| of 255, pixels off by > {DIFF_THRESHOLD}",
-             f"{'AA':>8} | {'steps':>7} | {'draw':>7} | {'AA':>6} | {'read':>6} | {'frame':>7} | {'frames/s':>8} | "
+             f"{'AA':>14} | {'steps':>7} | {'draw':>7} | {'AA':>6} | {'read':>6} | {'frame':>7} | {'frames/s':>8} | "
              f"{'mean diff':>9} | {'pixels off':>10}"]
     for name, b in budgets.items():
-        lines.append(f"{name:>8} | {b.steps_ms:>7.1f} | {b.draw_ms:>7.1f} | {b.aa_ms:>6.2f} | {b.read_ms:>6.2f} | "
+        lines.append(f"{name:>14} | {b.steps_ms:>7.1f} | {b.draw_ms:>7.1f} | {b.aa_ms:>6.2f} | {b.read_ms:>6.2f} | "
                      f"{b.frame_ms:>7.1f} | {1e3 / b.frame_ms:>8.1f} | {b.mean_diff:>9.3f} | {b.differing:>9.2%}")
     return lines

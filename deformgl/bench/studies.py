@@ -147,7 +147,7 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
         at ``frame_size``², with ``samples``x MSAA and without; and a dict of scene sizes, with "budgets": the frame split per AA mode
         (:func:`deformgl.bench.aa.frame_budgets`).
     """
-    from deformgl.render.mapped import MappedMeshPass, StaticMeshPass
+    from deformgl.render.mapped import MappedMeshPass, StaticMeshPass, closed_front_face
     from deformgl.render.mapped_setup import get_binding, mapped_vertices
     from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
     from deformgl.sim.normals import rest_normals
@@ -164,6 +164,8 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
     binding = get_binding(built.mesh, built.grid, surface, use_cache=True, uv=None)
     node_normals = rest_normals(built.grid)
     mesh = built.mesh
+    # back faces culled as [render] cull = true does, where the mesh is closed (render.mapped.closed_front_face)
+    front = closed_front_face(mesh.vertices, mesh.faces)
     passes: dict[str, StaticMeshPass | GridSurfacePass | MappedMeshPass] = {
         "static mesh": StaticMeshPass(ctx, mesh.vertices, mesh.vertex_normals, mesh.faces),
         "one-to-one": GridSurfacePass(ctx, built.grid, sim.textures.layout),
@@ -173,6 +175,9 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
         for stages in (1, 2):
             name = mode if stages == 1 else f"{mode} 2-stage"
             passes[name] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data, stages=stages)
+        if mode == "curvature" and front is not None:  # what culling the back faces saves
+            passes["curvature, culled"] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data,
+                                                         front_face=front)
     view = scene_view(dataclasses.replace(scene, render=dataclasses.replace(scene.render, size=(size, size))),
                       built.bbox)
     lighting = scene_lighting(scene)
@@ -207,9 +212,12 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
                 small.release()
         from deformgl.bench.aa import frame_budgets, reference_name
 
+        culled = passes.get("curvature, culled")
         budgets = frame_budgets(ctx, lambda: sim.step(frame_steps),
                                 lambda: curvature.draw(sim.position_texture, view, lighting), frame_size,
-                                _rgb(scene.render.background), repeats)
+                                _rgb(scene.render.background), repeats,
+                                culled=None if not isinstance(culled, MappedMeshPass) else
+                                lambda: culled.draw(sim.position_texture, view, lighting))
     finally:
         target.release()
         for p in passes.values():
@@ -217,7 +225,7 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
         sim.release()
     info = {"faces": len(mesh.faces), "vertices": len(mesh.vertices), "nodes": built.grid.count,
             "size": size, "samples": samples, "frame_size": frame_size, "frame_steps": frame_steps,
-            "budgets": budgets, "reference": reference_name(ctx)}
+            "budgets": budgets, "reference": reference_name(ctx), "culled": front is not None}
     return rows, frame_ms, info
 
 
@@ -232,7 +240,8 @@ def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict,
              f"{info['vertices']} vertices / {info['faces']} faces on {info['nodes']} nodes; "
              f"{info['size']}x{info['size']}, {info['samples']}x MSAA; baseline: the static mesh; "
              "mappings in the drawing vertex shader (the default); 2-stage: mapped once per vertex by "
-             "transform feedback, then drawn",
+             "transform feedback, then drawn; culled: back faces culled ([render] cull = true"
+             f"{'' if info.get('culled') else '; not offered: the mesh is not closed'})",
              f"{'draw path':>20} | {'ms/frame':>9} | {'frames/s':>8} | {'rate vs static':>14}",
              "-" * 62]
     for r in rows:

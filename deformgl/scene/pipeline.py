@@ -25,7 +25,7 @@ from deformgl.errors import InputError, SimulationError
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.files import OutputSet, write_png_atomic
-from deformgl.render.mapped import MappedMeshPass
+from deformgl.render.mapped import MappedMeshPass, closed_front_face
 from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image
 from deformgl.grid.meshio import load_mesh
 from deformgl.sim.normals import rest_normals
@@ -282,8 +282,9 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
         # repeated over the surface
         uv = binding.uv if own_uv is not None else binding.uv * scene.mapping.normal_map_repeat
         data = dataclasses.replace(data, uv=uv)
+    front_face = closed_front_face(built.mesh.vertices, built.mesh.faces) if scene.render.cull else None
     return MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data, normal_map=normal_map,
-                          normal_map_strength=scene.mapping.normal_map_strength)
+                          normal_map_strength=scene.mapping.normal_map_strength, front_face=front_face)
 
 
 def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, deformed: np.ndarray,

@@ -260,6 +260,7 @@ _MATERIAL = _table({
 _RENDER = _table({
     "size": (_SIZE, [800, 600]), "msaa": (_int(choices=MSAA_CHOICES), 4), "aa": (_str(AA_CHOICES), "msaa"),
     "background": (_COLOUR, [1.0, 1.0, 1.0]), "show_grid": (_of(bool, "a boolean (true or false)"), False),
+    "cull": (_of(bool, "a boolean (true or false)"), False),
     "camera": (_CAMERA, {}), "light": (_LIGHT, {}), "material": (_MATERIAL, {}),
 }, _plain(Render))
 

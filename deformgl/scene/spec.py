@@ -274,6 +274,9 @@ class Render:
     light: Light
     material: Material
     aa: str = "msaa"
+    #: cull the detailed mesh's back faces where it is closed (render.mapped.closed_front_face):
+    #: a cheaper draw, the same image where the surface neither folds nor intersects itself
+    cull: bool = False
 
     @property
     def samples(self) -> int:

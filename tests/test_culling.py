@@ -1,0 +1,101 @@
+"""Back-face culling of the detailed mesh ([render] cull): when a mesh may be culled, that the
+draw really culls and leaves the GL state as it found it, and that a closed surface's image is
+unchanged by it."""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.render.camera import frame_box
+from deformgl.render.mapped import MappedMeshPass, StaticMeshPass, closed_front_face
+from deformgl.render.passes import Lighting, RenderTarget
+from deformgl.scene.pipeline import render_scene
+from deformgl.scene.schema import load_scene
+SCENES = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def test_a_closed_consistent_mesh_may_be_culled_with_its_own_winding():
+    box = trimesh.creation.box()
+    assert closed_front_face(box.vertices, box.faces) == "ccw"
+    assert closed_front_face(box.vertices, box.faces[:, ::-1]) == "cw"  # wound inward
+
+
+def test_open_or_inconsistent_meshes_are_never_culled():
+    box = trimesh.creation.box()
+    assert closed_front_face(box.vertices, box.faces[1:]) is None  # a hole
+    flipped = box.faces.copy()
+    flipped[0] = flipped[0, ::-1]
+    assert closed_front_face(box.vertices, flipped) is None  # one face turned over
+    assert closed_front_face(box.vertices, box.faces[:0]) is None
+
+
+def test_an_edge_shared_by_four_faces_still_counts_as_closed():
+    """Two boxes touching along an edge (as scanned meshes have): closed, consistent."""
+    a = trimesh.creation.box()
+    b = trimesh.creation.box()
+    b.apply_translation([1.0, 1.0, 0.0])  # (shares the edge x = y = 0.5)
+    both = trimesh.util.concatenate([a, b])
+    both.merge_vertices()
+    edges = np.sort(both.edges, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 4
+    assert closed_front_face(both.vertices, both.faces) == "ccw"
+
+
+def _draw(ctx, pass_, view, size=(96, 96)) -> np.ndarray:
+    target = RenderTarget(ctx, size, 0)
+    try:
+        target.begin((1.0, 1.0, 1.0))
+        pass_.draw(view, Lighting(direction=(0.3, 0.6, 1.0)))
+        return target.read_rgb()
+    finally:
+        target.release()
+
+
+def test_culling_draws_what_faces_the_eye_and_turns_itself_off(ctx):
+    """A closed box: culling the back faces ("ccw") gives the image of drawing all of them; culling
+    the front ones ("cw") shows only the far inside, a different image; and a draw after a culled
+    one is not culled (the pass restores the state)."""
+    box = trimesh.creation.box()
+    view = frame_box(box.vertices.min(0), box.vertices.max(0), projection="perspective", azimuth=30.0, elevation=25.0, fov=40.0,
+                     distance=2.5, target=np.full(3, 0.5), aspect=1.0)
+    passes = {f: StaticMeshPass(ctx, box.vertices, box.vertex_normals, box.faces, front_face=f)
+              for f in (None, "ccw", "cw")}
+    # wound inward: its near faces are back faces, drawn unless culling stays on
+    passes["inward"] = StaticMeshPass(ctx, box.vertices, -box.vertex_normals, box.faces[:, ::-1])
+    try:
+        inward = _draw(ctx, passes["inward"], view)
+        everything = _draw(ctx, passes[None], view)
+        assert np.array_equal(_draw(ctx, passes["ccw"], view), everything)
+        inside = _draw(ctx, passes["cw"], view)
+        assert np.abs(inside.astype(int) - everything.astype(int)).max() > 30
+        # culling is off again, the front face "ccw" again
+        assert np.array_equal(_draw(ctx, passes[None], view), everything)
+        assert np.array_equal(_draw(ctx, passes["ccw"], view), everything)
+        assert np.array_equal(_draw(ctx, passes["inward"], view), inward)
+    finally:
+        for p in passes.values():
+            p.release()
+
+
+def test_mapped_mesh_pass_refuses_an_unknown_winding(ctx):
+    grid = NodeGrid(np.zeros(3), 0.1, np.ones((2, 2, 2), bool))
+    with pytest.raises(ValueError, match="front_face"):
+        MappedMeshPass(ctx, grid, None, np.zeros((0, 3), int), None, front_face="up")  # type: ignore[arg-type]
+
+
+def test_cull_leaves_a_closed_unfolded_mesh_scene_as_it_was(ctx):
+    """The jelly (a closed box mesh that does not fold): the same pixels culled or not; the fin
+    (a scanned mesh whose surface meets itself in places) differs only in a handful of pixels,
+    where a back face showed."""
+    for name, most in (("jelly", 0), ("fin", 20)):
+        scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=40)
+        assert scene.render.cull is False  # (the default)
+        culled = dataclasses.replace(scene, render=dataclasses.replace(scene.render, cull=True))
+        a, b = render_scene(ctx, scene), render_scene(ctx, culled)
+        off = np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 4
+        assert off.sum() <= most, name
