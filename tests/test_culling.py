@@ -33,6 +33,20 @@ def test_open_or_inconsistent_meshes_are_never_culled():
     assert closed_front_face(box.vertices, box.faces[:0]) is None
 
 
+def test_shells_wound_against_each_other_are_not_culled():
+    """An outward box beside a smaller inward-wound one: every edge balances and the total volume
+    is positive, but culling would take the inward shell's near faces."""
+    a = trimesh.creation.box()
+    b = trimesh.creation.box(extents=(0.6, 0.6, 0.6))
+    b.apply_translation([1.5, 0.0, 0.0])
+    b.invert()
+    both = trimesh.util.concatenate([a, b])
+    assert closed_front_face(both.vertices, both.faces) is None
+    b.invert()
+    same = trimesh.util.concatenate([a, b])
+    assert closed_front_face(same.vertices, same.faces) == "ccw"
+
+
 def test_an_edge_shared_by_four_faces_still_counts_as_closed():
     """Two boxes touching along an edge (as scanned meshes have): closed, consistent."""
     a = trimesh.creation.box()
@@ -89,13 +103,26 @@ def test_mapped_mesh_pass_refuses_an_unknown_winding(ctx):
 
 
 def test_cull_leaves_a_closed_unfolded_mesh_scene_as_it_was(ctx):
-    """The jelly (a closed box mesh that does not fold): the same pixels culled or not; the fin
+    """The jelly (its closed box mesh drawn through the constant mapping, no fold): the same pixels culled or not; the fin
     (a scanned mesh whose surface meets itself in places) differs only in a handful of pixels,
     where a back face showed."""
+    from deformgl.scene.pipeline import build_scene_model, make_draw_pass
+    from deformgl.sim.backends.foundation import NodeTextures
     for name, most in (("jelly", 0), ("fin", 20)):
-        scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=40)
+        scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=40, mapping="constant")
         assert scene.render.cull is False  # (the default)
         culled = dataclasses.replace(scene, render=dataclasses.replace(scene.render, cull=True))
+        built = build_scene_model(culled)
+        textures = NodeTextures(ctx, built.grid)
+        try:
+            for s, front in ((scene, None), (culled, "ccw")):  # (the renderer's draw pass takes the setting)
+                draw = make_draw_pass(ctx, s, built, textures.layout)
+                try:
+                    assert isinstance(draw, MappedMeshPass) and draw.front_face == front, name
+                finally:
+                    draw.release()
+        finally:
+            textures.release()
         a, b = render_scene(ctx, scene), render_scene(ctx, culled)
         off = np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 4
         assert off.sum() <= most, name

@@ -121,3 +121,21 @@ def test_frame_budgets_split_and_quality(ctx, triangle):
     assert 0 < budgets["4x MSAA"].differing < budgets["no AA"].differing
     text = "\n".join(format_budgets(budgets, {"frame_size": 64, "frame_steps": 15}))
     assert "frame budget at 64x64, 15 steps" in text and "FXAA" in text and "4x MSAA" in text
+
+
+def test_frame_budgets_time_and_compare_the_culled_draw_too(ctx, triangle):
+    """culled=: each AA mode again as "<mode> + cull", its image against the reference of the
+    unculled draw: here a stand-in that draws nothing (as if every face were culled), so the
+    culled rows are as far off as an empty image."""
+    calls = []
+
+    def empty() -> None:
+        calls.append(1)
+
+    budgets = frame_budgets(ctx, lambda: None, triangle, 64, BACKGROUND, repeats=2, culled=empty)
+    assert list(budgets) == [*AA_MODES, *(f"{m} + cull" for m in AA_MODES)]
+    assert len(calls) == len(AA_MODES) * (1 + 2)  # (one image each, then 2 rounds)
+    for mode in AA_MODES:
+        assert budgets[f"{mode} + cull"].mean_diff > 5 * budgets[mode].mean_diff
+    text = "\n".join(format_budgets(budgets, {"frame_size": 64, "frame_steps": 15}))
+    assert "FXAA + cull" in text

@@ -434,6 +434,22 @@ def test_the_weight_levels_code_holds_the_lattices_cell_shares_and_nothing_else(
     assert weight_levels(other, grid.neighbour_mask) is None
 
 
+def test_the_levels_code_takes_shares_that_float64_rounds_off_a_quarter():
+    """An L-shaped body has edges in 3 cells; 3 k / 4 over k is 0.7500000000000001 in float64 for
+    some k (here E = 10 kPa, h = 1/11 m), exactly 0.75 in the float32 a texture holds: the code
+    still holds the lattice (and so decodes to what the texture path computes with)."""
+    from deformgl.sim.backends.foundation import weight_levels
+    from deformgl.sim.backends.grid_springs import spring_weights
+    occ = np.ones((4, 4, 3), bool)
+    occ[2:, 2:, :] = False
+    grid = NodeGrid(np.zeros(3), 1.0 / 11.0, occ)
+    system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0))
+    k = [float(system.stiffness[system.spring_class == c].max()) for c in (0, 1)]
+    weights = spring_weights(system, grid.neighbours, [k[0], k[1], 0.0])
+    assert np.any((weights != 0.75) & (weights.astype(np.float32) == np.float32(0.75)))
+    assert weight_levels(weights, grid.neighbour_mask) is not None
+
+
 def test_the_verlet_pass_steps_the_same_with_levels_as_with_the_weight_texture(ctx):
     """The two stores of the lattice's weights are the same function: bit-identical positions
     and normals after 60 steps."""
@@ -444,6 +460,8 @@ def test_the_verlet_pass_steps_the_same_with_levels_as_with_the_weight_texture(c
     system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0), fixed=grid.ijk[:, 0] == 0)
     sims = [FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, weight_texture=t) for t in (False, True)]
     try:
+        assert sims[0].textures.weight_levels and sims[0].textures.weights is None
+        assert not sims[1].textures.weight_levels and sims[1].textures.weights is not None
         for sim in sims:
             sim.step(60)
         a, b = (sim.fast.read_state() for sim in sims)

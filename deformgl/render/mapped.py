@@ -57,10 +57,12 @@ def closed_front_face(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     for a closed, consistently wound mesh whose faces wind outward (positive volume), "cw" for
     one wound inward, None for an open or inconsistently wound mesh (whose back faces can be
     seen). Closed and consistent: every edge is crossed as often from a to b as from b to a (no
-    hole, no flipped face; edges shared by four faces, as scanned meshes have, are fine). Such a
+    hole, no flipped face; edges shared by four faces, as scanned meshes have, are fine), and
+    every shell (edge-connected part) encloses its volume with the same winding. Such a
     surface seen from outside shows only faces turned to the eye; the depth test would hide the
     others, so culling them only saves their rasterisation (on llvmpipe, about half the
-    triangles of a mapped mesh's draw)."""
+    triangles of a mapped mesh's draw). Not so where the deformed surface folds over or
+    intersects itself, or the camera is inside it: there a back face is what the eye sees."""
     import trimesh
     f = np.asarray(faces, np.int64)
     if len(f) == 0:
@@ -71,10 +73,18 @@ def closed_front_face(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     backward, count_b = np.unique(directed[:, 1] * n + directed[:, 0], return_counts=True)
     if not (np.array_equal(forward, backward) and np.array_equal(count_f, count_b)):
         return None
-    volume = float(trimesh.Trimesh(np.asarray(vertices, np.float64), f, process=False).volume)
-    if volume == 0.0 or not np.isfinite(volume):
+    # every shell (edge-connected component) must wind the same way: an inward-wound shell beside
+    # an outward one would lose its near faces
+    v = np.asarray(vertices, np.float64)
+    labels = trimesh.graph.connected_component_labels(
+        trimesh.Trimesh(v, f, process=False).face_adjacency, node_count=len(f))
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    volumes = np.bincount(labels, weights=np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
+    scale = float(np.ptp(v, axis=0).max()) ** 3
+    signs = np.sign(volumes[np.abs(volumes) > 1e-12 * scale])  # (flat shells: either way)
+    if not np.all(np.isfinite(volumes)) or len(signs) == 0 or np.any(signs != signs[0]):
         return None
-    return "ccw" if volume > 0 else "cw"
+    return "ccw" if signs[0] > 0 else "cw"
 
 
 @contextmanager

@@ -128,7 +128,9 @@ def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
     2j..2j+1, diagonal j's halves - 1 to bit 6 + j: 24 bits, exact in the float32 alpha of the node
     texture, decoded by SPRING_WEIGHT_LEVELS (shaders/lib/springs.glsl) in place of five fetches of
     a weight texture per node."""
-    w = np.asarray(weights, np.float64)
+    # (in float32, as the weight texture would hold them: a share of 3 k / 4 over k can be an ulp
+    # off 0.75 in float64)
+    w = np.asarray(weights, np.float64).astype(np.float32).astype(np.float64)
     present = ((np.asarray(mask, np.int64)[:, None] >> np.arange(18)) & 1).astype(bool)
     units = np.where(np.arange(18) < 6, 4.0, 2.0)
     shares = w * units
