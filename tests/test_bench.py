@@ -89,3 +89,22 @@ def test_bench_profile_times_the_lattice_weights_both_ways(ctx):
     assert all(t > 0 and lv > 0 for _, _, t, lv in rows)
     text = "\n".join(format_lattice_weights(rows))
     assert "texture" in text and "levels" in text and "6x5x4 (120 nodes)" in text
+
+
+def test_bench_render_times_every_draw_path_and_the_renderers_frame(ctx):
+    """On the jelly's closed box mesh: the static baseline, the node surface, both mappings in
+    each of the three mapping passes, the culled draw, and the frame budgets with and without
+    culling, on the mapping pass the renderer uses."""
+    from deformgl.bench.studies import bench_render, format_render
+    from deformgl.scene.pipeline import RENDER_MAPPING_PASS
+
+    rows, frame_ms, info = bench_render(ctx, SCENES / "jelly.toml", size=64, repeats=1, frame_size=32,
+                                        frame_steps=2)
+    names = [r.name for r in rows]
+    assert names == ["static mesh", "one-to-one", "constant", "constant 2-stage", "constant fragment",
+                     "curvature", "curvature 2-stage", "curvature fragment", "curvature, culled"]
+    assert all(r.ms > 0 for r in rows) and set(frame_ms) == {4, 0}
+    assert info["culled"] and info["mapping_pass"] == RENDER_MAPPING_PASS
+    assert set(info["budgets"]) == {"no AA", "4x MSAA", "FXAA", "no AA + cull", "4x MSAA + cull", "FXAA + cull"}
+    text = format_render(rows, frame_ms, info, "machine")
+    assert "curvature, culled" in text and f"the frame below: {RENDER_MAPPING_PASS}" in text

@@ -77,7 +77,7 @@ def test_two_stage_set_up_failing_half_way_releases_what_it_made(ctx, monkeypatc
     monkeypatch.setattr(GLOwner, "own", recording_own)
     created = _Created(ctx, monkeypatch)
     with pytest.raises(RuntimeError, match="second stage fails"):
-        MappedMeshPass(ctx, grid, layout, faces, data, stages=2)
+        MappedMeshPass(ctx, grid, layout, faces, data, mapping_pass="feedback")
     assert len(created.objects) >= 5  # vertex buffers, index buffer, capture program/vao/fbo, mapped buffer
     assert [obj for obj in created.objects if not is_released(obj)] == []
     (half_built,) = owners
@@ -88,7 +88,7 @@ def test_two_stage_set_up_failing_half_way_releases_what_it_made(ctx, monkeypatc
 def test_two_stage_pass_releases_everything_once(ctx, monkeypatch):
     grid, layout, faces, data = _grid_and_data()
     created = _Created(ctx, monkeypatch)
-    with MappedMeshPass(ctx, grid, layout, faces, data, stages=2) as draw:
+    with MappedMeshPass(ctx, grid, layout, faces, data, mapping_pass="feedback") as draw:
         assert draw.owned_count > 0
     assert created.objects and all(is_released(obj) for obj in created.objects)
     draw.release()

@@ -149,7 +149,7 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
     """
     from deformgl.render.mapped import MappedMeshPass, StaticMeshPass, closed_front_face
     from deformgl.render.mapped_setup import get_binding, mapped_vertices
-    from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
+    from deformgl.scene.pipeline import RENDER_MAPPING_PASS, build_scene_model, scene_lighting, scene_view
     from deformgl.sim.normals import rest_normals
     from deformgl.render.passes import GridSurfacePass, RenderTarget
     from deformgl.scene.schema import load_scene
@@ -172,12 +172,12 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
     }
     for mode in ("constant", "curvature"):
         data = mapped_vertices(binding, mode, built.grid.rest_positions, node_normals)
-        for stages in (1, 2):
-            name = mode if stages == 1 else f"{mode} 2-stage"
-            passes[name] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data, stages=stages)
+        for mapping_pass, suffix in (("vertex", ""), ("feedback", " 2-stage"), ("fragment", " fragment")):
+            passes[mode + suffix] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data,
+                                                   mapping_pass=mapping_pass)
         if mode == "curvature" and front is not None:  # what culling the back faces saves
             passes["curvature, culled"] = MappedMeshPass(ctx, built.grid, sim.textures.layout, mesh.faces, data,
-                                                         front_face=front)
+                                                         front_face=front, mapping_pass=RENDER_MAPPING_PASS)
     view = scene_view(dataclasses.replace(scene, render=dataclasses.replace(scene.render, size=(size, size))),
                       built.bbox)
     lighting = scene_lighting(scene)
@@ -195,7 +195,8 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
             draw()
             rows.append(RenderRow(name, timed(draw, repeats) * 1e3))
         frame_ms = {}
-        curvature = passes["curvature"]
+        # the frame as `deformgl render` draws it (its mapping pass)
+        curvature = passes["curvature" + {"vertex": "", "feedback": " 2-stage", "fragment": " fragment"}[RENDER_MAPPING_PASS]]
         if not isinstance(curvature, MappedMeshPass):
             raise TypeError("bench_render: the curvature pass is not a MappedMeshPass")
         for frame_samples in (samples, 0):
@@ -225,7 +226,8 @@ def bench_render(ctx: moderngl.Context, scene_path, *, size: int = 1024, samples
         sim.release()
     info = {"faces": len(mesh.faces), "vertices": len(mesh.vertices), "nodes": built.grid.count,
             "size": size, "samples": samples, "frame_size": frame_size, "frame_steps": frame_steps,
-            "budgets": budgets, "reference": reference_name(ctx), "culled": front is not None}
+            "budgets": budgets, "reference": reference_name(ctx), "culled": front is not None,
+            "mapping_pass": RENDER_MAPPING_PASS}
     return rows, frame_ms, info
 
 
@@ -239,8 +241,9 @@ def format_render(rows: list[RenderRow], frame_ms: dict[int, float], info: dict,
     lines = [machine,
              f"{info['vertices']} vertices / {info['faces']} faces on {info['nodes']} nodes; "
              f"{info['size']}x{info['size']}, {info['samples']}x MSAA; baseline: the static mesh; "
-             "mappings in the drawing vertex shader (the default); 2-stage: mapped once per vertex by "
-             "transform feedback, then drawn; culled: back faces culled ([render] cull = true"
+             "mappings in the drawing vertex shader (the paper's way); 2-stage: mapped once per vertex by "
+             "transform feedback, then drawn; fragment: mapped once per vertex in a fragment pass, then drawn "
+             f"(the frame below: {info.get('mapping_pass', 'vertex')}, as `deformgl render` draws); culled: back faces culled ([render] cull = true"
              f"{'' if info.get('culled') else '; not offered: the mesh is not closed'})",
              f"{'draw path':>20} | {'ms/frame':>9} | {'frames/s':>8} | {'rate vs static':>14}",
              "-" * 62]

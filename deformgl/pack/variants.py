@@ -196,7 +196,8 @@ def census() -> Iterator[Variant]:
 
 
 def render() -> Iterator[Variant]:
-    """Grid surface, overlay, mapped mesh (one and two stages, capture), static mesh."""
+    """Grid surface, overlay, mapped mesh (in the vertex shader, by transform feedback or a fragment
+    pass first; capture), static mesh."""
     yield _v("render/grid_surface.vert", "render/lit_surface.frag", {})
     yield _v("render/grid_surface.vert", None, {}, ("v_world", "v_normal"))
     yield _v("render/grid_lines.vert", "render/flat_colour.frag", {})
@@ -208,8 +209,10 @@ def render() -> Iterator[Variant]:
         yield _v("render/mapped_mesh.vert", None, d, ("v_world", "v_normal"))
         names = ("v_world", "v_normal") + (("v_tangent", "v_handedness", "v_uv") if normal_map else ())
         yield _v("render/mapped_mesh.vert", None, d, names)
+        yield _v("sim/fullscreen.vert", "render/mapped_premap.frag", d)  # mapping_pass = "fragment"
     for normal_map in (False, True):
         yield _v("render/mapped_cached.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})
+        yield _v("render/mapped_premapped.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})
 
 
 def trilinear() -> Iterator[Variant]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 
 import moderngl
 import numpy as np
@@ -28,28 +27,11 @@ from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 from deformgl.render.passes import FeedbackCapture, Lighting
+from deformgl.render.mapped_data import MappedVertices
+from deformgl.render.premap import FragmentPremap
 
-
-@dataclass(frozen=True, eq=False)
-class MappedVertices:
-    """Per-vertex mapping data of one mode, ready for the GPU (all float64/int64 arrays, V rows).
-
-    Attributes:
-        tri_nodes: (V, 3) node numbers; weights: (V, 3); offset: (V, 3) in the chosen basis;
-        offset_world: (V, 3); normal, normal_world: (V, 3); use_curvature: (V,) bool;
-        tangent: (V, 4) or None; tangent_world: (V, 3) or None; uv: (V, 2) or None.
-    """
-
-    tri_nodes: np.ndarray
-    weights: np.ndarray
-    offset: np.ndarray
-    offset_world: np.ndarray
-    normal: np.ndarray
-    normal_world: np.ndarray
-    use_curvature: np.ndarray
-    tangent: np.ndarray | None = None
-    tangent_world: np.ndarray | None = None
-    uv: np.ndarray | None = None
+#: Where :class:`MappedMeshPass` maps the vertices (its ``mapping_pass``).
+MAPPING_PASSES = ("vertex", "feedback", "fragment")
 
 
 def closed_front_face(vertices: np.ndarray, faces: np.ndarray) -> str | None:
@@ -63,7 +45,8 @@ def closed_front_face(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     others, so culling them only saves their rasterisation (on llvmpipe, about half the
     triangles of a mapped mesh's draw). Not so where the deformed surface folds over or
     intersects itself, or the camera is inside it: there a back face is what the eye sees."""
-    import trimesh
+    import scipy.sparse
+    import scipy.sparse.csgraph
     f = np.asarray(faces, np.int64)
     if len(f) == 0:
         return None
@@ -75,13 +58,19 @@ def closed_front_face(vertices: np.ndarray, faces: np.ndarray) -> str | None:
         return None
     # every shell (edge-connected component) must wind the same way: an inward-wound shell beside
     # an outward one would lose its near faces
+    # (faces meet through any shared edge, those of four faces included; every shell is closed,
+    # as the balance above holds for each one: shells share no edge)
     v = np.asarray(vertices, np.float64)
-    labels = trimesh.graph.connected_component_labels(
-        trimesh.Trimesh(v, f, process=False).face_adjacency, node_count=len(f))
+    _, edge = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True)
+    edge = edge.ravel()
+    incidence = scipy.sparse.coo_matrix((np.ones(len(edge)), (np.repeat(np.arange(len(f)), 3), edge)),
+                                        shape=(len(f), int(edge.max()) + 1)).tocsr()
+    _, labels = scipy.sparse.csgraph.connected_components(incidence @ incidence.T, directed=False)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     volumes = np.bincount(labels, weights=np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
-    scale = float(np.ptp(v, axis=0).max()) ** 3
-    signs = np.sign(volumes[np.abs(volumes) > 1e-12 * scale])  # (flat shells: either way)
+    # (flat or tiny shells, under a millionth of the largest's volume, look alike either way: the
+    # res3 dragon has a 6-face sliver of 1.6e-12 m^3 beside its 4.8e-4 m^3 body)
+    signs = np.sign(volumes[np.abs(volumes) > 1e-6 * float(np.abs(volumes).max(initial=0.0))])
     if not np.all(np.isfinite(volumes)) or len(signs) == 0 or np.any(signs != signs[0]):
         return None
     return "ccw" if signs[0] > 0 else "cw"
@@ -118,9 +107,12 @@ class MappedMeshPass(GLOwner):
         data: per-vertex mapping data.
         normal_map: (H, W, 3) uint8 tangent-space normal map, or None (compiles no normal mapping).
         normal_map_strength: 0..1 scale of the map's perturbation.
-        stages: 1 maps every vertex in the drawing vertex shader (the paper's way: the shader runs
-            once per index on renderers without a post-transform cache); 2 maps each vertex once
-            into a buffer with transform feedback, then draws that buffer as a plain mesh.
+        mapping_pass: where the vertices are mapped: "vertex" (default) in the drawing vertex
+            shader (the paper's way: the shader runs once per index on renderers without a
+            post-transform cache); "feedback" once per vertex into a buffer with transform
+            feedback, then that buffer is drawn as a plain mesh; "fragment" once per vertex in a
+            fragment pass into textures (:class:`~deformgl.render.premap.FragmentPremap`; on
+            llvmpipe in its parallel fragment threads), which the draw's vertex shader fetches.
         front_face: "ccw" or "cw" culls the faces wound the other way in :meth:`draw`
             (:func:`closed_front_face` says when that leaves a closed mesh's image as it is);
             None (default) draws every face.
@@ -128,9 +120,10 @@ class MappedMeshPass(GLOwner):
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, faces: np.ndarray,
                  data: MappedVertices, *, normal_map: np.ndarray | None = None,
-                 normal_map_strength: float = 1.0, stages: int = 1, front_face: str | None = None) -> None:
-        if stages not in (1, 2):
-            raise ValueError(f"stages must be 1 or 2, got {stages}")
+                 normal_map_strength: float = 1.0, mapping_pass: str = "vertex",
+                 front_face: str | None = None) -> None:
+        if mapping_pass not in MAPPING_PASSES:
+            raise ValueError(f"mapping_pass must be one of {', '.join(MAPPING_PASSES)}, got {mapping_pass!r}")
         if front_face not in (None, "ccw", "cw"):
             raise ValueError(f"front_face must be None, 'ccw' or 'cw', got {front_face!r}")
         super().__init__(ctx)
@@ -156,8 +149,9 @@ class MappedMeshPass(GLOwner):
         self.vao: moderngl.VertexArray | None = None
         self.normal_map_texture: moderngl.Texture | None = None
         self._capture: FeedbackCapture | None = None
-        self.stages = stages
+        self.mapping_pass = mapping_pass
         self.stage_one: FeedbackCapture | None = None
+        self.premap: FragmentPremap | None = None
         self.cached: Program | None = None
         self.mapped: moderngl.Buffer | None = None
         self.cached_vao: moderngl.VertexArray | None = None
@@ -173,14 +167,21 @@ class MappedMeshPass(GLOwner):
                 self.normal_map_texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             map_uniforms: dict[str, object] = ({"u_normal_map": 1, "u_normal_map_strength": float(normal_map_strength)}
                             if normal_map is not None else {})
-            if stages == 1:
+            if mapping_pass == "vertex":
                 self.program = self.own(Program(ctx, "render/mapped_mesh.vert", "render/mapped_mesh.frag",
                                                 defines=self.defines))
                 self.vao = self.own(ctx.vertex_array(self.program.gl, self.content, index_buffer=self.ibo,
                                                      index_element_size=4))
                 self.program.set(**map_uniforms)
-            else:
+            elif mapping_pass == "feedback":
                 self._build_two_stage(map_uniforms)
+            else:
+                self.premap = self.own(FragmentPremap(ctx, grid, layout, data, self.defines))
+                self.program = self.own(Program(ctx, "render/mapped_premapped.vert", "render/mapped_mesh.frag",
+                                                defines={"NORMAL_MAP": self.normal_mapped}))
+                self.vao = self.own(ctx.vertex_array(self.program.gl, [], index_buffer=self.ibo,
+                                                     index_element_size=4))
+                self.program.set(u_width_log2=self.premap.width_log2, **map_uniforms)
 
     def _build_two_stage(self, map_uniforms: dict[str, object]) -> None:
         """Stage one maps each vertex once into ``self.mapped`` by transform feedback; stage two
@@ -220,17 +221,28 @@ class MappedMeshPass(GLOwner):
             self.cached_vao.render(moderngl.TRIANGLES)
             return
         assert self.program is not None and self.vao is not None
+        if self.premap is not None:
+            self.premap.run(positions)
+            if self.normal_map_texture is not None:  # (run() left units 0-2 to its inputs)
+                self.normal_map_texture.use(1)
+            self.program.set(**self.premap.bind(), **uniforms)
+            self.vao.render(moderngl.TRIANGLES)
+            return
         positions.use(0)
         self.program.set(u_position=0, **uniforms)
         self.vao.render(moderngl.TRIANGLES)
 
     def capture(self, positions: moderngl.Texture) -> tuple[np.ndarray, np.ndarray]:
-        """The deformed vertices and normals exactly as the vertex shader computes them
-        (transform feedback of the same shader and variant); one read-back.
+        """The deformed vertices and normals exactly as this pass draws them: the fragment
+        pass's outputs with ``mapping_pass="fragment"``, else transform feedback of the same
+        vertex shader and variant; one read-back.
 
         Returns:
             (V, 3) float32 positions and (V, 3) float32 normals (not normalised).
         """
+        if self.premap is not None:
+            self.premap.run(positions)
+            return self.premap.read()
         if self._capture is None:
             self._capture = self.own(FeedbackCapture(self.ctx, "render/mapped_mesh.vert", self.defines,
                                                      ("v_world", "v_normal"), self.content))

@@ -284,7 +284,14 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
         data = dataclasses.replace(data, uv=uv)
     front_face = closed_front_face(built.mesh.vertices, built.mesh.faces) if scene.render.cull else None
     return MappedMeshPass(ctx, built.grid, layout, built.mesh.faces, data, normal_map=normal_map,
-                          normal_map_strength=scene.mapping.normal_map_strength, front_face=front_face)
+                          normal_map_strength=scene.mapping.normal_map_strength, front_face=front_face,
+                          mapping_pass=RENDER_MAPPING_PASS)
+
+
+#: Where the renderer maps the detailed mesh (``MappedMeshPass``'s ``mapping_pass``): once per
+#: vertex in a fragment pass, the same function as the paper's mapping in the drawing vertex
+#: shader (``deformgl bench render`` compares all three).
+RENDER_MAPPING_PASS = "fragment"
 
 
 def draw_attachments(ctx: moderngl.Context, scene: Scene, built: SceneModel, deformed: np.ndarray,

@@ -1,16 +1,11 @@
 #version 330 core
-// A detailed mesh deformed by the nodes through its triangle-basis binding
-// (Mosegaard & Sorensen 2005, section 3.3.3, eq. 9): three vertex texture fetches give the
-// current p'1, p'2, p'3 and, in alpha, their packed normals (Mosegaard & Sorensen 2005, eq. 3);
-// r' = sum w_i p'_i (Mosegaard & Sorensen 2005, eq. 4); v' = r' + basis' * o_t with the
-// constant basis (Mosegaard & Sorensen 2005, eq. 6) or, per vertex, the curvature-corrected
-// one (Mosegaard & Sorensen 2005, eq. 8). Normals and tangents are rebuilt in the same basis
-// (section 3.3.4). A degenerate deformed basis keeps the rest offset and vectors in world space.
+// A detailed mesh deformed by the nodes through its triangle-basis binding, mapped in the drawing
+// vertex shader (Mosegaard & Sorensen 2005, section 3.3.3): three vertex texture fetches, then
+// lib/map_vertex.glsl (Mosegaard & Sorensen 2005, eq. 4, 6, 8, 9).
 // Variants: CURVATURE (compile the curvature-corrected basis, Mosegaard & Sorensen 2005, eq. 8,
 // and the per-vertex choice; without it every vertex uses the constant basis), NORMAL_MAP
 // (carry tangents and UVs for tangent-space normal mapping).
-#include "lib/octahedral.glsl"
-#include "lib/triangle_basis.glsl"
+#include "lib/map_vertex.glsl"
 
 in ivec2 in_texel1;         // atlas texels of the vertex's three nodes
 in ivec2 in_texel2;
@@ -44,23 +39,22 @@ void main() {
     vec4 n1 = texelFetch(u_position, in_texel1, 0);
     vec4 n2 = texelFetch(u_position, in_texel2, 0);
     vec4 n3 = texelFetch(u_position, in_texel3, 0);
-    vec3 r = in_weights.x * n1.xyz + in_weights.y * n2.xyz + in_weights.z * n3.xyz;
-    mat3 basis;
-    bool ok;
 #ifdef CURVATURE
-    if (in_curvature > 0.5) {
-        ok = curvature_basis(n1.xyz, n2.xyz, in_weights, unpack_normal(n1.w), unpack_normal(n2.w),
-                             unpack_normal(n3.w), basis);
-    } else {
-        ok = constant_basis(n1.xyz, n2.xyz, n3.xyz, basis);
-    }
+    float curvature = in_curvature;
 #else
-    ok = constant_basis(n1.xyz, n2.xyz, n3.xyz, basis);
+    float curvature = 0.0;
 #endif
-    v_world = r + (ok ? basis * in_offset : in_offset_world);
-    v_normal = ok ? basis * in_normal : in_normal_world;
 #ifdef NORMAL_MAP
-    v_tangent = ok ? basis * in_tangent.xyz : in_tangent_world;
+    vec3 tangent = in_tangent.xyz, tangent_world = in_tangent_world;
+#else
+    vec3 tangent = vec3(0.0), tangent_world = vec3(0.0);
+#endif
+    MappedVertex m = map_vertex(n1, n2, n3, in_weights, curvature, in_offset, in_offset_world, in_normal,
+                                in_normal_world, tangent, tangent_world);
+    v_world = m.world;
+    v_normal = m.normal;
+#ifdef NORMAL_MAP
+    v_tangent = m.tangent;
     v_handedness = in_tangent.w;
     v_uv = in_uv;
 #endif
