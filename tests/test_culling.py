@@ -47,6 +47,17 @@ def test_shells_wound_against_each_other_are_not_culled():
     assert closed_front_face(same.vertices, same.faces) == "ccw"
 
 
+def test_a_sliver_shell_wound_either_way_does_not_stop_the_culling():
+    """A shell under a millionth of the largest's volume (the res3 dragon has a 6-face one of
+    1.6e-12 m^3 beside its 4.8e-4 m^3 body) covers a pixel at most: it does not count."""
+    body = trimesh.creation.box()
+    sliver = trimesh.creation.box(extents=(1e-3, 1e-3, 1e-3))
+    sliver.apply_translation([2.0, 0.0, 0.0])
+    sliver.invert()
+    both = trimesh.util.concatenate([body, sliver])
+    assert closed_front_face(both.vertices, both.faces) == "ccw"
+
+
 def test_an_edge_shared_by_four_faces_still_counts_as_closed():
     """Two boxes touching along an edge (as scanned meshes have): closed, consistent."""
     a = trimesh.creation.box()
