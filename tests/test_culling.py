@@ -137,3 +137,42 @@ def test_cull_leaves_a_closed_unfolded_mesh_scene_as_it_was(ctx):
         a, b = render_scene(ctx, scene), render_scene(ctx, culled)
         off = np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 4
         assert off.sum() <= most, name
+
+
+@pytest.mark.parametrize("mapping_pass", ["vertex", "feedback", "fragment"])
+def test_every_mapping_pass_culls_either_winding(ctx, mapping_pass):
+    """The jelly's box mesh wound outward and inward: culled with its own winding, every mapping
+    pass draws what it draws unculled (the fragment pass's full-screen triangle runs before the
+    culling, so "cw" does not cull the mapping away)."""
+    from deformgl.render.mapped_setup import get_binding, mapped_vertices
+    from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
+    from deformgl.sim.backends.foundation import NodeTextures
+    from deformgl.sim.normals import rest_normals
+    from deformgl.grid.surface import grid_surface
+
+    scene = load_scene(SCENES / "jelly.toml").with_overrides(size=(96, 72))
+    built = build_scene_model(scene)
+    textures = NodeTextures(ctx, built.grid)
+    binding = get_binding(built.mesh, built.grid, grid_surface(built.grid), use_cache=False, uv=None)
+    data = mapped_vertices(binding, "constant", built.grid.rest_positions, rest_normals(built.grid))
+    view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
+    try:
+        for faces in (built.mesh.faces, built.mesh.faces[:, ::-1]):
+            front = closed_front_face(built.mesh.vertices, faces)
+            images = []
+            for f in (None, front):
+                draw = MappedMeshPass(ctx, built.grid, textures.layout, faces, data, mapping_pass=mapping_pass,
+                                      front_face=f)
+                target = RenderTarget(ctx, scene.render.size, 0)
+                try:
+                    target.begin((1.0, 1.0, 1.0))
+                    draw.draw(textures.state[0], view, lighting)
+                    images.append(target.read_rgb())
+                finally:
+                    target.release()
+                    draw.release()
+            assert front is not None
+            assert (np.abs(images[0].astype(int) - 255).max(axis=2) > 3).any()
+            assert np.array_equal(images[0], images[1]), (mapping_pass, front)
+    finally:
+        textures.release()

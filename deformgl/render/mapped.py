@@ -206,6 +206,8 @@ class MappedMeshPass(GLOwner):
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw the mapped mesh with node positions from ``positions`` (culling back faces with
         ``front_face``; face culling is off again afterwards)."""
+        if self.premap is not None:  # (a full-screen triangle: before any face culling)
+            self.premap.run(positions)
         with culled(self.ctx, self.front_face):
             self._draw(positions, view, lighting)
 
@@ -221,10 +223,7 @@ class MappedMeshPass(GLOwner):
             self.cached_vao.render(moderngl.TRIANGLES)
             return
         assert self.program is not None and self.vao is not None
-        if self.premap is not None:
-            self.premap.run(positions)
-            if self.normal_map_texture is not None:  # (run() left units 0-2 to its inputs)
-                self.normal_map_texture.use(1)
+        if self.premap is not None:  # (mapped by draw(), which bound the normal map after it)
             self.program.set(**self.premap.bind(), **uniforms)
             self.vao.render(moderngl.TRIANGLES)
             return
