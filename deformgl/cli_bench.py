@@ -86,8 +86,12 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     if args.what == "trade" and args.stiff:
         from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
 
+        from deformgl.bench.implicit import format_preconditioners, preconditioner_bodies, preconditioner_iterations
+
         cases = stiff_cases(args.quick)
         print(format_stiff(stiff_study(ctx, quick=args.quick, progress=note, cases=cases), machine_line(ctx), cases))
+        print()
+        print(format_preconditioners(preconditioner_iterations(preconditioner_bodies(cases, args.quick))))
         if not args.quick:  # the heart-scale scene in real time (--scene: another one)
             from deformgl.bench.implicit import format_realtime, realtime
 

@@ -32,6 +32,57 @@ def test_cg_converges_to_the_direct_solve():
     assert np.abs(cg.x - direct.x).max() <= 1e-12
 
 
+def test_block_jacobi_is_the_inverse_of_the_node_blocks():
+    from deformgl.sim.implicit import assemble, pcg, preconditioner
+
+    case = _case(MATERIAL)
+    s = case.system
+    st = initial_state(s, 1 / 60)
+    st.x[:] = s.rest_positions + 0.2 * case.spacing * np.random.default_rng(3).normal(size=st.x.shape)
+    lin = assemble(s, st.x, st.v, 0.0, 1 / 60)
+    p = preconditioner(lin.matrix, "block-jacobi").toarray()
+    a = lin.matrix.toarray()
+    for node in (0, 7, lin.matrix.shape[0] // 3 - 1):
+        sl = slice(3 * node, 3 * node + 3)
+        assert np.abs(a[sl, sl] - a[sl, sl].T).max() <= 1e-12 * np.abs(a[sl, sl]).max()
+        assert np.abs(a[sl, sl][0, 1]) > 1e-3 * a[sl, sl][0, 0]            # the blocks do couple x y z
+        assert np.allclose(p[sl, sl] @ a[sl, sl], np.eye(3), atol=1e-12)
+        assert np.count_nonzero(p[sl, :]) <= 9
+    jacobi = preconditioner(lin.matrix, "jacobi").diagonal()
+    assert np.allclose(jacobi, 1 / a.diagonal())
+    x, report = pcg(lin.matrix, lin.rhs, np.zeros_like(lin.rhs), iterations=500, tolerance=1e-11, check_every=1,
+                    preconditioner_kind="block-jacobi")
+    assert report.converged and np.abs(lin.matrix @ x - lin.rhs).max() <= 1e-8 * np.abs(lin.rhs).max()
+    with pytest.raises(SimulationSetupError, match="cg_preconditioner"):
+        make_simulation(s, "implicit-euler", "numpy", dt=0.01, cg_preconditioner="ilu")
+
+
+@pytest.mark.parametrize("preconditioner", ["jacobi", "block-jacobi"])
+def test_gpu_matches_numpy_at_fixed_iterations(ctx, preconditioner):
+    """One step and the warm-started next ones at a fixed iteration count, each preconditioner,
+    on a deformed body (the blocks' off-diagonals matter)."""
+    case = _case()
+    s = case.system
+    x0 = s.rest_positions + 0.15 * case.spacing * np.random.default_rng(5).normal(size=(s.count, 3))
+    x0[s.fixed] = s.rest_positions[s.fixed]
+    from deformgl.sim.integrators import State
+
+    opts = dict(dt=1 / 60, state=State(x0, np.zeros_like(x0), x0), cg_iterations=6, cg_preconditioner=preconditioner)
+    ref = make_simulation(s, "implicit-euler", "numpy", **opts)
+    with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, **opts) as gpu:
+        for _ in range(3):
+            ref.step()
+            gpu.step()
+            assert np.abs(gpu.velocity_change() - ref.dv).max() <= 1e-5 * np.abs(ref.dv).max()
+            assert gpu.residual() == pytest.approx(ref.last_report.residual, rel=1e-3)
+    swapped = "jacobi" if preconditioner == "block-jacobi" else "block-jacobi"
+    other = make_simulation(s, "implicit-euler", "numpy", **{**opts, "cg_preconditioner": swapped})
+    other.step()
+    first = make_simulation(s, "implicit-euler", "numpy", **opts)
+    first.step()
+    assert np.abs(other.dv - first.dv).max() > 1e-4 * np.abs(first.dv).max()   # a different iteration
+
+
 def test_gpu_matches_numpy_one_step(ctx):
     case = _case()
     s = case.system
@@ -138,10 +189,17 @@ def test_scene_keys(tmp_path):
     base.write_text(head + '[physics]\nintegrator = "implicit-euler"\n[physics.implicit]\niterations = 7\ntolerance = 1e-4\n')
     scene = load_scene(base)
     assert scene.physics.integrator == "implicit-euler"
-    assert scene.physics.implicit.options() == {"cg_iterations": 7, "cg_tolerance": 1e-4}
+    assert scene.physics.implicit.options() == {"cg_iterations": 7, "cg_tolerance": 1e-4,
+                                                "cg_preconditioner": "jacobi"}
+    base.write_text(head + '[physics.implicit]\npreconditioner = "block-jacobi"\n')
+    assert load_scene(base).physics.implicit.options()["cg_preconditioner"] == "block-jacobi"
     base.write_text(head + '[physics.implicit]\niterations = 0\n')
     with pytest.raises(DeformglError, match="physics.implicit.iterations"):
         load_scene(base)
+    base.write_text(head + '[physics.implicit]\npreconditioner = "ilu"\n')
+    with pytest.raises(DeformglError, match=r"s\.toml: physics\.implicit\.preconditioner: .*block-jacobi") as err:
+        load_scene(base)
+    assert "\n" not in str(err.value)
 
 
 def test_stiff_study_quick(ctx):

@@ -39,7 +39,8 @@ from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["StiffCase", "StiffRow", "stiff_cases", "stiff_study", "format_stiff", "lowest_frequency"]
+__all__ = ["StiffCase", "StiffRow", "stiff_cases", "stiff_study", "format_stiff", "lowest_frequency",
+           "PreconditionerRow", "preconditioner_bodies", "preconditioner_iterations", "format_preconditioners"]
 
 CHUNK = 1.0 / 60.0
 SIM_TIME, QUICK_SIM_TIME = 1.0, 0.25
@@ -196,6 +197,63 @@ def format_stiff(rows: list[StiffRow], machine: str = "", cases: list[StiffCase]
                          f"{max(ratio, 1 / ratio):.3g}x in favour of {better}")
         else:
             lines.append(f"{case}: implicit converged: {imp is not None}, explicit converged: {exp is not None}")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class PreconditionerRow:
+    """CG iterations to a relative tolerance, per preconditioner, on one case at one dt."""
+
+    case: str
+    dt: float
+    tolerance: float
+    first: dict[str, int]     # the first step's solve from dv = 0
+    warm: dict[str, float]    # mean per step over QUICK_SIM_TIME of warm-started steps
+
+
+def preconditioner_bodies(cases: list[StiffCase], quick: bool = False) -> list[tuple[str, SpringSystem]]:
+    """The study's blocks and the FEM-checked cantilever (E = 1e8 Pa, 3 or 5 nodes across)."""
+    from deformgl.bench.fem import MATERIAL, WORKLOADS, lattice_case
+
+    across = 3 if quick else 5
+    beam = lattice_case(WORKLOADS["cantilever"], across, MATERIAL).system
+    return [(c.name, c.system) for c in cases] + [(f"cantilever E=1e8 Pa, {across} across", beam)]
+
+
+def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,
+                              dts: tuple[float, ...] = (1 / 60, 1 / 1000),
+                              tolerance: float = 1e-4) -> list[PreconditionerRow]:
+    """Jacobi against block-Jacobi (:data:`~deformgl.sim.implicit.PRECONDITIONERS`) on (name,
+    system) bodies: CG iterations to ``tolerance`` (the float64 reference, the GPU's iteration)
+    on the first step from rest and averaged over the warm-started steps of
+    :data:`QUICK_SIM_TIME` s."""
+    from deformgl.sim.implicit import PRECONDITIONERS
+
+    rows = []
+    for name, system in bodies:
+        for dt in dts:
+            first: dict[str, int] = {}
+            warm: dict[str, float] = {}
+            for kind in PRECONDITIONERS:
+                sim = ImplicitNumpySimulation(system, dt, cg_iterations=5000, cg_tolerance=tolerance,
+                                              cg_check_every=1, cg_preconditioner=kind)
+                steps = max(1, round(QUICK_SIM_TIME / dt))
+                counts = []
+                for _ in range(steps):
+                    sim.step()
+                    counts.append(sim.last_report.iterations)
+                first[kind], warm[kind] = counts[0], float(np.mean(counts[1:] if steps > 1 else counts))
+            rows.append(PreconditionerRow(name, dt, tolerance, first, warm))
+    return rows
+
+
+def format_preconditioners(rows: list[PreconditionerRow]) -> str:
+    lines = ["CG iterations to a relative residual, Jacobi vs block-Jacobi (float64 reference): first step "
+             f"from dv = 0, and the mean over {QUICK_SIM_TIME:g} s of warm-started steps",
+             f"{'case':<32} {'dt s':>8} {'tol':>6} {'first J':>8} {'first BJ':>8} {'warm J':>8} {'warm BJ':>8}"]
+    for r in rows:
+        lines.append(f"{r.case:<32} {r.dt:>8.3g} {r.tolerance:>6.0e} {r.first['jacobi']:>8} "
+                     f"{r.first['block-jacobi']:>8} {r.warm['jacobi']:>8.3g} {r.warm['block-jacobi']:>8.3g}")
     return "\n".join(lines)
 
 

@@ -239,7 +239,7 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import PASSES
+    from deformgl.sim.backends.implicit_gpu import PASSES, PRECONDITIONED_PASSES
 
     for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
@@ -249,8 +249,10 @@ def implicit() -> Iterator[Variant]:
             if name in ("INIT", "MATVEC") and forces["LOADS"]:
                 continue
             defines = common if name in ("SETUP", "INIT", "MATVEC") else nb
-            for c in (_constraints() if name == "FINAL" else [{}]):
-                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**defines, **c, name: True})
+            # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner
+            blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
+            for c, block in itertools.product(_constraints() if name == "FINAL" else [{}], blocks):
+                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**defines, **c, **block, name: True})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
 
 

@@ -1,9 +1,10 @@
 #version 330 core
 // The passes of a backward-Euler step on the node grid (docs/EQUATIONS.md "Implicit Euler";
 // float64 reference deformgl/sim/implicit.py; host deformgl/sim/backends/implicit_gpu.py):
-// Jacobi-preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
-// (sim/implicit/system.glsl). One define selects the pass:
-//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1 = 1 / diag(A), and b . P^-1 b per texel
+// Preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
+// (sim/implicit/system.glsl): Jacobi, P^-1 = 1 / diag(A), or with PRECOND_BLOCK block-Jacobi,
+// P^-1 = the inverse of A's 3x3 diagonal block per node. One define selects the pass:
+//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1, and b . P^-1 b per texel
 //   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel
 //   MATVEC     q = A p, and p . q per texel
 //   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
@@ -24,7 +25,10 @@ uniform float u_dt;
 #include "sim/implicit/system.glsl"
 
 #if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
-uniform sampler2D u_inv;    // xyz 1 / diag(A)
+uniform sampler2D u_inv;    // xyz 1 / diag(A); PRECOND_BLOCK: the diagonal of the block's inverse
+#ifdef PRECOND_BLOCK
+uniform sampler2D u_inv_off; // xyz the block inverse's off-diagonal (xy, xz, yz)
+#endif
 #endif
 #if defined(INIT)
 uniform sampler2D u_b;      // xyz right-hand side
@@ -56,10 +60,24 @@ layout(location = 1) out vec4 o_1;
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
 layout(location = 2) out vec4 o_2;
 #endif
+#if defined(SETUP) && defined(PRECOND_BLOCK)
+layout(location = 3) out vec4 o_3;
+#endif
 
 float scalar(sampler2D s) {
     return texelFetch(s, ivec2(0, 0), 0).r;
 }
+
+#if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
+// z = P^-1 r at this texel
+vec3 precondition(ivec2 texel, vec3 r) {
+#ifdef PRECOND_BLOCK
+    return apply_preconditioner(texelFetch(u_inv, texel, 0).xyz, texelFetch(u_inv_off, texel, 0).xyz, r);
+#else
+    return texelFetch(u_inv, texel, 0).xyz * r;
+#endif
+}
+#endif
 
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
@@ -89,6 +107,9 @@ void main() {
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
         o_2 = vec4(0.0);
 #endif
+#if defined(SETUP) && defined(PRECOND_BLOCK)
+        o_3 = vec4(0.0);
+#endif
         return;
     }
     float m = node.r;
@@ -96,20 +117,33 @@ void main() {
     float dt = u_dt;
 #if defined(SETUP)
     vec3 vi = texelFetch(u_v, texel, 0).xyz;
-    vec3 sk, sc, dk, dc;
-    spring_sums(texel, xi, vi, sk, sc, dk, dc);   // u_vec is v: sk = H_springs v
+    vec3 sk, sc, dk, dc, ok, oc;
+    spring_sums(texel, xi, vi, sk, sc, dk, dc, ok, oc);   // u_vec is v: sk = H_springs v
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
     vec3 b = dt * (m * grid_acceleration(texel, xi, vi, m, int(node.b)) - dt * hv);
     vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
+#ifdef PRECOND_BLOCK
+    vec3 off = (dt * dt) * ok + dt * oc;
+    mat3 inverse_block = inverse(mat3(diag.x, off.x, off.y,
+                                      off.x, diag.y, off.z,
+                                      off.y, off.z, diag.z));
+    vec3 inv = vec3(inverse_block[0][0], inverse_block[1][1], inverse_block[2][2]);
+    vec3 inv_off = vec3(inverse_block[1][0], inverse_block[2][0], inverse_block[2][1]);
+    o_0 = vec4(b, 0.0);
+    o_1 = vec4(inv, 0.0);
+    o_2 = vec4(dot(b, apply_preconditioner(inv, inv_off, b)));
+    o_3 = vec4(inv_off, 0.0);
+#else
     vec3 inv = 1.0 / diag;
     o_0 = vec4(b, 0.0);
     o_1 = vec4(inv, 0.0);
     o_2 = vec4(dot(b, inv * b));
+#endif
 #elif defined(INIT)
     vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv
     vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, dv, m);
-    vec3 z = texelFetch(u_inv, texel, 0).xyz * r;
+    vec3 z = precondition(texel, r);
     o_0 = vec4(r, 0.0);
     o_1 = vec4(z, 0.0);
     o_2 = vec4(dot(r, z));
@@ -125,11 +159,11 @@ void main() {
     vec3 r = texelFetch(u_r, texel, 0).xyz - alpha * texelFetch(u_q, texel, 0).xyz;
     o_0 = vec4(texelFetch(u_dv, texel, 0).xyz + alpha * p, 0.0);
     o_1 = vec4(r, 0.0);
-    o_2 = vec4(dot(r, texelFetch(u_inv, texel, 0).xyz * r));
+    o_2 = vec4(dot(r, precondition(texel, r)));
 #elif defined(DIRECTION)
     float rz = scalar(u_rz);
     float beta = rz != 0.0 ? scalar(u_rz_new) / rz : 0.0;
-    vec3 z = texelFetch(u_inv, texel, 0).xyz * texelFetch(u_r, texel, 0).xyz;
+    vec3 z = precondition(texel, texelFetch(u_r, texel, 0).xyz);
     o_0 = vec4(z + beta * texelFetch(u_p, texel, 0).xyz, 0.0);
 #endif
 #endif
