@@ -202,19 +202,67 @@ def test_scene_keys(tmp_path):
     assert "\n" not in str(err.value)
 
 
-def test_stiff_study_quick(ctx):
-    from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
+@pytest.fixture(scope="module")
+def stiff_rows(ctx):
+    """The quick stiff study of the 1 MPa block at 5 across (cases, rows)."""
+    from deformgl.bench.implicit import stiff_cases, stiff_study
 
-    cases = [c for c in stiff_cases(quick=True) if c.youngs_modulus == 1.0e6]
+    cases = stiff_cases(quick=True, cases=((1.0e6, 5),))
+    return cases, stiff_study(ctx, quick=True, cases=cases)
+
+
+def test_stiff_study_quick(stiff_rows):
+    from deformgl.bench.implicit import QUICK_ITERATIONS, QUICK_XPBD, format_stiff
+
+    cases, rows = stiff_rows
     assert cases and cases[0].omega1 > 100.0 and cases[0].linear_gap < 1e-3
-    rows = stiff_study(ctx, quick=True, cases=cases)
     implicit = [r for r in rows if r.integrator == "implicit-euler"]
-    explicit = [r for r in rows if r.integrator != "implicit-euler"]
-    assert implicit and explicit and all(r.converged_at is not None for r in rows)
+    xpbd = [r for r in rows if r.integrator == "xpbd"]
+    explicit = [r for r in rows if r.integrator in ("verlet", "semi-implicit")]
+    assert len(implicit) == len(QUICK_ITERATIONS) and len(xpbd) == len(QUICK_XPBD) and len(explicit) == 2
+    assert all(r.converged_at is not None for r in rows)
     assert all(r.final_error <= 0.05 for r in rows)
+    # the body at rest is within 0.05 h (the sag is 0.002 h): the relative criterion asks for the sag
+    assert cases[0].sag < 0.05 and all(r.converged_rel_at is not None and r.relative_error <= 0.05 for r in implicit)
     assert all(0.0 <= r.mode_decay < 1e-6 for r in implicit) and all(r.mode_decay == 1.0 for r in explicit)
+    assert all(np.isnan(r.mode_decay) for r in xpbd) and all(r.substeps == QUICK_XPBD[0][1] for r in xpbd)
     assert all(r.dt > 10 * max(e.dt for e in explicit) for r in implicit)
-    assert "in favour of" in format_stiff(rows, cases=cases)
+    text = format_stiff(rows, cases=cases)
+    assert "in favour of" in text and "(0.05 of sag)" in text
+
+
+def test_stiff_fem_error(stiff_rows):
+    pytest.importorskip("skfem", reason="scikit-fem is an optional extra (deformgl[fem])")
+    cases, rows = stiff_rows
+    # linear FEM of the cube: about 5e-5 m at 1 MPa; the 5-across lattice is within a few % of it
+    assert 4e-5 < cases[0].fem < 6e-5
+    assert all(r.fem_error < 0.1 for r in rows if r.integrator == "implicit-euler")
+
+
+def test_stiff_csv_json_and_chart(stiff_rows, tmp_path):
+    import csv
+    import json
+
+    from deformgl.bench import stiff_files
+
+    cases, rows = stiff_rows
+    stiff_files.write_csv(tmp_path / "stiff.csv", rows)
+    with open(tmp_path / "stiff.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0]) == stiff_files.FIELDS and len(table) == len(rows)
+    assert {"wall_per_sim_s", "fem_error", "final_error", "converged_rel_at", "substeps"} <= set(table[0])
+    assert [t["integrator"] for t in table] == [r.integrator for r in rows]
+    assert float(table[-1]["wall_per_sim_s"]) == rows[-1].wall_per_sim_s
+    stiff_files.write_json(tmp_path / "stiff.json", rows, cases, "machine")
+    data = json.loads((tmp_path / "stiff.json").read_text())
+    assert len(data["rows"]) == len(rows) and data["cases"][0]["nodes"] == 125
+    pytest.importorskip("matplotlib", reason="matplotlib is an optional extra (deformgl[plot])")
+    stiff_files.write_chart(tmp_path / "stiff.png", rows, "machine")
+    from PIL import Image
+
+    with Image.open(tmp_path / "stiff.png") as im:
+        assert im.size[0] > 500 and im.size[1] > 800   # one material: one column of two charts
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stiff.csv", "stiff.json", "stiff.png"]
 
 
 def test_realtime_frames(ctx):
