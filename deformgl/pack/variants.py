@@ -246,13 +246,16 @@ def implicit() -> Iterator[Variant]:
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
         for name in PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
-            if name in ("INIT", "MATVEC") and forces["LOADS"]:
+            if name in ("WARM", "INIT", "MATVEC") and forces["LOADS"]:
                 continue
-            defines = common if name in ("SETUP", "INIT", "MATVEC") else nb
-            # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner
+            defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC") else nb
+            # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner, the
+            # scaled warm start (WARM_SCALED) in INIT
             blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
-            for c, block in itertools.product(_constraints() if name == "FINAL" else [{}], blocks):
-                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**defines, **c, **block, name: True})
+            warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
+            for c, block, scaled in itertools.product(_constraints() if name == "FINAL" else [{}], blocks, warm):
+                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag",
+                         {**defines, **c, **block, **scaled, name: True})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
 
 

@@ -5,7 +5,11 @@
 // (sim/implicit/system.glsl): Jacobi, P^-1 = 1 / diag(A), or with PRECOND_BLOCK block-Jacobi,
 // P^-1 = the inverse of A's 3x3 diagonal block per node. One define selects the pass:
 //   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1, and b . P^-1 b per texel
-//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel
+//   WARM       (the scaled warm start) q = A dv_prev, and per texel R: dv_prev . q, G: b . dv_prev
+//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel; with
+//              WARM_SCALED dv = s dv_prev, s = (b . dv_prev) / (dv_prev . A dv_prev) (0 if that
+//              is not > 0), the multiple of the last step's dv nearest the solution in the A norm,
+//              r = b - s q (no product here), and dv is written too
 //   MATVEC     q = A p, and p . q per texel
 //   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
 //   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
@@ -30,8 +34,12 @@ uniform sampler2D u_inv;    // xyz 1 / diag(A); PRECOND_BLOCK: the diagonal of t
 uniform sampler2D u_inv_off; // xyz the block inverse's off-diagonal (xy, xz, yz)
 #endif
 #endif
-#if defined(INIT)
+#if defined(INIT) || defined(WARM)
 uniform sampler2D u_b;      // xyz right-hand side
+#endif
+#if defined(INIT) && defined(WARM_SCALED)
+uniform sampler2D u_q;      // xyz A dv_prev (WARM)
+uniform sampler2D u_warm;   // 1x1 R: dv_prev . A dv_prev, G: b . dv_prev
 #endif
 #if defined(UPDATE) || defined(FINAL)
 uniform sampler2D u_dv;     // xyz dv so far
@@ -54,13 +62,13 @@ uniform sampler2D u_rz_new; // 1x1 R: r . P^-1 r after the update
 #endif
 
 layout(location = 0) out vec4 o_0;
-#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(FINAL)
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(FINAL) || defined(WARM)
 layout(location = 1) out vec4 o_1;
 #endif
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
 layout(location = 2) out vec4 o_2;
 #endif
-#if defined(SETUP) && defined(PRECOND_BLOCK)
+#if (defined(SETUP) && defined(PRECOND_BLOCK)) || (defined(INIT) && defined(WARM_SCALED))
 layout(location = 3) out vec4 o_3;
 #endif
 
@@ -101,13 +109,13 @@ void main() {
 #else
     if (inactive) {
         o_0 = vec4(0.0);
-#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE)
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(WARM)
         o_1 = vec4(0.0);
 #endif
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
         o_2 = vec4(0.0);
 #endif
-#if defined(SETUP) && defined(PRECOND_BLOCK)
+#if (defined(SETUP) && defined(PRECOND_BLOCK)) || (defined(INIT) && defined(WARM_SCALED))
         o_3 = vec4(0.0);
 #endif
         return;
@@ -140,9 +148,22 @@ void main() {
     o_1 = vec4(inv, 0.0);
     o_2 = vec4(dot(b, inv * b));
 #endif
+#elif defined(WARM)
+    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is the last step's dv
+    vec3 q = apply_system(texel, xi, dv, m);
+    o_0 = vec4(q, 0.0);
+    o_1 = vec4(dot(dv, q), dot(texelFetch(u_b, texel, 0).xyz, dv), 0.0, 0.0);
 #elif defined(INIT)
-    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv
+    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv (the last step's)
+#ifdef WARM_SCALED
+    vec4 w = texelFetch(u_warm, ivec2(0, 0), 0);
+    float s = w.r > 0.0 ? w.g / w.r : 0.0;
+    dv *= s;
+    vec3 r = texelFetch(u_b, texel, 0).xyz - s * texelFetch(u_q, texel, 0).xyz;
+    o_3 = vec4(dv, 0.0);
+#else
     vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, dv, m);
+#endif
     vec3 z = precondition(texel, r);
     o_0 = vec4(r, 0.0);
     o_1 = vec4(z, 0.0);
