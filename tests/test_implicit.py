@@ -436,3 +436,11 @@ def test_flexion_wind_damping_gpu_matches_numpy(ctx, constraint):
         gpu.step(5)
         assert gpu.last_report.converged and gpu.last_report.iterations < 10
         assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-6
+
+
+def test_bench_stiff_flag_errors(capsys):
+    from deformgl.cli import main
+
+    assert main(["bench", "trade", "--stiff", "--resolution"]) == 2
+    assert "--stiff: only for bench trade, without --resolution" in capsys.readouterr().err
+    assert main(["bench", "scaling", "--stiff"]) == 2

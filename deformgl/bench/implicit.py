@@ -332,12 +332,14 @@ class PreconditionerRow:
 
 
 def preconditioner_bodies(cases: list[StiffCase], quick: bool = False) -> list[tuple[str, SpringSystem]]:
-    """The study's blocks and the FEM-checked cantilever (E = 1e8 Pa, 3 or 5 nodes across)."""
-    from deformgl.bench.fem import MATERIAL, WORKLOADS, lattice_case
+    """The study's blocks up to :data:`FINE` across and the FEM-checked cantilever (E = 1e8 Pa,
+    3 or 5 nodes across)."""
+    from deformgl.bench.fem import MATERIAL, WORKLOADS
 
     across = 3 if quick else 5
     beam = lattice_case(WORKLOADS["cantilever"], across, MATERIAL).system
-    return [(c.name, c.system) for c in cases] + [(f"cantilever E=1e8 Pa, {across} across", beam)]
+    return ([(c.name, c.system) for c in cases if c.across <= FINE]
+            + [(f"cantilever E=1e8 Pa, {across} across", beam)])
 
 
 def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,

@@ -32,10 +32,12 @@ GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless 
   layers), spring weights array (with SPRING_WEIGHTS), as the fragment backend's;
 * state: x, v and x', v' (xyz; the pairs swap after a step);
 * solver: b (xyz), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
-  inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two, ping-pong; the latest is the next step's warm start),
-  r (two), p (two), q (xyz), a per-texel product (R, all channels equal), the reduction levels
-  (R; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and four 1x1 scalars (R:
-  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update).
+  inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two,
+  ping-pong; the latest is the next step's warm start), r (two), p (two), q (xyz), a per-texel
+  product (R, all channels equal; after WARM R and G), the reduction levels (RGBA, each channel
+  summed; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and five 1x1 scalars (R:
+  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update; the warm start's R
+  ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
 """
 
 from __future__ import annotations
