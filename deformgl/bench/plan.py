@@ -128,7 +128,8 @@ class Plan:
             f"discretisation error {self.discretisation:.2%} (e = {c:.3g} (h/t)^{p:.2f}, fitted to "
             f"bench accuracy's {self.load} workload) leaves room for the time stepping and float32",
             (f"integrator: implicit-euler at dt = {self.dt:.3g} s with {self.iterations} CG iterations "
-             f"(stable at any dt; the explicit critical dt is {self.critical:.3g} s): its fixed point is the "
+             f"(stable at any dt; the explicit integrators' critical dt on their grid is {self.critical:.3g} s): its "
+             f"fixed point is the "
              f"equilibrium, predicted static error {self.float32:.2%} (bench trade --stiff)"
              if self.iterations else
              f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
