@@ -94,15 +94,15 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
 
         outputs = OutputSet([out / f"stiff.{ext}" for ext in ("csv", "json", "png")] if out else [])
         cases = stiff_cases(args.quick)
-        rows = stiff_study(ctx, quick=args.quick, progress=note, cases=cases)
-        print(format_stiff(rows, machine_line(ctx), cases))
+        stiff_rows = stiff_study(ctx, quick=args.quick, progress=note, cases=cases)
+        print(format_stiff(stiff_rows, machine_line(ctx), cases))
         if out is not None:
             from deformgl.bench import stiff_files
 
             with outputs:
-                stiff_files.write_csv(out / "stiff.csv", rows)
-                stiff_files.write_json(out / "stiff.json", rows, cases, machine_line(ctx))
-                _chart(lambda: stiff_files.write_chart(out / "stiff.png", rows, machine_line(ctx)))
+                stiff_files.write_csv(out / "stiff.csv", stiff_rows)
+                stiff_files.write_json(out / "stiff.json", stiff_rows, cases, machine_line(ctx))
+                _chart(lambda: stiff_files.write_chart(out / "stiff.png", stiff_rows, machine_line(ctx)))
         print()
         print(format_preconditioners(preconditioner_iterations(preconditioner_bodies(cases, args.quick))))
         if not args.quick:  # the heart-scale scene in real time (--scene: another one)

@@ -77,7 +77,7 @@ def test_es_stable_integrators_match_the_reference(es_run, name):
     ref = es_check.stable_integrators(None, "numpy")
     for constraint in es_check.CONSTRAINTS:
         key = f"{name}_{constraint}"
-        system, _, state, _ = es_check.integrator_case(constraint)
+        _, _, state, _ = es_check.integrator_case(constraint)
         x, r = es_run[f"x_fragment_{key}"].astype(np.float64), ref[f"x_numpy_{key}"]
         moved = np.abs(r - state.x).max()
         assert moved > 1e-3, (constraint, moved)
