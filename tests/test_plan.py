@@ -146,3 +146,21 @@ def test_render_runs_the_plan_and_keeps_the_simulated_time(ctx, tmp_path, capsys
     err = capsys.readouterr().err
     assert code == 2 and "--tolerance: needs a volume body with a solid [material]" in err
     assert not (tmp_path / "s.png").exists()
+
+
+def test_planned_scene_carries_the_implicit_iterations(tmp_path):
+    """``render --tolerance``: a stiff scene runs on the plan's implicit Euler, its CG iterations
+    and the frame step, keeping the simulated time."""
+    from pathlib import Path
+
+    from deformgl.bench.plan import planned_scene
+    from deformgl.scene.schema import load_scene
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    path = tmp_path / "rubber.toml"
+    path.write_text(f'[mesh]\npath = "{mesh.as_posix()}"\n[material]\npreset = "rubber"\n'
+                    '[physics]\ndt = 1e-4\nsteps = 500\n')
+    scene, plan = planned_scene(load_scene(path), 0.002, "compression")
+    assert plan.integrator == "implicit-euler" and scene.physics.integrator == "implicit-euler"
+    assert scene.physics.dt == plan.dt and scene.physics.implicit.iterations == plan.iterations == 30
+    assert scene.physics.steps == 3   # 0.05 s of simulated time in 1/60 s steps
