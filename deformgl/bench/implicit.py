@@ -86,7 +86,7 @@ class StiffCase:
     system: SpringSystem
     static: np.ndarray   # (N, 3) the equilibrium positions
     omega1: float        # rad/s, lowest undamped mode of the linearised lattice
-    linear_gap: float    # grid spacings, largest node distance of the equilibrium from the linear static solve (NaN: not refined)
+    linear_gap: float    # grid spacings, the equilibrium's largest distance from the linear static solve (NaN: not refined)
     sag: float           # grid spacings, largest node displacement at equilibrium
     lattice: LatticeCase
     fem: float           # m, FEM's top-face mean sag (NaN without the 'fem' extra)

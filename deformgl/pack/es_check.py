@@ -85,8 +85,8 @@ def stable_integrators(ctx, backend: str = "fragment") -> dict[str, np.ndarray]:
     for name, options in STABLE.items():
         for constraint in CONSTRAINTS:
             system, grid, state, c = integrator_case(constraint)
-            sim = make_simulation(system, name, backend, dt=STABLE_DT, ctx=ctx, grid=grid if backend == "fragment" else None,
-                                  state=state, constraints=c, **options)
+            sim = make_simulation(system, name, backend, dt=STABLE_DT, ctx=ctx,
+                                  grid=grid if backend == "fragment" else None, state=state, constraints=c, **options)
             try:
                 sim.step(STEPS)
                 out[f"x_{backend}_{name}_{constraint}"] = np.asarray(sim.positions(), np.float64 if backend == "numpy"

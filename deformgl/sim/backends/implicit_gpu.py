@@ -1,5 +1,6 @@
 """Implicit (backward) Euler on the fragment backend: matrix-free preconditioned (Jacobi or
-block-Jacobi) conjugate gradients in fragment passes over the compact node texture, the dot products summed on the GPU.
+block-Jacobi) conjugate gradients in fragment passes over the compact node texture, the dot
+products summed on the GPU.
 
 The same method as the float64 reference :mod:`deformgl.sim.implicit` (same iteration, same warm
 start, same stopping test), in float32. A step is (``shaders/sim/implicit/implicit.frag``):
