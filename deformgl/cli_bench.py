@@ -42,17 +42,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
     b.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (and WHAT.png, "
+                   help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (trade --resolution: "
+                        "resolution.*, trade --stiff: stiff.*) (and WHAT.png, "
                         "the chart, with the 'plot' extra: pip install 'deformgl[plot]')")
     b.add_argument("--resolution", action="store_true",
                    help="trade: instead, the grid-resolution study: the FEM-checked cantilever at several grid "
                         "resolutions x integrator x dt, its error against FEM split into discretisation, time "
                         "stepping and float32, against the fragment backend's cost per simulated second")
     b.add_argument("--stiff", action="store_true",
-                   help="trade: instead, implicit Euler (dt 1/60 ... 1/1000 s x CG iterations) against Verlet and "
-                        "semi-implicit Euler at their limits on a tissue block at E = 3 kPa and 1 MPa at two "
-                        "resolutions: wall time per simulated second and to a visually converged sag (every node "
-                        "within 0.05 h of the equilibrium), and implicit Euler's damping of the lowest mode; then (not with --quick) "
+                   help="trade: instead, implicit Euler (dt 1/60 ... 1/1000 s x CG iterations) and XPBD "
+                        "(iterations x substeps) against Verlet and semi-implicit Euler at their limits on a tissue "
+                        "block at E = 3 kPa (5, 9 across) and 1 MPa (5 to 33 across): wall time per simulated second "
+                        "and to a converged sag (every node within 0.05 h, and within 5 %% of the sag, of the "
+                        "equilibrium), the error against FEM statics, implicit Euler's damping of the lowest mode and "
+                        "CG iterations with the Jacobi and block-Jacobi preconditioners (--out DIR: stiff.csv, "
+                        "stiff.json, stiff.png); then (not with --quick) "
                         "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
@@ -86,8 +90,21 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     if args.what == "trade" and args.stiff:
         from deformgl.bench.implicit import format_stiff, stiff_cases, stiff_study
 
+        from deformgl.bench.implicit import format_preconditioners, preconditioner_bodies, preconditioner_iterations
+
+        outputs = OutputSet([out / f"stiff.{ext}" for ext in ("csv", "json", "png")] if out else [])
         cases = stiff_cases(args.quick)
-        print(format_stiff(stiff_study(ctx, quick=args.quick, progress=note, cases=cases), machine_line(ctx), cases))
+        stiff_rows = stiff_study(ctx, quick=args.quick, progress=note, cases=cases)
+        print(format_stiff(stiff_rows, machine_line(ctx), cases))
+        if out is not None:
+            from deformgl.bench import stiff_files
+
+            with outputs:
+                stiff_files.write_csv(out / "stiff.csv", stiff_rows)
+                stiff_files.write_json(out / "stiff.json", stiff_rows, cases, machine_line(ctx))
+                _chart(lambda: stiff_files.write_chart(out / "stiff.png", stiff_rows, machine_line(ctx)))
+        print()
+        print(format_preconditioners(preconditioner_iterations(preconditioner_bodies(cases, args.quick))))
         if not args.quick:  # the heart-scale scene in real time (--scene: another one)
             from deformgl.bench.implicit import format_realtime, realtime
 
@@ -154,8 +171,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--steps: must be >= 1, got {args.steps}")
     if args.out is not None and not args.out.is_dir():
         raise InputError(f"--out: {args.out} is not a folder")
-    if args.stiff and (args.what != "trade" or args.resolution or args.out is not None):
-        raise InputError("--stiff: only for bench trade, without --resolution and --out (it prints its table)")
+    if args.stiff and (args.what != "trade" or args.resolution):
+        raise InputError("--stiff: only for bench trade, without --resolution")
     if args.resolution and args.what != "trade":
         raise InputError(f"--resolution: only for bench trade, not bench {args.what}")
     if args.what == "accuracy":  # CPU only: no GL context

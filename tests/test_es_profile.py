@@ -68,6 +68,22 @@ def test_es_integrators_match_the_reference_like_desktop(es_run, backend, name):
         assert np.abs(ref.x - state.x).max() > 100 * np.abs(x - ref.x).max()
 
 
+@pytest.mark.parametrize("name", list(es_check.STABLE))
+def test_es_stable_integrators_match_the_reference(es_run, name):
+    """Implicit Euler and XPBD on the ES context against their float64 NumPy references, every
+    constraint kind, within the desktop tests' bounds of the motion (tests/test_implicit.py: 1e-5;
+    tests/test_xpbd.py over several steps: 1e-4; measured 8e-7 and 1.4e-5)."""
+    bound = {"implicit-euler": 1e-5, "xpbd": 1e-4}[name]
+    ref = es_check.stable_integrators(None, "numpy")
+    for constraint in es_check.CONSTRAINTS:
+        key = f"{name}_{constraint}"
+        _, _, state, _ = es_check.integrator_case(constraint)
+        x, r = es_run[f"x_fragment_{key}"].astype(np.float64), ref[f"x_numpy_{key}"]
+        moved = np.abs(r - state.x).max()
+        assert moved > 1e-3, (constraint, moved)
+        assert np.abs(x - r).max() <= bound * moved, (constraint, np.abs(x - r).max() / moved)
+
+
 def test_es_programs_are_es_sources(es_run):
     from deformgl.gl.preprocessor import preprocess
 

@@ -23,7 +23,7 @@ def test_the_error_model_reproduces_the_measurements():
 
 @pytest.mark.parametrize("tolerance", [0.2, 0.05, 0.02, 0.005])
 def test_the_plan_is_the_coarsest_grid_below_the_tolerance(tolerance):
-    plan = make_plan(BEAM, PRESETS["rubber"], tolerance)
+    plan = make_plan(BEAM, PRESETS["rubber"], tolerance, implicit=False)
     c, p = plan.model
     assert plan.error <= tolerance
     coarser = c * (1.0 / (plan.across - 2)) ** p if plan.across > 2 else float("inf")
@@ -37,7 +37,7 @@ def test_the_plan_is_the_coarsest_grid_below_the_tolerance(tolerance):
 def test_below_verlets_float32_floor_the_plan_steps_semi_implicit():
     """A tolerance whose time-stepping share needs dt < 0.9 x critical: float32 Verlet would be
     less accurate there (docs/ACCURACY.md), so semi-implicit Euler at a smaller dt."""
-    plan = make_plan(BEAM, PRESETS["rubber"], 0.003)
+    plan = make_plan(BEAM, PRESETS["rubber"], 0.003, implicit=False)
     assert plan.integrator == "semi-implicit" and plan.fraction < 0.9
     assert plan.time_stepping <= 0.1 * 0.003 + 1e-12 and plan.error <= 0.003
 
@@ -50,11 +50,51 @@ def test_tighter_tolerances_need_finer_grids_and_the_measured_table_agrees():
 
 
 def test_the_dt_follows_the_material():
-    soft, stiff = (make_plan(BEAM, PRESETS[m], 0.05) for m in ("liver", "rubber"))
+    soft, stiff = (make_plan(BEAM, PRESETS[m], 0.05, implicit=False) for m in ("liver", "rubber"))
     assert soft.across == stiff.across
     ratio = (PRESETS["rubber"].youngs_modulus / PRESETS["rubber"].density) / \
             (PRESETS["liver"].youngs_modulus / PRESETS["liver"].density)
     assert soft.dt / stiff.dt == pytest.approx(ratio ** 0.5)
+
+
+def test_a_stiff_body_gets_implicit_euler_a_soft_one_explicit():
+    """Implicit Euler at the 60 Hz frame step where the explicit limit makes steps expensive (a
+    rubber block on a fine grid), explicit where it does not (liver), and the reason either way."""
+    from deformgl.bench.plan import FRAME_DT, implicit_iterations, implicit_step_cost
+
+    block = (0.1, 0.1, 0.1)
+    stiff = make_plan(block, PRESETS["rubber"], 0.002, "compression")
+    explicit = make_plan(block, PRESETS["rubber"], 0.002, "compression", implicit=False)
+    its = implicit_iterations(stiff.across)
+    cost = implicit_step_cost(its, stiff.across ** 3)
+    # more explicit steps per frame than one implicit step costs, on grids of about the same size
+    assert FRAME_DT / explicit.dt * explicit.across ** 3 > cost * stiff.across ** 3
+    assert stiff.integrator == "implicit-euler" and stiff.dt == FRAME_DT and stiff.iterations == its
+    assert stiff.across >= explicit.across and stiff.error <= 0.002 and stiff.time_stepping == 0.0
+    assert "x cheaper per simulated second" in stiff.why_integrator and "damps motion" in stiff.why_integrator
+    assert 0.0 <= stiff.mode_left < 1e-6
+    lines = "\n".join(stiff.lines())
+    assert "integrator: implicit-euler at dt = 0.0167 s" in lines and "[physics.implicit] iterations = " in lines
+    soft = make_plan(block, PRESETS["liver"], 0.002, "compression")
+    assert soft.integrator in ("verlet", "semi-implicit") and FRAME_DT / soft.dt < implicit_step_cost(
+        implicit_iterations(soft.across), soft.across ** 3)
+    assert "x cheaper per simulated second" in soft.why_integrator
+    assert implicit_step_cost(10, 729) == 75.0 and implicit_step_cost(10, 10) == 204.0   # measured; clamped
+    assert soft.why_integrator.startswith("implicit-euler rejected:") and "explicit is" in soft.why_integrator
+
+
+def test_the_plan_command_prints_why_implicit(tmp_path, capsys):
+    from pathlib import Path
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    scene = tmp_path / "rubber.toml"
+    scene.write_text(f'[mesh]\npath = "{mesh.as_posix()}"\n[material]\npreset = "rubber"\n')
+    assert main(["plan", str(scene), "--tolerance", "0.002", "--load", "compression"]) == 0
+    out = capsys.readouterr().out
+    assert "integrator: implicit-euler" in out and "why: " in out and "x cheaper per simulated second" in out
+    assert main(["plan", "jelly.toml", "--tolerance", "0.05"]) == 0
+    out = capsys.readouterr().out
+    assert "why: implicit-euler rejected:" in out
 
 
 def test_bad_tolerances_and_loads_are_input_errors():
@@ -106,3 +146,21 @@ def test_render_runs_the_plan_and_keeps_the_simulated_time(ctx, tmp_path, capsys
     err = capsys.readouterr().err
     assert code == 2 and "--tolerance: needs a volume body with a solid [material]" in err
     assert not (tmp_path / "s.png").exists()
+
+
+def test_planned_scene_carries_the_implicit_iterations(tmp_path):
+    """``render --tolerance``: a stiff scene runs on the plan's implicit Euler, its CG iterations
+    and the frame step, keeping the simulated time."""
+    from pathlib import Path
+
+    from deformgl.bench.plan import planned_scene
+    from deformgl.scene.schema import load_scene
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    path = tmp_path / "rubber.toml"
+    path.write_text(f'[mesh]\npath = "{mesh.as_posix()}"\n[material]\npreset = "rubber"\n'
+                    '[physics]\ndt = 1e-4\nsteps = 500\n')
+    scene, plan = planned_scene(load_scene(path), 0.002, "compression")
+    assert plan.integrator == "implicit-euler" and scene.physics.integrator == "implicit-euler"
+    assert scene.physics.dt == plan.dt and scene.physics.implicit.iterations == plan.iterations == 30
+    assert scene.physics.steps == 3   # 0.05 s of simulated time in 1/60 s steps

@@ -14,7 +14,17 @@ relative error of the body's deflection is below the tolerance, and say why:
   ``e_t = D f`` (first order: the mass damping's velocity is a backward difference) is below a
   tenth of the tolerance; else semi-implicit Euler at the largest f that keeps it so (float32
   Verlet gets *less* accurate at smaller dt: the positions' rounding swallows a dt^2);
-* float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured at 0.9 x.
+* float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured at 0.9 x;
+* implicit Euler (``bench trade --stiff``, docs/PERFORMANCE.md) at the frame step
+  :data:`FRAME_DT` instead, when it is cheaper per simulated second and its error fits: its fixed
+  point is the equilibrium at any dt, so its time-stepping error of the static deflection is 0
+  and what remains is :data:`IMPLICIT_STATIC_ERROR` (the largest measured residue at the
+  iterations :func:`implicit_iterations` picks: 10 CG iterations up to 17 nodes across, 30
+  above); one step costs :func:`implicit_step_cost` explicit steps of the same grid (measured per
+  node count, :data:`IMPLICIT_STEP_COST`), so it is cheaper when the explicit integrator needs
+  more steps than that per frame (stiff materials, fine grids). It damps motion: the plan prints
+  how much of the lowest mode (beam estimate ``w1 = 3.516 t / L^2 sqrt(E / (12 rho))``) survives
+  a second, ``(1 + (w1 dt)^2)^(-1/(2 dt))``.
 """
 
 from __future__ import annotations
@@ -29,8 +39,9 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
-__all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "Plan",
-           "fit", "make_plan", "plan_scene", "planned_scene", "add_parser", "run"]
+__all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "FRAME_DT",
+           "IMPLICIT_STEP_COST", "IMPLICIT_STATIC_ERROR", "Plan", "implicit_iterations", "implicit_step_cost",
+           "fit", "make_plan", "lowest_mode_estimate", "plan_scene", "planned_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
 #: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
@@ -48,6 +59,21 @@ TIME_STEP_ERROR = {"verlet": 4.0e-4, "semi-implicit": 1.0e-3}
 #: Verlet's grows as dt shrinks (3e-2 at 0.25 x), so Verlet is only used at 0.9 x.
 FLOAT32_ERROR = {"verlet": 1.0e-4, "semi-implicit": 1.0e-5}
 MAX_ACROSS = 257
+#: Implicit Euler's step in s (one 60 Hz frame).
+FRAME_DT = 1.0 / 60.0
+#: One implicit step at dt = 1/60 s in Verlet steps of the same grid, per CG iteration count and
+#: node count: (ms per implicit step) / (ms per Verlet step at 0.9 x its limit), measured by
+#: ``bench trade --stiff`` on the 1 MPa block, 5 to 33 across (docs/PERFORMANCE.md; the fixed cost
+#: of its ~80 passes weighs most on small grids).
+IMPLICIT_STEP_COST: dict[int, dict[int, float]] = {
+    10: {125: 204.0, 729: 75.0, 4913: 68.0, 15625: 64.0, 35937: 57.0},
+    30: {125: 632.0, 729: 205.0, 4913: 176.0, 15625: 168.0, 35937: 114.0},
+}
+#: Implicit Euler's largest measured static residue (relative to the sag, against the lattice's
+#: equilibrium, after 0.5-1 s at dt 1/60 s) at the iterations :func:`implicit_iterations` picks:
+#: 10 up to 17 across (2.1e-4), 30 above (5.2e-4); 10 at 33 across left 5.6 %. (Its fixed point
+#: is the equilibrium: a longer run leaves less.)
+IMPLICIT_STATIC_ERROR = 6.0e-4
 
 
 def fit(load: str, finest: int = 4) -> tuple[float, float]:
@@ -79,6 +105,9 @@ class Plan:
     time_stepping: float
     float32: float
     model: tuple[float, float]
+    iterations: int = 0           # CG iterations per step (implicit Euler), 0 explicit
+    why_integrator: str = ""      # why this integrator and not the other kind
+    mode_left: float = 1.0        # amplitude of the lowest mode left after 1 s (implicit: < 1)
 
     @property
     def error(self) -> float:
@@ -98,18 +127,26 @@ class Plan:
             f"nodes_along_longest = {self.nodes_along_longest}: the coarsest grid whose predicted "
             f"discretisation error {self.discretisation:.2%} (e = {c:.3g} (h/t)^{p:.2f}, fitted to "
             f"bench accuracy's {self.load} workload) leaves room for the time stepping and float32",
-            f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
-            f"critical dt {self.critical:.3g} s (2 h sqrt(rho / 14.4 E)): predicted time-stepping "
-            f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}",
+            (f"integrator: implicit-euler at dt = {self.dt:.3g} s with {self.iterations} CG iterations "
+             f"(stable at any dt; the explicit integrators' critical dt on their grid is {self.critical:.3g} s): its "
+             f"fixed point is the "
+             f"equilibrium, predicted static error {self.float32:.2%} (bench trade --stiff)"
+             if self.iterations else
+             f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
+             f"critical dt {self.critical:.3g} s (2 h sqrt(rho / 14.4 E)): predicted time-stepping "
+             f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}"),
+            *([f"why: {self.why_integrator}"] if self.why_integrator else []),
             f"predicted total error {self.error:.2%} <= {self.tolerance:.2%}",
             "scene keys: [grid] spacing = " f"{self.spacing:.6g} (or nodes_along_longest = "
-            f"{self.nodes_along_longest}); [physics] integrator = \"{self.integrator}\", dt = {self.dt:.6g}",
+            f"{self.nodes_along_longest}); [physics] integrator = \"{self.integrator}\", dt = {self.dt:.6g}"
+            + (f"; [physics.implicit] iterations = {self.iterations}" if self.iterations else ""),
         ]
 
 
 def make_plan(size: tuple[float, float, float], material: ElasticMaterial, tolerance: float,
-              load: str = "bending") -> Plan:
-    """The plan of a body of bounding box ``size`` (m) and ``material`` for ``tolerance``.
+              load: str = "bending", *, implicit: bool = True) -> Plan:
+    """The plan of a body of bounding box ``size`` (m) and ``material`` for ``tolerance``
+    (``implicit``: also consider implicit Euler at :data:`FRAME_DT`, module docstring).
 
     Raises:
         InputError: a tolerance outside (0, 1), an unknown load, or a tolerance that needs more
@@ -141,8 +178,74 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     h = thickness / cells
     along = math.ceil(max(size) / h - 1e-9) + 1  # the built spacing is at most the planned one
     crit = critical_dt(material, h, integrator)
-    return Plan(tolerance, load, size, material, cells + 1, h, along, integrator, fraction,
+    plan = Plan(tolerance, load, size, material, cells + 1, h, along, integrator, fraction,
                 fraction * crit, crit, c * (1.0 / cells) ** p, e_t, e_32, (c, p))
+    return _consider_implicit(plan) if implicit else plan
+
+
+def implicit_iterations(across: int) -> int:
+    """CG iterations per step of the plan's implicit Euler (:data:`IMPLICIT_STATIC_ERROR`)."""
+    return 10 if across <= 17 else 30
+
+
+def implicit_step_cost(iterations: int, nodes: int) -> float:
+    """One implicit step in explicit steps of a grid of ``nodes`` (:data:`IMPLICIT_STEP_COST`,
+    interpolated in log nodes, clamped at the measured ends)."""
+    table = sorted(IMPLICIT_STEP_COST[iterations].items())
+    return float(np.interp(math.log(nodes), [math.log(n) for n, _ in table], [c for _, c in table]))
+
+
+def lowest_mode_estimate(size: tuple[float, float, float], material: ElasticMaterial) -> float:
+    """w1 in rad/s, the first bending mode of a cantilever of the body's length and thickness
+    (Euler-Bernoulli: ``3.516 t / L^2 sqrt(E / (12 rho))``), an estimate for any body."""
+    t, length = min(size), max(size)
+    return 3.516 * t / length ** 2 * math.sqrt(material.youngs_modulus / (12.0 * material.density))
+
+
+def _nodes(size: tuple[float, float, float], h: float) -> int:
+    return int(np.prod([math.floor(e / h + 1e-9) + 1 for e in size]))
+
+
+def _consider_implicit(plan: Plan) -> Plan:
+    """The plan with implicit Euler at the frame step when it is cheaper per simulated second on
+    the coarsest grid that fits its own error budget (the tolerance less
+    :data:`IMPLICIT_STATIC_ERROR`), and the reason either way."""
+    import dataclasses
+
+    c, p = plan.model
+    budget = plan.tolerance - IMPLICIT_STATIC_ERROR
+    w1 = lowest_mode_estimate(plan.size, plan.material)
+    left = (1.0 + (w1 * FRAME_DT) ** 2) ** (-0.5 / FRAME_DT)
+    cells = max(1, math.ceil((c / budget) ** (1.0 / p))) if budget > 0 else MAX_ACROSS
+    if cells + 1 > MAX_ACROSS:
+        return dataclasses.replace(plan, why_integrator=(
+            f"implicit-euler rejected: its static residue {IMPLICIT_STATIC_ERROR:.2%} leaves no room for the grid "
+            f"within the tolerance {plan.tolerance:.2%}"))
+    h = min(plan.size) / cells
+    its = implicit_iterations(cells + 1)
+    nodes_i, nodes_e = _nodes(plan.size, h), _nodes(plan.size, plan.spacing)
+    step = implicit_step_cost(its, nodes_i)         # in explicit steps of its grid
+    steps = FRAME_DT / plan.dt                      # explicit steps per frame
+    # explicit cost / implicit cost per simulated second (cost per step ~ nodes)
+    ratio = steps * nodes_e / (step * nodes_i)
+    grid = ("the same grid" if cells + 1 == plan.across else
+            f"a grid of {cells + 1} across for its budget ({nodes_i} nodes against {nodes_e})")
+    if ratio > 1.0:
+        why = (f"{plan.integrator} would need {steps:.0f} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
+               f"step ({its} CG iterations) costs about {step:.0f} explicit steps (bench trade --stiff), on "
+               f"{grid}: implicit-euler is {ratio:.3g}x cheaper per simulated second; it damps motion: the "
+               f"lowest mode (w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics "
+               f"use {plan.integrator})")
+        along = math.ceil(max(plan.size) / h - 1e-9) + 1
+        return dataclasses.replace(plan, integrator="implicit-euler", across=cells + 1, spacing=h,
+                                   nodes_along_longest=along, fraction=FRAME_DT / plan.critical, dt=FRAME_DT,
+                                   discretisation=c * (1.0 / cells) ** p, time_stepping=0.0,
+                                   float32=IMPLICIT_STATIC_ERROR, iterations=its, why_integrator=why, mode_left=left)
+    why = (f"implicit-euler rejected: {plan.integrator} needs {steps:.3g} steps per 1/60 s frame and one implicit "
+           f"step ({its} CG iterations) costs about {step:.0f} explicit steps, on {grid}: explicit is "
+           f"{1 / ratio:.3g}x cheaper per simulated second (and keeps the motion that implicit Euler damps to "
+           f"{left:.2g} per second)")
+    return dataclasses.replace(plan, why_integrator=why)
 
 
 def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
@@ -194,6 +297,9 @@ def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[
     simulated = scene.physics.dt * scene.physics.steps
     steps = max(1, math.ceil(simulated / plan.dt - 1e-9))
     physics = dataclasses.replace(scene.physics, integrator=plan.integrator, dt=plan.dt, steps=steps)
+    if plan.iterations:
+        physics = dataclasses.replace(physics, implicit=dataclasses.replace(physics.implicit,
+                                                                            iterations=plan.iterations))
     return dataclasses.replace(scene, grid=GridSpec(plan.nodes_along_longest, None), physics=physics), plan
 
 

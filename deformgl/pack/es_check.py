@@ -8,7 +8,8 @@ thread's current one). A SCENE named ``trilinear:NAME`` is one of the trilinear 
 scenes (3D-texture atlas with linear filtering). Writes the images (``image_<i>``), the GL
 version and the seconds per scene to ``OUT.npz``; ``--integrators`` adds the node positions
 (``x_<backend>_<integrator>_<constraint>``) after :data:`STEPS` steps of every integrator on
-both backends from :func:`integrator_case`'s start.
+both backends from :func:`integrator_case`'s start, and of the stable integrators
+(:data:`STABLE`: implicit Euler, XPBD; fragment backend only) at :data:`STABLE_DT`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ from deformgl.scene.schema import load_scene
 SIZE = (160, 120)
 STEPS = 5
 CONSTRAINTS = ("none", "ground", "sphere")
+#: The stable integrators of the check with their options (fragment backend), and their step in s.
+STABLE = {"implicit-euler": {"cg_iterations": 10}, "xpbd": {"iterations": 4, "substeps": 2}}
+STABLE_DT = 1e-2
 
 
 def integrator_case(constraint: str):
@@ -68,6 +72,27 @@ def integrators(ctx) -> dict[str, np.ndarray]:
                     out[f"x_{backend}_{name}_{constraint}"] = np.asarray(sim.positions(), np.float32)
                 finally:
                     sim.release()
+    out.update(stable_integrators(ctx))
+    return out
+
+
+def stable_integrators(ctx, backend: str = "fragment") -> dict[str, np.ndarray]:
+    """Positions after :data:`STEPS` steps of :data:`STABLE_DT` of each :data:`STABLE`
+    integrator and constraint on ``backend`` (fragment, or numpy: the reference)."""
+    from deformgl.sim.simulation import make_simulation
+
+    out = {}
+    for name, options in STABLE.items():
+        for constraint in CONSTRAINTS:
+            system, grid, state, c = integrator_case(constraint)
+            sim = make_simulation(system, name, backend, dt=STABLE_DT, ctx=ctx,
+                                  grid=grid if backend == "fragment" else None, state=state, constraints=c, **options)
+            try:
+                sim.step(STEPS)
+                out[f"x_{backend}_{name}_{constraint}"] = np.asarray(sim.positions(), np.float64 if backend == "numpy"
+                                                                     else np.float32)
+            finally:
+                sim.release()
     return out
 
 

@@ -244,18 +244,23 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import PASSES
+    from deformgl.sim.backends.implicit_gpu import PASSES, PRECONDITIONED_PASSES
 
     for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
         for name in PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
-            if name in ("INIT", "MATVEC") and forces["LOADS"]:
+            if name in ("WARM", "INIT", "MATVEC") and forces["LOADS"]:
                 continue
-            defines = common if name in ("SETUP", "INIT", "MATVEC") else nb
-            for c in (_constraints() if name == "FINAL" else [{}]):
-                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag", {**defines, **c, name: True})
+            defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC") else nb
+            # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner, the
+            # scaled warm start (WARM_SCALED) in INIT
+            blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
+            warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
+            for c, block, scaled in itertools.product(_constraints() if name == "FINAL" else [{}], blocks, warm):
+                yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag",
+                         {**defines, **c, **block, **scaled, name: True})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
 
 

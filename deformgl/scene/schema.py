@@ -33,6 +33,7 @@ from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3, Xpbd,
                                  parse_size)
+from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 
@@ -189,7 +190,9 @@ _PHYSICS = _table({
                        "bad_distance": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e6), unit="box lengths"), 1000.0)},
                       _plain(Safety)), {}),
     "implicit": (_table({"iterations": (_int(lo=1, sane=(1, 10000)), 20),
-                         "tolerance": (_num(lo=0.0, sane=(0.0, 1.0)), 0.0)}, _plain(Implicit)), {}),
+                         "tolerance": (_num(lo=0.0, sane=(0.0, 1.0)), 0.0),
+                         "preconditioner": (_str(PRECONDITIONERS), DEFAULT_PRECONDITIONER)},
+                        _plain(Implicit)), {}),
 }, _build_physics)
 
 

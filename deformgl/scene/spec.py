@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
+from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
 from deformgl.sim.integrators import ALL_INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 
@@ -181,13 +182,16 @@ class Safety:
 class Implicit:
     """The solver of ``integrator = "implicit-euler"`` (``[physics.implicit]``): at most
     ``iterations`` conjugate-gradient iterations per step, stopping early at the relative
-    residual ``tolerance`` (0: always ``iterations``, nothing read back while stepping)."""
+    residual ``tolerance`` (0: always ``iterations``, nothing read back while stepping), with the
+    ``preconditioner`` "jacobi" (the diagonal) or "block-jacobi" (the 3x3 block per node)."""
     iterations: int = 20
     tolerance: float = 0.0
+    preconditioner: str = DEFAULT_PRECONDITIONER
 
     def options(self) -> dict[str, object]:
         """The :func:`~deformgl.sim.simulation.make_simulation` options."""
-        return {"cg_iterations": self.iterations, "cg_tolerance": self.tolerance}
+        return {"cg_iterations": self.iterations, "cg_tolerance": self.tolerance,
+                "cg_preconditioner": self.preconditioner}
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,12 +20,16 @@ the solve is over the free nodes only (their dv is 0). Ground and spheres are ap
 solve as the explicit integrators do (:func:`deformgl.sim.integrators.apply_constraints`), a
 projection of the new positions and velocities; the solve does not see them.
 
-The solver is Jacobi-preconditioned conjugate gradients, warm-started from the previous step's dv,
+The solver is preconditioned conjugate gradients, warm-started from the previous step's dv
+(scaled to its best multiple by default, :data:`WARM_STARTS`),
 written out here (not ``scipy.sparse.linalg.cg``) so the GPU backend
 (:mod:`deformgl.sim.backends.implicit_gpu`) runs the same iteration and can be matched against it
 step for step: ``iterations`` is the most iterations per step; with ``tolerance`` > 0 it stops
 when the preconditioned residual ``sqrt(r.P^-1 r / b.P^-1 b)`` is at most ``tolerance``, tested
 every ``check_every`` iterations. ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
+The preconditioner P (:data:`PRECONDITIONERS`) is "jacobi", the diagonal of A, or "block-jacobi",
+the 3x3 diagonal block of A per node (its x y z coupling: the springs' ``u u^T`` terms), inverted
+per node; both are symmetric positive definite where A is, so CG stays CG.
 """
 
 from __future__ import annotations
@@ -41,11 +45,24 @@ from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["GEOMETRIC", "CG_DEFAULTS", "SolveReport", "LinearSystem", "assemble", "pcg", "implicit_step",
-           "ImplicitNumpySimulation", "solver_note"]
+__all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULTS", "SolveReport", "LinearSystem",
+           "WARM_STARTS", "DEFAULT_WARM_START", "assemble", "check_preconditioner", "check_warm_start",
+           "warm_start", "preconditioner", "pcg", "implicit_step", "ImplicitNumpySimulation",
+           "solver_note"]
 
 #: How the geometric stiffness of a spring enters H.
 GEOMETRIC = ("projected", "full", "none")
+#: The CG preconditioners: the diagonal of A, or its 3x3 block per node.
+PRECONDITIONERS = ("jacobi", "block-jacobi")
+DEFAULT_PRECONDITIONER = "jacobi"
+#: How CG starts a step: "scaled", the last step's dv times the s that minimises the A-norm
+#: error along it, ``s = (b . dv) / (dv . A dv)`` (0 if that is not > 0; never worse than
+#: "zero"); "previous", the last step's dv as it is; "zero", dv = 0. Measured (``bench trade
+#: --stiff``, docs/PERFORMANCE.md): "previous" lets truncated CG drift away on the finer stiff
+#: blocks (17 across, dt = 1/250 s, 10 iterations: 4.2x the sag off after 0.3 s), "scaled" and
+#: "zero" do not (7.5e-6 of the sag).
+WARM_STARTS = ("scaled", "previous", "zero")
+DEFAULT_WARM_START = "scaled"
 #: Default CG settings: iterations per step, relative tolerance (0: always ``iterations``), and
 #: how many iterations between residual tests.
 CG_DEFAULTS = {"cg_iterations": 20, "cg_tolerance": 0.0, "cg_check_every": 4}
@@ -133,16 +150,58 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
     return LinearSystem(a_full.tocsr()[dof][:, dof].tocsr(), b_full[dof], free, hess.tocsr())
 
 
+def check_warm_start(name: object) -> str:
+    """``name`` if it is one of :data:`WARM_STARTS` (ValueError naming ``cg_warm_start`` if not)."""
+    if name not in WARM_STARTS:
+        raise ValueError(f"cg_warm_start must be one of {', '.join(WARM_STARTS)}, got {name!r}")
+    return str(name)
+
+
+def warm_start(a: sp.csr_matrix, b: np.ndarray, previous: np.ndarray, kind: str = DEFAULT_WARM_START) -> np.ndarray:
+    """CG's start from the last step's solution ``previous`` (:data:`WARM_STARTS`)."""
+    check_warm_start(kind)
+    if kind == "zero":
+        return np.zeros_like(previous)
+    if kind == "previous":
+        return previous.copy()
+    d = float(previous @ (a @ previous))
+    return previous * (float(b @ previous) / d if d > 0 else 0.0)
+
+
+def check_preconditioner(name: object) -> str:
+    """``name`` if it is one of :data:`PRECONDITIONERS` (ValueError naming ``preconditioner`` if not)."""
+    if name not in PRECONDITIONERS:
+        raise ValueError(f"cg_preconditioner must be one of {', '.join(PRECONDITIONERS)}, got {name!r}")
+    return str(name)
+
+
+def preconditioner(a: sp.csr_matrix, kind: str = DEFAULT_PRECONDITIONER) -> sp.spmatrix:
+    """P^-1 of ``a`` (3F x 3F, x y z per node): ``1 / diag(A)`` ("jacobi") or the inverses of the
+    3x3 diagonal blocks (``"block-jacobi"``), as a sparse matrix."""
+    check_preconditioner(kind)
+    if kind == "jacobi":
+        return sp.diags(1.0 / a.diagonal()).tocsr()
+    nodes = a.shape[0] // 3
+    base = 3 * np.arange(nodes)
+    blocks = np.empty((nodes, 3, 3))
+    for r in range(3):
+        for c in range(3):
+            blocks[:, r, c] = np.asarray(a[base + r, base + c]).ravel()
+    return sp.bsr_matrix((np.linalg.inv(blocks), np.arange(nodes), np.arange(nodes + 1)),
+                         shape=a.shape).tocsr()
+
+
 def pcg(a: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, *, iterations: int, tolerance: float = 0.0,
-        check_every: int = 4) -> tuple[np.ndarray, SolveReport]:
-    """Jacobi-preconditioned CG from ``x0``, the iteration of the GPU backend (module docstring)."""
-    inv = 1.0 / a.diagonal()
+        check_every: int = 4, preconditioner_kind: str = DEFAULT_PRECONDITIONER) -> tuple[np.ndarray, SolveReport]:
+    """Preconditioned CG from ``x0`` (:func:`preconditioner`), the iteration of the GPU backend
+    (module docstring)."""
+    inv = preconditioner(a, preconditioner_kind)
     x = x0.copy()
     r = b - a @ x
-    z = inv * r
+    z = inv @ r
     p = z.copy()
     rz = float(r @ z)
-    bpb = float(b @ (inv * b))
+    bpb = float(b @ (inv @ b))
     done = 0
 
     def residual(value: float) -> float:
@@ -156,7 +215,7 @@ def pcg(a: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, *, iterations: int, tol
         alpha = rz / pq if pq != 0 else 0.0
         x += alpha * p
         r -= alpha * q
-        z = inv * r
+        z = inv @ r
         rz_new = float(r @ z)
         beta = rz_new / rz if rz != 0 else 0.0
         p = z + beta * p
@@ -169,13 +228,16 @@ def pcg(a: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, *, iterations: int, tol
 def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv0: np.ndarray | None = None,
                   constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
                   loads: tuple[Load, ...] = (), iterations: int = 20, tolerance: float = 0.0,
-                  check_every: int = 4, solver: str = "cg",
-                  geometric: str = "projected") -> tuple[State, np.ndarray, SolveReport]:
+                  check_every: int = 4, solver: str = "cg", geometric: str = "projected",
+                  preconditioner: str = DEFAULT_PRECONDITIONER,
+                  warm: str = DEFAULT_WARM_START) -> tuple[State, np.ndarray, SolveReport]:
     """One backward-Euler step from t to t + dt.
 
     Args:
         dv0: (N, 3) warm start of dv (default 0).
         solver: "cg" (:func:`pcg`) or "direct".
+        preconditioner: CG's, one of :data:`PRECONDITIONERS`.
+        warm: how CG starts from ``dv0`` (:func:`warm_start`).
         the rest: as :func:`deformgl.sim.integrators.step` and :func:`pcg`.
 
     Returns:
@@ -192,8 +254,9 @@ def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv
         sol = np.asarray(spla.spsolve(lin.matrix.tocsc(), lin.rhs)) if lin.rhs.size else lin.rhs
         report = SolveReport(0, 0.0, True)
     elif solver == "cg":
-        sol, report = pcg(lin.matrix, lin.rhs, start[dof], iterations=iterations, tolerance=tolerance,
-                          check_every=check_every)
+        sol, report = pcg(lin.matrix, lin.rhs, warm_start(lin.matrix, lin.rhs, start[dof], warm),
+                          iterations=iterations, tolerance=tolerance,
+                          check_every=check_every, preconditioner_kind=preconditioner)
     else:
         raise ValueError(f"solver must be 'cg' or 'direct', got {solver!r}")
     dv = np.zeros(3 * system.count)
@@ -223,6 +286,8 @@ class ImplicitNumpySimulation(SimulationBase):
         system, dt, constraints, drags, loads, state, t0: as
             :class:`~deformgl.sim.simulation.NumpySimulation`.
         cg_iterations, cg_tolerance, cg_check_every: see :func:`pcg`.
+        cg_preconditioner: one of :data:`PRECONDITIONERS`.
+        cg_warm_start: one of :data:`WARM_STARTS`.
         solver, geometric: see :func:`implicit_step`.
 
     Attributes:
@@ -236,10 +301,14 @@ class ImplicitNumpySimulation(SimulationBase):
     def __init__(self, system: SpringSystem, dt: float, *, constraints: Constraints | None = None,
                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (), state: State | None = None,
                  t0: float = 0.0, cg_iterations: int = 20, cg_tolerance: float = 0.0, cg_check_every: int = 4,
-                 solver: str = "cg", geometric: str = "projected") -> None:
+                 cg_preconditioner: str = DEFAULT_PRECONDITIONER, cg_warm_start: str = DEFAULT_WARM_START,
+                 solver: str = "cg",
+                 geometric: str = "projected") -> None:
         if not dt > 0:
             raise ValueError(f"ImplicitNumpySimulation: dt must be > 0, got {dt}")
         check_cg(cg_iterations, cg_tolerance, cg_check_every)
+        check_preconditioner(cg_preconditioner)
+        check_warm_start(cg_warm_start)
         self.system = system
         self._start_clock(dt, t0)
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
@@ -248,7 +317,8 @@ class ImplicitNumpySimulation(SimulationBase):
                       if state is None else state)
         self.tolerance = float(cg_tolerance)
         self.options: dict[str, Any] = dict(iterations=int(cg_iterations), tolerance=float(cg_tolerance),
-                            check_every=int(cg_check_every), solver=solver, geometric=geometric)
+                            check_every=int(cg_check_every), solver=solver, geometric=geometric,
+                            preconditioner=cg_preconditioner, warm=cg_warm_start)
         self.dv = np.zeros((self.count, 3))
         self.last_moved = float("inf")
         self.last_report = SolveReport(0, 0.0, True)

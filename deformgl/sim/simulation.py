@@ -27,7 +27,7 @@ BACKENDS = ("fragment", "feedback", "numpy")
 FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
 #: Options of the implicit integrators (:mod:`deformgl.sim.implicit`); the NumPy backend also
 #: takes ``solver`` ("cg", "direct") and ``geometric`` ("projected", "full", "none").
-IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every")
+IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every", "cg_preconditioner", "cg_warm_start")
 #: Options only XPBD takes (:class:`deformgl.sim.xpbd.XpbdSettings`).
 XPBD_OPTIONS = ("iterations", "substeps", "omega")
 
@@ -150,8 +150,10 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
             backend also ``path`` ("auto": the foundation pass for Verlet where it models the
             system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
             ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
-            "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``
-            (:data:`IMPLICIT_OPTIONS`) and on numpy ``solver`` and ``geometric``.
+            "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
+            ``cg_preconditioner`` ("jacobi", "block-jacobi"), ``cg_warm_start`` ("scaled",
+            "previous", "zero") (:data:`IMPLICIT_OPTIONS`) and on
+            numpy ``solver`` and ``geometric``.
 
     Raises:
         SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the

@@ -1,12 +1,19 @@
-"""Implicit (backward) Euler on the fragment backend: matrix-free Jacobi-preconditioned conjugate
-gradients in fragment passes over the compact node texture, the dot products summed on the GPU.
+"""Implicit (backward) Euler on the fragment backend: matrix-free preconditioned (Jacobi or
+block-Jacobi) conjugate gradients in fragment passes over the compact node texture, the dot
+products summed on the GPU.
 
 The same method as the float64 reference :mod:`deformgl.sim.implicit` (same iteration, same warm
 start, same stopping test), in float32. A step is (``shaders/sim/implicit/implicit.frag``):
 
-1. SETUP: ``b = dt (f - dt H v)`` and the Jacobi preconditioner ``1 / diag(A)`` at the step's
-   start state (forces at ``t + dt``), and ``b . P^-1 b`` per texel;
-2. INIT: ``r = b - A dv`` from the previous step's dv (warm start), ``p = P^-1 r``, ``r . P^-1 r``;
+1. SETUP: ``b = dt (f - dt H v)`` and the preconditioner P^-1 at the step's start state (forces
+   at ``t + dt``), and ``b . P^-1 b`` per texel: Jacobi ``1 / diag(A)``, or block-Jacobi (define
+   PRECOND_BLOCK) the inverse of the node's 3x3 diagonal block of A, computed per node in the
+   pass (GLSL ``inverse``);
+2. the warm start (:data:`~deformgl.sim.implicit.WARM_STARTS`): "scaled" (default) WARM
+   ``q = A dv_prev`` and the sums of ``dv_prev . q`` (R) and ``b . dv_prev`` (G), then INIT with
+   WARM_SCALED: ``dv = s dv_prev``, ``s = (b . dv_prev) / (dv_prev . A dv_prev)``, ``r = b - s q``;
+   "previous": INIT ``r = b - A dv_prev``; "zero": dv cleared, then INIT; and in each
+   ``p = P^-1 r``, ``r . P^-1 r``;
 3. per iteration: MATVEC ``q = A p`` (and ``p . q``), the sum of ``p . q``, UPDATE (dv, r and
    ``r . P^-1 r``), its sum, DIRECTION (``p = P^-1 r + beta p``);
 4. FINAL: ``v' = v + dv``, ``x' = x + dt v'``, the constraints, fixed nodes.
@@ -25,10 +32,13 @@ GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless 
 * static: node data (R mass, G flags, B load-group bits), neighbours RGBA32I array (5 or 6
   layers), spring weights array (with SPRING_WEIGHTS), as the fragment backend's;
 * state: x, v and x', v' (xyz; the pairs swap after a step);
-* solver: b (xyz), P^-1 (xyz), dv (two, ping-pong; the latest is the next step's warm start),
-  r (two), p (two), q (xyz), a per-texel product (R, all channels equal), the reduction levels
-  (R; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and four 1x1 scalars (R:
-  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update).
+* solver: b (xyz), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
+  inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two,
+  ping-pong; the latest is the next step's warm start), r (two), p (two), q (xyz), a per-texel
+  product (R, all channels equal; after WARM R and G), the reduction levels (RGBA, each channel
+  summed; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and five 1x1 scalars (R:
+  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update; the warm start's R
+  ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
 """
 
 from __future__ import annotations
@@ -43,18 +53,25 @@ from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.backends.grid_springs import check_topology, class_values, grid_neighbours, spring_weights
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.implicit import SolveReport, check_cg, solver_note
+from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, check_cg,
+                                   check_preconditioner, check_warm_start, solver_note)
 from deformgl.sim.integrators import Constraints, State, initial_state
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
-__all__ = ["ImplicitFragment", "PASSES"]
+__all__ = ["ImplicitFragment", "PASSES", "PRECONDITIONED_PASSES"]
 
 #: The passes of ``implicit.frag`` (one define each).
-PASSES = ("SETUP", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
+PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
 _UNITS = {"u_node": 0, "u_neighbours": 1, "u_weights": 2, "u_x": 3, "u_v": 4, "u_vec": 5, "u_inv": 6,
-          "u_b": 7, "u_dv": 8, "u_r": 9, "u_p": 10, "u_q": 11, "u_rz": 12, "u_pq": 13, "u_rz_new": 14}
+          "u_b": 7, "u_dv": 8, "u_r": 9, "u_p": 10, "u_q": 11, "u_rz": 12, "u_pq": 13, "u_rz_new": 14,
+          "u_warm": 13}  # (u_warm: INIT only, which reads no u_pq)
 _REDUCE_UNIT = 15
+#: block-Jacobi's off-diagonal texture shares the reduction's unit (OpenGL ES 3 guarantees 16
+#: units): every draw binds what it reads, and no pass reads both.
+_UNITS["u_inv_off"] = _REDUCE_UNIT
+#: The passes that apply P^-1 (block-Jacobi: they read ``inv_off`` too).
+PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 
 
 def _array(values: list) -> object:
@@ -62,7 +79,8 @@ def _array(values: list) -> object:
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
-                 constraints: Constraints | None) -> dict[str, dict[str, object]]:
+                 constraints: Constraints | None, block: bool = False,
+                 scaled: bool = True) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists)."""
     common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
                                  "SPRING_DAMPING": bool(np.any(system.damping > 0)), "SPRING_WEIGHTS": weights,
@@ -73,11 +91,16 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     # INIT, MATVEC); UPDATE, DIRECTION and FINAL combine vectors (FINAL: and the constraints)
     nb = {"NB_LAYERS": common["NB_LAYERS"], "NB_COUNT": common["NB_COUNT"], "SPHERES": 0}
     product = {**common, "LOADS": 0}
-    out = {name: {**(common if name == "SETUP" else product if name in ("INIT", "MATVEC") else nb), name: True}
-           for name in PASSES}
+    out = {name: {**(common if name == "SETUP" else product if name in ("WARM", "INIT", "MATVEC") else nb),
+                  name: True} for name in PASSES}
+    if scaled:
+        out["INIT"]["WARM_SCALED"] = True
     c = constraints
     if c is not None and (c.ground is not None or c.spheres):
         out["FINAL"].update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
+    if block:
+        for name in PRECONDITIONED_PASSES:
+            out[name]["PRECOND_BLOCK"] = True
     return out
 
 
@@ -91,6 +114,9 @@ class ImplicitFragment(SimulationBase, GLOwner):
         cg_tolerance: relative preconditioned residual to stop at (0: always ``cg_iterations``,
             no read-back).
         cg_check_every: iterations between residual read-backs (with a tolerance).
+        cg_preconditioner: "jacobi" or "block-jacobi"
+            (:data:`~deformgl.sim.implicit.PRECONDITIONERS`).
+        cg_warm_start: "scaled", "previous" or "zero" (:data:`~deformgl.sim.implicit.WARM_STARTS`).
 
     Attributes:
         last_report: the last step's :class:`~deformgl.sim.implicit.SolveReport` (with a
@@ -105,7 +131,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid | None, dt: float, *,
                  constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
                  loads: tuple[Load, ...] = (), state: State | None = None, t0: float = 0.0,
-                 cg_iterations: int = 20, cg_tolerance: float = 0.0, cg_check_every: int = 4) -> None:
+                 cg_iterations: int = 20, cg_tolerance: float = 0.0, cg_check_every: int = 4,
+                 cg_preconditioner: str = DEFAULT_PRECONDITIONER, cg_warm_start: str = DEFAULT_WARM_START) -> None:
         grid = system.grid if grid is None else grid
         if grid is None:
             raise ValueError("ImplicitFragment: the system has no node grid (build it with springs.from_grid, "
@@ -113,6 +140,9 @@ class ImplicitFragment(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"ImplicitFragment: dt must be > 0, got {dt}")
         check_cg(cg_iterations, cg_tolerance, cg_check_every)
+        self.preconditioner = check_preconditioner(cg_preconditioner)
+        self.block = self.preconditioner == "block-jacobi"
+        self.warm_start = check_warm_start(cg_warm_start)
         self.ctx, self.system, self.grid = ctx, system, grid
         self._start_clock(dt, t0)
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
@@ -167,7 +197,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         if x.shape != (n, 3) or v.shape != (n, 3):
             raise ValueError(f"ImplicitFragment: state of shape {x.shape}, expected ({n}, 3)")
         zero = np.zeros((n, 3))
-        names = ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p", "p_out", "q", "prod")
+        names: tuple[str, ...] = ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p",
+                                  "p_out", "q", "prod") + (("inv_off",) if self.block else ())
         start = {"x": x, "v": v, "x_out": x, "v_out": v}
         self.tex = {name: self._texture(size, self._image(start.get(name, zero))) for name in names}
         # reduction levels: 4x4 blocks down to 1x1, then the scalars
@@ -177,9 +208,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
             w, h = -(-w // 4), -(-h // 4)
             if (w, h) != (1, 1):
                 self.levels.append((self._texture((w, h)), (w, h)))
-        self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new")}
+        self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new", "warm")}
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
-                               drags=len(self.drags), loads=len(self.loads), constraints=self.constraints)
+                               drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
+                               block=self.block, scaled=self.warm_start == "scaled")
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
         self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
@@ -220,6 +252,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
         return fbo
 
     def _draw(self, name: str, reads: dict[str, str], writes: tuple[str, ...]) -> None:
+        if self.block and "u_inv" in reads:
+            reads = {**reads, "u_inv_off": "inv_off"}
+        if self.block and name == "SETUP":
+            writes = (*writes, "inv_off")
         for sampler, tex in reads.items():
             (self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]).use(_UNITS[sampler])
         self._fbo(*(self.tex[w] for w in writes)).use()
@@ -270,7 +306,16 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self._draw("SETUP", {"u_v": "v", "u_vec": "v"}, ("b", "inv", "prod"))
         tol = self.tolerance > 0
         self._sum("bpb")  # (also without a tolerance: residual() reads it)
-        self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv"}, ("r", "p", "prod"))
+        if self.warm_start == "scaled":
+            self._draw("WARM", {"u_vec": "dv", "u_b": "b"}, ("q", "prod"))
+            self._sum("warm")
+            self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv", "u_q": "q", "u_warm": "$warm"},
+                       ("r", "p", "prod", "dv_out"))
+            self._swap("dv", "dv_out")
+        else:
+            if self.warm_start == "zero":
+                self._fbo(self.tex["dv"]).clear(0.0, 0.0, 0.0, 0.0)
+            self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv"}, ("r", "p", "prod"))
         self._sum("rz")
         bpb = self._scalar("bpb") if tol else 0.0
         done = 0

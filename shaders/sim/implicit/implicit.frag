@@ -1,10 +1,15 @@
 #version 330 core
 // The passes of a backward-Euler step on the node grid (docs/EQUATIONS.md "Implicit Euler";
 // float64 reference deformgl/sim/implicit.py; host deformgl/sim/backends/implicit_gpu.py):
-// Jacobi-preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
-// (sim/implicit/system.glsl). One define selects the pass:
-//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1 = 1 / diag(A), and b . P^-1 b per texel
-//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel
+// Preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
+// (sim/implicit/system.glsl): Jacobi, P^-1 = 1 / diag(A), or with PRECOND_BLOCK block-Jacobi,
+// P^-1 = the inverse of A's 3x3 diagonal block per node. One define selects the pass:
+//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1, and b . P^-1 b per texel
+//   WARM       (the scaled warm start) q = A dv_prev, and per texel R: dv_prev . q, G: b . dv_prev
+//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel; with
+//              WARM_SCALED dv = s dv_prev, s = (b . dv_prev) / (dv_prev . A dv_prev) (0 if that
+//              is not > 0), the multiple of the last step's dv nearest the solution in the A norm,
+//              r = b - s q (no product here), and dv is written too
 //   MATVEC     q = A p, and p . q per texel
 //   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
 //   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
@@ -24,10 +29,17 @@ uniform float u_dt;
 #include "sim/implicit/system.glsl"
 
 #if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
-uniform sampler2D u_inv;    // xyz 1 / diag(A)
+uniform sampler2D u_inv;    // xyz 1 / diag(A); PRECOND_BLOCK: the diagonal of the block's inverse
+#ifdef PRECOND_BLOCK
+uniform sampler2D u_inv_off; // xyz the block inverse's off-diagonal (xy, xz, yz)
 #endif
-#if defined(INIT)
+#endif
+#if defined(INIT) || defined(WARM)
 uniform sampler2D u_b;      // xyz right-hand side
+#endif
+#if defined(INIT) && defined(WARM_SCALED)
+uniform sampler2D u_q;      // xyz A dv_prev (WARM)
+uniform sampler2D u_warm;   // 1x1 R: dv_prev . A dv_prev, G: b . dv_prev
 #endif
 #if defined(UPDATE) || defined(FINAL)
 uniform sampler2D u_dv;     // xyz dv so far
@@ -50,16 +62,30 @@ uniform sampler2D u_rz_new; // 1x1 R: r . P^-1 r after the update
 #endif
 
 layout(location = 0) out vec4 o_0;
-#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(FINAL)
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(FINAL) || defined(WARM)
 layout(location = 1) out vec4 o_1;
 #endif
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
 layout(location = 2) out vec4 o_2;
 #endif
+#if (defined(SETUP) && defined(PRECOND_BLOCK)) || (defined(INIT) && defined(WARM_SCALED))
+layout(location = 3) out vec4 o_3;
+#endif
 
 float scalar(sampler2D s) {
     return texelFetch(s, ivec2(0, 0), 0).r;
 }
+
+#if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
+// z = P^-1 r at this texel
+vec3 precondition(ivec2 texel, vec3 r) {
+#ifdef PRECOND_BLOCK
+    return apply_preconditioner(texelFetch(u_inv, texel, 0).xyz, texelFetch(u_inv_off, texel, 0).xyz, r);
+#else
+    return texelFetch(u_inv, texel, 0).xyz * r;
+#endif
+}
+#endif
 
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
@@ -83,11 +109,14 @@ void main() {
 #else
     if (inactive) {
         o_0 = vec4(0.0);
-#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE)
+#if defined(SETUP) || defined(INIT) || defined(MATVEC) || defined(UPDATE) || defined(WARM)
         o_1 = vec4(0.0);
 #endif
 #if defined(SETUP) || defined(INIT) || defined(UPDATE)
         o_2 = vec4(0.0);
+#endif
+#if (defined(SETUP) && defined(PRECOND_BLOCK)) || (defined(INIT) && defined(WARM_SCALED))
+        o_3 = vec4(0.0);
 #endif
         return;
     }
@@ -96,20 +125,46 @@ void main() {
     float dt = u_dt;
 #if defined(SETUP)
     vec3 vi = texelFetch(u_v, texel, 0).xyz;
-    vec3 sk, sc, dk, dc;
-    spring_sums(texel, xi, vi, sk, sc, dk, dc);   // u_vec is v: sk = H_springs v
+    vec3 sk, sc, dk, dc, ok, oc;
+    spring_sums(texel, xi, vi, sk, sc, dk, dc, ok, oc);   // u_vec is v: sk = H_springs v
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
     vec3 b = dt * (m * grid_acceleration(texel, xi, vi, m, int(node.b)) - dt * hv);
     vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
+#ifdef PRECOND_BLOCK
+    vec3 off = (dt * dt) * ok + dt * oc;
+    mat3 inverse_block = inverse(mat3(diag.x, off.x, off.y,
+                                      off.x, diag.y, off.z,
+                                      off.y, off.z, diag.z));
+    vec3 inv = vec3(inverse_block[0][0], inverse_block[1][1], inverse_block[2][2]);
+    vec3 inv_off = vec3(inverse_block[1][0], inverse_block[2][0], inverse_block[2][1]);
+    o_0 = vec4(b, 0.0);
+    o_1 = vec4(inv, 0.0);
+    o_2 = vec4(dot(b, apply_preconditioner(inv, inv_off, b)));
+    o_3 = vec4(inv_off, 0.0);
+#else
     vec3 inv = 1.0 / diag;
     o_0 = vec4(b, 0.0);
     o_1 = vec4(inv, 0.0);
     o_2 = vec4(dot(b, inv * b));
+#endif
+#elif defined(WARM)
+    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is the last step's dv
+    vec3 q = apply_system(texel, xi, dv, m);
+    o_0 = vec4(q, 0.0);
+    o_1 = vec4(dot(dv, q), dot(texelFetch(u_b, texel, 0).xyz, dv), 0.0, 0.0);
 #elif defined(INIT)
-    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv
+    vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is dv (the last step's)
+#ifdef WARM_SCALED
+    vec4 w = texelFetch(u_warm, ivec2(0, 0), 0);
+    float s = w.r > 0.0 ? w.g / w.r : 0.0;
+    dv *= s;
+    vec3 r = texelFetch(u_b, texel, 0).xyz - s * texelFetch(u_q, texel, 0).xyz;
+    o_3 = vec4(dv, 0.0);
+#else
     vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, dv, m);
-    vec3 z = texelFetch(u_inv, texel, 0).xyz * r;
+#endif
+    vec3 z = precondition(texel, r);
     o_0 = vec4(r, 0.0);
     o_1 = vec4(z, 0.0);
     o_2 = vec4(dot(r, z));
@@ -125,11 +180,11 @@ void main() {
     vec3 r = texelFetch(u_r, texel, 0).xyz - alpha * texelFetch(u_q, texel, 0).xyz;
     o_0 = vec4(texelFetch(u_dv, texel, 0).xyz + alpha * p, 0.0);
     o_1 = vec4(r, 0.0);
-    o_2 = vec4(dot(r, texelFetch(u_inv, texel, 0).xyz * r));
+    o_2 = vec4(dot(r, precondition(texel, r)));
 #elif defined(DIRECTION)
     float rz = scalar(u_rz);
     float beta = rz != 0.0 ? scalar(u_rz_new) / rz : 0.0;
-    vec3 z = texelFetch(u_inv, texel, 0).xyz * texelFetch(u_r, texel, 0).xyz;
+    vec3 z = precondition(texel, texelFetch(u_r, texel, 0).xyz);
     o_0 = vec4(z + beta * texelFetch(u_p, texel, 0).xyz, 0.0);
 #endif
 #endif

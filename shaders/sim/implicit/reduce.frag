@@ -1,5 +1,6 @@
 #version 330 core
-// One level of the GPU sum of a per-texel scalar (R) for the implicit solver's dot products
+// One level of the GPU sum of per-texel values (RGBA, each channel its own sum; the solver's
+// dot products are R, the scaled warm start's two are R and G) for the implicit solver
 // (deformgl/sim/backends/implicit_gpu.py): each output texel sums a 4x4 block of u_src within
 // its u_size texels; the last level is 1x1. Pairwise-style partial sums keep float32 rounding
 // at O(log N) instead of O(N).
@@ -9,16 +10,16 @@ out vec4 o_sum;
 
 void main() {
     ivec2 base = 4 * ivec2(gl_FragCoord.xy);
-    float total = 0.0;
+    vec4 total = vec4(0.0);
     for (int dy = 0; dy < 4; ++dy) {
-        float row = 0.0;
+        vec4 row = vec4(0.0);
         for (int dx = 0; dx < 4; ++dx) {
             ivec2 t = base + ivec2(dx, dy);
             if (t.x < u_size.x && t.y < u_size.y) {
-                row += texelFetch(u_src, t, 0).r;
+                row += texelFetch(u_src, t, 0);
             }
         }
         total += row;
     }
-    o_sum = vec4(total);
+    o_sum = total;
 }

@@ -10,10 +10,13 @@
 // nodes drop out (the solve is over the free nodes).
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
 
-// Sums over the node's springs: sk = sum H_s (y_i - y_j), sc = sum C_s (y_i - y_j) and the
-// diagonals dk = sum diag(H_s), dc = sum diag(C_s).
-void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out vec3 dk, out vec3 dc) {
-    sk = vec3(0.0); sc = vec3(0.0); dk = vec3(0.0); dc = vec3(0.0);
+// Sums over the node's springs: sk = sum H_s (y_i - y_j), sc = sum C_s (y_i - y_j), the
+// diagonals dk = sum diag(H_s), dc = sum diag(C_s) and the off-diagonals (xy, xz, yz) of the
+// node's 3x3 block, ok of sum H_s and oc of sum C_s (the block-Jacobi preconditioner's; the
+// passes that do not use them leave them to the compiler to drop).
+void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out vec3 dk, out vec3 dc,
+                 out vec3 ok, out vec3 oc) {
+    sk = vec3(0.0); sc = vec3(0.0); dk = vec3(0.0); dc = vec3(0.0); ok = vec3(0.0); oc = vec3(0.0);
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
 #ifdef SPRING_WEIGHTS
@@ -37,10 +40,13 @@ void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out ve
             float along = dot(u, dy);
             sk += k * (along * u + g * (dy - along * u));
             dk += k * (u * u + g * (vec3(1.0) - u * u));
+            vec3 uu = u.xxy * u.yzz;   // u_x u_y, u_x u_z, u_y u_z
+            ok += k * (1.0 - g) * uu;
 #ifdef SPRING_DAMPING
             float cs = w[c] * u_c[cls];
             sc += cs * along * u;
             dc += cs * u * u;
+            oc += cs * uu;
 #endif
         }
     }
@@ -69,9 +75,19 @@ float node_drag_stiffness(int node) {
 
 // A y at this node (y_i = yi).
 vec3 apply_system(ivec2 texel, vec3 xi, vec3 yi, float m) {
-    vec3 sk, sc, dk, dc;
-    spring_sums(texel, xi, yi, sk, sc, dk, dc);
+    vec3 sk, sc, dk, dc, ok, oc;
+    spring_sums(texel, xi, yi, sk, sc, dk, dc, ok, oc);
     float dt = u_dt;
     float own = m + dt * node_damping(m) + dt * dt * node_drag_stiffness(texel_node(texel));
     return own * yi + (dt * dt) * sk + dt * sc;
 }
+
+// P^-1 r at this node: the Jacobi inverse diagonal (inv.xyz), or with PRECOND_BLOCK the
+// symmetric inverse of the node's 3x3 block, diagonal inv.xyz and off-diagonal off.xyz (xy, xz, yz).
+#ifdef PRECOND_BLOCK
+vec3 apply_preconditioner(vec3 inv, vec3 off, vec3 r) {
+    return vec3(inv.x * r.x + off.x * r.y + off.y * r.z,
+                off.x * r.x + inv.y * r.y + off.z * r.z,
+                off.y * r.x + off.z * r.y + inv.z * r.z);
+}
+#endif
