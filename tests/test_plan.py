@@ -164,3 +164,63 @@ def test_planned_scene_carries_the_implicit_iterations(tmp_path):
     assert plan.integrator == "implicit-euler" and scene.physics.integrator == "implicit-euler"
     assert scene.physics.dt == plan.dt and scene.physics.implicit.iterations == plan.iterations == 30
     assert scene.physics.steps == 3   # 0.05 s of simulated time in 1/60 s steps
+
+
+@pytest.mark.slow
+def test_the_plans_cg_iterations_follow_the_longest_side_and_settle_there():
+    """A rubber beam twice as long as thick at 1 %: the plan's implicit Euler takes its CG
+    iterations from the 23 nodes along the beam (truncated CG must carry a correction that far;
+    by the 12 across it took 10, and a beam of 6 x 21 nodes at 10 swings between 7 and 66 % of
+    its sag, never settling), and at those iterations the float64 reference settles on the
+    equilibrium."""
+    import numpy as np
+
+    from deformgl.bench.fem import Workload, lattice_case
+    from deformgl.bench.plan import IMPLICIT_STATIC_ERROR, implicit_iterations
+    from deformgl.sim.simulation import make_simulation
+
+    plan = make_plan((0.1, 0.05, 0.05), PRESETS["rubber"], 0.01, "bending")
+    assert plan.integrator == "implicit-euler" and plan.nodes_along_longest > 17 >= plan.across
+    assert plan.iterations == implicit_iterations(plan.nodes_along_longest) == 30
+    beam = Workload("beam", (0.1, 0.05, 0.05), "gravity", 9.81, (0, 0), (0, 1), (plan.across,), "m")
+    system = lattice_case(beam, plan.across, PRESETS["rubber"]).system
+    cg = make_simulation(system, "implicit-euler", "numpy", dt=plan.dt, cg_iterations=plan.iterations)
+    cg.step(60)
+    # two exactly solved steps from there: at this stiffness (w1 dt >> 1) each goes nearly all
+    # the way to the equilibrium, so what they move is how far from it CG had stopped
+    direct = make_simulation(system, "implicit-euler", "numpy", dt=plan.dt, solver="direct", state=cg.state)
+    direct.step(2)
+    u = direct.positions() - system.rest_positions
+    sag = float(np.linalg.norm(u, axis=1).max())
+    off = float(np.linalg.norm(cg.positions() - direct.positions(), axis=1).max()) / sag
+    assert sag > 0 and off <= IMPLICIT_STATIC_ERROR
+
+
+def test_a_long_body_is_not_planned_on_implicit_euler_beyond_the_measured_grids():
+    from deformgl.bench.plan import IMPLICIT_MEASURED_ALONG
+
+    plan = make_plan((0.6, 0.05, 0.05), PRESETS["rubber"], 0.05, "bending")
+    assert plan.integrator != "implicit-euler"
+    assert plan.why_integrator.startswith("implicit-euler not considered:")
+    assert f"beyond the {IMPLICIT_MEASURED_ALONG}" in plan.why_integrator
+
+
+def test_render_tolerance_keeps_explicit_where_implicit_would_not_run_or_would_damp(tmp_path):
+    """``render --tolerance`` on a stiff scene: not implicit Euler on the feedback backend (it has
+    none), nor with a drag or a pull that stops (motion it would damp), and the plan says why."""
+    from pathlib import Path
+
+    from deformgl.bench.plan import planned_scene
+    from deformgl.scene.schema import load_scene
+
+    mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
+    base = f'[mesh]\npath = "{mesh.as_posix()}"\n[material]\npreset = "rubber"\n[physics]\ndt = 1e-4\nsteps = 500\n'
+    cases = {"feedback": 'backend = "feedback"\n',
+             "pulls that stop": '[[physics.pull]]\nregion = "above"\naxis = "y"\nat = 0.9\nforce = [1, 0, 0]\n'
+                                'stop = 0.01\n'}
+    for expected, extra in cases.items():
+        path = tmp_path / "s.toml"
+        path.write_text(base + extra)
+        scene, plan = planned_scene(load_scene(path), 0.002, "compression")
+        assert scene.physics.integrator != "implicit-euler", expected
+        assert plan.why_integrator.startswith("implicit-euler not considered:") and expected in plan.why_integrator

@@ -74,6 +74,9 @@ IMPLICIT_STEP_COST: dict[int, dict[int, float]] = {
 #: 10 up to 17 across (2.1e-4), 30 above (5.2e-4); 10 at 33 across left 5.6 %. (Its fixed point
 #: is the equilibrium: a longer run leaves less.)
 IMPLICIT_STATIC_ERROR = 6.0e-4
+#: The largest grid ``bench trade --stiff`` measured implicit Euler on (a cube, 33 nodes along
+#: each side): the plan does not extrapolate the iteration counts and residue above beyond it.
+IMPLICIT_MEASURED_ALONG = 33
 
 
 def fit(load: str, finest: int = 4) -> tuple[float, float]:
@@ -183,9 +186,12 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     return _consider_implicit(plan) if implicit else plan
 
 
-def implicit_iterations(across: int) -> int:
-    """CG iterations per step of the plan's implicit Euler (:data:`IMPLICIT_STATIC_ERROR`)."""
-    return 10 if across <= 17 else 30
+def implicit_iterations(along: int) -> int:
+    """CG iterations per step of the plan's implicit Euler (:data:`IMPLICIT_STATIC_ERROR`), by
+    the nodes along the body's longest side: how far truncated CG must carry a correction (on a
+    beam 6 across and 21 along, 10 iterations never settle: 7-66 % of the sag over 2 s; 30 reach
+    3e-4 of it within 80 steps)."""
+    return 10 if along <= 17 else 30
 
 
 def implicit_step_cost(iterations: int, nodes: int) -> float:
@@ -222,7 +228,12 @@ def _consider_implicit(plan: Plan) -> Plan:
             f"implicit-euler rejected: its static residue {IMPLICIT_STATIC_ERROR:.2%} leaves no room for the grid "
             f"within the tolerance {plan.tolerance:.2%}"))
     h = min(plan.size) / cells
-    its = implicit_iterations(cells + 1)
+    along = math.ceil(max(plan.size) / h - 1e-9) + 1
+    if along > IMPLICIT_MEASURED_ALONG:
+        return dataclasses.replace(plan, why_integrator=(
+            f"implicit-euler not considered: its grid would have {along} nodes along the longest side, beyond "
+            f"the {IMPLICIT_MEASURED_ALONG} that bench trade --stiff measured its CG iterations and residue on"))
+    its = implicit_iterations(along)
     nodes_i, nodes_e = _nodes(plan.size, h), _nodes(plan.size, plan.spacing)
     step = implicit_step_cost(its, nodes_i)         # in explicit steps of its grid
     steps = FRAME_DT / plan.dt                      # explicit steps per frame
@@ -236,7 +247,6 @@ def _consider_implicit(plan: Plan) -> Plan:
                f"{grid}: implicit-euler is {ratio:.3g}x cheaper per simulated second; it damps motion: the "
                f"lowest mode (w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics "
                f"use {plan.integrator})")
-        along = math.ceil(max(plan.size) / h - 1e-9) + 1
         return dataclasses.replace(plan, integrator="implicit-euler", across=cells + 1, spacing=h,
                                    nodes_along_longest=along, fraction=FRAME_DT / plan.critical, dt=FRAME_DT,
                                    discretisation=c * (1.0 / cells) ** p, time_stepping=0.0,
@@ -275,6 +285,22 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
     return make_plan(tuple(float(e) for e in extent), chosen, tolerance, load)  # type: ignore[arg-type]
 
 
+def implicit_refusal(scene: Any) -> str | None:
+    """Why ``render --tolerance`` must not move ``scene`` to implicit Euler at 1/60 s, or None:
+    a backend without it, or motion that the step would damp (drags, moving spheres, pulls that
+    stop: implicit Euler at the frame step keeps almost none of a stiff body's motion)."""
+    physics = scene.physics
+    if physics.backend == "feedback":
+        return "the scene's backend (feedback) has no implicit Euler"
+    moving = [name for name, present in (
+        ("drags", bool(physics.drag)), ("moving spheres", any(s.path is not None for s in physics.sphere)),
+        ("pulls that stop", any(math.isfinite(p.stop) for p in physics.pull))) if present]
+    if moving:
+        return (f"the scene has {' and '.join(moving)}: motion that implicit Euler at 1/60 s damps "
+                f"(deformgl plan weighs it for statics)")
+    return None
+
+
 def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[Any, Plan]:
     """``deformgl render SCENE --tolerance X``: the scene on the plan's grid, integrator and dt,
     with as many steps as keep its simulated time (``physics.dt x physics.steps``), and the plan.
@@ -293,7 +319,11 @@ def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[
                          f"(youngs_modulus, density); see deformgl plan --help")
     mesh = load_mesh(scene.mesh.path)
     extent = (mesh.bounds[1] - mesh.bounds[0]) * float(scene.mesh.scale)
-    plan = make_plan(tuple(float(e) for e in extent), material, tolerance, load)  # type: ignore[arg-type]
+    refusal = implicit_refusal(scene)
+    plan = make_plan(tuple(float(e) for e in extent), material, tolerance, load,  # type: ignore[arg-type]
+                     implicit=refusal is None)
+    if refusal is not None:
+        plan = dataclasses.replace(plan, why_integrator=f"implicit-euler not considered: {refusal}")
     simulated = scene.physics.dt * scene.physics.steps
     steps = max(1, math.ceil(simulated / plan.dt - 1e-9))
     physics = dataclasses.replace(scene.physics, integrator=plan.integrator, dt=plan.dt, steps=steps)
