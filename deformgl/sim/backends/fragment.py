@@ -44,15 +44,14 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.sim.base import SimulationBase
 
-from deformgl.errors import GLError
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, CompactLayout, NodeGrid
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
 from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, verlet_terms
-from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, check_topology, class_values, grid_neighbours,
-                                                spring_weights)
+from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout, grid_neighbours,
+                                                grid_springs, spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
@@ -145,11 +144,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         for drag in self.drags:
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FragmentIntegrator: drag node {drag.node} outside the system")
-        self.flexion = bool(np.any(system.spring_class == FLEXION))
-        self.neighbour_table = grid_neighbours(grid, self.flexion)
-        check_topology(system, grid, self.neighbour_table)
-        self.classes = [class_values(system, c, name) for c, name in
-                        ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
+        self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
         #: the foundation pass when it runs this simulation (see ``path``), else None
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
@@ -164,10 +159,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                                       t0=self.t, draw=draw, branch=branch, layout=layout,
                                                       weight_texture=weight_texture))
             return
-        try:
-            self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
-        except ValueError as exc:
-            raise GLError(f"{exc}; use a coarser grid") from None
+        self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         #: every node of the box exists: neighbours by node-number offsets, no index texture
         self.dense = self.layout.dense
         offsets = np.concatenate([NEIGHBOUR_OFFSETS, FLEXION_OFFSETS])[: self.neighbour_table.shape[1]]

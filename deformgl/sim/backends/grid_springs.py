@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from deformgl.grid.nodes import NodeGrid
+from deformgl.errors import GLError
+from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
-__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "grid_neighbours", "spring_weights"]
+__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
+           "spring_weights"]
 
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
 FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
@@ -102,3 +104,24 @@ def check_topology(system: SpringSystem, grid: NodeGrid, nb: np.ndarray) -> None
         if not np.array_equal(np.sort(a * n + b), expected):
             raise ValueError("FragmentIntegrator: the system's springs are not those of the grid "
                              "(build it with springs.from_grid or springs.cloth on this grid)")
+
+
+def grid_springs(system: SpringSystem, grid: NodeGrid) -> tuple[bool, np.ndarray, list[tuple[float, float, float]]]:
+    """(flexion, neighbour table, class values) of a system on its grid, as every fragment-pass
+    solver reads them: whether it has flexion springs, :func:`grid_neighbours` (checked against
+    the system's springs by :func:`check_topology`) and :func:`class_values` of the structural,
+    shear and flexion classes."""
+    flexion = bool(np.any(system.spring_class == FLEXION))
+    nb = grid_neighbours(grid, flexion)
+    check_topology(system, grid, nb)
+    classes = [class_values(system, c, name) for c, name in
+               ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
+    return flexion, nb, classes
+
+
+def compact_layout(grid: NodeGrid, max_texture_size: int) -> CompactLayout:
+    """The grid's compact layout, or a GLError when it does not fit a texture."""
+    try:
+        return CompactLayout.for_grid(grid, max_texture_size)
+    except ValueError as exc:
+        raise GLError(f"{exc}; use a coarser grid") from None

@@ -46,17 +46,16 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from deformgl.errors import GLError
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.grid_springs import check_topology, class_values, grid_neighbours, spring_weights
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, check_cg,
                                    check_preconditioner, check_warm_start, solver_note)
 from deformgl.sim.integrators import Constraints, State, initial_state
-from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
 __all__ = ["ImplicitFragment", "PASSES", "PRECONDITIONED_PASSES"]
@@ -151,15 +150,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"ImplicitFragment: drag node {drag.node} outside the system")
         self.iterations, self.tolerance, self.check_every = int(cg_iterations), float(cg_tolerance), int(cg_check_every)
-        self.flexion = bool(np.any(system.spring_class == FLEXION))
-        self.neighbour_table = grid_neighbours(grid, self.flexion)
-        check_topology(system, grid, self.neighbour_table)
-        self.classes = [class_values(system, c, name) for c, name in
-                        ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
-        try:
-            self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
-        except ValueError as exc:
-            raise GLError(f"{exc}; use a coarser grid") from None
+        self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
+        self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
         self.last_moved = float("inf")

@@ -29,13 +29,8 @@ from deformgl.errors import GLError
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.grid_springs import (
-    check_topology,
-    class_values,
-    grid_neighbours,
-    spring_weights,
-)
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
@@ -110,15 +105,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
         self.count = grid.count
         self.load_bits = load_groups(self.loads, self.count)
-        flexion = bool(np.any(system.spring_class == FLEXION))
-        self.nb = grid_neighbours(grid, flexion)
-        check_topology(system, grid, self.nb)
-        self.classes = [class_values(system, c, name) for c, name in
-                        ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
-        try:
-            self.layout = CompactLayout.for_grid(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
-        except ValueError as exc:
-            raise GLError(f"{exc}; use a coarser grid") from None
+        flexion, self.nb, self.classes = grid_springs(system, grid)
+        self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.layers = -(-self.nb.shape[1] // 4)
         targets = 1 + self.layers + (1 if self.drags else 0)
         if targets > int(ctx.info.get("GL_MAX_DRAW_BUFFERS", 8)):
