@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+import numpy as np
+
 
 class SimulationBase:
     """Mixin: the clock (time is ``t0 + steps * dt``, never accumulated: ``t += dt`` rounds, and
@@ -43,3 +47,39 @@ class SimulationBase:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+class CpuSimulationBase(SimulationBase):
+    """Mixin of the float64 NumPy backends (explicit, implicit Euler, XPBD): the state on the
+    CPU (``state``: a :class:`~deformgl.sim.integrators.State`), ``last_moved`` (the run loop's
+    convergence test), the accessors, and no GL objects (``position_slot()`` is None)."""
+
+    backend = "numpy"
+    state: Any
+    #: largest node displacement of the last step (the convergence test of the run loop)
+    last_moved: float = float("inf")
+
+    def _advance(self, new: Any) -> None:
+        """One step taken into state ``new``: its largest displacement, the state, the clock."""
+        self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
+        self.state = new
+        self._tick()
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float64 positions (a copy)."""
+        return self.state.x.copy()
+
+    def velocities(self) -> np.ndarray:
+        """(N, 3) float64 velocities (a copy; Verlet: the backward difference)."""
+        return self.state.v.copy()
+
+    def position_slot(self) -> None:
+        """No GPU texture on the NumPy backend."""
+        return None
+
+    @property
+    def bytes_per_node(self) -> float:
+        return 0.0
+
+    def release(self) -> None:
+        """Nothing to release."""

@@ -41,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
@@ -278,7 +278,7 @@ def solver_note(unconverged: int, steps: int, worst: float, tolerance: float) ->
             f"(worst relative residual {worst:.3g}); raise physics.implicit.iterations")
 
 
-class ImplicitNumpySimulation(SimulationBase):
+class ImplicitNumpySimulation(CpuSimulationBase):
     """Backward Euler (:func:`implicit_step`) behind the :class:`~deformgl.sim.simulation.Simulation`
     interface, float64. Holds no GL objects: ``position_slot()`` is None.
 
@@ -295,7 +295,6 @@ class ImplicitNumpySimulation(SimulationBase):
         tolerance; worst_residual: the largest residual of those.
     """
 
-    backend = "numpy"
     integrator = "implicit-euler"
 
     def __init__(self, system: SpringSystem, dt: float, *, constraints: Constraints | None = None,
@@ -320,7 +319,6 @@ class ImplicitNumpySimulation(SimulationBase):
                             check_every=int(cg_check_every), solver=solver, geometric=geometric,
                             preconditioner=cg_preconditioner, warm=cg_warm_start)
         self.dv = np.zeros((self.count, 3))
-        self.last_moved = float("inf")
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
 
@@ -329,32 +327,15 @@ class ImplicitNumpySimulation(SimulationBase):
             new, self.dv, report = implicit_step(self.system, self.state, self.dt, self.t, dv0=self.dv,
                                                  constraints=self.constraints, drags=self.drags,
                                                  loads=self.loads, **self.options)
-            self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
-            self.state, self.last_report = new, report
+            self.last_report = report
             if not report.converged:
                 self.unconverged += 1
                 self.worst_residual = max(self.worst_residual, report.residual)
-            self._tick()
+            self._advance(new)
 
     def solver_note(self) -> str | None:
         """What the run loop notes about the solves (CG missed its tolerance), or None."""
         return solver_note(self.unconverged, self.steps_done, self.worst_residual, self.tolerance)
-
-    def positions(self) -> np.ndarray:
-        return self.state.x.copy()
-
-    def velocities(self) -> np.ndarray:
-        return self.state.v.copy()
-
-    def position_slot(self) -> None:
-        return None
-
-    @property
-    def bytes_per_node(self) -> float:
-        return 0.0
-
-    def release(self) -> None:
-        """Nothing to release."""
 
 
 def check_cg(iterations: object, tolerance: object, check_every: object) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.sim import integrators
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import ALL_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
 from deformgl.sim.springs import Drag, Load, SpringSystem
 
@@ -77,14 +77,12 @@ class Simulation(Protocol):
     def __exit__(self, *exc: object) -> None: ...
 
 
-class NumpySimulation(SimulationBase):
+class NumpySimulation(CpuSimulationBase):
     """The float64 reference (:func:`deformgl.sim.integrators.step`) behind the
     :class:`Simulation` interface. Holds no GL objects: ``position_slot()`` is None.
 
     Args: as :class:`~deformgl.sim.backends.feedback.FeedbackSimulation`, without the context.
     """
-
-    backend = "numpy"
 
     def __init__(self, system: SpringSystem, integrator: str, dt: float, *,
                  constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
@@ -99,36 +97,12 @@ class NumpySimulation(SimulationBase):
         self.count = system.count
         self.state = (integrators.initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                       if state is None else state)
-        #: largest node displacement of the last step (the convergence test of the run loop)
-        self.last_moved = float("inf")
 
     def step(self, n: int = 1) -> None:
         """``n`` steps; time is ``t0 + steps * dt`` (no accumulated rounding)."""
         for _ in range(n):
-            new = integrators.step(self.system, self.integrator, self.state, self.dt, self.t,
-                                   constraints=self.constraints, drags=self.drags, loads=self.loads)
-            self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
-            self.state = new
-            self._tick()
-
-    def positions(self) -> np.ndarray:
-        """(N, 3) float64 positions (a copy)."""
-        return self.state.x.copy()
-
-    def velocities(self) -> np.ndarray:
-        """(N, 3) float64 velocities (Verlet: the backward difference)."""
-        return self.state.v.copy()
-
-    def position_slot(self) -> None:
-        """No GPU texture on the NumPy backend."""
-        return None
-
-    @property
-    def bytes_per_node(self) -> float:
-        return 0.0
-
-    def release(self) -> None:
-        """Nothing to release."""
+            self._advance(integrators.step(self.system, self.integrator, self.state, self.dt, self.t,
+                                           constraints=self.constraints, drags=self.drags, loads=self.loads))
 
 
 def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *,

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
 
@@ -214,7 +214,7 @@ def relative_residual(c: np.ndarray, at_lambda: np.ndarray) -> float:
     return 0.0 if den == 0.0 else num / den
 
 
-class XpbdNumpy(SimulationBase):
+class XpbdNumpy(CpuSimulationBase):
     """:class:`XpbdSolver` behind the :class:`~deformgl.sim.simulation.Simulation` interface
     (backend "numpy"; no GL objects: ``position_slot()`` is None).
 
@@ -224,7 +224,6 @@ class XpbdNumpy(SimulationBase):
         iterations, substeps, omega: :class:`XpbdSettings`.
     """
 
-    backend = "numpy"
     integrator = NAME
 
     def __init__(self, system: SpringSystem, dt: float, *, constraints: Constraints | None = None,
@@ -240,8 +239,6 @@ class XpbdNumpy(SimulationBase):
         self.count = system.count
         x0 = np.array(system.rest_positions, np.float64)
         self.state = State(x0, np.zeros_like(x0), x0.copy()) if state is None else state
-        #: largest node displacement of the last step (the run loop's convergence test)
-        self.last_moved = float("inf")
 
     @property
     def residual(self) -> float:
@@ -251,26 +248,4 @@ class XpbdNumpy(SimulationBase):
     def step(self, n: int = 1) -> None:
         """``n`` steps of dt."""
         for _ in range(n):
-            new = self.solver.step(self.state, self.dt, self.t)
-            self.last_moved = float(np.max(np.linalg.norm(new.x - self.state.x, axis=1), initial=0.0))
-            self.state = new
-            self._tick()
-
-    def positions(self) -> np.ndarray:
-        """(N, 3) float64 positions (a copy)."""
-        return self.state.x.copy()
-
-    def velocities(self) -> np.ndarray:
-        """(N, 3) float64 velocities."""
-        return self.state.v.copy()
-
-    def position_slot(self) -> None:
-        """No GPU texture on the NumPy backend."""
-        return
-
-    @property
-    def bytes_per_node(self) -> float:
-        return 0.0
-
-    def release(self) -> None:
-        """Nothing to release."""
+            self._advance(self.solver.step(self.state, self.dt, self.t))
