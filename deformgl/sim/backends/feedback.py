@@ -47,6 +47,7 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
+from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
 from deformgl.errors import GLError
@@ -103,11 +104,6 @@ def _check_layout(sp: IntegratorSpec) -> None:
     if any(sp.before(role) != old for role, old in expected.items()):
         raise ValueError(f"FeedbackSimulation: {sp.name}'s buffer rotation {sp.rotation} is not "
                          f"one this backend implements")
-
-
-def _array(values: list) -> object:
-    """A uniform array value for moderngl: an array of length 1 is set as its element."""
-    return values[0] if len(values) == 1 else values
 
 
 def _reads_stage(stage: Stage) -> bool:
@@ -317,8 +313,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             if _reads_stage(stage):
                 uniforms["u_stage"] = 4
         if self.drags:
-            uniforms["u_drag_node"] = _array([d.node for d in self.drags])
-            uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+            uniforms["u_drag_node"] = uniform_array([d.node for d in self.drags])
+            uniforms["u_drag_k"] = uniform_array([float(d.stiffness) for d in self.drags])
         c = self.constraints
         if "CONSTRAINTS" in defines and stage.final and c is not None:
             if c.ground is not None:
@@ -333,21 +329,14 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if self.loads:
             forces = [tuple(float(c) for c in np.asarray(load.force(t), float))
                       for load in self.loads]
-            p.program.set(u_load=_array(forces))
+            p.program.set(u_load=uniform_array(forces))
         if self.drags:
             targets = [tuple(float(c) for c in np.asarray(d.target(t), float)) for d in self.drags]
-            p.program.set(u_drag_target=_array(targets))
-        c = self.constraints
-        if constrain and c is not None and c.spheres:
-            t0 = self.t
-            spheres, velocities = [], []
-            for sphere in c.spheres:
-                end = sphere.centre_at(t0 + self.dt)
-                spheres.append((*map(float, end), float(sphere.radius)))
-                velocities.append(tuple(map(float, (end - sphere.centre_at(t0)) / self.dt)))
-            values: dict[str, object] = {"u_spheres": _array(spheres)}
-            if self.spec.velocity:
-                values["u_sphere_velocity"] = _array(velocities)
+            p.program.set(u_drag_target=uniform_array(targets))
+        values = sphere_uniforms(self.constraints, self.t, self.dt) if constrain else {}
+        if values and not self.spec.velocity:
+            del values["u_sphere_velocity"]
+        if values:
             p.program.set(**values)
 
     def _run(self, stage: Stage, t: float, into: moderngl.Texture) -> None:

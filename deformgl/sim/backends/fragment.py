@@ -42,6 +42,7 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
+from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
@@ -61,11 +62,6 @@ __all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
 PATHS = ("auto", "general", "foundation")
 
 _VEC4 = 16
-def _array(values: list) -> object:
-    """A uniform array value for moderngl: an array of length 1 is set as its element."""
-    return values[0] if len(values) == 1 else values
-
-
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
 
@@ -300,8 +296,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms.update(u_wind=tuple(float(g) for g in system.wind),
                             u_wind_drag=system.wind_drag)
         if self.drags:
-            uniforms["u_drag_node"] = _array([d.node for d in self.drags])
-            uniforms["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+            uniforms["u_drag_node"] = uniform_array([d.node for d in self.drags])
+            uniforms["u_drag_k"] = uniform_array([float(d.stiffness) for d in self.drags])
         if defines.get("SPRING_DAMPING"):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("DENSE"):
@@ -324,26 +320,19 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         return fbo
 
     def _set_spheres(self, program: Program) -> None:
-        c = self.constraints
-        if c is None or not c.spheres:
-            return
-        spheres, velocities = [], []
-        for sphere in c.spheres:
-            end = sphere.centre_at(self.t + self.dt)
-            spheres.append((*map(float, end), float(sphere.radius)))
-            velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
-        values: dict[str, object] = {"u_spheres": _array(spheres)}
-        if self.spec.velocity:
-            values["u_sphere_velocity"] = _array(velocities)
-        program.set(**values)
+        values = sphere_uniforms(self.constraints, self.t, self.dt)
+        if values and not self.spec.velocity:
+            del values["u_sphere_velocity"]
+        if values:
+            program.set(**values)
 
     def _set_time(self, program: Program, t: float) -> None:
         """Loads and drag targets at the stage time t."""
         if self.loads:
-            program.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+            program.set(u_load=uniform_array([tuple(float(c) for c in np.asarray(load.force(t), float))
                                        for load in self.loads]))
         if self.drags:
-            program.set(u_drag_target=_array([tuple(float(c) for c in
+            program.set(u_drag_target=uniform_array([tuple(float(c) for c in
                                                     np.asarray(d.target(t), float))
                                               for d in self.drags]))
 

@@ -51,6 +51,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
+from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, check_cg,
                                    check_preconditioner, check_warm_start, solver_note)
@@ -71,10 +72,6 @@ _REDUCE_UNIT = 15
 _UNITS["u_inv_off"] = _REDUCE_UNIT
 #: The passes that apply P^-1 (block-Jacobi: they read ``inv_off`` too).
 PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
-
-
-def _array(values: list) -> object:
-    return values[0] if len(values) == 1 else values
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
@@ -224,8 +221,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             "u_mass_damping": system.mass_damping, "u_wind": tuple(float(g) for g in system.wind),
             "u_wind_drag": system.wind_drag}
         if self.drags:
-            values["u_drag_node"] = _array([d.node for d in self.drags])
-            values["u_drag_k"] = _array([float(d.stiffness) for d in self.drags])
+            values["u_drag_node"] = uniform_array([d.node for d in self.drags])
+            values["u_drag_k"] = uniform_array([float(d.stiffness) for d in self.drags])
         c = self.constraints
         if c is not None and c.ground is not None:
             values["u_ground"] = float(c.ground)
@@ -271,22 +268,16 @@ class ImplicitFragment(SimulationBase, GLOwner):
 
     def _set_time(self, program: Program, t: float) -> None:
         if self.loads:
-            program.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+            program.set(u_load=uniform_array([tuple(float(c) for c in np.asarray(load.force(t), float))
                                        for load in self.loads]))
         if self.drags:
-            program.set(u_drag_target=_array([tuple(float(c) for c in np.asarray(d.target(t), float))
+            program.set(u_drag_target=uniform_array([tuple(float(c) for c in np.asarray(d.target(t), float))
                                               for d in self.drags]))
 
     def _set_spheres(self) -> None:
-        c = self.constraints
-        if c is None or not c.spheres:
-            return
-        spheres, velocities = [], []
-        for sphere in c.spheres:
-            end = sphere.centre_at(self.t + self.dt)
-            spheres.append((*map(float, end), float(sphere.radius)))
-            velocities.append(tuple(map(float, (end - sphere.centre_at(self.t)) / self.dt)))
-        self.passes["FINAL"].set(u_spheres=_array(spheres), u_sphere_velocity=_array(velocities))
+        values = sphere_uniforms(self.constraints, self.t, self.dt)
+        if values:
+            self.passes["FINAL"].set(**values)
 
     def _one_step(self) -> None:
         self.tex_node.use(_UNITS["u_node"])

@@ -31,6 +31,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
+from deformgl.sim.backends.uniforms import uniform_array
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
@@ -52,10 +53,6 @@ __all__ = ["XpbdFragment", "column_stiffness"]
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_stiffness": 2, "u_x": 3, "u_v": 4, "u_p": 5,
              "u_lambda_drag": 6, **{f"u_lambda{layer}": 7 + layer for layer in range(6)}}
-
-
-def _array(values: list) -> object:
-    return values[0] if len(values) == 1 else values
 
 
 def column_stiffness(system: SpringSystem, nb: np.ndarray, classes: list[tuple[float, float, float]]) -> np.ndarray:
@@ -177,8 +174,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         if sp:
             self.p_iterate.set(u_ratio=ratios)
         if self.drags:
-            self.p_iterate.set(u_drag_node=_array([d.node for d in self.drags]),
-                               u_drag_k=_array([float(d.stiffness) for d in self.drags]))
+            self.p_iterate.set(u_drag_node=uniform_array([d.node for d in self.drags]),
+                               u_drag_k=uniform_array([float(d.stiffness) for d in self.drags]))
         if c is not None and c.ground is not None:
             self.p_iterate.set(u_ground=float(c.ground))
         self._vaos = {id(p): self.own(self.ctx.vertex_array(p.gl, []))
@@ -208,7 +205,7 @@ class XpbdFragment(SimulationBase, GLOwner):
         last iterate."""
         x, v = self.state_pairs[self.current]
         if self.loads:
-            self.p_predict.set(u_load=_array([tuple(float(c) for c in np.asarray(load.force(t), float))
+            self.p_predict.set(u_load=uniform_array([tuple(float(c) for c in np.asarray(load.force(t), float))
                                               for load in self.loads]))
         x.use(_SAMPLERS["u_x"])
         v.use(_SAMPLERS["u_v"])
@@ -216,11 +213,11 @@ class XpbdFragment(SimulationBase, GLOwner):
         clear = self.lambdas[0] + self.drag_lambdas[:1]
         self._fbo(clear).clear(0.0, 0.0, 0.0, 0.0)
         if self.drags:
-            self.p_iterate.set(u_drag_target=_array([tuple(float(c) for c in np.asarray(d.target(t + h), float))
+            self.p_iterate.set(u_drag_target=uniform_array([tuple(float(c) for c in np.asarray(d.target(t + h), float))
                                                      for d in self.drags]))
         c = self.constraints
         if c is not None and c.spheres:
-            self.p_iterate.set(u_spheres=_array([(*map(float, s.centre_at(t + h)), float(s.radius))
+            self.p_iterate.set(u_spheres=uniform_array([(*map(float, s.centre_at(t + h)), float(s.radius))
                                                  for s in c.spheres]))
         a = 0
         for _ in range(self.settings.iterations):
