@@ -8,14 +8,25 @@ those too): CI must never pass with its GL or extras' tests skipped.
 
 Markers (registered in pyproject.toml): every test that uses ``ctx`` — directly or through any
 fixture depending on it — is marked ``gl`` here, as are the tests in ``GL_WITHOUT_CTX`` that make
-their own context (the CLI and the context tests); ``SLOW`` lists the long ones. A test that is
-not marked ``gl`` gets no GL context: creating one raises in the process, and EGL finds no driver
-in its subprocesses, so ``pytest -m "not gl"`` really runs without OpenGL.
+their own context (the CLI and the context tests); ``SLOW`` lists the long ones, which the
+README's test command leaves out (pyproject's ``addopts``: ``-m "not slow"``; ``pytest -m slow``
+runs them). A test that is not marked ``gl`` gets no GL context: creating one raises in the
+process, and EGL finds no driver in its subprocesses, so ``pytest -m "not gl"`` really runs
+without OpenGL.
+
+A test that needs an optional extra or system tool carries that extra's or tool's marker
+(:data:`EXTRAS`, :data:`TOOLS`: ``plot``, ``fem``, ``video``, ``sweep``, ``peers``, ``glslang``,
+``chromium``); where it is missing, the test is skipped here with a reason that names it and
+how to install it. ``.ci/run`` runs the README's test command without them, installs them, then
+runs the marked tests (and the slow ones) with ``DEFORMGL_REQUIRE_EXTRAS=1``. ``both_ways``
+marks a test whose verdict depends on which extras are installed (mypy's), run in both runs.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -44,6 +55,7 @@ SLOW = (
     "tests/test_golden.py::test_cloth_on_sphere_matches_golden[verlet-fragment]",
     "tests/test_bench.py::test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart",
     "tests/test_sweep.py::test_bench_trade_on_dask_workers",  # the quick trade study twice, ~30 s
+    "tests/test_budget.py::test_the_estimate_is_within_30_percent_of_the_measured_peak",  # 35-55 s each
 )
 #: (test file, fixture): the tests of that file using that fixture are slow (its setup is).
 SLOW_FIXTURES = (
@@ -51,8 +63,41 @@ SLOW_FIXTURES = (
 )
 
 
+#: marker -> (module it imports, the extra that installs it)
+EXTRAS = {
+    "plot": ("matplotlib", "plot"),
+    "fem": ("skfem", "fem"),
+    "video": ("imageio_ffmpeg", "video"),
+    "sweep": ("distributed", "sweep"),
+    "peers": ("taichi", "peers"),  # (tests/test_peers.py also skips per peer)
+}
+#: marker -> (executables, any of which will do; the Debian package that installs them)
+TOOLS = {
+    "glslang": (("glslangValidator",), "glslang-tools"),
+    "chromium": (("chromium", "chromium-browser"), "chromium"),
+}
+
+
+def missing_extra(marker: str) -> str | None:
+    """The skip reason of a test carrying ``marker`` when its extra or tool is missing, else None.
+    Every reason says "optional extra" (the word :func:`pytest_sessionfinish` allows)."""
+    if marker in EXTRAS:
+        module, extra = EXTRAS[marker]
+        if importlib.util.find_spec(module) is None:
+            return f"optional extra '{extra}': {module} is not installed (pip install '.[{extra}]')"
+    elif marker in TOOLS:
+        exes, package = TOOLS[marker]
+        if not any(shutil.which(exe) for exe in exes):
+            return f"optional extra: {exes[0]} (apt-get install {package}) not installed"
+    return None
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    missing = {m: missing_extra(m) for m in (*EXTRAS, *TOOLS)}
     for item in items:
+        for marker, reason in missing.items():
+            if reason and item.get_closest_marker(marker) is not None:
+                item.add_marker(pytest.mark.skip(reason=reason))
         nodeid = item.nodeid.replace("\\", "/")
         if "ctx" in getattr(item, "fixturenames", ()) or nodeid.startswith(GL_WITHOUT_CTX):
             item.add_marker(pytest.mark.gl)

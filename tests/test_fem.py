@@ -144,6 +144,7 @@ def cantilever_fem():
     return fem_reference(CANTILEVER, (1, 2, 4))
 
 
+@pytest.mark.fem
 @pytest.mark.slow
 def test_fem_converges_and_lies_between_euler_bernoulli_and_timoshenko(cantilever_fem):
     """L/a = 10: the clamped 3D beam is stiffer than Timoshenko's (the clamp holds the root's
@@ -159,6 +160,7 @@ def test_fem_converges_and_lies_between_euler_bernoulli_and_timoshenko(cantileve
     assert value / timo == pytest.approx(1.0, abs=0.01)
 
 
+@pytest.mark.fem
 @pytest.mark.slow
 def test_the_lattice_converges_to_fem_at_second_order(cantilever_fem):
     from deformgl.bench.accuracy import fitted_order
@@ -175,12 +177,14 @@ def test_the_lattice_converges_to_fem_at_second_order(cantilever_fem):
     np.testing.assert_allclose(ratios, [0.54, 0.81, 0.90, 0.94, 0.984], atol=0.006)
 
 
+@pytest.mark.fem
 @pytest.mark.slow
 def test_at_17_nodes_across_the_tip_is_within_half_a_percent_of_fem(cantilever_fem):
     fem, _, _ = cantilever_fem
     assert lattice_value(lattice_case(CANTILEVER, 17)) / fem == pytest.approx(1.0, abs=0.005)
 
 
+@pytest.mark.fem
 @pytest.mark.slow
 def test_the_uncalibrated_lattice_misses_the_target(cantilever_fem):
     """k = 0.4 E h on every spring and m = rho h^3 on every node, no cell weighting: the
@@ -198,6 +202,7 @@ def test_the_uncalibrated_lattice_misses_the_target(cantilever_fem):
     assert abs(uncalibrated - 1) > 0.02
 
 
+@pytest.mark.fem
 def test_block_and_twist_converge_to_fem():
     need_fem()
     from deformgl.bench.fem import fem_reference
@@ -225,6 +230,7 @@ def test_the_fragment_backend_settles_on_the_static_solve_too(ctx):
     assert lattice_value(case, u) == pytest.approx(lattice_value(case), rel=2e-3)
 
 
+@pytest.mark.fem
 @pytest.mark.slow
 def test_the_bench_accuracy_command_prints_the_table_and_writes_its_files(tmp_path, capsys):
     need_fem()

@@ -64,6 +64,7 @@ def stepper(peer, model, dt=1e-3, pull=True):
     return peers.make_stepper(peer, model.system, dt, model.loads if pull else ())
 
 
+@pytest.mark.peers
 @pytest.mark.parametrize("hole", [False, True], ids=["dense", "holed"])
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_fifty_steps_match_reference(peer, hole):
@@ -83,6 +84,7 @@ def test_fifty_steps_match_reference(peer, hole):
         sim.release()
 
 
+@pytest.mark.peers
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_one_step_from_random_deformation(peer):
     """Every spring stretched or compressed, both stiffness classes and both pulls active."""
@@ -106,6 +108,7 @@ def test_one_step_from_random_deformation(peer):
         sim.release()
 
 
+@pytest.mark.peers
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_fixed_nodes_bit_identical_to_rest(peer):
     model = jelly()
@@ -120,6 +123,7 @@ def test_fixed_nodes_bit_identical_to_rest(peer):
         sim.release()
 
 
+@pytest.mark.peers
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_two_models_in_one_process(peer):
     """Two steppers of different sizes, stepped interleaved, each matches its own reference."""
@@ -148,6 +152,7 @@ def test_two_models_in_one_process(peer):
         sb.release()
 
 
+@pytest.mark.peers
 @pytest.mark.parametrize("peer", peers.PEERS)
 def test_bench_peers_reports_a_timing(peer):
     need(peer)
@@ -180,6 +185,7 @@ def test_invalid_dt():
         peers.PeerStepper(jelly(), 0.0)
 
 
+@pytest.mark.peers
 def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
     for peer in peers.PEERS:
         need(peer)
@@ -191,6 +197,7 @@ def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
         assert f"-> fragment / {peer} = " in text
 
 
+@pytest.mark.peers
 def test_numba_runs_on_the_workqueue_layer(monkeypatch):
     """Not OpenMP's spin-waiting pool (20x slower per step on a shared 2-core machine)."""
     need("numba")

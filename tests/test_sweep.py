@@ -96,6 +96,7 @@ def test_variants_in_one_process_with_a_failed_one_in_the_table(ctx, jelly, tmp_
     assert len(trimesh.load(tmp_path / "m" / "bent.ply", process=False).faces) > 0
 
 
+@pytest.mark.sweep
 def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp_path, capsys):
     need_dask()
     sweep = write_sweep(tmp_path, '[set]\n"physics.steps" = 30\n[product]\n"physics.integrator" = '
@@ -118,6 +119,7 @@ def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp
         assert diff.max() <= 1
 
 
+@pytest.mark.sweep
 def test_a_worker_killed_mid_sweep_is_replaced_and_every_variant_is_in_the_table_once(ctx, jelly, tmp_path):
     need_dask()
     from distributed import Client, LocalCluster
@@ -161,6 +163,7 @@ def test_a_worker_killed_mid_sweep_is_replaced_and_every_variant_is_in_the_table
         assert json.loads((out / f"v{i:02d}.json").read_text())["steps"] == 200 + 10 * i
 
 
+@pytest.mark.sweep
 def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monkeypatch):
     """devices=[0, 7]: worker 0 renders on EGL device 0 (llvmpipe's), worker 1 on device 7, which
     this machine does not have: its variants are rows with the GL error, not a failed sweep."""
@@ -180,6 +183,7 @@ def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monke
     assert not (tmp_path / "out" / "sweep.png").exists()  # no "png" output: no contact sheet
 
 
+@pytest.mark.sweep
 def test_bench_trade_on_dask_workers_measures_the_same_runs_as_in_process(ctx):
     """One task per workload: the same rows (integrators, dts, steps) with the same errors as the
     in-process study; only the costs differ (measured while the workloads share the machine)."""

@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.both_ways  # mypy's verdict must be clean without the extras and with all of them
 def test_mypy_is_clean():
     exe = shutil.which("mypy", path=str(Path(sys.executable).parent)) or shutil.which("mypy")
     assert exe, "mypy is not installed"

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from chromium_pipe import Chromium, chromium_path
-from conftest import REQUIRE_EXTRAS, TESTS
+from chromium_pipe import Chromium
+from conftest import TESTS
 from deformgl.pack.export_web import web_scene
 from deformgl.scene.pipeline import render
 from deformgl.testing.imagediff import DEFAULT_CHANNEL_TOL, DEFAULT_MAX_FRACTION, DEFAULT_PIXEL_MAX, compare_images
@@ -31,8 +31,7 @@ ROOT = TESTS.parent
 SCENE = ROOT / "scenes" / "dragon.toml"
 STEPS, SIZE = 200, (320, 240)
 
-pytestmark = pytest.mark.skipif(chromium_path() is None and not REQUIRE_EXTRAS,
-                                reason="optional extra: chromium (apt-get install chromium) not installed")
+pytestmark = pytest.mark.chromium  # skipped with the reason where Chromium is missing (tests/conftest.py)
 
 
 class _QuietHandler(http.server.SimpleHTTPRequestHandler):

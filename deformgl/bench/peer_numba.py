@@ -38,8 +38,9 @@ def _kernel() -> tuple[Any, Callable[..., None]]:
     from numba import prange
 
     if "NUMBA_THREADING_LAYER" not in os.environ:
-        # (read at the first parallel launch; numba.config sets its names at import, unseen by mypy)
-        numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
+        # (read at the first parallel launch; numba.config sets its names at import, unseen by
+        # mypy: set by name, so that mypy judges it alike with and without the 'peers' extra)
+        setattr(numba.config, "THREADING_LAYER", "workqueue")
 
     fixed_bit = np.int32(FLAG_FIXED)
     pull_shift = int(PULL_SHIFT)

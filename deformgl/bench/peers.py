@@ -225,9 +225,9 @@ def _warp():
         return _WP["wp"], _WP["kernel"]
     import warp as wp
 
-    # warp 1.19's typed config module no longer declares ``quiet`` (older releases read it);
-    # the assignment is kept as it was
-    wp.config.quiet = True  # type: ignore[attr-defined]
+    # warp 1.19's typed config module no longer declares ``quiet`` (older releases read it):
+    # set by name, so that mypy judges it alike with and without the 'peers' extra installed
+    setattr(wp.config, "quiet", True)
     wp.init()
     sqrt2 = float(np.sqrt(2.0))
 
