@@ -2,7 +2,8 @@
 // Node census: one fragment per node over a row x rows viewport, fragment (i, j) is node
 // j * row + i. Slot s of node n lives at texel (slots * (n % row) + s, n / row); only xyz is
 // looked at. COPY writes the slot out (a snapshot); MOVED and BAD keep a fragment only where
-// the predicate holds, so an occlusion query over the pass counts the nodes.
+// the predicate holds, so an occlusion query over the pass counts the nodes. Without any of the
+// three the pass is BAD.
 
 uniform sampler2D u_state;   // RGBA32F, NEAREST, read with texelFetch
 uniform int u_row;           // nodes per texture row
@@ -15,7 +16,7 @@ uniform sampler2D u_before;
 uniform int u_before_slots;
 uniform int u_before_slot;
 uniform float u_threshold;
-#elif defined(BAD)
+#elif !defined(COPY)  // BAD, also the mode without a mode define
 uniform float u_limit;
 #endif
 

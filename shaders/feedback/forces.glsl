@@ -19,6 +19,14 @@
 //   u_other   (SPRING_ROW x rows)   entry e: the other node j
 //   u_springs (SPRING_ROW x rows)   entry e: x = L, y = k, z = c_s
 // Each spring appears twice (once in the list of each end), so a node sums its own forces.
+// NODE_ROW and SPRING_ROW: texels per row of those textures (deformgl: powers of two; defaults
+// 1024 and 4096, the largest it uses).
+#ifndef NODE_ROW
+#define NODE_ROW 1024
+#endif
+#ifndef SPRING_ROW
+#define SPRING_ROW 4096
+#endif
 
 uniform isampler2D u_nodes;
 uniform isampler2D u_other;

@@ -5,6 +5,9 @@
 //   next stage state (x, v) + c k_s, c = h for stages 1-2, dt for stage 3;
 //   running sum k_1 + 2 k_2 + 2 k_3 (read by feedback/rk4_final.vert).
 // Output per node: stage x (w mass), stage v, sum_x, sum_v (transform feedback, interleaved).
+#ifndef RK4_STAGE
+#define RK4_STAGE 1
+#endif
 #include "feedback/state.glsl"
 uniform sampler2D u_state;  // 2 slots per node: x (w mass), v
 #if RK4_STAGE > 1

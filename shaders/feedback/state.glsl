@@ -5,6 +5,10 @@
 // texels, so slot s of node n lies at texel (K * (n % NODE_ROW) + s, n / NODE_ROW) and every node
 // can fetch its neighbours' state.
 // Positions: xyz, w = mass (kg). Velocities: xyz, w unused.
+// NODE_ROW: nodes per texture row (deformgl: a power of two; default 1024, the largest it uses).
+#ifndef NODE_ROW
+#define NODE_ROW 1024
+#endif
 
 vec4 slot(sampler2D tex, int k, int node, int s) {
     return texelFetch(tex, ivec2(k * (node % NODE_ROW) + s, node / NODE_ROW), 0);

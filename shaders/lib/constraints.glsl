@@ -6,6 +6,9 @@
 // velocity along the contact normal n becomes max(v . n, u . n), u the obstacle's velocity over
 // the step (0 for the ground). Verlet needs no velocity rule: its next backward difference
 // contains the projection. Compiled only with CONSTRAINTS (GROUND and/or SPHERES > 0).
+#ifndef SPHERES
+#define SPHERES 0
+#endif
 
 #ifdef CONSTRAINTS
 #ifdef GROUND

@@ -9,6 +9,9 @@
 // Neighbours as in lib/springs.glsl: from u_neighbours, or with DENSE from node-number offsets
 // (the node itself where the mask says the neighbour is absent).
 // The output is meaningless; it only keeps the compiler from removing the work.
+#ifndef STAGE
+#define STAGE 4  // the whole cut-down step
+#endif
 
 uniform sampler2D u_position;
 uniform sampler2D u_previous;

@@ -5,6 +5,9 @@
 // Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; with SPRING_WEIGHT_LEVELS from the node
 // texture's alpha; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
 // no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code).
+#ifndef PULLS
+#define PULLS 0
+#endif
 #include "lib/atlas.glsl"
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"

@@ -5,6 +5,13 @@
 //   1 one cuboid: Knuth, Kohlhammer & Kuijper, eq. 4 (CUBOID_FORM 4, rows of C) or eq. 1
 //     (CUBOID_FORM 1, rows of the corners)
 //   2 grid: hardware trilinear filtering of the leaf's block in the RGBA32F 3D atlas
+// Defaults: TRANSFORM_PATH 0, CUBOID_FORM 4 (deformgl's own default).
+#ifndef TRANSFORM_PATH
+#define TRANSFORM_PATH 0
+#endif
+#ifndef CUBOID_FORM
+#define CUBOID_FORM 4
+#endif
 #include "trilinear/cuboid.glsl"
 #include "trilinear/grid.glsl"
 #include "trilinear/normals.glsl"

@@ -16,6 +16,10 @@
 //   FINAL      v' = v + dv, x' = x + dt v', then the constraints (CONSTRAINTS)
 // The scalars rz, pq, rz_new are 1x1 textures (R) reduced on the GPU (sim/implicit/reduce.frag).
 // Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
+// Without a pass define the pass is SETUP (the first of a step).
+#if !defined(SETUP) && !defined(WARM) && !defined(INIT) && !defined(MATVEC) && !defined(UPDATE) && !defined(DIRECTION) && !defined(FINAL)
+#define SETUP
+#endif
 #include "lib/node_flags.glsl"
 
 uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups

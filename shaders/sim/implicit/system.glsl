@@ -8,6 +8,8 @@
 // itself: d = 0 gives u = 0, g = 0 and no term), as sim/integrators/forces.glsl.
 // Every CG vector is 0 at fixed nodes and padding texels, so the rows and columns of the fixed
 // nodes drop out (the solve is over the free nodes).
+// NB_LAYERS and NB_COUNT as sim/integrators/forces.glsl (default 5 and 18).
+#include "lib/neighbour_count.glsl"
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
 
 // Sums over the node's springs: sk = sum H_s (y_i - y_j), sc = sum C_s (y_i - y_j), the

@@ -23,7 +23,9 @@
 //
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
 // texel T in the state at which forces are evaluated, and declares u_node.
+// NB_LAYERS and NB_COUNT: 5 and 18 (the default: structural and shear) or 6 and 24 (+ flexion).
 
+#include "lib/neighbour_count.glsl"
 #ifdef DENSE
 uniform int u_offsets[NB_COUNT];  // node-number offset of each neighbour
 #else

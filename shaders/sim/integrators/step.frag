@@ -14,7 +14,10 @@
 //   VERLET         x' = 2x - x_prev + dt^2 a(x, v), v = (x - x_prev)/dt           (Movania & Feng 2012, eq. 6)
 // Passes that write x and v write both at once (multiple render targets). The last pass of a
 // step applies the constraints (CONSTRAINTS). Fixed nodes and padding texels copy x bit for bit
-// (velocity 0).
+// (velocity 0). Without a method define the pass is VERLET (deformgl's default integrator).
+#if !defined(EULER) && !defined(SEMI_IMPLICIT) && !defined(MIDPOINT_HALF) && !defined(MIDPOINT_FULL) && !defined(RK4_STAGE) && !defined(RK4_FINAL) && !defined(VERLET)
+#define VERLET
+#endif
 #include "lib/node_flags.glsl"
 
 uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups

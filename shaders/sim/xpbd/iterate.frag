@@ -20,6 +20,8 @@
 #ifndef DRAGS
 #define DRAGS 0
 #endif
+// NB_LAYERS and NB_COUNT: 5 and 18 (the default: structural and shear) or 6 and 24 (+ flexion).
+#include "lib/neighbour_count.glsl"
 
 uniform sampler2D u_node;               // R inverse mass (0 fixed), G flags, B load groups, A constraint count
 uniform sampler2D u_p;                  // xyz iterate
