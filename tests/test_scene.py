@@ -431,7 +431,29 @@ def test_extended_physics_round_trips(scene_dir: Path) -> None:
     np.testing.assert_allclose(p.sphere[0].path.at(0.5), [0.5, 0.3, 0.5])
     np.testing.assert_allclose(p.sphere[0].path.at(7.0), [0.5, 0.4, 0.5])
     assert p.drag[0].path.times == (0.0,) and p.drag[0].stiffness == 40.0
-    assert p.converge == Converge(0.001, 5)
+    assert p.converge == Converge("equilibrium", every=5)
+
+
+@pytest.mark.parametrize("table, expected", [
+    ("", Converge()),
+    ('criterion = "displacement"\nthreshold = 0.002', Converge("displacement", threshold=0.002)),
+    ("tolerance = 0.005\ninterval = 0.05\nchecks = 4", Converge(tolerance=0.005, interval=0.05, checks=4)),
+])
+def test_the_convergence_table(scene_dir: Path, table: str, expected: Converge) -> None:
+    assert _load(MESH + "[physics.converge]\n" + table + "\n").physics.converge == expected
+
+
+@pytest.mark.parametrize("table, message", [
+    ("threshold = 0.002", 'physics.converge.threshold: only used with criterion = "displacement" '
+                          "(the criterion is 'equilibrium')"),
+    ('criterion = "displacement"\ntolerance = 0.1', 'physics.converge.tolerance: only used with criterion = '
+                                                     '"equilibrium" (the criterion is \'displacement\')'),
+    ("interval = 0.1\nevery = 3", "physics.converge.every: give either 'every' (steps) or 'interval'"),
+    ('criterion = "still"', "physics.converge.criterion: must be one of"),
+    ("tolerance = 0", "physics.converge.tolerance: must be > 0"),
+])
+def test_convergence_table_errors_name_the_key(scene_dir: Path, table: str, message: str) -> None:
+    assert _error(MESH + "[physics.converge]\n" + table + "\n").startswith(f"jelly.toml: {message}")
 
 
 @pytest.mark.parametrize("old, new, message", [

@@ -263,6 +263,7 @@ def test_study_rows_place_xpbd_against_an_explicit_integrator(ctx):
     assert "tissue-1MPa" in format_rows(rows)
 
 
+@pytest.mark.fem
 def test_converged_setting_matches_the_lattice_and_fem_statics():
     """At a converged setting (20 Jacobi iterations x 8 substeps of dt = 1/60 s) XPBD's static
     result on a FEM-checked workload (bench.fem's compressed block, 3 across, linear: 1 % of the

@@ -13,10 +13,14 @@ units of its longest side. Every scene runs here, on its integrator and backend:
 All three are built by :func:`~deformgl.sim.simulation.make_simulation` and run by the one run
 loop :func:`deformgl.sim.run.run`.
 
-The convergence stop (Movania & Feng 2012, section 4) is measured on the GPU: every ``every``
-steps the positions are copied before the last step (a GPU pass) and the nodes that moved more
-than the threshold in that step are counted by an occlusion query (:mod:`deformgl.sim.census`), so
-one integer per check crosses to the CPU, never the state.
+The convergence stop (``[physics.converge]``, :mod:`deformgl.sim.equilibrium`) is by default
+the equilibrium criterion: every ``interval`` simulated seconds the positions are read back and
+the net force on the free nodes and the kinetic energy are measured against the applied force
+and the run's peak. The paper's displacement criterion (Movania & Feng 2012, section 4,
+``criterion = "displacement"``) is measured on the GPU: every ``every`` steps the positions are
+copied before the last step (a GPU pass) and the nodes that moved more than the threshold in that
+step are counted by an occlusion query (:mod:`deformgl.sim.census`), so one integer per check
+crosses to the CPU, never the state.
 """
 
 from __future__ import annotations
@@ -169,6 +173,8 @@ class SceneRun:
     time: float
     substeps: int = 1
     sim: Any = None
+    #: the convergence stop's last measures (None without one)
+    convergence: str | None = None
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
@@ -176,7 +182,8 @@ class SceneRun:
         if self.substeps > 1:
             line += f" ({self.substeps} substeps per scene step)"
         if self.converged is not None:
-            line += " (converged)" if self.converged else " (step limit reached before convergence)"
+            line += " (converged" if self.converged else " (step limit reached before convergence"
+            line += f": {self.convergence})" if self.convergence else ")"
         if self.bytes_per_node:
             line += f", {self.bytes_per_node:.0f} GPU bytes per node"
         return line
@@ -221,13 +228,11 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
                                     **xpbd_options(physics)))
         return made[-1]
 
-    converge = None
-    if physics.converge is not None:
-        converge = (physics.converge.threshold * grid.spacing, physics.converge.every)
     try:
         # every run ends with a blow-up check (census or NumPy), so its positions are finite
         result = run_guarded(system, physics, make, source=scene.source, limit=bad_limit(physics, box),
-                             check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=converge,
+                             check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=physics.converge,
+                             loads=loads, drags=drags,
                              progress=progress, plan=plan, notes=notes, frame_every=frame_every,
                              on_frame=on_frame)
         sim = made[-1]
@@ -236,7 +241,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         positions = None if kept else np.asarray(sim.positions(), np.float64)
         step_dt = result.dt if result.dt is not None else physics.dt
         out = SceneRun(positions, result.steps, result.converged, sim.bytes_per_node, result.steps * step_dt,
-                       result.substeps, sim if kept else None)
+                       result.substeps, sim if kept else None, result.convergence)
         if kept:
             made.clear()
         return out

@@ -33,6 +33,7 @@ from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3, Xpbd,
                                  parse_size)
+from deformgl.sim.equilibrium import CRITERIA as CONVERGE_CRITERIA
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
@@ -149,6 +150,21 @@ def _build_sphere(file: str, key: str, d: dict[str, Any]) -> SphereSpec:
     return SphereSpec(d["centre"], path, d["radius"])
 
 
+#: the keys of each convergence criterion (``every`` serves both)
+_CONVERGE_KEYS = {"equilibrium": ("tolerance", "interval", "checks"), "displacement": ("threshold",)}
+
+
+def _build_converge(file: str, key: str, d: dict[str, Any]) -> Converge:
+    criterion = d.pop("criterion")
+    for other, keys in _CONVERGE_KEYS.items():
+        for name in keys:
+            if other != criterion and d[name] is not None:
+                _fail(file, _join(key, name), f"only used with criterion = \"{other}\" (the criterion is {criterion!r})")
+    if d["interval"] is not None and d["every"] is not None:
+        _fail(file, _join(key, "every"), "give either 'every' (steps) or 'interval' (simulated seconds), not both")
+    return Converge(criterion, **{name: value for name, value in d.items() if value is not None})
+
+
 def _build_physics(file: str, key: str, d: dict[str, Any]) -> Physics:
     springs = d.pop("springs")
     if d["xpbd"] is not None and d["integrator"] != "xpbd":
@@ -182,8 +198,13 @@ _PHYSICS = _table({
         "path": (_points, REQUIRED), "times": (_numbers, None), "stiffness": (_K, REQUIRED)},
         lambda file, key, d: DragSpec(_build_keyframes(file, key, d["path"], d["times"]), d["stiffness"])),
         MAX_DRAGS), []),
-    "converge": (_table({"threshold": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e3), unit="grid spacings"), 0.001),
-                         "every": (_int(lo=1, sane=(1, MAX_STEPS)), 10)}, _plain(Converge)), None),
+    "converge": (_table({
+        "criterion": (_str(CONVERGE_CRITERIA), "equilibrium"),
+        "tolerance": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1.0), unit="(a ratio)"), None),
+        "interval": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1e3), unit="s"), None),
+        "checks": (_int(lo=1, sane=(1, 1000)), None),
+        "threshold": (_num(lo=0.0, lo_open=True, sane=(0.0, 1e3), unit="grid spacings"), None),
+        "every": (_int(lo=1, sane=(1, MAX_STEPS)), None)}, _build_converge), None),
     "xpbd": (_table({"iterations": (_int(lo=1, sane=(1, 100_000)), 10),
                      "substeps": (_int(lo=1, sane=(1, 1000)), 1)}, _plain(Xpbd)), None),
     "safety": (_table({"unstable": (_str(UNSTABLE_POLICIES), "refuse"), "check_every": (_CHECK_EVERY, 100),

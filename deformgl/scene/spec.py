@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
+from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
-from deformgl.sim.integrators import ALL_INTEGRATORS
+from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 
 Vec3 = tuple[float, float, float]
@@ -35,7 +36,7 @@ MAX_KEYFRAMES = 10_000
 # the checkers the command-line overrides share with the scene file's tables
 _STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
 _CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
-_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(ALL_INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
+_INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,12 +156,10 @@ class Xpbd:
     substeps: int = 1
 
 
-@dataclass(frozen=True, slots=True)
-class Converge:
-    """Stop once no node moved more than ``threshold`` grid spacings in a step (checked every
-    ``every`` steps, on the GPU); ``physics.steps`` is the limit."""
-    threshold: float
-    every: int
+#: ``[physics.converge]``: stop at equilibrium (the default criterion) or when no node moved more
+#: than ``threshold`` grid spacings in a step ("displacement"); ``physics.steps`` is the limit
+#: (:class:`deformgl.sim.equilibrium.ConvergeRule`).
+Converge = ConvergeRule
 
 
 #: What to do with a dt above the integrator's stability limit (``physics.safety.unstable``).

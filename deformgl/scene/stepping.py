@@ -21,8 +21,9 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
+from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.guards import API_WORDING
-from deformgl.sim.integrators import ALL_INTEGRATORS
+from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.run import RunResult, run_guarded
 from deformgl.sim.simulation import Simulation as BackendSimulation
 from deformgl.sim.simulation import SimulationSetupError
@@ -44,8 +45,8 @@ class GuardedSimulation:
 
     def __init__(self, system: SpringSystem, integrator: str, backend: str, *, dt: float,
                  ctx: moderngl.Context | None, grid: NodeGrid | None, **options: Any) -> None:
-        if integrator not in ALL_INTEGRATORS:
-            raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(ALL_INTEGRATORS)}")
+        if integrator not in INTEGRATORS:
+            raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
         if backend not in BACKENDS:
             raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
         if not dt > 0.0:
@@ -165,7 +166,8 @@ class _Settings:
 
 
 def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_every: int = 100,
-        bad_distance: float = 1000.0, source: str | None = None, progress: bool = False) -> RunResult:
+        bad_distance: float = 1000.0, source: str | None = None, progress: bool = False,
+        converge: ConvergeRule | None = None) -> RunResult:
     """Run ``steps`` steps of the dt ``sim`` was made with, with the CLI's guards
     (:func:`deformgl.sim.run.run_guarded`; messages name ``dt`` and ``unstable=``).
 
@@ -180,10 +182,15 @@ def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_e
         bad_distance: a node farther than this many rest-box lengths from the origin has blown up.
         source: the name error messages start with (default: ``sim.source``).
         progress: show a progress bar on stderr.
+        converge: stop early once converged: a :class:`~deformgl.sim.equilibrium.ConvergeRule`
+            (``dg.ConvergeRule()``: at equilibrium, the net force on every free node and the
+            kinetic energy below 1 % of the applied force and of the run's peak at 3 checks 0.02 s
+            apart; the simulation's loads and drags count as applied forces); ``steps`` is the limit.
 
     Returns:
         :class:`~deformgl.sim.run.RunResult`: the steps done (of ``result.dt``: ``substeps`` per
-        step asked for), the substeps, the step, ``sim.time`` at the end, the notes.
+        step asked for), whether it converged and the last check's measures, the substeps, the
+        step, ``sim.time`` at the end, the notes.
 
     Raises:
         SimulationError: the dt is above the limit (and ``unstable`` is "refuse"), or the run blew
@@ -205,4 +212,5 @@ def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_e
         return sim.backend_simulation
 
     return run_guarded(sim.system, settings, make, source=source, limit=limit, check_every=check_every,
-                       ctx=sim.ctx, grid=sim.grid, progress=progress, wording=API_WORDING)
+                       ctx=sim.ctx, grid=sim.grid, progress=progress, wording=API_WORDING, converge=converge,
+                       loads=tuple(sim.options.get("loads", ())), drags=tuple(sim.options.get("drags", ())))

@@ -75,12 +75,14 @@ class SolveReport:
     Attributes:
         iterations: CG iterations done.
         residual: ``sqrt(r.P^-1 r / b.P^-1 b)`` after them (0 for a zero right-hand side).
-        converged: residual <= tolerance (True without a tolerance).
+        within_tolerance: residual <= tolerance (True without a tolerance): the solver's own
+            per-step convergence, not the run's equilibrium (a run's ``converged``,
+            :mod:`deformgl.sim.equilibrium`).
     """
 
     iterations: int
     residual: float
-    converged: bool
+    within_tolerance: bool
 
 
 @dataclass(frozen=True)
@@ -328,7 +330,7 @@ class ImplicitNumpySimulation(CpuSimulationBase):
                                                  constraints=self.constraints, drags=self.drags,
                                                  loads=self.loads, **self.options)
             self.last_report = report
-            if not report.converged:
+            if not report.within_tolerance:
                 self.unconverged += 1
                 self.worst_residual = max(self.worst_residual, report.residual)
             self._advance(new)

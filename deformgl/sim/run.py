@@ -1,12 +1,15 @@
 """The one run loop: any :class:`~deformgl.sim.simulation.Simulation`, any backend.
 
 :func:`run` steps in chunks (the progress bar moves between them), checks for blown-up nodes
-every ``watch.every`` steps and once at the end, and stops early when no node moved more than a
-threshold in one step (Movania & Feng 2012, section 4), tested every ``converge[1]`` steps. On
-the GPU backends the checks are census queries (:class:`~deformgl.sim.guards.BlowUpWatch`,
-:class:`~deformgl.sim.census.NodeCensus`), nothing is read back unless a check fails; on the
-NumPy backend they are the same tests on the float64 arrays. Converged means "every node moved
-<= threshold" on every backend.
+every ``watch.every`` steps and once at the end, and stops early when the run has converged
+(:mod:`deformgl.sim.equilibrium`): by default at equilibrium (the net force on every free node
+and the kinetic energy small against the applied force and the run's peak, checked on positions
+read back every ``interval`` simulated seconds), or with the paper's displacement criterion
+when no node moved more than a threshold in one step (Movania & Feng 2012, section 4). On the
+GPU backends the blow-up checks and the displacement test are census queries
+(:class:`~deformgl.sim.guards.BlowUpWatch`, :class:`~deformgl.sim.census.NodeCensus`), nothing
+is read back unless a check fails; on the NumPy backend they are the same tests on the float64
+arrays. Converged means the same on every backend.
 
 :func:`run_guarded` is the whole guarded run on top of it, the one the CLI's scenes and the Python
 API (:func:`deformgl.run`) both use: the dt against the integrator's stability limit first
@@ -27,10 +30,11 @@ import numpy as np
 from deformgl.errors import SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.progress import Progress
+from deformgl.sim.equilibrium import ConvergeRule, DisplacementMonitor, EquilibriumMonitor
 from deformgl.sim.guards import (SCENE_WORDING, BlowUp, BlowUpWatch, StepPlan, StepSettings, Watch, Wording,
                                  plan_steps)
 from deformgl.sim.simulation import Simulation
-from deformgl.sim.springs import SpringSystem
+from deformgl.sim.springs import Drag, Load, SpringSystem
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run", "run_guarded", "run_with_retries"]
 
@@ -44,12 +48,14 @@ class RunResult:
     Attributes:
         steps: steps done, each of ``dt`` (under a plan of ``substeps`` substeps, ``substeps``
             steps per step asked for).
-        converged: True/False; None without a convergence stop.
+        converged: True/False: whether the run stopped converged (at equilibrium, by default;
+            :mod:`deformgl.sim.equilibrium`); None without a convergence stop.
         substeps: substeps per step asked for that the run used (1 unless subdivided).
         dt: the step the simulation ran (s); None when not recorded (:func:`run` leaves it to
             its caller).
         time: the simulation's clock at the end (s); None when not recorded.
         notes: what the plan and the restarts changed, for a log.
+        convergence: the convergence stop's last measures (its ``describe()``), None without one.
     """
 
     steps: int
@@ -58,6 +64,12 @@ class RunResult:
     dt: float | None = None
     time: float | None = None
     notes: tuple[str, ...] = ()
+    convergence: str | None = None
+
+
+#: what :func:`run` takes as its convergence stop: a monitor, or ``(threshold, every)`` of the
+#: displacement criterion
+Converge = EquilibriumMonitor | DisplacementMonitor | tuple[float, int]
 
 
 class NumpyWatch(Watch):
@@ -85,7 +97,7 @@ class _NoBar:
         pass
 
 
-def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | None = None,
+def run(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = None,
         progress=None, chunk: int = 25, frame_every: int = 0,
         on_frame: Callable[[int, object], None] | None = None) -> RunResult:
     """``steps`` steps of ``sim`` with the guards and the convergence stop.
@@ -95,8 +107,10 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
         steps: steps to run.
         ctx: the GL context (GPU backends; default ``sim.ctx``).
         watch: a :func:`make_watch` watch, or None for no blow-up checks.
-        converge: ``(threshold, every)``: stop when no node moved more than threshold in the
-            step ending at a multiple of ``every``.
+        converge: the convergence stop: an :class:`~deformgl.sim.equilibrium.EquilibriumMonitor`
+            (checked every ``converge.every`` steps), or a
+            :class:`~deformgl.sim.equilibrium.DisplacementMonitor` or ``(threshold, every)``: stop
+            when no node moved more than threshold in the step ending at a multiple of ``every``.
         progress: anything with ``update(done)`` (a :class:`~deformgl.progress.Progress`).
         chunk: most steps between progress updates on the GPU (the NumPy backend checks every
             step for non-finite positions, so it steps one at a time).
@@ -112,8 +126,9 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
     ctx = getattr(sim, "ctx", None) if ctx is None else ctx
     if not gpu:
         chunk = 1
+    stop = DisplacementMonitor(*converge) if isinstance(converge, tuple) else converge
     census = None
-    if converge is not None and gpu:
+    if isinstance(stop, DisplacementMonitor) and gpu:
         from deformgl.sim.census import NodeCensus
 
         _, row, slots, _ = sim.position_slot()
@@ -121,6 +136,8 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
     framing = on_frame is not None and frame_every > 0
     try:
         done = 0
+        if isinstance(stop, EquilibriumMonitor):
+            stop.start(sim)
         if on_frame is not None:
             on_frame(0, sim)
         while done < steps:
@@ -128,12 +145,12 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
             if framing:
                 target = min(target, (done // frame_every + 1) * frame_every)
             check_convergence = False
-            if converge is not None:
-                at = (done // converge[1] + 1) * converge[1]
+            if stop is not None:
+                at = (done // stop.every + 1) * stop.every
                 if at <= target:
                     target, check_convergence = at, True
             before = None
-            if check_convergence and census is not None:  # (census: converging on the GPU)
+            if check_convergence and census is not None:  # (census: the displacement test on the GPU)
                 if target - done > 1:
                     sim.step(target - done - 1)
                 texture, _, _, slot = sim.position_slot()
@@ -150,17 +167,19 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: tuple[float, int] | 
                 watch.check(done)
             if framing and on_frame is not None and done % frame_every == 0:
                 on_frame(done, sim)
-            if check_convergence and converge is not None:  # (checks only when converging)
-                if census is not None and before is not None:  # (both set on the GPU path)
+            if check_convergence and stop is not None:  # (checks only when converging)
+                if isinstance(stop, EquilibriumMonitor):
+                    still = stop.observe(sim)
+                elif census is not None and before is not None:  # (both set on the GPU path)
                     now, _, _, slot = sim.position_slot()
-                    still = census.moved(now, before, converge[0], slot=slot, before_slots=1) == 0
+                    still = census.moved(now, before, stop.threshold, slot=slot, before_slots=1) == 0
                 else:
-                    still = sim.last_moved <= converge[0]
+                    still = sim.last_moved <= stop.threshold
                 if still:
                     if watch is not None and not watch.due(done):
                         watch.check(done)
-                    return RunResult(done, True)
-        return RunResult(steps, None if converge is None else False)
+                    return RunResult(done, True, convergence=stop.describe())
+        return RunResult(steps, None if stop is None else False, convergence=None if stop is None else stop.describe())
     finally:
         if census is not None:
             census.release()
@@ -192,7 +211,8 @@ def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], 
 
 def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[float], Simulation], *,
                 source: object, limit: float, check_every: int, ctx=None, grid: NodeGrid | None = None,
-                converge: tuple[float, int] | None = None, progress: bool = False, plan: StepPlan | None = None,
+                converge: ConvergeRule | tuple[float, int] | None = None, loads: tuple[Load, ...] = (),
+                drags: tuple[Drag, ...] = (), progress: bool = False, plan: StepPlan | None = None,
                 notes: list[str] | None = None, wording: Wording = SCENE_WORDING, frame_every: int = 0,
                 on_frame: Callable[[int, object], None] | None = None) -> RunResult:
     """The guarded run of ``settings.steps`` steps of ``settings.dt`` of ``system``.
@@ -214,10 +234,14 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
         check_every: steps between blow-up checks (0: at the end only).
         ctx: the GL context of the watch and the loop (default: the simulation's ``ctx``).
         grid: names a blown-up node's grid index in the message, if given.
-        converge: ``(threshold, every)`` per step asked for: stop when no node moved more than
+        converge: the convergence stop: a :class:`~deformgl.sim.equilibrium.ConvergeRule` (a
+            fresh monitor per attempt, at the attempt's step and substeps), or the displacement
+            criterion's ``(threshold, every)`` per step asked for: stop when no node moved more than
             ``threshold`` in a step ending at a multiple of ``every`` steps (Movania & Feng 2012,
             section 4); with substeps, ``threshold / substeps`` per substep every
             ``every * substeps`` substeps.
+        loads, drags: the run's scripted loads and drags (the equilibrium stop counts their
+            forces among the applied ones).
         progress: show a progress bar on stderr.
         plan: a plan checked already (its note is noted, as :func:`plan_steps`' would be).
         notes: receives the plan's note and each restart's as they happen, if given (the result
@@ -245,7 +269,11 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
     def attempt(p: StepPlan) -> tuple[RunResult, Simulation]:
         sim = make(p.step_dt)
         gl = getattr(sim, "ctx", None) if ctx is None else ctx
-        stop = None if converge is None else (converge[0] / p.substeps, converge[1] * p.substeps)
+        stop: Converge | None = None
+        if isinstance(converge, ConvergeRule):
+            stop = converge.monitor(system, dt=p.step_dt, substeps=p.substeps, loads=loads, drags=drags)
+        elif converge is not None:
+            stop = (converge[0] / p.substeps, converge[1] * p.substeps)
         watch = make_watch(gl, sim, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
                            wording=wording)
         hook = None if on_frame is None else (lambda done, s: on_frame(done // p.substeps, s))

@@ -324,7 +324,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         if tol:
             res = self._residual(self._scalar("rz"), bpb)
             self.last_report = SolveReport(done, res, res <= self.tolerance)
-            if not self.last_report.converged:
+            if not self.last_report.within_tolerance:
                 self.unconverged += 1
                 self.worst_residual = max(self.worst_residual, res)
         else:

@@ -1,0 +1,148 @@
+"""The equilibrium stop (deformgl.sim.equilibrium): "converged" means the same physical thing at
+every dt, integrator and resolution.
+
+The issue's cantilever: 0.2 x 0.02 x 0.02 m, E = 1e7 Pa, rho = 1000 kg/m^3, mass damping 50/s,
+21 nodes along, clamped at x = 0, under gravity (its 1 s sag is 4.77 mm). The paper's per-step
+displacement test at its defaults stopped it after 1 ms at dt 1e-4 s (4.8e-6 m of sag) and after
+0.1 ms at 1e-5 s; the equilibrium stop must end every integrator that runs it within 1 % of the
+same integrator's 1 s run, at both steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import deformgl as dg
+from deformgl.bench.convergence import BOX, FACES, RUNS, cantilever, stop_row, tip_sag
+from deformgl.errors import SimulationError
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.equilibrium import DEFAULT_INTERVAL, ConvergeRule, EquilibriumMonitor
+from deformgl.sim.run import run
+from deformgl.sim.simulation import NumpySimulation
+from deformgl.sim.springs import Load, from_grid
+
+#: the cases of the README's test command (a few seconds each); the others are slow (up to minutes)
+FAST = {("verlet", 1e-4), ("rk4", 1e-4), ("semi-implicit", 1e-4)}
+CASES = [pytest.param(integrator, dt, marks=() if (integrator, dt) in FAST else pytest.mark.slow)
+         for dt in (1e-4, 1e-5) for integrator in RUNS]
+#: XPBD at 1e-5 s on the float32 fragment backend never settles (its corrections fall below the
+#: float32 resolution of the positions: deformgl.bench.convergence); its case runs in float64
+BACKEND = {("xpbd", 1e-5): "numpy"}
+
+
+@pytest.mark.parametrize("integrator, dt", CASES)
+def test_the_cantilever_stops_within_one_percent_of_its_1_s_sag(ctx, integrator, dt):
+    row = stop_row(ctx, integrator, dt, backend=BACKEND.get((integrator, dt), "fragment"))
+    assert row.converged, row
+    if integrator != "xpbd":  # (XPBD at 10 sweeps a step is softer than the lattice at 1e-4 s)
+        assert 4.5e-3 < row.final_sag < 5.0e-3, row
+    assert abs(row.error) <= 0.01, row
+    assert row.stop_time < 0.6 and "net force" in row.measures, row  # it stopped, well before the limit
+
+
+def test_explicit_euler_does_not_run_the_cantilever(ctx):
+    with cantilever(ctx) as body:
+        sim = body.simulate("euler", "fragment", dt=1e-4)
+        with pytest.raises(SimulationError, match="euler limit"):
+            dg.run(sim, 10, unstable="subdivide")
+
+
+def test_a_coarser_grid_is_the_same_body_and_stops_alike(ctx):
+    """Two resolutions: 21 and 11 nodes along stop within 1 % of their own 1 s sag."""
+    row = stop_row(ctx, "verlet", 1e-4, resolution=11)
+    assert row.converged and abs(row.error) <= 0.01, row
+
+
+def test_the_displacement_criterion_stops_early_and_the_budget_says_so(ctx):
+    """The paper's per-step test at its defaults calls the cantilever converged within a few ms
+    (the issue's defect, kept available as criterion = "displacement"); a budget too short for
+    equilibrium ends unconverged, and the result says how far from it."""
+    with cantilever(ctx) as body:
+        sim = body.simulate("verlet", "fragment", dt=1e-4)
+        early = dg.run(sim, 10000, unstable="subdivide", converge=ConvergeRule("displacement"))
+        assert early.converged and early.time < 0.01 and tip_sag(body, sim) < 1e-4
+        short = body.simulate("verlet", "fragment", dt=1e-4)
+        capped = dg.run(short, 500, unstable="subdivide", converge=ConvergeRule())
+        assert capped.converged is False and capped.time == pytest.approx(0.05)
+        assert "net force" in capped.convergence and "of 3 checks below" in capped.convergence
+
+
+def test_the_record_and_the_log_say_whether_the_scene_reached_equilibrium(ctx, tmp_path, capsys):
+    scene = tmp_path / "bar.toml"
+    (tmp_path / "bar.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in BOX)
+                                      + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in FACES))
+    scene.write_text('[mesh]\npath = "bar.obj"\n[grid]\nnodes_along_longest = 11\n'
+                     '[material]\nyoungs_modulus = 1e7\ndensity = 1000.0\nmass_damping = 50.0\n'
+                     '[physics]\ndt = 1e-4\nsteps = 300\n[[physics.fixed]]\nregion = "below"\naxis = "x"\nat = 0.02\n'
+                     '[physics.safety]\nunstable = "subdivide"\n[physics.converge]\n'
+                     '[render]\nsize = [64, 48]\nmsaa = 0\n')
+    from deformgl.cli import main
+
+    assert main(["render", str(scene), "-o", str(tmp_path / "bar.png"), "--json"]) == 0
+    err = capsys.readouterr().err
+    assert "step limit reached before convergence: net force" in err, err
+    import json
+
+    assert json.loads((tmp_path / "bar.json").read_text())["converged"] is False
+
+
+# --- the monitor on the float64 reference (no GL) ---------------------------------------------
+
+def small_block(gravity=(0.0, -9.81, 0.0), fixed=True):
+    grid = NodeGrid(np.zeros(3), 0.01, np.ones((3, 3, 3), bool))
+    held = grid.rest_positions[:, 1] < 1e-9 if fixed else np.zeros(grid.count, bool)
+    return from_grid(grid, k_structural=200.0, k_shear=100.0, mass=1e-3, fixed=held, gravity=gravity,
+                     velocity_damping=0.02), grid
+
+
+def test_a_body_at_rest_with_nothing_applied_converges_after_the_checks():
+    system, _ = small_block(gravity=(0.0, 0.0, 0.0))
+    sim = NumpySimulation(system, "semi-implicit", 1e-3)
+    monitor = ConvergeRule().monitor(system, dt=1e-3)
+    assert monitor.every == round(DEFAULT_INTERVAL / 1e-3)
+    result = run(sim, 1000, converge=monitor)
+    # the force needs three samples: the first check measures the energy only
+    assert result.converged and result.steps == (monitor.checks + 1) * monitor.every
+
+
+def test_the_ratios_follow_the_motion_and_the_applied_force():
+    """At the first checks of a fall the net force is the weight (ratio ~1) and the energy its
+    peak; at rest on its springs both are far below the tolerance."""
+    system, _ = small_block()
+    sim = NumpySimulation(system, "semi-implicit", 1e-3)
+    monitor = EquilibriumMonitor(system, every=20)
+    monitor.start(sim)
+    sim.step(20)
+    assert not monitor.observe(sim) and math.isnan(monitor.force_ratio) and monitor.energy_ratio == 1.0
+    sim.step(20000)
+    for _ in range(3):
+        sim.step(20)
+        done = monitor.observe(sim)
+    assert done and monitor.force_ratio < 1e-3 and monitor.energy_ratio < 1e-3
+
+
+def test_loads_count_as_applied_forces():
+    """Without gravity a pulled body's reference force is its load (the ratio is ~1 as it
+    starts to move), and the run settles to equilibrium against it."""
+    system, _ = small_block(gravity=(0.0, 0.0, 0.0))
+    top = system.rest_positions[:, 1] > 0.015
+    load = Load(top, lambda t: (0.0, 0.05, 0.0))
+    sim = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
+    monitor = EquilibriumMonitor(system, every=20, loads=(load,))
+    result = run(sim, 40000, converge=monitor)
+    assert result.converged and 0 < result.steps < 40000
+    moved = sim.positions()[top, 1] - system.rest_positions[top, 1]
+    assert np.all(moved > 1e-5)
+
+
+def test_the_rule_checks_its_values():
+    for bad in (dict(criterion="still"), dict(tolerance=0.0), dict(interval=-1.0), dict(checks=0), dict(every=0)):
+        with pytest.raises(ValueError, match="converge"):
+            ConvergeRule(**bad)
+    assert ConvergeRule(every=7).check_steps(1e-3, substeps=2) == 14
+    assert ConvergeRule().check_steps(1.0 / 60.0) == 1
+    assert ConvergeRule("displacement").monitor(small_block()[0], dt=1e-3, substeps=2).threshold == \
+        pytest.approx(0.001 * 0.01 / 2)
