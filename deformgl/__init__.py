@@ -37,6 +37,7 @@ _EXPORTS: dict[str, str] = {
     "Simulation": "deformgl.sim.simulation",
     "run": "deformgl.scene.stepping",
     "RunResult": "deformgl.sim.run",
+    "ConvergeRule": "deformgl.sim.equilibrium",
     # scenes
     "load_scene": "deformgl.scene.schema",
     "Scene": "deformgl.scene.spec",
@@ -69,6 +70,7 @@ _EXPORTS: dict[str, str] = {
     "lattice_system": "deformgl.sim.materials",
     "sheet_system": "deformgl.sim.materials",
     "INTEGRATORS": "deformgl.sim.integrators",
+    "EXPLICIT_INTEGRATORS": "deformgl.sim.integrators",
     "Constraints": "deformgl.sim.integrators",
     "Sphere": "deformgl.sim.integrators",
     "dt_limit": "deformgl.sim.limits",
@@ -150,8 +152,9 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.scene.spec import BACKENDS, Region, Scene
     from deformgl.scene.stepping import GuardedSimulation, make_simulation, run
     from deformgl.sim.guards import BlowUp
-    from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
+    from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, INTEGRATORS, Constraints, Sphere
     from deformgl.sim.run import RunResult
+    from deformgl.sim.equilibrium import ConvergeRule
     from deformgl.sim.simulation import Simulation, SimulationSetupError
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
     from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial, lattice_system, sheet_system

@@ -22,13 +22,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out")
     parser.add_argument("--mesh", help="a mesh file (default: a box as arrays)")
     parser.add_argument("--resolution", type=int, default=8, help="nodes along the longest side")
-    parser.add_argument("--integrator", default="verlet", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet"])
+    parser.add_argument("--integrator", default="verlet", choices=dg.INTEGRATORS)
     parser.add_argument("--backend", default="fragment", choices=["fragment", "feedback", "numpy"])
     parser.add_argument("--dt", type=float, default=1e-3)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--unstable", default="refuse", choices=["refuse", "run", "subdivide"])
     args = parser.parse_args(argv)
-    options = dict(resolution=args.resolution, stiffness=300.0, fixed=dg.below("x", 0.05))
+    rubber = dg.ElasticMaterial(youngs_modulus=1e6, density=1100.0, mass_damping=2.0)  # SI: Pa, kg/m^3, 1/s
+    options = dict(resolution=args.resolution, material=rubber, fixed=dg.below("x", 0.05))
     try:
         if args.mesh:
             body = dg.Body.from_mesh(args.mesh, **options)

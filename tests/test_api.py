@@ -44,6 +44,9 @@ def test_doc_example_runs(ctx, tmp_path, monkeypatch):
     assert (tmp_path / "cantilever.png").stat().st_size > 0
     image = namespace["image"]
     assert isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.std() > 0
+    assert namespace["body"].lattice is not None  # a material (SI units), not a per-spring stiffness
+    assert "stiffness=" not in code and namespace["V2"][:, 1].min() < -0.05  # a visible sag
+    assert not namespace["result"].notes  # the dt passes the stability check as given
 
 
 def test_every_public_name_resolves_is_documented_and_listed():
@@ -58,6 +61,26 @@ def test_every_public_name_resolves_is_documented_and_listed():
     assert listed <= set(dg.__all__), f"docs/API.md lists names deformgl does not export: {listed - set(dg.__all__)}"
     with pytest.raises(AttributeError):
         dg.no_such_name  # noqa: B018
+
+
+def test_the_integrators_are_what_the_cli_takes():
+    import argparse
+
+    from deformgl.cli import _parser
+    from deformgl.scene.stepping import make_simulation
+    from deformgl.sim import integrators, stages
+
+    commands = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
+    flag = next(a for a in commands.choices["render"]._actions if "--integrator" in a.option_strings)
+    assert dg.INTEGRATORS == tuple(flag.choices) and len(dg.INTEGRATORS) == 7
+    assert dg.INTEGRATORS == (dg.EXPLICIT_INTEGRATORS + integrators.IMPLICIT_INTEGRATORS
+                              + integrators.STABLE_INTEGRATORS)
+    assert dg.EXPLICIT_INTEGRATORS == tuple(stages.SPECS) == ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
+    assert dg.INTEGRATORS is integrators.INTEGRATORS and dg.EXPLICIT_INTEGRATORS is integrators.EXPLICIT_INTEGRATORS
+    system = dg.cloth(3, 3, 0.1, k_structural=50.0, k_shear=20.0)
+    for name in dg.INTEGRATORS:  # every name is one a simulation takes
+        with make_simulation(system, name, "numpy", dt=1e-4) as sim:
+            sim.step(1)
 
 
 def test_import_is_lazy():

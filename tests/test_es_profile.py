@@ -53,7 +53,7 @@ def test_es_render_matches_the_desktop_render(ctx, es_run, index):
 
 
 @pytest.mark.parametrize("backend", ["fragment", "feedback"])
-@pytest.mark.parametrize("name", I.INTEGRATORS)
+@pytest.mark.parametrize("name", I.EXPLICIT_INTEGRATORS)
 def test_es_integrators_match_the_reference_like_desktop(es_run, backend, name):
     """The one-step bound of tests/test_fragment_integrators.py (1e-5 of the coordinate scale), after
     es_check.STEPS steps against the float64 reference, for every constraint kind."""

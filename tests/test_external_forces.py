@@ -10,7 +10,7 @@ from deformgl.sim import springs
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 
 BACKENDS = ("fragment", "feedback")
 
@@ -39,7 +39,7 @@ def loads_of(system):
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_loads_and_drags_match_reference(ctx, backend, name):
     system, grid = block(wind=(1.0, 0.0, 0.5), wind_drag=0.01)
     dt = 1e-3

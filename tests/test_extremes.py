@@ -102,7 +102,7 @@ def test_stiffness_mass_and_spacing_extremes_run_the_same_dimensionless_motion(c
     np.testing.assert_array_equal(x[fixed].astype(np.float32), system.rest_positions[fixed].astype(np.float32))
 
 
-@pytest.mark.parametrize("name", I.INTEGRATORS)
+@pytest.mark.parametrize("name", I.EXPLICIT_INTEGRATORS)
 def test_half_the_limit_decays_and_one_and_a_half_is_refused_and_detected(ctx, name):
     system, grid = block(10.0, 0.01, 0.1)
     limit = dt_limit(system, name, exact=True)

@@ -10,7 +10,7 @@ from deformgl.sim import integrators as I
 from deformgl.sim import springs
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere
 
 EPS32 = 2.0 ** -23
 
@@ -43,7 +43,7 @@ def reference(system, name, dt, steps, state, constraints=None, drags=()):
     return s
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_one_step_matches_reference(ctx, name):
     system = damped_grid()
     dt = 1e-3
@@ -61,7 +61,7 @@ def test_one_step_matches_reference(ctx, name):
         assert np.abs(v - ref.v).max() <= 1e-5 * np.abs(ref.v).max()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_hundred_steps_of_a_damped_scene(ctx, name):
     system = damped_grid(4, fixed_nodes=(0, 3, 12, 15), spring_damping=0.2)
     dt = 2e-3
@@ -72,7 +72,7 @@ def test_hundred_steps_of_a_damped_scene(ctx, name):
     assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_fixed_nodes_bit_identical(ctx, name):
     system = damped_grid(3, fixed_nodes=(0, 2, 20))
     dt = 1e-3
@@ -91,7 +91,7 @@ def test_fixed_nodes_bit_identical(ctx, name):
         sim.release()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_ground_and_sphere_after_every_step(ctx, name):
     """A block falls onto the ground and a sphere: never below / inside after any step, and the
     same contact handling (projection, velocity rule) as the reference."""
@@ -134,7 +134,7 @@ def test_moving_sphere_and_drags_match_reference(ctx):
     drags = (springs.Drag(13, lambda t: (0.3, 0.7 + t, 0.0), 30.0),
              springs.Drag(26, lambda t: (0.5, 0.8, 0.2 - 5.0 * t), 10.0))
     constraints = Constraints(ground=0.5, spheres=(sphere,))
-    for name in INTEGRATORS:
+    for name in EXPLICIT_INTEGRATORS:
         state = I.initial_state(system, dt, drags=drags)
         x, v = run(ctx, system, name, dt, 10, state=state, constraints=constraints, drags=drags)
         ref = reference(system, name, dt, 10, state, constraints, drags)
@@ -145,7 +145,7 @@ def test_moving_sphere_and_drags_match_reference(ctx):
         assert np.abs(free.x - free_drags.x).max() > 1e-4 * system.spacing, name
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_triangle_mesh_matches_reference(ctx, name):
     trimesh = pytest.importorskip("trimesh")
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
@@ -165,7 +165,7 @@ def test_triangle_mesh_matches_reference(ctx, name):
     assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_no_read_back_while_stepping(ctx, name, monkeypatch):
     calls: list[str] = []
 
@@ -230,7 +230,7 @@ def test_generated_source_compiles_only_what_is_used(ctx):
         sim.release()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_bytes_per_node_is_what_is_allocated(ctx, name):
     system = springs.cloth(16, 16, 0.05, k_structural=100.0, k_shear=50.0, k_flexion=10.0)
     sim = FeedbackSimulation(ctx, system, name, 1e-3)
@@ -351,7 +351,7 @@ def test_release_leaves_no_renderbuffer_or_framebuffer(ctx, monkeypatch, name):
     assert made and all(is_released(o) for o in made)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_passes_come_from_the_stage_table(ctx, name):
     from deformgl.sim.stages import spec
 

@@ -10,7 +10,7 @@ from deformgl.sim import integrators as I
 from deformgl.sim import springs
 from deformgl.sim.backends.fragment import FragmentIntegrator, grid_neighbours
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere
 
 EPS32 = 2.0 ** -23
 
@@ -43,7 +43,7 @@ def reference(system, name, dt, steps, state, constraints=None):
     return s
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_one_step_matches_reference(ctx, name):
     system, grid = damped_grid()
     dt = 1e-3
@@ -61,7 +61,7 @@ def test_one_step_matches_reference(ctx, name):
         assert np.abs(v - ref.v).max() <= 1e-5 * np.abs(ref.v).max()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_hundred_steps_of_a_damped_scene(ctx, name):
     system, grid = damped_grid(4, fixed_nodes=(0, 3, 12, 15), spring_damping=0.2)
     dt = 2e-3
@@ -72,7 +72,7 @@ def test_hundred_steps_of_a_damped_scene(ctx, name):
     assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_fixed_nodes_bit_identical(ctx, name):
     system, grid = damped_grid(3, fixed_nodes=(0, 2, 20))
     dt = 1e-3
@@ -91,7 +91,7 @@ def test_fixed_nodes_bit_identical(ctx, name):
         sim.release()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_ground_and_sphere_after_every_step(ctx, name):
     """A block falls onto the ground and a sphere: never below / inside after any step, and the
     same contact handling (projection, velocity rule) as the reference."""
@@ -126,7 +126,7 @@ def test_ground_and_sphere_after_every_step(ctx, name):
     assert contacts > 0 and sphere_contacts > 0  # both obstacles were reached
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_cloth_with_flexion_matches_reference(ctx, name):
     """A 20x20 cloth (structural, shear and flexion springs, two pinned corners) over 30 steps:
     the flexion neighbours at distance 2 take part (without them the result differs)."""
@@ -179,7 +179,7 @@ def test_rejects_systems_that_are_not_the_grids(ctx):
         FragmentIntegrator(ctx, system, grid, "leapfrog", 1e-3)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_no_read_back_while_stepping(ctx, name, monkeypatch):
     calls: list[str] = []
 
@@ -246,7 +246,7 @@ def test_generated_source_compiles_only_what_is_used(ctx):
         sim.release()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_bytes_per_node_is_what_is_allocated(ctx, name):
     system = springs.cloth(16, 16, 0.05, k_structural=100.0, k_shear=50.0, k_flexion=10.0)
     grid = NodeGrid(np.zeros(3), 0.05, np.ones((16, 1, 16), bool))
@@ -312,7 +312,7 @@ def test_release_and_constructor_failure_clean_up(ctx, monkeypatch):
     sim.release()  # idempotent
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_moving_sphere_matches_reference(ctx, name):
     """A sphere rising into a resting block: centres at t + dt and the obstacle-velocity rule."""
     system, grid = damped_grid(3, fixed_nodes=(), spring_damping=0.05)
@@ -376,7 +376,7 @@ def test_dense_grids_find_neighbours_by_arithmetic_with_the_same_result(ctx, mon
         sim.release()
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_passes_and_rotation_come_from_the_stage_table(ctx, name):
     from deformgl.sim.stages import spec
 

@@ -1,6 +1,7 @@
 """Scene-graph files (docs/SCENEGRAPH.md): the format, its one-line errors, and load -> save ->
 load as the identity; the shipped demos as files equal to the graphs built in Python."""
 
+import re
 import tomllib
 from pathlib import Path
 
@@ -231,3 +232,69 @@ def test_depth_and_size_limits(tmp_path):
                    + '[deformations.d]\nkind = "twist"\nrate = 1.0\n')
     with pytest.raises(SceneError, match=r"nodes\.r\.grid\.cells: 64481201 lattice points, at most 4194304"):
         load_graph(big)
+
+
+
+NESTED = """
+[graph]
+roots = ["r"]
+[meshes.m]
+shape = "sphere"
+radius = 1.0
+[nodes.r]
+array = { count = [1024, 1024, 1], step = [1, 0, 0] }
+children = ["a"]
+[nodes.a]
+array = { count = [1024, 1024, 1], step = [0, 1, 0] }
+children = ["below"]
+"""
+#: What is below the two arrays: a subtree with no mesh (nothing to draw), or a mesh.
+EMPTY_BELOW = '[nodes.below]\nchildren = ["none"]\n[nodes.none]\nchildren = []\n'
+MESH_BELOW = '[nodes.below]\nmesh = "m"\n'
+
+
+@pytest.mark.parametrize("below, message", [
+    (EMPTY_BELOW, r"graph\.roots: 'r' expands to more than 8388608 node instances \(each node counted"),
+    (MESH_BELOW, r"graph\.roots: 'r' draws more than 2097152 mesh instances$"),
+], ids=["no-mesh", "mesh"])
+def test_nested_arrays_are_refused_before_anything_is_expanded(tmp_path, monkeypatch, below, message):
+    """Two nested 1024 x 1024 arrays (10^12 instances), with or without a mesh to draw, are
+    counted on the file's nodes and refused in one line without building a node (over the
+    subtree with no mesh this ran for more than 60 s before the expansion was counted)."""
+    import time
+
+    from deformgl.errors import InputError
+    from deformgl.trilinear import graphbuild
+
+    built: list[str] = []
+    original = graphbuild._Builder.node
+
+    def counting(self, name, colour):
+        built.append(name)
+        return original(self, name, colour)
+
+    monkeypatch.setattr(graphbuild._Builder, "node", counting)
+    path = tmp_path / "nested.toml"
+    path.write_text(NESTED + below)
+    start = time.perf_counter()
+    with pytest.raises(SceneError, match=rf"^{re.escape(str(path))}: {message}") as err:
+        load_graph(path)
+    assert "\n" not in str(err.value)
+    arrays = {name: NodeSpec(GraphTransform("array", count=(1024, 1024, 1)), [child])
+              for name, child in (("r", "a"), ("a", "below"))}
+    below_nodes = ({"below": NodeSpec(mesh="m")} if below == MESH_BELOW else
+                   {"below": NodeSpec(None, ["none"]), "none": NodeSpec(None, [])})
+    graph = SceneGraph(roots=["r"], meshes={"m": GraphMesh("sphere", {"radius": 1.0})}, nodes=arrays | below_nodes)
+    with pytest.raises(InputError, match=message):  # the same graph in Python: refused before the builder runs
+        graphbuild.compose_graph(graph, tmp_path)
+    assert built == []
+    assert time.perf_counter() - start < 5.0  # a hang guard, not a benchmark (about 10 ms)
+
+
+def test_an_array_over_an_empty_group_within_the_limit_builds(tmp_path):
+    """The count is of node instances, a mesh below or not: 1 + 4 x (1 + 2) fits, builds, draws nothing."""
+    g = SceneGraph(roots=["r"], nodes={"r": NodeSpec(GraphTransform("array", count=(2, 2, 1)), ["g"]),
+                                       "g": NodeSpec(None, ["e"]), "e": NodeSpec(None, [])})
+    (root,) = build_graph(load_graph(save_graph(g, tmp_path / "empty.toml")))
+    assert sum(1 for _ in root.walk()) == 1 + 4 * (1 + 2)
+    assert compose_scene(root).batches == []

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import (INTEGRATORS, Constraints, Drag, Sphere, State, initial_state,
+from deformgl.sim.integrators import (EXPLICIT_INTEGRATORS, Constraints, Drag, Sphere, State, initial_state,
                                   memory_per_node, run_until_converged, simulate, step)
 from deformgl.sim.springs import STRUCTURAL, SpringSystem, cloth, from_grid, from_triangle_mesh
 
@@ -49,7 +49,7 @@ def smooth_problem(request):
     return request.param, s, v0, ref
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_convergence_order(smooth_problem, name):
     kind, s, v0, ref = smooth_problem
     dts, errors = [], []
@@ -119,7 +119,7 @@ def hanging_cloth(**options) -> SpringSystem:
     return cloth(5, 5, H, **kw)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_rest_state_is_an_exact_equilibrium(name):
     grid = NodeGrid(np.array([0.1, 0.2, 0.3]), H, np.ones((3, 3, 3), bool))
     s = from_grid(grid, k_structural=30.0, k_shear=10.0, k_flexion=4.0, damping_structural=0.1,
@@ -129,7 +129,7 @@ def test_rest_state_is_an_exact_equilibrium(name):
     np.testing.assert_array_equal(state.v, 0.0)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_fixed_nodes_bit_identical(name):
     s = hanging_cloth()
     sphere = Sphere(centre=s.rest_positions[0], radius=0.02)  # would push the fixed node
@@ -141,7 +141,7 @@ def test_fixed_nodes_bit_identical(name):
     assert np.abs(state.x[~s.fixed] - s.rest_positions[~s.fixed]).max() > 0.04
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_free_fall(name):
     # Constant acceleration, v0 = 0: midpoint and RK4 are exact (they integrate quadratics
     # exactly) and so is Verlet started from x_prev = x0 - dt v0 + dt^2/2 a0 (the exact x(-dt)).
@@ -197,7 +197,7 @@ def outside(x, sphere, t):
     return np.linalg.norm(x - sphere.centre_at(t), axis=1) >= sphere.radius * (1 - 1e-12)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_nothing_below_the_ground_or_inside_a_sphere_after_any_step(name):
     s = cloth(6, 6, H, k_structural=20.0, k_shear=5.0, mass=0.01, velocity_damping=0.002,
               origin=(0.0, 0.1, 0.0))
@@ -217,7 +217,7 @@ def test_nothing_below_the_ground_or_inside_a_sphere_after_any_step(name):
     assert np.all(np.isfinite(state.x))
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_a_node_resting_on_the_ground_builds_up_no_speed(name):
     # One springless node dropped 1 cm onto the ground and left there for 1 s: the contact
     # removes the velocity into the ground (Verlet: the projection does), else v -> -g t.
@@ -229,7 +229,7 @@ def test_a_node_resting_on_the_ground_builds_up_no_speed(name):
     assert abs(state.v[0, 1]) <= G * dt * (1 + 1e-12)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_moving_sphere_pushes_nodes(name):
     # No gravity: a cloth at rest at y = 0; a sphere rises through its middle at 1 m/s.
     s = cloth(5, 5, H, k_structural=20.0, k_shear=5.0, mass=0.01, velocity_damping=0.01,
@@ -248,7 +248,7 @@ def test_moving_sphere_pushes_nodes(name):
     assert top == pytest.approx(0.1)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_drag_target_is_followed(name):
     # A free cloth, no gravity, one corner dragged 0.3 along x and 0.1 up in 0.5 s, then held.
     # Damping c/m = 10/s: forward Euler needs w^2 dt < c/m here to damp its high modes.
@@ -305,7 +305,7 @@ def test_undamped_system_runs_to_max_steps():
 
 
 def test_memory_per_node():
-    sizes = {name: memory_per_node(name) for name in INTEGRATORS}
+    sizes = {name: memory_per_node(name) for name in EXPLICIT_INTEGRATORS}
     assert sizes == {"verlet": 48, "euler": 64, "semi-implicit": 64, "midpoint": 96, "rk4": 160}
     with pytest.raises(ValueError, match="unknown integrator"):
         memory_per_node("leapfrog")
@@ -317,5 +317,5 @@ def test_triangle_mesh_system_steps_and_keeps_its_rest_state():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) * H
     s = from_triangle_mesh(v, [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], stiffness=10.0,
                            mass=0.01, gravity=(0.0, 0.0, 0.0))
-    for name in INTEGRATORS:
+    for name in EXPLICIT_INTEGRATORS:
         np.testing.assert_array_equal(simulate(s, name, 1e-3, 10).x, v)

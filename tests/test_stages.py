@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from deformgl.sim import integrators as I
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.stages import BUFFERS, SPECS, IntegratorSpec, Stage, spec
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -27,7 +27,7 @@ def _output(buffer: str) -> tuple[str, ...]:
     return ("sum", quantity) if kind == "sum" else (quantity,)
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_every_read_is_state_or_written_by_an_earlier_stage(name):
     s = spec(name)
     assert s.name == name and s.buffers == I.GPU_BUFFERS[name]
@@ -42,7 +42,7 @@ def test_every_read_is_state_or_written_by_an_earlier_stage(name):
     assert used == set(s.buffers)  # no buffer allocated for nothing
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_stages_write_in_output_order_and_only_the_last_is_final(name):
     s = spec(name)
     for stage in s.stages:
@@ -55,7 +55,7 @@ def test_stages_write_in_output_order_and_only_the_last_is_final(name):
     assert s.stages[0].at(0.25, 0.1) == 0.25
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_rotation_is_a_permutation_that_makes_the_final_writes_the_state(name):
     s = spec(name)
     roles = list(range(len(s.buffers)))
@@ -92,7 +92,7 @@ def test_the_fragment_defines_are_those_the_shader_variants_always_had():
     assert feedback["rk4"][3] == ("feedback/rk4_final.vert", {})
 
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
 def test_every_define_is_one_the_shader_knows(name):
     fragment = (SHADERS / "sim/integrators/step.frag").read_text()
     for stage in spec(name).stages:
@@ -143,12 +143,12 @@ def test_the_backends_compare_no_integrator_names(path):
     for node in ast.walk(ast.parse(text)):
         if isinstance(node, ast.Compare):
             sides = [ast.unparse(o) for o in (node.left, *node.comparators)]
-            if set(sides) & {"name", "integrator", "self.integrator"} and "INTEGRATORS" not in sides:
+            if set(sides) & {"name", "integrator", "self.integrator"} and "EXPLICIT_INTEGRATORS" not in sides:
                 compared.append((node.lineno, ast.unparse(node)))
-    assert compared == []  # (only the check that the name is one of INTEGRATORS)
+    assert compared == []  # (only the check that the name is one of EXPLICIT_INTEGRATORS)
     assert not re.search(r"\.get\(\s*(name|integrator|self\.integrator)\b", text)
     assert not re.search(r"\bname\s*=\s*self\.integrator\b", text)
-    named = [(line, v) for line, v in _string_literals(path) if v in INTEGRATORS]
+    named = [(line, v) for line, v in _string_literals(path) if v in EXPLICIT_INTEGRATORS]
     assert named == []  # not one integrator name as a string in the code
     # nor the old pass keys of particular integrators: every pass comes from spec().stages
     keys = {st.name for s in SPECS.values() for st in s.stages}

@@ -14,7 +14,7 @@ import pytest
 
 from deformgl.errors import DeformglError
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import cloth
 from deformgl.bench.trade import (TradeReport, TradeRow, Workload, pareto_front, read_csv,
                             trade_study)
@@ -67,7 +67,7 @@ def test_quick_study_errors_are_finite_and_converge(report):
         assert r.dt * r.steps == pytest.approx(report.sim_time) and r.dt <= 0.6 * r.limit
     ratio = {}
     for backend in ("fragment", "feedback", "numpy"):
-        for name in INTEGRATORS:
+        for name in EXPLICIT_INTEGRATORS:
             big, small = rows_of(report, VOLUME, backend, name)
             assert small.dt < big.dt / 3.5
             ratio[backend, name] = big.rms / small.rms
@@ -118,6 +118,7 @@ def test_csv_and_json_round_trip(report, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["trade.csv", "trade.json"]  # no temps
 
 
+@pytest.mark.plot
 def test_chart_is_a_png(report, tmp_path):
     pytest.importorskip("matplotlib", reason="matplotlib is an optional extra (deformgl[plot])")
     report.write_chart(tmp_path / "trade.png")
@@ -142,7 +143,7 @@ def test_front_in_words(report):
             words = report.front_words(workload, backend)
             assert words in " ".join(text.split()) or words.split(":")[0] in text
             assert words.startswith(f"{workload}, {backend} backend: for errors above ")
-            assert any(f"use {name} at dt = " in words for name in INTEGRATORS)
+            assert any(f"use {name} at dt = " in words for name in EXPLICIT_INTEGRATORS)
             front = report.front(workload, backend)
             # the thresholds: the error reached by the last point of each integrator's stretch
             ends = [r for k, r in enumerate(front)

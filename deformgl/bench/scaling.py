@@ -274,13 +274,13 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
     Raises:
         ValueError: an unknown backend or integrator, or repeats < 1.
     """
-    from deformgl.sim.integrators import INTEGRATORS
+    from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
     from deformgl.sim.springs import max_angular_frequency
 
     if unknown := [b for b in backends if b not in BACKENDS]:
         raise ValueError(f"unknown backend(s) {unknown}; expected some of {', '.join(BACKENDS)}")
-    if integrator not in INTEGRATORS:
-        raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+    if integrator not in EXPLICIT_INTEGRATORS:
+        raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(EXPLICIT_INTEGRATORS)}")
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}")
     start = time.perf_counter()

@@ -313,7 +313,7 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
     """
     from deformgl.sim.backends.feedback import FeedbackSimulation
     from deformgl.sim.backends.fragment import FragmentIntegrator
-    from deformgl.sim.integrators import INTEGRATORS, initial_state, step as numpy_step
+    from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state, step as numpy_step
     from deformgl.sim.springs import max_angular_frequency
 
     rows = []
@@ -336,7 +336,7 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
         ms, per_node = {}, {}
         state = initial_state(system, dt)
         for backend in backends:
-            for integrator in INTEGRATORS:
+            for integrator in EXPLICIT_INTEGRATORS:
                 if backend == "numpy":
                     k = max(1, n_steps // 10)
                     holder = [state]

@@ -53,7 +53,7 @@ import numpy as np
 from deformgl.bench.studies import machine_line, timed
 from deformgl.grid.nodes import NodeGrid
 from deformgl.bench import report_files
-from deformgl.sim.integrators import INTEGRATORS, Constraints, Sphere, initial_state, simulate
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere, initial_state, simulate
 from deformgl.sim.springs import Drag, SpringSystem, cloth, from_grid
 from deformgl.sim.stability import dt_limit
 
@@ -332,7 +332,7 @@ class TradeReport:
                                             for b in enumerate(backends)):
             ax = axes[i][j]
             rows = [r for r in self.rows if (r.workload, r.backend) == (workload, backend)]
-            for name in INTEGRATORS:
+            for name in EXPLICIT_INTEGRATORS:
                 pts = sorted((r.cost, r.error) for r in rows
                              if r.integrator == name and r.status == "ok")
                 if pts:
@@ -442,7 +442,7 @@ def trade_study(ctx: moderngl.Context, *, backends: Sequence[str] = BACKENDS,
     refs: list[Reference] = []
     wl = tuple(workloads or standard_workloads())
     for w in wl:
-        limits = {name: dt_limit(w.system, name).dt for name in INTEGRATORS}
+        limits = {name: dt_limit(w.system, name).dt for name in EXPLICIT_INTEGRATORS}
         if progress:
             progress(f"{w.name}: reference")
         divisor = min(w.reference_divisor, 32.0) if quick else w.reference_divisor
@@ -452,7 +452,7 @@ def trade_study(ctx: moderngl.Context, *, backends: Sequence[str] = BACKENDS,
         for backend in order:
             if progress:
                 progress(f"{w.name}: {backend} backend")
-            for name in INTEGRATORS:
+            for name in EXPLICIT_INTEGRATORS:
                 limit = limits[name]
                 if limit <= 0:
                     rows.append(TradeRow(w.name, backend, name, math.nan, math.nan, 0, 0.0,
@@ -476,6 +476,6 @@ def trade_study(ctx: moderngl.Context, *, backends: Sequence[str] = BACKENDS,
                                          "ok" if ok else "diverged"))
     names = [w.name for w in wl]
     rows.sort(key=lambda r: (names.index(r.workload), list(backends).index(r.backend),
-                             INTEGRATORS.index(r.integrator), r.steps))
+                             EXPLICIT_INTEGRATORS.index(r.integrator), r.steps))
     date = datetime.now(timezone.utc).isoformat(timespec="seconds")
     return TradeReport(rows, machine_line(ctx), date, float(wl[0].time), refs)

@@ -57,11 +57,11 @@ def integrators(ctx) -> dict[str, np.ndarray]:
     """Positions after :data:`STEPS` steps, every backend, integrator and constraint."""
     from deformgl.sim.backends.feedback import FeedbackSimulation
     from deformgl.sim.backends.fragment import FragmentIntegrator
-    from deformgl.sim.integrators import INTEGRATORS
+    from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 
     out = {}
     for backend in ("fragment", "feedback"):
-        for name in INTEGRATORS:
+        for name in EXPLICIT_INTEGRATORS:
             for constraint in CONSTRAINTS:
                 system, grid, state, c = integrator_case(constraint)
                 sim = (FragmentIntegrator(ctx, system, grid, name, 1e-3, state=state, constraints=c)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -70,10 +71,39 @@ def web_scene(path: Path, *, steps: int | None = None, size: tuple[int, int] | N
 
 def export_web(path: Path, out: Path, *, steps: int | None = None, size: tuple[int, int] | None = None,
                mapping: str | None = None) -> list[Path]:
-    """Export ``path`` for the web example into ``out``; returns the files written."""
+    """Export ``path`` for the web example into ``out``; returns the files written. A refusal (or
+    any failure) leaves nothing behind: no file, and none of the folders this call created."""
     scene = web_scene(path, steps=steps, size=size, mapping=mapping)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
+    created = _first_missing(out / "shaders")  # the outermost folder the export creates, or None
+    try:
+        return _export(scene, out)
+    except BaseException:
+        if created is not None:
+            _remove_empty_folders(created)
+        raise
+
+
+def _first_missing(folder: Path) -> Path | None:
+    """The outermost of ``folder`` and its parents that does not exist, or None."""
+    missing = None
+    while not folder.exists() and folder != folder.parent:
+        missing, folder = folder, folder.parent
+    return missing
+
+
+def _remove_empty_folders(top: Path) -> None:
+    """Remove ``top`` and the folders under it, deepest first, where they hold nothing: a file
+    that appeared in them (not this export's: its set writes all or none) stays, with its folders."""
+    for folder, _, _ in os.walk(top, topdown=False):  # every folder after the ones inside it
+        try:
+            os.rmdir(folder)
+        except OSError:
+            pass
+
+
+def _export(scene: Scene, out: Path) -> list[Path]:
     shaders = pack_contents(out / "shaders", "es")
     OutputSet(list(shaders) + [out / "scene.json"], "web export file")  # every path checked before the GL work
     ctx = create_context()

@@ -28,7 +28,7 @@ from deformgl.bench.profile import STAGES as PROFILE_STAGES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
 from deformgl.sim.backends.foundation import DRAW_MODES, MAX_PULLS
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import MAX_LOADS
 from deformgl.sim.stages import spec
 from deformgl.trilinear.batches import PATHS
@@ -127,7 +127,7 @@ def _forces() -> Iterator[dict[str, object]]:
 
 def fragment_backend() -> Iterator[Variant]:
     """``FragmentIntegrator``: each integrator's stages (``_build``)."""
-    for name in INTEGRATORS:
+    for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
         for (layers, count), dense, weights, forces in itertools.product(((5, 18), (6, 24)), (False, True),
                                                                          (False, True), list(_forces())):
@@ -157,7 +157,7 @@ def xpbd() -> Iterator[Variant]:
 
 def feedback_backend() -> Iterator[Variant]:
     """``FeedbackSimulation``: one vertex-only program per stage (``_add_pass``)."""
-    for name in INTEGRATORS:
+    for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
         for forces, c in itertools.product(list(_forces()), _constraints()):
             common: dict[str, object] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX, **forces, **c}

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import INTEGRATORS, initial_state, step
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state, step
 from deformgl.sim.limits import exact_limit, gershgorin_limit
 from deformgl.sim.spectrum import _BLOW_UP, _rest_directions, exact_frequency
 from deformgl.sim.springs import SpringSystem, cloth, from_grid, max_angular_frequency
@@ -253,7 +253,7 @@ def _row(name: str, system: SpringSystem, integrator: str, steps: int) -> Stabil
 
 
 def stability_table(systems: dict[str, SpringSystem] | None = None,
-                    integrators: tuple[str, ...] = INTEGRATORS,
+                    integrators: tuple[str, ...] = EXPLICIT_INTEGRATORS,
                     steps: int = 1000) -> list[StabilityRow]:
     """Gershgorin, exact and measured limits of every integrator on every system
     (default :func:`standard_systems`; 20 to 40 s on 2 shared cores).

@@ -45,18 +45,21 @@ from numpy.typing import ArrayLike
 
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["INTEGRATORS", "IMPLICIT_INTEGRATORS", "STABLE_INTEGRATORS", "ALL_INTEGRATORS", "GPU_BUFFERS", "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
+__all__ = ["INTEGRATORS", "EXPLICIT_INTEGRATORS", "IMPLICIT_INTEGRATORS", "STABLE_INTEGRATORS", "GPU_BUFFERS",
+           "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",
            "acceleration", "apply_constraints", "initial_state", "step", "simulate",
            "run_until_converged",
            "memory_per_node"]
 
-INTEGRATORS = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
+#: The five explicit integrators of this module (the stage table :data:`deformgl.sim.stages.SPECS`,
+#: each with a stability limit: :mod:`deformgl.sim.limits`).
+EXPLICIT_INTEGRATORS: tuple[str, ...] = ("euler", "semi-implicit", "midpoint", "rk4", "verlet")
 #: Integrators that solve a system each step (no explicit dt limit; :mod:`deformgl.sim.implicit`).
 IMPLICIT_INTEGRATORS: tuple[str, ...] = ("implicit-euler",)
 #: Integrators without an explicit step limit, outside the stage table (XPBD: deformgl.sim.xpbd).
 STABLE_INTEGRATORS: tuple[str, ...] = ("xpbd",)
-#: Every integrator name make_simulation, the scenes and the CLI take.
-ALL_INTEGRATORS = INTEGRATORS + IMPLICIT_INTEGRATORS + STABLE_INTEGRATORS
+#: Every integrator name make_simulation, the scenes and the CLI take (``deformgl.INTEGRATORS``).
+INTEGRATORS: tuple[str, ...] = EXPLICIT_INTEGRATORS + IMPLICIT_INTEGRATORS + STABLE_INTEGRATORS
 
 #: Bytes of one RGBA32F texel or one vec4 vertex attribute.
 VEC4_BYTES = 16
@@ -138,8 +141,8 @@ class Constraints:
 
 
 def _check_name(name: str) -> str:
-    if name not in INTEGRATORS:
-        raise ValueError(f"unknown integrator {name!r}; expected one of {', '.join(INTEGRATORS)}")
+    if name not in EXPLICIT_INTEGRATORS:
+        raise ValueError(f"unknown integrator {name!r}; expected one of {', '.join(EXPLICIT_INTEGRATORS)}")
     return name
 
 
@@ -251,7 +254,7 @@ def step(system: SpringSystem, name: str, state: State, dt: float, t: float, *,
 
     Args:
         system: the spring system.
-        name: one of :data:`INTEGRATORS`.
+        name: one of :data:`EXPLICIT_INTEGRATORS`.
         state: the state at time t (not modified).
         dt: step in s, > 0.
         t: time at the start of the step.

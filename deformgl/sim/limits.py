@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.sim.integrators import IMPLICIT_INTEGRATORS, INTEGRATORS, STABLE_INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, IMPLICIT_INTEGRATORS, STABLE_INTEGRATORS
 from deformgl.sim.spectrum import (
     DENSE_MAX_NODES, ExactFrequency, ModalDamping, _FORMULA, _RADIUS_TOL, _RK_POLY, _Y_MAX, _Y_MIN,
     _describe, _mass_normalised, exact_frequency, modal_damping)
@@ -38,7 +38,7 @@ def spectral_radius(integrator: str, omega: np.ndarray | float, gamma: np.ndarra
         return np.maximum(np.abs(tr + root), np.abs(tr - root)) / 2.0
     if integrator not in _RK_POLY:
         raise ValueError(f"unknown integrator {integrator!r}; expected one of "
-                         f"{', '.join(INTEGRATORS)}")
+                         f"{', '.join(EXPLICIT_INTEGRATORS)}")
     root = np.sqrt(g.astype(complex) ** 2 - 4.0 * w ** 2)
     radius = np.zeros(w.shape)
     for lam in ((-g + root) / 2.0, (-g - root) / 2.0):
@@ -89,7 +89,7 @@ class AnalyticLimit:
     """The largest stable dt of an integrator for a set of modal frequencies.
 
     Attributes:
-        integrator: one of ``INTEGRATORS``.
+        integrator: one of ``EXPLICIT_INTEGRATORS``.
         dt: s; 0.0 when no dt is stable (forward Euler and midpoint undamped).
         omega: rad/s, the frequency of the mode that sets the limit.
         gamma: 1/s, that mode's damping ``g``.
@@ -119,7 +119,7 @@ def analytic_limit(integrator: str, omegas: np.ndarray | float,
     Undamped: semi-implicit and Verlet ``2/w``, RK4 ``2 sqrt(2)/w``, Euler and midpoint 0
     (closed forms, Movania & Feng 2012 section 3; STYLE.md), w the largest of ``omegas``.
     """
-    if integrator not in INTEGRATORS:
+    if integrator not in EXPLICIT_INTEGRATORS:
         raise ValueError(f"unknown integrator {integrator!r}")
     w = np.atleast_1d(np.asarray(omegas, float))
     best = (np.inf, 0.0, 0.0)
@@ -172,7 +172,7 @@ class DtLimit:
     """The largest stable dt of ``integrator`` on a system, and what sets it.
 
     Attributes:
-        integrator: one of ``INTEGRATORS``.
+        integrator: one of ``EXPLICIT_INTEGRATORS``.
         dt: s (0.0: no dt is stable).
         omega: rad/s, the frequency used (Gershgorin bound or exact).
         bound: "gershgorin" (conservative: never accepts an unstable dt), "exact" (dense) or

@@ -17,7 +17,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.sim import integrators
 from deformgl.sim.base import CpuSimulationBase
-from deformgl.sim.integrators import ALL_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
 from deformgl.sim.springs import Drag, Load, SpringSystem
 
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
@@ -42,7 +42,7 @@ class Simulation(Protocol):
 
     Attributes:
         system: the spring system.
-        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
+        integrator: one of :data:`~deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         backend: one of :data:`BACKENDS`.
         dt: step in s.
         time: simulated time in s.
@@ -87,8 +87,8 @@ class NumpySimulation(CpuSimulationBase):
     def __init__(self, system: SpringSystem, integrator: str, dt: float, *,
                  constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
                  loads: tuple[Load, ...] = (), state: State | None = None, t0: float = 0.0) -> None:
-        if integrator not in INTEGRATORS:
-            raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
+        if integrator not in EXPLICIT_INTEGRATORS:
+            raise ValueError(f"unknown integrator {integrator!r}; expected one of {', '.join(EXPLICIT_INTEGRATORS)}")
         if not dt > 0:
             raise ValueError(f"NumpySimulation: dt must be > 0, got {dt}")
         self.system, self.integrator = system, integrator
@@ -111,7 +111,7 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
 
     Args:
         system: the spring system.
-        integrator: one of :data:`~deformgl.sim.integrators.ALL_INTEGRATORS` ("implicit-euler":
+        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS` ("implicit-euler":
             backward Euler with conjugate gradients, :mod:`deformgl.sim.implicit`; fragment and
             numpy backends).
         backend: "fragment" (a system with a node grid: :func:`~deformgl.sim.springs.from_grid`,
@@ -133,8 +133,8 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
             fragment backend without a grid, or an unknown option.
     """
-    if integrator not in ALL_INTEGRATORS:
-        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(ALL_INTEGRATORS)}")
+    if integrator not in INTEGRATORS:
+        raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
     if backend not in BACKENDS:
         raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     if integrator in IMPLICIT_INTEGRATORS:

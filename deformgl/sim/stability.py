@@ -40,7 +40,7 @@ from __future__ import annotations
 
 # The analysis is split by what it does (spectrum.py, limits.py, growth.py); every name stays
 # importable from here.
-from deformgl.sim.integrators import INTEGRATORS  # noqa: F401
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS  # noqa: F401
 from deformgl.sim.spectrum import (  # noqa: F401
     DENSE_MAX_NODES,
     ExactFrequency,

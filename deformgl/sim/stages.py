@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from deformgl.sim.integrators import GPU_BUFFERS, INTEGRATORS, VEC4_BYTES
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, GPU_BUFFERS, VEC4_BYTES
 
 __all__ = ["Stage", "IntegratorSpec", "SPECS", "BUFFERS", "spec"]
 
@@ -113,7 +113,7 @@ class IntegratorSpec:
     """An integrator: its stages in order and what it costs.
 
     Attributes:
-        name: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
+        name: one of :data:`~deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         stages: the passes of one step.
         buffers: the per-node vec4 buffers alive during a step.
         velocity: whether velocity is state (False: Verlet's backward difference).
@@ -218,7 +218,7 @@ SPECS: dict[str, IntegratorSpec] = {
         GPU_BUFFERS["verlet"], False, 2.0,
         (("x", "x_out"), ("x_prev", "x"), ("x_out", "x_prev"))),
 }
-assert tuple(SPECS) == INTEGRATORS
+assert tuple(SPECS) == EXPLICIT_INTEGRATORS
 
 
 def spec(name: str) -> IntegratorSpec:
@@ -226,4 +226,4 @@ def spec(name: str) -> IntegratorSpec:
     try:
         return SPECS[name]
     except KeyError:
-        raise ValueError(f"unknown integrator {name!r}; expected one of {', '.join(INTEGRATORS)}") from None
+        raise ValueError(f"unknown integrator {name!r}; expected one of {', '.join(EXPLICIT_INTEGRATORS)}") from None

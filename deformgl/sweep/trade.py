@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 
 from deformgl.bench.trade import BACKENDS, TradeReport, standard_workloads, trade_study
-from deformgl.sim.integrators import INTEGRATORS
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sweep.runner import sweep_client
 
 __all__ = ["distributed_trade"]
@@ -52,7 +52,7 @@ def distributed_trade(*, quick: bool = False, backends: Sequence[str] = BACKENDS
     names = [p.rows[0].workload if p.rows else p.references[0].workload for p in parts]
     rows = [r for p in parts for r in p.rows]
     rows.sort(key=lambda r: (names.index(r.workload), list(backends).index(r.backend),
-                             INTEGRATORS.index(r.integrator), r.steps))
+                             EXPLICIT_INTEGRATORS.index(r.integrator), r.steps))
     machine = parts[0].machine + f"; {count} workloads on {nworkers} Dask workers at once"
     return TradeReport(rows, machine, datetime.now(timezone.utc).isoformat(timespec="seconds"), parts[0].sim_time,
                        [ref for p in parts for ref in p.references])

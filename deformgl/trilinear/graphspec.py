@@ -42,6 +42,11 @@ DEFORMATIONS: dict[str, tuple[str, ...]] = {
 
 #: Most leaves (mesh instances) a graph may draw, and most lattice points of one grid.
 MAX_LEAVES = 1 << 21
+#: Most node instances a root may expand to: every node counted once under each path from the root
+#: (each parent, each array instance), whether or not a mesh is below it: what building and
+#: composing the graph walk. An array instance is a node (its translation) over the children;
+#: four per drawn mesh instance let MAX_LEAVES of them have a few nodes each above them.
+MAX_EXPANDED = 4 * MAX_LEAVES
 MAX_LATTICE_POINTS = 1 << 22
 #: Deepest graph (nodes on the longest path from a root to a leaf).
 MAX_GRAPH_DEPTH = 10000
@@ -285,7 +290,9 @@ class SceneGraph:
     depth: int = field(default=0, init=False, repr=False, compare=False)
 
     def check(self) -> SceneGraph:
-        """Refuse dangling names, a leaf with children, and cycles; returns self.
+        """Refuse dangling names, a leaf with children, cycles and graphs too large to build
+        (:data:`MAX_LEAVES`, :data:`MAX_EXPANDED`, :data:`MAX_GRAPH_DEPTH`, :data:`MAX_LATTICE_POINTS`),
+        in time linear in the file's nodes and edges; returns self.
 
         Raises:
             InputError: naming the node and what is wrong.
@@ -313,6 +320,7 @@ class SceneGraph:
                 raise InputError(f"nodes.{name}.attach: needs a [body] to attach to")
         state: dict[str, int] = {}
         leaves: dict[str, int] = {}  # mesh instances below each node (capped)
+        expanded: dict[str, int] = {}  # node instances of each node's expanded subtree (capped)
         depths: dict[str, int] = {}
         for root in self.roots:  # iterative depth-first search for cycles, counting leaves
             stack: list[tuple[str, int]] = [(root, 0)]
@@ -334,9 +342,13 @@ class SceneGraph:
                     state[name] = 2  # done: its children's leaf counts are known
                     node = self.nodes[name]
                     n = 1 if node.mesh is not None else sum(leaves[c] for c in kids)
+                    e = sum(expanded[c] for c in kids)
                     if node.transform is not None and node.transform.kind == "array":
-                        n *= int(np.prod(node.transform.count))
+                        count = int(np.prod(node.transform.count))
+                        n *= count
+                        e = count * (1 + e)  # one translation node per instance over the children
                     leaves[name] = min(n, MAX_LEAVES + 1)
+                    expanded[name] = min(1 + e, MAX_EXPANDED + 1)
                     depths[name] = 1 + max((depths[c] for c in kids), default=0)
                     if depths[name] > MAX_GRAPH_DEPTH:
                         raise InputError(f"nodes.{name}: more than {MAX_GRAPH_DEPTH} levels below this node")
@@ -344,6 +356,10 @@ class SceneGraph:
         for root in self.roots:
             if leaves[root] > MAX_LEAVES:
                 raise InputError(f"graph.roots: {root!r} draws more than {MAX_LEAVES} mesh instances")
+            if expanded[root] > MAX_EXPANDED:
+                raise InputError(f"graph.roots: {root!r} expands to more than {MAX_EXPANDED} node instances "
+                                 "(each node counted under every parent and array instance above it, "
+                                 "with or without a mesh below)")
         for name, node in self.nodes.items():
             t = node.transform
             if t is not None and t.kind == "grid" and t.file is None:

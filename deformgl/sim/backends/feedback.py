@@ -51,7 +51,7 @@ from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
 from deformgl.errors import GLError
-from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
@@ -126,7 +126,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
     Args:
         ctx: the GL context.
         system: the spring system.
-        integrator: one of :data:`deformgl.sim.integrators.INTEGRATORS`.
+        integrator: one of :data:`deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated on the CPU at each stage's time, as uniforms).
@@ -143,9 +143,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
                  *, constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
                  loads: tuple[Load, ...] = (), state: State | None = None,
                  t0: float = 0.0) -> None:
-        if integrator not in INTEGRATORS:
+        if integrator not in EXPLICIT_INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
-                             f"{', '.join(INTEGRATORS)}")
+                             f"{', '.join(EXPLICIT_INTEGRATORS)}")
         #: the integrator's stages, buffers and role rotation (``deformgl.sim.stages``)
         self.spec = spec(integrator)
         _check_layout(self.spec)

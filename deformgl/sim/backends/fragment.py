@@ -46,7 +46,7 @@ from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
-from deformgl.sim.integrators import INTEGRATORS, Constraints, State, initial_state
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
@@ -79,7 +79,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         ctx: the GL context.
         system: spring system from :func:`springs.from_grid` / :func:`springs.cloth` on ``grid``.
         grid: the node grid (node order of the system).
-        integrator: one of :data:`deformgl.sim.integrators.INTEGRATORS`.
+        integrator: one of :data:`deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated at each pass's stage time, as uniforms).
@@ -118,9 +118,9 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                              "springs.from_grid or springs.cloth, or pass grid=)")
         if path not in PATHS:
             raise ValueError(f"FragmentIntegrator: path must be one of {', '.join(PATHS)}, got {path!r}")
-        if integrator not in INTEGRATORS:
+        if integrator not in EXPLICIT_INTEGRATORS:
             raise ValueError(f"unknown integrator {integrator!r}; expected one of "
-                             f"{', '.join(INTEGRATORS)}")
+                             f"{', '.join(EXPLICIT_INTEGRATORS)}")
         #: the integrator's stages, buffers and role rotation (``deformgl.sim.stages``)
         self.spec = spec(integrator)
         if not dt > 0:
