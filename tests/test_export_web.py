@@ -41,6 +41,10 @@ def test_a_refused_export_leaves_no_folder_behind(ctx, tmp_path, base, extra, me
     with pytest.raises(InputError, match=message):
         export_web(scene, mine, steps=2, mapping="constant")
     assert sorted(p.name for p in mine.iterdir()) == ["keep.txt"]
+    (mine / "shaders").mkdir()  # an empty shaders folder that was there: the subfolders go again
+    with pytest.raises(InputError, match=message):
+        export_web(scene, mine, steps=2, mapping="constant")
+    assert sorted(p.relative_to(mine).as_posix() for p in mine.rglob("*")) == ["keep.txt", "shaders"]
 
 
 def test_an_export_writes_the_set(ctx, tmp_path):

@@ -437,6 +437,7 @@ def test_extended_physics_round_trips(scene_dir: Path) -> None:
 @pytest.mark.parametrize("table, expected", [
     ("", Converge()),
     ('criterion = "displacement"\nthreshold = 0.002', Converge("displacement", threshold=0.002)),
+    ("threshold = 0.002\nevery = 5", Converge("displacement", threshold=0.002, every=5)),  # an older table
     ("tolerance = 0.005\ninterval = 0.05\nchecks = 4", Converge(tolerance=0.005, interval=0.05, checks=4)),
 ])
 def test_the_convergence_table(scene_dir: Path, table: str, expected: Converge) -> None:
@@ -444,8 +445,8 @@ def test_the_convergence_table(scene_dir: Path, table: str, expected: Converge) 
 
 
 @pytest.mark.parametrize("table, message", [
-    ("threshold = 0.002", 'physics.converge.threshold: only used with criterion = "displacement" '
-                          "(the criterion is 'equilibrium')"),
+    ('criterion = "equilibrium"\nthreshold = 0.002', 'physics.converge.threshold: only used with criterion = '
+                                                      '"displacement" (the criterion is \'equilibrium\')'),
     ('criterion = "displacement"\ntolerance = 0.1', 'physics.converge.tolerance: only used with criterion = '
                                                      '"equilibrium" (the criterion is \'displacement\')'),
     ("interval = 0.1\nevery = 3", "physics.converge.every: give either 'every' (steps) or 'interval'"),

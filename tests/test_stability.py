@@ -257,3 +257,14 @@ def test_stability_table_row_is_measured_and_formatted() -> None:
     assert rows[0].ratio == pytest.approx(1.0, rel=0.02)
     text = st.format_stability(rows)
     assert "Gershgorin" in text and "tiny" in text and "verlet" in text
+
+
+@pytest.mark.parametrize("integrator", ["implicit-euler", "xpbd"])
+def test_integrators_without_a_dt_limit_say_so(small: SpringSystem, integrator: str) -> None:
+    """dt_limit names why there is none (every name of deformgl.INTEGRATORS is accepted by
+    check_dt, which never refuses these)."""
+    from deformgl.sim.limits import check_dt, dt_limit
+
+    with pytest.raises(ValueError, match=f"{integrator} has no explicit dt limit"):
+        dt_limit(small, integrator)
+    assert check_dt(small, integrator, 1.0) is None

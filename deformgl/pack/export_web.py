@@ -76,12 +76,12 @@ def export_web(path: Path, out: Path, *, steps: int | None = None, size: tuple[i
     scene = web_scene(path, steps=steps, size=size, mapping=mapping)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
-    created = _first_missing(out / "shaders")  # the outermost folder the export creates, or None
+    top = _first_missing(out) or out  # the outermost folder the export may create
+    before = _folders(top)
     try:
         return _export(scene, out)
     except BaseException:
-        if created is not None:
-            _remove_empty_folders(created)
+        _remove_new_empty_folders(top, before)
         raise
 
 
@@ -93,14 +93,25 @@ def _first_missing(folder: Path) -> Path | None:
     return missing
 
 
-def _remove_empty_folders(top: Path) -> None:
-    """Remove ``top`` and the folders under it, deepest first, where they hold nothing: a file
-    that appeared in them (not this export's: its set writes all or none) stays, with its folders."""
+def _folders(top: Path) -> set[Path]:
+    """``top`` and every folder under it that exists now."""
+    if not top.is_dir():
+        return set()
+    return {top, *(Path(d) / name for d, names, _ in os.walk(top) for name in names)}
+
+
+def _remove_new_empty_folders(top: Path, before: set[Path]) -> None:
+    """Remove the folders under ``top`` (and ``top``) that were not in ``before``, deepest first,
+    where they hold nothing: a file that appeared in them (not this export's: its set writes all
+    or none) stays, with its folders."""
+    if not top.is_dir():
+        return
     for folder, _, _ in os.walk(top, topdown=False):  # every folder after the ones inside it
-        try:
-            os.rmdir(folder)
-        except OSError:
-            pass
+        if Path(folder) not in before:
+            try:
+                os.rmdir(folder)
+            except OSError:
+                pass
 
 
 def _export(scene: Scene, out: Path) -> list[Path]:

@@ -25,6 +25,7 @@ crosses to the CPU, never the state.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -189,6 +190,18 @@ class SceneRun:
         return line
 
 
+def scripted_until(physics: Physics) -> float:
+    """The simulated time (s) of the scene's last scripted change: the last keyframe of a drag or
+    a moving sphere, a pull's start, end of ramp or (finite) stop; the convergence stop waits
+    for it (a body at rest before a pull starts has not converged)."""
+    times = [0.0]
+    times += [d.path.times[-1] for d in physics.drag]
+    times += [s.path.times[-1] for s in physics.sphere if s.path is not None]
+    for pull in physics.pull:
+        times += [pull.start + pull.ramp] + ([pull.stop] if math.isfinite(pull.stop) else [])
+    return max(times)
+
+
 def bad_limit(physics: Physics, box: SceneBox) -> float:
     """World distance from the (recentred) box centre beyond which a node counts as blown up."""
     return physics.safety.bad_distance * box.longest
@@ -232,7 +245,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         # every run ends with a blow-up check (census or NumPy), so its positions are finite
         result = run_guarded(system, physics, make, source=scene.source, limit=bad_limit(physics, box),
                              check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=physics.converge,
-                             loads=loads, drags=drags,
+                             loads=loads, drags=drags, hold_until=scripted_until(physics),
                              progress=progress, plan=plan, notes=notes, frame_every=frame_every,
                              on_frame=on_frame)
         sim = made[-1]

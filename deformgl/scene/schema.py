@@ -156,6 +156,8 @@ _CONVERGE_KEYS = {"equilibrium": ("tolerance", "interval", "checks"), "displacem
 
 def _build_converge(file: str, key: str, d: dict[str, Any]) -> Converge:
     criterion = d.pop("criterion")
+    if criterion is None:  # a table written for the paper's criterion (a threshold) keeps it
+        criterion = "displacement" if d["threshold"] is not None else "equilibrium"
     for other, keys in _CONVERGE_KEYS.items():
         for name in keys:
             if other != criterion and d[name] is not None:
@@ -199,7 +201,7 @@ _PHYSICS = _table({
         lambda file, key, d: DragSpec(_build_keyframes(file, key, d["path"], d["times"]), d["stiffness"])),
         MAX_DRAGS), []),
     "converge": (_table({
-        "criterion": (_str(CONVERGE_CRITERIA), "equilibrium"),
+        "criterion": (_str(CONVERGE_CRITERIA), None),
         "tolerance": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1.0), unit="(a ratio)"), None),
         "interval": (_num(lo=0.0, lo_open=True, sane=(1e-9, 1e3), unit="s"), None),
         "checks": (_int(lo=1, sane=(1, 1000)), None),

@@ -248,7 +248,15 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
 def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None,
              exact_up_to: int = 300) -> DtLimit:
     """The dt limit with the exact spectrum (``exact`` True, or None and at most ``exact_up_to``
-    free nodes) or the Gershgorin bound."""
+    free nodes) or the Gershgorin bound.
+
+    Raises:
+        ValueError: an integrator without an explicit dt limit (implicit Euler, XPBD: their
+            solve's residual is reported instead) or an unknown one.
+    """
+    if integrator in IMPLICIT_INTEGRATORS or integrator in STABLE_INTEGRATORS:
+        raise ValueError(f"{integrator} has no explicit dt limit (only the explicit integrators have one: "
+                         f"{', '.join(EXPLICIT_INTEGRATORS)}); check_dt accepts every dt for it")
     if exact is None:
         exact = int((~system.fixed).sum()) <= exact_up_to
     return _dt_limit(system, integrator, "exact" if exact else "gershgorin")

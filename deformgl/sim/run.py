@@ -175,6 +175,8 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = No
                     still = census.moved(now, before, stop.threshold, slot=slot, before_slots=1) == 0
                 else:
                     still = sim.last_moved <= stop.threshold
+                if still and sim.time < stop.hold_until:  # a scripted change is still to come
+                    still = False
                 if still:
                     if watch is not None and not watch.due(done):
                         watch.check(done)
@@ -212,7 +214,8 @@ def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], 
 def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[float], Simulation], *,
                 source: object, limit: float, check_every: int, ctx=None, grid: NodeGrid | None = None,
                 converge: ConvergeRule | tuple[float, int] | None = None, loads: tuple[Load, ...] = (),
-                drags: tuple[Drag, ...] = (), progress: bool = False, plan: StepPlan | None = None,
+                drags: tuple[Drag, ...] = (), hold_until: float = 0.0, progress: bool = False,
+                plan: StepPlan | None = None,
                 notes: list[str] | None = None, wording: Wording = SCENE_WORDING, frame_every: int = 0,
                 on_frame: Callable[[int, object], None] | None = None) -> RunResult:
     """The guarded run of ``settings.steps`` steps of ``settings.dt`` of ``system``.
@@ -242,6 +245,7 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
             ``every * substeps`` substeps.
         loads, drags: the run's scripted loads and drags (the equilibrium stop counts their
             forces among the applied ones).
+        hold_until: no convergence stop before this simulated time (s): the last scripted change.
         progress: show a progress bar on stderr.
         plan: a plan checked already (its note is noted, as :func:`plan_steps`' would be).
         notes: receives the plan's note and each restart's as they happen, if given (the result
@@ -271,9 +275,10 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
         gl = getattr(sim, "ctx", None) if ctx is None else ctx
         stop: Converge | None = None
         if isinstance(converge, ConvergeRule):
-            stop = converge.monitor(system, dt=p.step_dt, substeps=p.substeps, loads=loads, drags=drags)
+            stop = converge.monitor(system, dt=p.step_dt, substeps=p.substeps, loads=loads, drags=drags,
+                                    hold_until=hold_until)
         elif converge is not None:
-            stop = (converge[0] / p.substeps, converge[1] * p.substeps)
+            stop = DisplacementMonitor(converge[0] / p.substeps, converge[1] * p.substeps, hold_until)
         watch = make_watch(gl, sim, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
                            wording=wording)
         hook = None if on_frame is None else (lambda done, s: on_frame(done // p.substeps, s))

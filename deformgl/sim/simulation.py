@@ -42,7 +42,7 @@ class Simulation(Protocol):
 
     Attributes:
         system: the spring system.
-        integrator: one of :data:`~deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
+        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS`.
         backend: one of :data:`BACKENDS`.
         dt: step in s.
         time: simulated time in s.
