@@ -160,6 +160,9 @@ def test_a_pulled_body_is_not_done_before_its_pull_and_settles_against_it():
     assert monitor.force_ratio < 0.01
     early = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
     assert run(early, 40000, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,))).steps == 80
+    waiting = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
+    capped = run(waiting, 90, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,), hold_until=0.1))
+    assert capped.converged is False and capped.convergence.startswith("waiting for the last scripted change at t = 0.1 s")
 
 
 def test_the_api_and_the_scene_pass_their_loads_drags_and_schedule_to_the_stop(ctx, monkeypatch):
@@ -174,22 +177,28 @@ def test_the_api_and_the_scene_pass_their_loads_drags_and_schedule_to_the_stop(c
     system, grid = small_block(gravity=(0.0, 0.0, 0.0))
     load = Load(system.rest_positions[:, 1] > 0.015, lambda t: (0.0, 0.05, 0.0))
     sim = dg.make_simulation(system, "semi-implicit", "numpy", dt=1e-3, loads=(load,), ctx=ctx)
-    dg.run(sim, 100, converge=ConvergeRule())
-    assert seen[-1]["loads"] == (load,) and seen[-1]["drags"] == ()
+    dg.run(sim, 100, converge=ConvergeRule(), hold_until=0.05)
+    assert seen[-1]["loads"] == (load,) and seen[-1]["drags"] == () and seen[-1]["hold_until"] == 0.05
+    import dataclasses
+
+    from deformgl.data import packaged_scene
     from deformgl.scene.run import scripted_until
     from deformgl.scene.schema import load_scene
-    from deformgl.data import packaged_scene
+    from deformgl.scene.spec import DragSpec, Keyframes, SphereSpec
 
-    physics = load_scene(packaged_scene("jelly.toml")).physics
+    jelly = load_scene(packaged_scene("jelly.toml"))
+    physics = jelly.physics
     assert scripted_until(physics) == max([0.0] + [p.start + p.ramp for p in physics.pull]
                                           + [p.stop for p in physics.pull if math.isfinite(p.stop)])
+    path = Keyframes(((0.5, 1.2, 0.5), (0.5, 1.4, 0.5)), (0.0, 2.5))
+    assert scripted_until(dataclasses.replace(physics, drag=(DragSpec(path, 10.0),))) == 2.5
+    moving = SphereSpec(None, Keyframes(path.points, (0.0, 3.0)), 0.2)
+    assert scripted_until(dataclasses.replace(physics, sphere=(moving,))) == 3.0
+    # the scene's run hands its schedule to the stop
+    seen.clear()
+    short = load_scene(packaged_scene("jelly.toml"), {"physics.converge.tolerance": 0.01, "physics.steps": 20,
+                                                      "render.size": [64, 48], "render.msaa": 0})
+    dg.render_scene(short, ctx=ctx)
+    assert seen and seen[-1]["hold_until"] == scripted_until(physics) > 0
 
 
-def test_the_rule_checks_its_values():
-    for bad in (dict(criterion="still"), dict(tolerance=0.0), dict(interval=-1.0), dict(checks=0), dict(every=0)):
-        with pytest.raises(ValueError, match="converge"):
-            ConvergeRule(**bad)
-    assert ConvergeRule(every=7).check_steps(1e-3, substeps=2) == 14
-    assert ConvergeRule().check_steps(1.0 / 60.0) == 1
-    assert ConvergeRule("displacement").monitor(small_block()[0], dt=1e-3, substeps=2).threshold == \
-        pytest.approx(0.001 * 0.01 / 2)

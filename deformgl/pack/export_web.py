@@ -76,12 +76,12 @@ def export_web(path: Path, out: Path, *, steps: int | None = None, size: tuple[i
     scene = web_scene(path, steps=steps, size=size, mapping=mapping)
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder")
-    top = _first_missing(out) or out  # the outermost folder the export may create
-    before = _folders(top)
+    top = _first_missing(out)  # the outermost folder of out's path the export creates, or None
+    before = _folders(out / "shaders")
     try:
         return _export(scene, out)
     except BaseException:
-        _remove_new_empty_folders(top, before)
+        _remove_new_empty_folders(out, top, before)
         raise
 
 
@@ -94,24 +94,37 @@ def _first_missing(folder: Path) -> Path | None:
 
 
 def _folders(top: Path) -> set[Path]:
-    """``top`` and every folder under it that exists now."""
+    """``top`` and every folder under it that exists now (the export writes only under
+    ``out/shaders`` and ``out`` itself, so only that subtree is walked)."""
     if not top.is_dir():
         return set()
     return {top, *(Path(d) / name for d, names, _ in os.walk(top) for name in names)}
 
 
-def _remove_new_empty_folders(top: Path, before: set[Path]) -> None:
-    """Remove the folders under ``top`` (and ``top``) that were not in ``before``, deepest first,
-    where they hold nothing: a file that appeared in them (not this export's: its set writes all
-    or none) stays, with its folders."""
-    if not top.is_dir():
+def _remove_new_empty_folders(out: Path, top: Path | None, before: set[Path]) -> None:
+    """Remove the folders the export made, deepest first, where they hold nothing: those under
+    ``out/shaders`` (and it) that were not in ``before``, then ``out`` and its parents up to
+    ``top`` when they were missing. A file that appeared in them (not this export's: its set
+    writes all or none) stays, with its folders."""
+    shaders = out / "shaders"
+    if shaders.is_dir():
+        for folder, _, _ in os.walk(shaders, topdown=False):  # every folder after the ones inside it
+            if Path(folder) not in before:
+                try:
+                    os.rmdir(folder)
+                except OSError:
+                    pass
+    if top is None:
         return
-    for folder, _, _ in os.walk(top, topdown=False):  # every folder after the ones inside it
-        if Path(folder) not in before:
-            try:
-                os.rmdir(folder)
-            except OSError:
-                pass
+    made = out
+    while True:
+        try:
+            os.rmdir(made)
+        except OSError:
+            return
+        if made == top or made == made.parent:
+            return
+        made = made.parent
 
 
 def _export(scene: Scene, out: Path) -> list[Path]:

@@ -167,7 +167,7 @@ class _Settings:
 
 def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_every: int = 100,
         bad_distance: float = 1000.0, source: str | None = None, progress: bool = False,
-        converge: ConvergeRule | None = None) -> RunResult:
+        converge: ConvergeRule | None = None, hold_until: float = 0.0) -> RunResult:
     """Run ``steps`` steps of the dt ``sim`` was made with, with the CLI's guards
     (:func:`deformgl.sim.run.run_guarded`; messages name ``dt`` and ``unstable=``).
 
@@ -185,7 +185,10 @@ def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_e
         converge: stop early once converged: a :class:`~deformgl.sim.equilibrium.ConvergeRule`
             (``dg.ConvergeRule()``: at equilibrium, the net force on every free node and the
             kinetic energy below 1 % of the applied force and of the run's peak at 3 checks 0.02 s
-            apart; the simulation's loads and drags count as applied forces); ``steps`` is the limit.
+            apart, against the larger of the run's peak and the springs' elastic energy; the
+            simulation's loads and drags count as applied forces); ``steps`` is the limit.
+        hold_until: no convergence stop before this simulated time (s): give the time of the last
+            scripted change (a load that starts or stops, a drag target's last move).
 
     Returns:
         :class:`~deformgl.sim.run.RunResult`: the steps done (of ``result.dt``: ``substeps`` per
@@ -213,4 +216,5 @@ def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_e
 
     return run_guarded(sim.system, settings, make, source=source, limit=limit, check_every=check_every,
                        ctx=sim.ctx, grid=sim.grid, progress=progress, wording=API_WORDING, converge=converge,
-                       loads=tuple(sim.options.get("loads", ())), drags=tuple(sim.options.get("drags", ())))
+                       loads=tuple(sim.options.get("loads", ())), drags=tuple(sim.options.get("drags", ())),
+                       hold_until=hold_until)

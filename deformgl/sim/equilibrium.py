@@ -28,7 +28,7 @@ Differences over a whole interval, not one step, keep the measure above float32'
 GPU state (a single step's difference is rounding noise at small dt); on the float32 fragment
 backend a 21-node cantilever's noise floor is a force ratio of 2e-4 to 2e-3 at dt 1e-4 to 1e-5 s
 (docs/ACCURACY.md, "When a run has converged"). The default ``tolerance`` 0.01 is the one that
-stops that cantilever within 0.2 % of its 1 s sag with every integrator that runs it at dt 1e-4
+stops that cantilever within 0.25 % of its 1 s sag with every integrator that runs it at dt 1e-4
 and 1e-5 s (XPBD at 1e-5 s in float64: in float32 its corrections fall below the resolution of
 the positions and it never settles, which the stop reports; tests/test_equilibrium.py).
 
@@ -129,7 +129,7 @@ class DisplacementMonitor:
     snapshot: bool = field(default=True, init=False)  # the loop keeps the positions before the last step
 
     def describe(self) -> str:
-        return f"displacement criterion: at most {self.threshold:.3g} per step"
+        return f"displacement criterion: at most {self.threshold:.3g} in one step of dt (a substep where subdivided)"
 
 
 @dataclass
@@ -215,5 +215,8 @@ class EquilibriumMonitor:
         """The last check's measures, for a log line."""
         if math.isnan(self.force_ratio):
             return f"equilibrium not measured yet (fewer than three position samples, one every {self.every} steps)"
+        if self._samples[0][1] < self.hold_until:
+            return (f"waiting for the last scripted change at t = {self.hold_until:g} s (net force "
+                    f"{self.force_ratio:.2g} of the applied, kinetic energy {self.energy_ratio:.2g} of its scale)")
         return (f"net force {self.force_ratio:.2g} of the applied, kinetic energy {self.energy_ratio:.2g} of "
                 f"its scale (tolerance {self.tolerance:g}, {self.below} of {self.checks} checks below)")
