@@ -89,7 +89,6 @@ def test_an_animation_reads_no_node_state_between_frames(ctx, jelly, tmp_path, m
 
 @pytest.mark.video
 def test_mp4_and_png_frames_are_written_whole(ctx, jelly, tmp_path, capsys):
-    pytest.importorskip("imageio_ffmpeg", reason="optional extra 'video': imageio-ffmpeg is not installed")
     import imageio_ffmpeg
 
     out = tmp_path / "a.mp4"

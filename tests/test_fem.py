@@ -18,11 +18,6 @@ from deformgl.sim.springs import forces, from_grid
 CANTILEVER = WORKLOADS["cantilever"]
 
 
-def need_fem():
-    """Skip unless scikit-fem is installed (the optional 'fem' extra; CI installs it)."""
-    pytest.importorskip("skfem", reason="optional extra 'fem': scikit-fem is not installed")
-
-
 def block(n, h=0.01, material=MATERIAL, **kw):
     grid = NodeGrid(np.zeros(3), h, np.ones((n, n, n), bool))
     system, _ = lattice_system(grid, material, gravity=(0.0, 0.0, 0.0), **kw)
@@ -138,7 +133,6 @@ def test_the_lattice_is_resolution_independent_in_mass():
 
 @pytest.fixture(scope="module")
 def cantilever_fem():
-    need_fem()
     from deformgl.bench.fem import fem_reference
 
     return fem_reference(CANTILEVER, (1, 2, 4))
@@ -204,7 +198,6 @@ def test_the_uncalibrated_lattice_misses_the_target(cantilever_fem):
 
 @pytest.mark.fem
 def test_block_and_twist_converge_to_fem():
-    need_fem()
     from deformgl.bench.fem import fem_reference
 
     for name, meshes in (("block", (2, 4)), ("twist", (2, 4))):
@@ -233,7 +226,6 @@ def test_the_fragment_backend_settles_on_the_static_solve_too(ctx):
 @pytest.mark.fem
 @pytest.mark.slow
 def test_the_bench_accuracy_command_prints_the_table_and_writes_its_files(tmp_path, capsys):
-    need_fem()
     import json
 
     from deformgl.cli import main

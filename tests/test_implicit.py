@@ -293,7 +293,6 @@ def test_stiff_study_quick(stiff_rows):
 
 @pytest.mark.fem
 def test_stiff_fem_error(stiff_rows):
-    pytest.importorskip("skfem", reason="scikit-fem is an optional extra (deformgl[fem])")
     cases, rows = stiff_rows
     # linear FEM of the cube: about 5e-5 m at 1 MPa; the 5-across lattice is within a few % of it
     assert 4e-5 < cases[0].fem < 6e-5
@@ -318,7 +317,6 @@ def test_stiff_csv_json_and_chart(stiff_rows, tmp_path):
     stiff_files.write_json(tmp_path / "stiff.json", rows, cases, "machine")
     data = json.loads((tmp_path / "stiff.json").read_text())
     assert len(data["rows"]) == len(rows) and data["cases"][0]["nodes"] == 125
-    pytest.importorskip("matplotlib", reason="matplotlib is an optional extra (deformgl[plot])")
     stiff_files.write_chart(tmp_path / "stiff.png", rows, "machine")
     from PIL import Image
 

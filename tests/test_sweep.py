@@ -20,10 +20,6 @@ from deformgl.files import read_png
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
-def need_dask():
-    pytest.importorskip("distributed", reason="optional extra 'sweep': dask[distributed] is not installed")
-
-
 @pytest.fixture
 def jelly(tmp_path):
     """A small copy of the jelly scene (64x48 pixels, no MSAA)."""
@@ -98,7 +94,6 @@ def test_variants_in_one_process_with_a_failed_one_in_the_table(ctx, jelly, tmp_
 
 @pytest.mark.sweep
 def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp_path, capsys):
-    need_dask()
     sweep = write_sweep(tmp_path, '[set]\n"physics.steps" = 30\n[product]\n"physics.integrator" = '
                                   '["verlet", "semi-implicit"]\n"grid.nodes_along_longest" = [6, 8]\n')
     code = main(["sweep", str(sweep), "-o", str(tmp_path / "dask"), "--workers", "2", "--quiet"])
@@ -121,7 +116,6 @@ def test_dask_sweep_on_two_workers_matches_the_one_process_sweep(ctx, jelly, tmp
 
 @pytest.mark.sweep
 def test_a_worker_killed_mid_sweep_is_replaced_and_every_variant_is_in_the_table_once(ctx, jelly, tmp_path):
-    need_dask()
     from distributed import Client, LocalCluster
 
     from deformgl.sweep.runner import sweep_scene
@@ -167,7 +161,6 @@ def test_a_worker_killed_mid_sweep_is_replaced_and_every_variant_is_in_the_table
 def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monkeypatch):
     """devices=[0, 7]: worker 0 renders on EGL device 0 (llvmpipe's), worker 1 on device 7, which
     this machine does not have: its variants are rows with the GL error, not a failed sweep."""
-    need_dask()
     from deformgl.sweep import runner
 
     assert runner.detect_gpus() is None or len(runner.detect_gpus() or []) >= 2
@@ -187,7 +180,6 @@ def test_workers_are_pinned_to_their_devices_by_name(ctx, jelly, tmp_path, monke
 def test_bench_trade_on_dask_workers_measures_the_same_runs_as_in_process(ctx):
     """One task per workload: the same rows (integrators, dts, steps) with the same errors as the
     in-process study; only the costs differ (measured while the workloads share the machine)."""
-    need_dask()
     from deformgl.bench.trade import trade_study
     from deformgl.sweep.trade import distributed_trade
 

@@ -120,7 +120,6 @@ def test_csv_and_json_round_trip(report, tmp_path):
 
 @pytest.mark.plot
 def test_chart_is_a_png(report, tmp_path):
-    pytest.importorskip("matplotlib", reason="matplotlib is an optional extra (deformgl[plot])")
     report.write_chart(tmp_path / "trade.png")
     data = (tmp_path / "trade.png").read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000

@@ -269,7 +269,6 @@ def test_converged_setting_matches_the_lattice_and_fem_statics():
     result on a FEM-checked workload (bench.fem's compressed block, 3 across, linear: 1 % of the
     pressure on 100 kPa) is the springs' static solve within 1 %, and so within the lattice's
     own discretisation error against hexahedral FEM (plan.MEASURED, 2.5 % at 3 across) + 1 %."""
-    pytest.importorskip("skfem", reason="scikit-fem is an optional extra (deformgl[fem])")
     from deformgl.bench.fem import fem_reference
     from deformgl.bench.plan import MEASURED
 

@@ -209,7 +209,7 @@ class EquilibriumMonitor:
         ok = self.force_ratio < self.tolerance and self.energy_ratio < self.tolerance
         # only checks whose three samples all follow the last scripted change count
         self.below = self.below + 1 if ok and self._samples[0][1] >= self.hold_until else 0
-        return self.below >= self.checks and t >= self.hold_until
+        return self.below >= self.checks
 
     def describe(self) -> str:
         """The last check's measures, for a log line."""
