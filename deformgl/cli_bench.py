@@ -12,6 +12,18 @@ from deformgl.data import scene_file as _scene_file
 from deformgl.errors import DeformglError, InputError
 
 
+def _nus(text: str) -> tuple[float, ...]:
+    """``--poisson 0.25,0.45``: Poisson's ratios in [0.25, 0.499] (argparse's type)."""
+    try:
+        nus = tuple(float(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers separated by commas, got {text!r}") from None
+    bad = [nu for nu in nus if not 0.25 <= nu <= 0.499]
+    if bad:
+        raise argparse.ArgumentTypeError(f"Poisson's ratio {bad[0]:g} outside [0.25, 0.499] (the lattice's range)")
+    return nus
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """The ``bench`` subcommand."""
     b = sub.add_parser("bench", help="benchmarks, printed as ratios against a baseline",
@@ -58,6 +70,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "CG iterations with the Jacobi and block-Jacobi preconditioners (--out DIR: stiff.csv, "
                         "stiff.json, stiff.png); then (not with --quick) "
                         "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
+    b.add_argument("--poisson", type=_nus, default=None, metavar="NU[,NU...]",
+                   help="trade: Poisson's ratio as a workload axis: also a 6x6x6 liver block (E = 4 kPa) at each of "
+                        "these ratios (0.25 to 0.499), e.g. 0.25,0.45")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--workers", type=int, default=0,
@@ -127,6 +142,8 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
     elif args.what == "trade":
         from deformgl.bench.trade import trade_study
 
+        if (args.workers or args.scheduler) and args.poisson:
+            raise InputError("bench trade: --poisson runs in this process only (not with --workers or --scheduler)")
         if args.workers or args.scheduler:
             from deformgl.sweep.runner import _need_dask
             from deformgl.sweep.trade import distributed_trade
@@ -134,7 +151,11 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
             _need_dask()
             report = distributed_trade(quick=args.quick, workers=args.workers or 2, scheduler=args.scheduler)
         else:
-            report = trade_study(ctx, quick=args.quick, progress=note)
+            from deformgl.bench.trade import standard_workloads
+            from deformgl.bench.trade_tissue import tissue_workloads
+
+            workloads = standard_workloads() + (tissue_workloads(args.poisson) if args.poisson else ())
+            report = trade_study(ctx, quick=args.quick, progress=note, workloads=workloads)
         print(report.format())
         if out is not None:
             with outputs:

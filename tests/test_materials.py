@@ -263,8 +263,12 @@ def test_a_material_scene_refuses_per_spring_keys(tmp_path):
     (lambda t: t.replace("density = 1030.0", "density = 1030.0\npreset = \"jelly\""), r"material.preset: must be one of"),
     (lambda t: t.replace("density = 1030.0", "stretch_modulus = 3.0"), r"material.stretch_modulus: a sheet"),
     (lambda t: t.replace("density = 1030.0", "densty = 1030.0"), r"material.densty: unknown key"),
-    (lambda t: t.replace("density = 1030.0", "density = 1030.0\npreset = \"liver\""),
-     r"material.preset: not used when youngs_modulus and density are both given"),
+    (lambda t: t.replace("density = 1030.0", "density = 1030.0\npoissons_ratio = 0.3\npreset = \"liver\""),
+     r"material.preset: not used when youngs_modulus, density and poissons_ratio are all given"),
+    (lambda t: t.replace("density = 1030.0", "density = 1030.0\npoissons_ratio = 0.2"),
+     r"material.poissons_ratio: must be in \[0.25, 0.499\], got 0.2: below 1/4 the spring lattice would need lambda < mu"),
+    (lambda t: t.replace("density = 1030.0", "density = 1030.0\npoissons_ratio = 0.5"),
+     r"material.poissons_ratio: must be in \[0.25, 0.499\], got 0.5"),
 ])
 def test_bad_material_tables_name_the_key(tmp_path, edit, message):
     with pytest.raises(SceneError, match=message):

@@ -3,6 +3,8 @@ predicted error is below a tolerance, from the measured error models."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from deformgl.bench.plan import MEASURED, fit, make_plan, plan_scene
@@ -52,8 +54,11 @@ def test_tighter_tolerances_need_finer_grids_and_the_measured_table_agrees():
 def test_the_dt_follows_the_material():
     soft, stiff = (make_plan(BEAM, PRESETS[m], 0.05, implicit=False) for m in ("liver", "rubber"))
     assert soft.across == stiff.across
-    ratio = (PRESETS["rubber"].youngs_modulus / PRESETS["rubber"].density) / \
-            (PRESETS["liver"].youngs_modulus / PRESETS["liver"].density)
+    # the P-wave-type modulus of the explicit limit (36 mu + 12 kappa, materials.critical_dt)
+    # over the density: rubber (nu 0.49) is stiffer in it than its E alone says
+    def modulus(m):
+        return (36 * m.shear_modulus + 12 * m.volume_modulus) / m.density
+    ratio = modulus(PRESETS["rubber"]) / modulus(PRESETS["liver"])
     assert soft.dt / stiff.dt == pytest.approx(ratio ** 0.5)
 
 
@@ -75,7 +80,9 @@ def test_a_stiff_body_gets_implicit_euler_a_soft_one_explicit():
     assert 0.0 <= stiff.mode_left < 1e-6
     lines = "\n".join(stiff.lines())
     assert "integrator: implicit-euler at dt = 0.0167 s" in lines and "[physics.implicit] iterations = " in lines
-    soft = make_plan(block, PRESETS["liver"], 0.002, "compression")
+    # (liver at the lattice's old nu = 1/4: the planner's implicit cost model, its CG iteration
+    # counts, was measured at 1/4; at the preset's 0.45 the explicit limit is 1.8x smaller)
+    soft = make_plan(block, dataclasses.replace(PRESETS["liver"], poissons_ratio=0.25), 0.002, "compression")
     assert soft.integrator in ("verlet", "semi-implicit") and FRAME_DT / soft.dt < implicit_step_cost(
         implicit_iterations(soft.across), soft.across ** 3)
     assert "x cheaper per simulated second" in soft.why_integrator

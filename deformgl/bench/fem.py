@@ -47,6 +47,7 @@ from deformgl.errors import DeformglError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import SpringSystem
+from deformgl.sim.volume import rest_stiffness_triplets
 
 __all__ = ["Workload", "WORKLOADS", "MATERIAL", "LatticeCase", "FemResult", "lattice_case",
            "static_displacement", "stiffness_matrix", "lattice_value", "face_weights",
@@ -207,7 +208,7 @@ def lattice_case(w: Workload, across: int, material: ElasticMaterial = MATERIAL,
 def stiffness_matrix(system: SpringSystem) -> sp.csr_matrix:
     """The (3N, 3N) stiffness matrix of the springs linearised at their rest positions:
     ``K = sum_s k_s n_s n_s^T`` in 3x3 blocks (the rest state is force-free, so there is no
-    geometric term)."""
+    geometric term), plus the cells' centre term (:mod:`deformgl.sim.volume`)."""
     x = system.rest_positions
     d = x[system.j] - x[system.i]
     n = d / np.linalg.norm(d, axis=1)[:, None]
@@ -224,6 +225,10 @@ def stiffness_matrix(system: SpringSystem) -> sp.csr_matrix:
     rows_all = np.concatenate([ri, rj, ri, rj]).ravel()
     cols_all = np.concatenate([ci, cj, cj, ci]).ravel()
     vals = np.concatenate([block, block, -block, -block]).ravel()
+    if system.cells is not None:  # the cells' centre term (any Poisson's ratio; no barrier at rest)
+        rv, cv, vv = rest_stiffness_triplets(system.cells)
+        rows_all, cols_all, vals = (np.concatenate([rows_all, rv]), np.concatenate([cols_all, cv]),
+                                    np.concatenate([vals, vv]))
     size = 3 * system.count
     return sp.csr_matrix((vals, (rows_all, cols_all)), shape=(size, size))
 
@@ -272,7 +277,8 @@ def static_displacement(system: SpringSystem, forces: np.ndarray,
             ``system.fixed`` node).
         method: "direct" (SuperLU on a nested-dissection ordering of the grid's nodes), "amg"
             (conjugate gradients preconditioned by PyAMG's smoothed aggregation with the rigid
-            modes, relative residual 1e-11; the 'fem' extra), or "auto": direct up to
+            modes, relative residual 1e-11; the 'fem' extra; a body with cells of kappa > 0 that
+            defeat it is solved directly instead), or "auto": direct up to
             :data:`DIRECT_DOFS` free unknowns, else amg when PyAMG is installed.
 
     Raises:
@@ -308,9 +314,11 @@ def static_displacement(system: SpringSystem, forces: np.ndarray,
         residuals: list[float] = []
         u_free = ml.solve(b, tol=1e-11, accel="cg", maxiter=400, residuals=residuals)
         if residuals[-1] > 1e-9 * residuals[0]:
-            raise DeformglError(f"static solve: conjugate gradients did not converge "
-                                f"({len(residuals)} iterations, residual {residuals[-1] / residuals[0]:.1e})")
-    elif method == "direct":
+            if system.cells is None or system.cells.volume_modulus == 0:
+                raise DeformglError(f"static solve: conjugate gradients did not converge "
+                                    f"({len(residuals)} iterations, residual {residuals[-1] / residuals[0]:.1e})")
+            method = "direct"  # nearly incompressible cells defeat the aggregation: solve directly
+    if method == "direct":
         try:
             lu = splu(k.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                       options={"SymmetricMode": True})
@@ -323,7 +331,7 @@ def static_displacement(system: SpringSystem, forces: np.ndarray,
         if not residual < 1e-6:  # (nan too) a zero pivot rounded to a tiny one
             raise DeformglError("static solve: the stiffness matrix is singular (a rigid-body "
                                 "mode is not held by the constraints)")
-    else:
+    elif method != "amg":
         raise ValueError(f"static_displacement: unknown method {method!r}")
     u = np.zeros(3 * system.count)
     u[dofs] = u_free

@@ -66,6 +66,8 @@ FRACTIONS = (0.1, 0.2, 0.35, 0.5, 0.7, 0.9)
 QUICK_FRACTIONS = (0.15, 0.6)
 SIM_TIME = 0.5
 DIVERGED_SPACINGS = 10.0
+#: runs of more steps than this are skipped (recorded as "too many steps")
+MAX_STEPS = 20_000
 _MARKERS = {"euler": "v", "semi-implicit": "s", "midpoint": "^", "rk4": "D", "verlet": "o"}
 P = TypeVar("P")
 
@@ -129,7 +131,7 @@ class Reference:
 class TradeRow:
     """One (workload, backend, integrator, dt) run; errors in grid spacings, dt in s.
 
-    ``status`` is "ok", "diverged" or "no stable dt"; ``vs_numpy`` is the largest node distance
+    ``status`` is "ok", "diverged", "no stable dt" or "too many steps" (over :data:`MAX_STEPS`); ``vs_numpy`` is the largest node distance
     to the numpy backend's result for the same integrator and dt (float32 drift; nan for numpy).
     """
 
@@ -276,6 +278,10 @@ class TradeReport:
                     continue
                 if r.status == "no stable dt":
                     lines.append(f"    {r.integrator:>13} no stable dt (limit 0): skipped")
+                    continue
+                if r.status == "too many steps":
+                    lines.append(f"    {r.integrator:>13} {r.fraction:>8.3f} {r.dt:>9.3e} {r.steps:>6}: more than "
+                                 f"{MAX_STEPS} steps, skipped")
                     continue
                 lines.append(f"    {r.integrator:>13} {r.fraction:>8.3f} {r.dt:>9.3e} "
                              f"{r.steps:>6} | {_e(r.rms):>8} {_e(r.max):>8} | "
@@ -462,6 +468,11 @@ def trade_study(ctx: moderngl.Context, *, backends: Sequence[str] = BACKENDS,
                 for f in sorted(set(fractions)):
                     steps = math.ceil(w.time / (f * limit))
                     dt = w.time / steps
+                    if steps > MAX_STEPS:  # (forward Euler on the undamped volumetric modes of nu > 1/4)
+                        rows.append(TradeRow(w.name, backend, name, dt / limit, dt, steps, limit,
+                                             math.nan, math.nan, math.nan, math.nan, math.nan,
+                                             status="too many steps"))
+                        continue
                     x, ms = _run(ctx, w, backend, name, dt, steps, batch, repeats)
                     rms, mx = _errors(w, x, ref_x)
                     if backend == "numpy":

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from deformgl.bench.profile import STAGES as PROFILE_STAGES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
+from deformgl.sim.backends.xpbd_cells_gpu import CELL_TERMS, cell_pass_defines, sweep_defines
 from deformgl.sim.backends.foundation import DRAW_MODES, MAX_PULLS
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import MAX_LOADS
@@ -125,14 +126,20 @@ def _forces() -> Iterator[dict[str, object]]:
         yield d
 
 
+#: The volumetric term's switches (``deformgl.sim.backends.cell_pass.cell_terms``): none, the
+#: barrier alone (kappa = 0: nu = 1/4), both terms.
+CELL_SWITCHES: tuple[dict[str, object], ...] = ({}, {"CELLS": True, "CELL_BARRIER": True},
+                                               {"CELLS": True, "CELL_CENTRE": True, "CELL_BARRIER": True})
+
+
 def fragment_backend() -> Iterator[Variant]:
     """``FragmentIntegrator``: each integrator's stages (``_build``)."""
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for (layers, count), dense, weights, forces in itertools.product(((5, 18), (6, 24)), (False, True),
-                                                                         (False, True), list(_forces())):
+        for (layers, count), dense, weights, forces, cells in itertools.product(
+                ((5, 18), (6, 24)), (False, True), (False, True), list(_forces()), CELL_SWITCHES):
             common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "DENSE": dense,
-                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces}
+                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces, **cells}
             if sp.velocity:
                 common["VELOCITY"] = True
             for stage in sp.stages:
@@ -148,10 +155,14 @@ def xpbd() -> Iterator[Variant]:
         if wind:
             d["WIND"] = True
         yield _v("sim/fullscreen.vert", "sim/xpbd/predict.frag", d)
-    for (layers, count), damping, drags, c in itertools.product(((5, 18), (6, 24)), (False, True),
-                                                                _counts("DRAGS"), _constraints()):
+    # the cells' terms (XpbdCells): none, or a (volume, barrier) pair of CELL_TERMS
+    cell_sweeps: list[dict[str, object]] = [{}, *(sweep_defines(*t) for t in CELL_TERMS)]
+    for (layers, count), damping, drags, c, cells in itertools.product(((5, 18), (6, 24)), (False, True),
+                                                                       _counts("DRAGS"), _constraints(), cell_sweeps):
         yield _v("sim/fullscreen.vert", "sim/xpbd/iterate.frag",
-                 {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_DAMPING": damping, "DRAGS": drags, **c})
+                 {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_DAMPING": damping, "DRAGS": drags, **c, **cells})
+    for terms in CELL_TERMS:
+        yield _v("sim/fullscreen.vert", "sim/xpbd/cells.frag", cell_pass_defines(*terms))
     yield _v("sim/fullscreen.vert", "sim/xpbd/finish.frag", {})
 
 
@@ -159,8 +170,9 @@ def feedback_backend() -> Iterator[Variant]:
     """``FeedbackSimulation``: one vertex-only program per stage (``_add_pass``)."""
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for forces, c in itertools.product(list(_forces()), _constraints()):
-            common: dict[str, object] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX, **forces, **c}
+        for forces, c, cells in itertools.product(list(_forces()), _constraints(), (False, True)):
+            common: dict[str, object] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX, **forces, **c,
+                                         "CELLS": cells}
             if not common["SPRING_DAMPING"]:
                 del common["SPRING_DAMPING"]
             if sp.velocity:
@@ -175,19 +187,28 @@ _LAYOUTS: tuple[dict[str, object], ...] = ({}, {"COMPACT": True, "COMPACT_DENSE"
 
 
 def foundation() -> Iterator[Variant]:
-    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad") and
-    ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
+    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad"; the cell term on
+    compact layouts only) and ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
     verts = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert", "quad": "sim/fullscreen.vert"}
     # weights: none, the weight texture, the levels code (SPRING_WEIGHT_LEVELS)
-    for draw, branch, pulls, layout, weights in itertools.product(DRAW_MODES, (False, True), _counts("PULLS"),
-                                                                  _LAYOUTS, (None, "texture", "levels")):
+    for draw, branch, pulls, layout, weights, cells in itertools.product(
+            DRAW_MODES, (False, True), _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"), CELL_SWITCHES):
         if layout and draw == "rects":
             continue  # built as "quad"
+        if cells and not layout:
+            continue  # the atlas has no cell term
         yield _v(verts[draw], "sim/verlet.frag", {"NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points",
                                                   "PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
-                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout})
+                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **cells})
     for layout in _LAYOUTS:
         yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
+
+
+def cells() -> Iterator[Variant]:
+    """``NodeCellForces`` (``deformgl.sim.backends.cell_pass``): the volumetric term alone, per node."""
+    for dense, terms in itertools.product((False, True), CELL_SWITCHES[1:]):
+        yield _v("sim/fullscreen.vert", "sim/cells/node_cells.frag",
+                 {"COMPACT_DENSE": dense, **{k: v for k, v in terms.items() if k != "CELLS"}})
 
 
 def census() -> Iterator[Variant]:
@@ -229,7 +250,7 @@ def profile() -> Iterator[Variant]:
 
 #: The groups of :func:`all_variants`, by the code that builds them.
 GROUPS = {"fragment backend": fragment_backend, "xpbd": xpbd, "feedback backend": feedback_backend,
-          "foundation and normals": foundation, "census": census, "render": render,
+          "foundation and normals": foundation, "cells": cells, "census": census, "render": render,
           "trilinear": trilinear, "profile": profile}
 
 
@@ -244,7 +265,7 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import PASSES, PRECONDITIONED_PASSES
+    from deformgl.sim.backends.implicit_gpu import CELL_PASSES, PASSES, PRECONDITIONED_PASSES
 
     for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
@@ -258,9 +279,15 @@ def implicit() -> Iterator[Variant]:
             # scaled warm start (WARM_SCALED) in INIT
             blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
             warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
-            for c, block, scaled in itertools.product(_constraints() if name == "FINAL" else [{}], blocks, warm):
+            # the cells' terms (pass_defines' cells): none, or a (centre, barrier) pair
+            cells: list[dict[str, object]] = [{}]
+            if name in CELL_PASSES:
+                cells += [{"IMPLICIT_CELLS": True, "CELL_CENTRE": centre, "CELL_BARRIER": barrier}
+                          for centre, barrier in CELL_TERMS]
+            for c, block, scaled, cell in itertools.product(_constraints() if name == "FINAL" else [{}], blocks,
+                                                            warm, cells):
                 yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag",
-                         {**defines, **c, **block, **scaled, name: True})
+                         {**defines, **c, **block, **scaled, **cell, name: True})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
 
 

@@ -66,6 +66,11 @@ NODE_TEXEL = VEC4_BYTES
 NEIGHBOUR_LAYER = VEC4_BYTES
 #: Feedback backend: per spring end, the R32I other node and the RGBA32F spring data.
 FEEDBACK_SPRING_END = 4 + VEC4_BYTES
+#: per texel of a solid's node texture: the cell gather's 27-neighbourhood and incident-cell
+#: mask, 7 RGBA32I texels (an upper bound: dense grids compute the neighbourhood)
+CELL_TABLE = 7 * VEC4_BYTES
+#: host bytes per node of a solid's cells: (C, 8) int64 corners (C <= N) + (N, 27) int32 table
+CELL_HOST_BYTES_PER_NODE = 8 * 8 + 27 * 4
 #: Software renderers keep GPU memory in host memory.
 SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software")
 
@@ -213,6 +218,11 @@ def estimate(scene: Any) -> Budget:
         # the cell assembly (a second (S,) stiffness and its temporaries) and the (N, 18 or 24)
         # float64 spring weights with their lookup keys (MATERIAL_HOST_BYTES_PER_NODE)
         host["material lattice"] = int(MATERIAL_HOST_BYTES_PER_NODE * nodes)
+    solid = material is not None and scene.cloth is None
+    if solid:
+        # the cells (C, 8) int64, about one per node, and the (N, 27) int32 neighbourhood table of
+        # the GPU backends' cell gather (deformgl.sim.volume, sim/backends/cell_tables.py)
+        host["material lattice"] += int(CELL_HOST_BYTES_PER_NODE * nodes)
     texels = _texels(nodes)
     if physics.backend == "fragment":
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
@@ -221,9 +231,9 @@ def estimate(scene: Any) -> Budget:
         if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
             layers, weights = 2 * (6 if flexion else 5), 0
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights
-                        + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))
+                        + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + (CELL_TABLE if solid else 0))
     elif physics.backend == "feedback":
-        sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]))
+        sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + (CELL_TABLE if solid else 0))
                + 2 * springs * FEEDBACK_SPRING_END)
     else:  # the NumPy reference: its state is host memory; textures only to draw
         sim = texels * 2 * VEC4_BYTES

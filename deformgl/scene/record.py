@@ -4,7 +4,8 @@ machine-readable dict (``--json``; the rows of a sweep's table).
 Keys (SI, the unit in the name): ``mesh``, ``nodes``, ``springs``, ``integrator``, ``backend``,
 ``steps`` (scene steps taken), ``frames``, ``fps``, ``dt_s`` (the scene step), ``substeps`` (per
 scene step), ``simulated_time_s``, ``wall_time_s``, ``converged`` (the convergence stop's verdict: at
-equilibrium, by default), ``convergence`` (its last check's measures), ``mapping``, ``size``,
+equilibrium, by default), ``convergence`` (its last check's measures), ``inverted_cells`` (the
+inversion census at the end: cells with a corner Jacobian <= 0; None without cells), ``mapping``, ``size``,
 ``renderer``, ``deformgl`` (the version), and ``outputs`` once written.
 """
 
@@ -64,6 +65,7 @@ def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, 
         "simulated_time_s": float(run.time) if simulated else 0.0,
         "converged": run.converged if simulated else None,
         "convergence": getattr(run, "convergence", None) if simulated else None,
+        "inverted_cells": getattr(run, "inverted_cells", None) if simulated else None,
         "mapping": scene.mapping.mode,
         **material_fields(scene),
         "size": list(scene.render.size),

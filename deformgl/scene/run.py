@@ -176,6 +176,9 @@ class SceneRun:
     sim: Any = None
     #: the convergence stop's last measures (None without one)
     convergence: str | None = None
+    #: the inversion census at the end (None: a body without cells); its phrase ("" if none)
+    inverted_cells: int | None = None
+    inverted: str = ""
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
@@ -187,6 +190,8 @@ class SceneRun:
             line += f": {self.convergence})" if self.convergence else ")"
         if self.bytes_per_node:
             line += f", {self.bytes_per_node:.0f} GPU bytes per node"
+        if self.inverted:
+            line += f"; at the end {self.inverted}"
         return line
 
 
@@ -254,7 +259,8 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         positions = None if kept else np.asarray(sim.positions(), np.float64)
         step_dt = result.dt if result.dt is not None else physics.dt
         out = SceneRun(positions, result.steps, result.converged, sim.bytes_per_node, result.steps * step_dt,
-                       result.substeps, sim if kept else None, result.convergence)
+                       result.substeps, sim if kept else None, result.convergence, result.inverted_cells,
+                       result.inverted)
         if kept:
             made.clear()
         return out

@@ -35,7 +35,8 @@ from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_
                                  parse_size)
 from deformgl.sim.equilibrium import CRITERIA as CONVERGE_CRITERIA
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
-from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial
+from deformgl.scene.material_table import _BODY_MATERIAL, _MATERIAL_KEYS  # noqa: F401
+from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 
 __all__ = ["Animation", "BACKENDS", "CameraKey", "apply_overrides", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
@@ -219,48 +220,6 @@ _PHYSICS = _table({
 }, _build_physics)
 
 
-_PA = _num(lo=0.0, lo_open=True, sane=(1e-3, 1e13), unit="Pa")
-_MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
-    "preset": (_str(tuple(PRESETS)), None),
-    "youngs_modulus": (_PA, None),
-    "density": (_num(lo=0.0, lo_open=True, sane=(1e-3, 1e5), unit="kg/m^3"), None),
-    "stretch_modulus": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e10), unit="N/m"), None),
-    "areal_density": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e4), unit="kg/m^2"), None),
-    "flexion_ratio": (_num(lo=0.0, hi=0.5), None),
-    "mass_damping": (_num(lo=0.0, sane=(0.0, 1e6), unit="1/s"), 0.0),
-    "stiffness_damping": (_num(lo=0.0, sane=(0.0, 1e3), unit="s"), 0.0),
-}
-
-
-def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMaterial | SheetMaterial:
-    """``[material]``: a solid (a preset and/or youngs_modulus + density) or a sheet
-    (stretch_modulus + areal_density, for cloth)."""
-    sheet = [k for k in ("stretch_modulus", "areal_density", "flexion_ratio") if d[k] is not None]
-    solid = [k for k in ("preset", "youngs_modulus", "density") if d[k] is not None]
-    if sheet and solid:
-        _fail(file, _join(key, sheet[0]), f"a sheet (cloth) key; not used with {solid[0]!r} (a solid)")
-    if sheet:
-        for k in ("stretch_modulus", "areal_density"):
-            if d[k] is None:
-                _fail(file, _join(key, k), "required for a sheet material (cloth)")
-        return SheetMaterial(d["stretch_modulus"], d["areal_density"], d["mass_damping"],
-                             d["stiffness_damping"], d["flexion_ratio"] or 0.0)
-    base = PRESETS[d["preset"]] if d["preset"] is not None else None
-    if base is not None and d["youngs_modulus"] is not None and d["density"] is not None:
-        _fail(file, _join(key, "preset"), "not used when youngs_modulus and density are both given "
-              "(a preset gives the values one of them leaves out)")
-    values = {}
-    for k in ("youngs_modulus", "density"):
-        value = d[k] if d[k] is not None else (getattr(base, k) if base is not None else None)
-        if value is None:
-            _fail(file, _join(key, k), "required (or set 'preset' to one of " + ", ".join(PRESETS) + ")")
-        values[k] = value
-    return ElasticMaterial(values["youngs_modulus"], values["density"], d["mass_damping"], d["stiffness_damping"],
-                           name=base.name if base is not None and d["youngs_modulus"] is None
-                           and d["density"] is None else "", source=base.source if base is not None else "")
-
-
-_BODY_MATERIAL = _table(_MATERIAL_KEYS, _build_body_material)
 #: ``physics`` keys the material replaces.
 _PER_SPRING_KEYS = ("stiffness", "mass", "damping", "springs")
 

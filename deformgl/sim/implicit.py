@@ -11,8 +11,20 @@ with ``H = -df/dx`` the spring stiffness matrix and ``C = -df/dv`` the damping m
 * ``H_s = k (u u^T + g (I - u u^T))`` with the geometric factor ``g = 1 - L/|d|``. Compressed
   springs have ``g < 0`` and can make H indefinite, so the default ``geometric="projected"``
   clamps it to ``max(0, g)`` (H positive semidefinite, the system SPD; the measured choice, see
-  docs/EQUATIONS.md); "full" keeps g, "none" drops the term (``g = 0``).
+  docs/EQUATIONS.md); "full" keeps g, "none" drops the term (``g = 0``). Clamping g is the
+  eigenvalue projection of the spring's block (eigenvalues k along u, k g across), so "eigen"
+  (NumPy only, for the cells below) treats the springs as "projected".
 * ``C_s = c_s u u^T`` (spring damping along the spring; its dependence on x is dropped).
+
+Per full cell (``system.cells``, :mod:`deformgl.sim.volume`): the Hessian of the volumetric term
+``V kappa/2 (J - 1)^2`` and of the corner barriers inside ``J_b``, built by
+:func:`deformgl.sim.implicit_cells.cell_matrix`. Their geometric part ``w (J - J0) d^2 J / dx^2``
+is indefinite wherever it is not zero (:mod:`deformgl.sim.implicit_cells`), so "projected" and
+"none" keep the Gauss-Newton part ``w dJ/dx dJ/dx^T`` only (positive semidefinite; the GPU's
+product too), "full" the exact Hessian, and "eigen" each cell's exact 24x24 block with its
+negative eigenvalues set to 0 (:data:`~deformgl.sim.implicit_cells.CELL_HESSIAN`; measured against
+each other in tests/test_cells_implicit.py). The right-hand side has the exact forces
+(:func:`~deformgl.sim.springs.forces`, cells included).
 
 Per node: ``C`` has ``c + alpha m_i + wind_drag`` on the diagonal (global, Rayleigh mass and wind
 damping), a drag of stiffness ``k_d`` adds ``k_d I`` to H at its node. Fixed nodes have no rows:
@@ -42,6 +54,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from deformgl.sim.base import CpuSimulationBase
+from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
@@ -50,8 +63,8 @@ __all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULT
            "warm_start", "preconditioner", "pcg", "implicit_step", "ImplicitNumpySimulation",
            "solver_note"]
 
-#: How the geometric stiffness of a spring enters H.
-GEOMETRIC = ("projected", "full", "none")
+#: How the geometric stiffness of a spring (and a cell) enters H (module docstring).
+GEOMETRIC = ("projected", "full", "none", "eigen")
 #: The CG preconditioners: the diagonal of A, or its 3x3 block per node.
 PRECONDITIONERS = ("jacobi", "block-jacobi")
 DEFAULT_PRECONDITIONER = "jacobi"
@@ -111,7 +124,7 @@ def _blocks(system: SpringSystem, x: np.ndarray, geometric: str) -> tuple[np.nda
     u = d / np.where(length > 0, length, 1.0)[:, None]
     uu = u[:, :, None] * u[:, None, :]
     g = np.where(length > 0, 1.0 - system.rest_length / np.where(length > 0, length, 1.0), 0.0)
-    if geometric == "projected":
+    if geometric in ("projected", "eigen"):
         g = np.maximum(g, 0.0)
     elif geometric == "none":
         g = np.zeros_like(g)
@@ -135,7 +148,8 @@ def _spread(system: SpringSystem, blocks: np.ndarray) -> sp.csr_matrix:
 def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: float, *,
              drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
              geometric: str = "projected") -> LinearSystem:
-    """The step's linear system (module docstring); forces at time ``t + dt``."""
+    """The step's linear system (module docstring): the springs', the drags' and the cells'
+    blocks of H (``geometric``: :data:`GEOMETRIC`); forces at time ``t + dt``."""
     n = system.count
     h_blocks, c_blocks = _blocks(system, x, geometric)
     node_h = np.zeros(n)
@@ -145,6 +159,10 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
     node_c = system.velocity_damping + system.mass_damping * system.mass + system.wind_drag
     a_full = (_spread(system, dt * dt * h_blocks + dt * c_blocks)
               + sp.diags(np.repeat(system.mass + dt * node_c + dt * dt * node_h, 3)))
+    if system.cells is not None and system.cells.count:
+        cells_h = cell_matrix(system.cells, x, n, CELL_HESSIAN[geometric])
+        hess = hess + cells_h
+        a_full = a_full + dt * dt * cells_h
     f = forces(system, x, v, t + dt, drags, loads)
     b_full = dt * (f.ravel() - dt * (hess @ v.ravel()))
     free = ~system.fixed

@@ -50,14 +50,19 @@ from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
+from deformgl.sim.volume import BARRIER_SCALE, CellVolumes, grid_cells
 
-__all__ = ["ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
+#: the Poisson's ratios the lattice offers: 1/4 (springs alone) up to nearly incompressible
+MIN_POISSON = 0.25
+MAX_POISSON = 0.499
+
+__all__ = ["MIN_POISSON", "MAX_POISSON", "ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
            "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts"]
 
 
 @dataclass(frozen=True)
 class ElasticMaterial:
-    """A linear-elastic solid.
+    """An isotropic elastic solid.
 
     Attributes:
         youngs_modulus: E in Pa (> 0).
@@ -66,9 +71,10 @@ class ElasticMaterial:
         stiffness_damping: Rayleigh beta in s (spring damping beta k along each spring).
         name: a label (a preset's name).
         source: where the values come from.
-
-    The lattice's Poisson's ratio is 1/4 whatever the material says (see the module docstring;
-    docs/ACCURACY.md measures how far it is from an FEM body with another ratio).
+        poissons_ratio: nu, dimensionless, in [1/4, 1/2) (default 1/4). The springs carry the
+            shear modulus mu; a volumetric term per full cell (:mod:`deformgl.sim.volume`) adds
+            the lambda - mu that central springs cannot give (0 at nu = 1/4). Below 1/4 a
+            lattice would need lambda < mu, which central springs cannot give: refused.
     """
 
     youngs_modulus: float
@@ -77,6 +83,7 @@ class ElasticMaterial:
     stiffness_damping: float = 0.0
     name: str = ""
     source: str = ""
+    poissons_ratio: float = 0.25
 
     def __post_init__(self) -> None:
         for key in ("youngs_modulus", "density"):
@@ -87,10 +94,38 @@ class ElasticMaterial:
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+        nu = self.poissons_ratio
+        if not (math.isfinite(nu) and MIN_POISSON <= nu <= MAX_POISSON):
+            raise ValueError(f"material.poissons_ratio must be in [{MIN_POISSON}, {MAX_POISSON}], got {nu} "
+                             f"(below 1/4 the spring lattice would need lambda < mu, which central "
+                             f"springs cannot give)")
+
+    @property
+    def shear_modulus(self) -> float:
+        """mu = E / (2 (1 + nu)) in Pa: what the springs carry (k = mu h)."""
+        return self.youngs_modulus / (2.0 * (1.0 + self.poissons_ratio))
+
+    @property
+    def lame_lambda(self) -> float:
+        """lambda = E nu / ((1 + nu)(1 - 2 nu)) in Pa."""
+        nu = self.poissons_ratio
+        return self.youngs_modulus * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+
+    @property
+    def volume_modulus(self) -> float:
+        """kappa = lambda - mu = E (4 nu - 1) / (2 (1 + nu)(1 - 2 nu)) in Pa: the volumetric
+        term's modulus (0 at nu = 1/4; docs/EQUATIONS.md)."""
+        nu = self.poissons_ratio
+        return self.youngs_modulus * (4.0 * nu - 1.0) / (2.0 * (1.0 + nu) * (1.0 - 2.0 * nu))
+
+    @property
+    def p_wave_modulus(self) -> float:
+        """lambda + 2 mu in Pa (C11 of the lattice with its volumetric term)."""
+        return self.lame_lambda + 2.0 * self.shear_modulus
 
     def wave_speed(self) -> float:
-        """The lattice's P-wave speed sqrt(C11 / rho) = sqrt(6 E / (5 rho)) in m/s."""
-        return math.sqrt(6.0 * self.youngs_modulus / (5.0 * self.density))
+        """The P-wave speed sqrt((lambda + 2 mu) / rho) in m/s (sqrt(6 E / (5 rho)) at nu = 1/4)."""
+        return math.sqrt(self.p_wave_modulus / self.density)
 
 
 @dataclass(frozen=True)
@@ -125,27 +160,37 @@ class SheetMaterial:
                              f"got {self.flexion_ratio}")
 
 
-#: Named materials (E in Pa, rho in kg/m^3) with the source of the values. Soft tissues span
-#: a wide range in the literature; these are representative small-strain values.
+#: Named materials (E in Pa, rho in kg/m^3, Poisson's ratio) with the source of the values. Soft
+#: tissues span a wide range in the literature; these are representative small-strain values.
 PRESETS: dict[str, ElasticMaterial] = {
-    "liver": ElasticMaterial(4.0e3, 1060.0, name="liver",
+    "liver": ElasticMaterial(4.0e3, 1060.0, name="liver", poissons_ratio=0.45,
                              source="human liver, small-strain E ~ 1-10 kPa (Yeh et al. 2002, "
-                                    "Ultrasound Med. Biol. 28(4)); density 1060 kg/m^3 (ICRP 89)"),
-    "heart": ElasticMaterial(3.0e4, 1060.0, name="heart",
+                                    "Ultrasound Med. Biol. 28(4)); density 1060 kg/m^3 (ICRP 89); "
+                                    "nu 0.45: soft tissue is nearly incompressible (Fung 1993, "
+                                    "Biomechanics, 2nd ed., ch. 7), FE liver models use 0.45-0.49"),
+    "heart": ElasticMaterial(3.0e4, 1060.0, name="heart", poissons_ratio=0.45,
                              source="passive myocardium, E ~ 10-50 kPa (Sommer et al. 2015, "
-                                    "Acta Biomater. 24); density 1060 kg/m^3 (ICRP 89)"),
-    "brain": ElasticMaterial(1.0e3, 1040.0, name="brain",
+                                    "Acta Biomater. 24); density 1060 kg/m^3 (ICRP 89); nu 0.45: "
+                                    "nearly incompressible (Fung 1993, Biomechanics, 2nd ed., ch. 7)"),
+    "brain": ElasticMaterial(1.0e3, 1040.0, name="brain", poissons_ratio=0.45,
                              source="brain tissue, E ~ 0.5-3 kPa (Budday et al. 2015, "
-                                    "J. Mech. Behav. Biomed. Mater. 46); density 1040 kg/m^3"),
-    "gelatin": ElasticMaterial(1.0e4, 1030.0, name="gelatin",
+                                    "J. Mech. Behav. Biomed. Mater. 46); density 1040 kg/m^3; nu 0.45: "
+                                    "nearly incompressible (Miller & Chinzei 1997, J. Biomech. 30(11))"),
+    "gelatin": ElasticMaterial(1.0e4, 1030.0, name="gelatin", poissons_ratio=0.49,
                                source="10 % w/v gelatin gel, E ~ 10 kPa (Hall et al. 1997, IEEE "
-                                      "TUFFC 44(6)); density ~ 1030 kg/m^3"),
-    "silicone": ElasticMaterial(1.0e5, 1070.0, name="silicone",
+                                      "TUFFC 44(6)); density ~ 1030 kg/m^3; nu 0.49: a water gel, "
+                                      "taken as incompressible in elastography (Hall et al. 1997)"),
+    "silicone": ElasticMaterial(1.0e5, 1070.0, name="silicone", poissons_ratio=0.49,
                                 source="soft silicone elastomer (Ecoflex 00-30 class), E ~ "
-                                       "70-125 kPa (manufacturer data); density 1070 kg/m^3"),
-    "rubber": ElasticMaterial(1.0e6, 1100.0, name="rubber",
+                                       "70-125 kPa (manufacturer data); density 1070 kg/m^3; nu 0.49: "
+                                       "elastomers are nearly incompressible (Gent, Engineering with "
+                                       "Rubber, 3rd ed., ch. 1)"),
+    "rubber": ElasticMaterial(1.0e6, 1100.0, name="rubber", poissons_ratio=0.49,
                               source="natural rubber, E ~ 1-10 MPa at small strain (Gent, "
-                                     "Engineering with Rubber, 3rd ed.); density ~ 1100 kg/m^3"),
+                                     "Engineering with Rubber, 3rd ed.); density ~ 1100 kg/m^3; nu: "
+                                     "0.4999 measured (bulk modulus ~ 2 GPa, ibid. ch. 1), 0.49 here "
+                                     "(the nearly incompressible setting of FE practice; up to 0.499 "
+                                     "can be set)"),
 }
 
 
@@ -170,20 +215,26 @@ class LatticeReport:
 
 
 def lattice_stiffness(material: ElasticMaterial, spacing: float) -> float:
-    """k = 2 E h / 5 in N/m: the constant of an interior spring (edge or face diagonal)."""
-    return 0.4 * material.youngs_modulus * spacing
+    """k = mu h in N/m (2 E h / 5 at nu = 1/4): the constant of an interior spring (edge or
+    face diagonal)."""
+    return material.shear_modulus * spacing
 
 
 def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "verlet") -> float:
     """The explicit stability limit of the lattice in s, a multiple of ``h sqrt(rho / E)``.
 
-    Interior node: ``w_max <= sqrt(2 sum k / m) = sqrt(2 * 18 k / (rho h^3))`` with k = 2 E h / 5,
-    so ``w_max <= h^-1 sqrt(14.4 E / rho)``; Verlet and semi-implicit Euler are stable for
-    ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits` computes on a
-    built system). Explicit Euler has no undamped limit (it is unstable at every dt without
-    damping); RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see deformgl.sim.limits).
+    Interior node of mass ``rho h^3``: the springs give ``w^2 <= 2 * 18 k / m = 36 mu / (rho h^2)``
+    (k = mu h), the volumetric term of its 8 cells at most ``8 * 1.5 kappa h / m = 12 kappa /
+    (rho h^2)`` (Cauchy-Schwarz on ``V kappa (sum_c G_c . x_c)^2`` with ``sum_c |G_c|^2 = 3 / (2 h^2)``);
+    at nu = 1/4 ``w_max <= h^-1 sqrt(14.4 E / rho)``. Verlet and semi-implicit Euler are stable
+    for ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits` computes
+    on a built system). The inversion barrier is not in it: it acts only on corners near
+    inversion (:mod:`deformgl.sim.volume`). Explicit Euler has no undamped limit (it is unstable
+    at every dt without damping); RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see
+    deformgl.sim.limits).
     """
-    omega = math.sqrt(14.4 * material.youngs_modulus / material.density) / spacing
+    omega = math.sqrt((36.0 * material.shear_modulus + 12.0 * material.volume_modulus)
+                      / material.density) / spacing
     factor = {"verlet": 2.0, "semi-implicit": 2.0, "rk4": 2.0 * math.sqrt(2.0)}.get(integrator, 2.0)
     return factor / omega
 
@@ -238,9 +289,11 @@ def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLik
     stiffness = k * np.maximum(counts, 1) / share
     thin_nodes = node_cells == 0
     mass = material.density * h ** 3 / 8.0 * np.maximum(node_cells, 1)
+    cells = CellVolumes(grid_cells(grid.occupied, grid.index), h, material.volume_modulus,
+                        BARRIER_SCALE * material.shear_modulus)
     system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
                                  mass=mass, mass_damping=material.mass_damping,
-                                 material=material)
+                                 material=material, cells=cells)
     report = LatticeReport(int(full.sum()), int(thin_nodes.sum()), int(thin_springs.sum()), k,
                            material.density * h ** 3)
     return system, report

@@ -35,6 +35,7 @@ from deformgl.sim.guards import (SCENE_WORDING, BlowUp, BlowUpWatch, StepPlan, S
                                  plan_steps)
 from deformgl.sim.simulation import Simulation
 from deformgl.sim.springs import Drag, Load, SpringSystem
+from deformgl.sim.volume import describe_inverted
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run", "run_guarded", "run_with_retries"]
 
@@ -56,6 +57,10 @@ class RunResult:
         time: the simulation's clock at the end (s); None when not recorded.
         notes: what the plan and the restarts changed, for a log.
         convergence: the convergence stop's last measures (its ``describe()``), None without one.
+        inverted_cells: the inversion census at the end (:func:`deformgl.sim.volume.describe_inverted`):
+            cells whose trilinear map has a Jacobian <= 0 at a corner; None for a system without
+            cells (springs only).
+        inverted: the census's phrase naming the first inverted cell, "" when there is none.
     """
 
     steps: int
@@ -65,6 +70,8 @@ class RunResult:
     time: float | None = None
     notes: tuple[str, ...] = ()
     convergence: str | None = None
+    inverted_cells: int | None = None
+    inverted: str = ""
 
 
 #: what :func:`run` takes as its convergence stop: a monitor, or ``(threshold, every)`` of the
@@ -90,6 +97,19 @@ def make_watch(ctx, sim, *, every: int, limit: float, grid=None, source=None, dt
     if sim.position_slot() is None:
         return NumpyWatch(sim, every=every, limit=limit, grid=grid, source=source, dt=dt, wording=wording)
     return BlowUpWatch(ctx, sim, every=every, limit=limit, grid=grid, source=source, dt=dt, wording=wording)
+
+
+def _census(sim, result: RunResult) -> RunResult:
+    """``result`` with the inversion census of the final state (one read-back of the positions;
+    nothing for a system without cells)."""
+    system = getattr(sim, "system", None)
+    cells = getattr(system, "cells", None)
+    if cells is None:
+        return result
+    grid = getattr(system, "grid", None)
+    count, phrase = describe_inverted(cells, np.asarray(sim.positions(), np.float64),
+                                      None if grid is None else grid.ijk)
+    return replace(result, inverted_cells=count, inverted=phrase)
 
 
 class _NoBar:
@@ -180,8 +200,9 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = No
                 if still:
                     if watch is not None and not watch.due(done):
                         watch.check(done)
-                    return RunResult(done, True, convergence=stop.describe())
-        return RunResult(steps, None if stop is None else False, convergence=None if stop is None else stop.describe())
+                    return _census(sim, RunResult(done, True, convergence=stop.describe()))
+        return _census(sim, RunResult(steps, None if stop is None else False,
+                                      convergence=None if stop is None else stop.describe()))
     finally:
         if census is not None:
             census.release()

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.sim.springs import SpringSystem
+from deformgl.sim.volume import rest_product, rest_stiffness_triplets
 from deformgl.sim.stages import SPECS
 
 
@@ -56,12 +57,15 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray) -> np.ndarray:
     n = system.count
     ends = np.concatenate([system.i, system.j])
     signed = np.concatenate([f, -f])
-    return np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)],
-                    axis=1)
+    out = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)], axis=1)
+    if system.cells is not None:  # the cells' centre term (its barrier is inactive at rest)
+        out += rest_product(system.cells, dx)
+    return out
 
 
 def stiffness_matrix(system: SpringSystem) -> np.ndarray:
-    """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``), fixed nodes included."""
+    """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``, and the cells' centre
+    term, :func:`deformgl.sim.volume.rest_stiffness_triplets`), fixed nodes included."""
     n = system.count
     u = _rest_directions(system)
     blocks = system.stiffness[:, None, None] * u[:, :, None] * u[:, None, :]   # (S, 3, 3)
@@ -70,7 +74,11 @@ def stiffness_matrix(system: SpringSystem) -> np.ndarray:
     np.add.at(k4, (system.j, system.j), blocks)
     np.add.at(k4, (system.i, system.j), -blocks)
     np.add.at(k4, (system.j, system.i), -blocks)
-    return k4.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
+    k = k4.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
+    if system.cells is not None:
+        rows, cols, values = rest_stiffness_triplets(system.cells)
+        np.add.at(k, (rows, cols), values)
+    return k
 
 
 def _free_scaling(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +226,8 @@ class ModalDamping:
 
     Attributes:
         alpha: (lo, hi) of ``(velocity_damping + wind_drag) / m + mass_damping`` over the free nodes, 1/s.
-        beta: (lo, hi) of ``c_s / k_s`` over the springs with k > 0, s.
+        beta: (lo, hi) of ``c_s / k_s`` over the springs with k > 0, s (lo 0 when the cells'
+            volumetric term, which is not damped, adds stiffness).
         proportional: True when both ranges are single values (Rayleigh damping: the modes of
             the undamped system stay uncoupled and the limits are exact).
     """
@@ -246,4 +255,6 @@ def modal_damping(system: SpringSystem) -> ModalDamping:
          if free.any() else np.zeros(1))
     k = system.stiffness > 0
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
+    if system.cells is not None and system.cells.volume_modulus > 0:
+        b = np.append(b, 0.0)  # the cells' centre term is stiffness that Rayleigh beta does not damp
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

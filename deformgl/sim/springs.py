@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
+from deformgl.sim.volume import CellVolumes, frequency_terms, volume_forces
 
 STRUCTURAL = 0
 SHEAR = 1
@@ -72,6 +73,8 @@ class SpringSystem:
         material: the :mod:`deformgl.sim.materials` material the springs were assembled from
             (:func:`~deformgl.sim.materials.lattice_system`), or None (per-spring constants); the
             dt check words its refusal in the material's terms.
+        cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.volume`: any
+            Poisson's ratio, the inversion barrier), or None (springs only).
     """
 
     rest_positions: np.ndarray
@@ -91,6 +94,7 @@ class SpringSystem:
     spacing: float = 1.0
     grid: NodeGrid | None = None
     material: object = None
+    cells: CellVolumes | None = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]
@@ -117,6 +121,9 @@ class SpringSystem:
             raise ValueError("SpringSystem: velocity_damping, mass_damping and wind_drag >= 0, spacing > 0")
         if self.grid is not None and self.grid.count != n:
             raise ValueError(f"SpringSystem.grid: {self.grid.count} nodes, the system {n}")
+        if self.cells is not None and self.cells.count and (self.cells.corners.min() < 0
+                                                            or self.cells.corners.max() >= n):
+            raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
 
     @property
     def count(self) -> int:
@@ -352,6 +359,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * elastic: ``k (L - |d|) u`` (Movania & Feng 2012 eq. 2; docs/EQUATIONS.md ``F_j``),
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
+    per full cell (``system.cells``): the volumetric term and the corner barrier of
+    :func:`deformgl.sim.volume.volume_forces`;
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
     (Movania & Feng 2012 eq. 1) and Rayleigh mass damping ``-alpha m v``, each drag's ``k_d (target(t) - x)`` and each load's
     ``force(t)`` on its nodes.
@@ -393,6 +402,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
         fc = f[:, c]
         total[:, c] = np.bincount(ends, weights=np.concatenate([fc, -fc]), minlength=n)
     del ends, f, u
+    if system.cells is not None:
+        volume_forces(system.cells, x, out=total)
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
               - (system.velocity_damping + system.mass_damping * system.mass)[:, None] * v)
     for drag in drags:
@@ -424,12 +435,15 @@ def max_angular_frequency(system: SpringSystem) -> FrequencyBound:
     and fixed nodes have x = 0, so the Rayleigh quotient ``x^T K x / x^T M x`` is at most the
     largest ``2 sum_j k_ij / m_i`` over free nodes. Stretched springs (L < |d|) keep it: their
     geometric stiffness ``k (1 - L/|d|)`` across the spring is below k. Drags are not included
-    (a drag of stiffness k_d adds ``2 k_d / m`` at its node).
+    (a drag of stiffness k_d adds ``2 k_d / m`` at its node). The cells' centre term adds
+    :func:`deformgl.sim.volume.frequency_terms` (``1.5 kappa h`` per cell at the node); their
+    inversion barrier, inactive at rest, is not included.
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
             + np.bincount(system.j, weights=system.stiffness, minlength=n))
-    bound = np.where(system.fixed, -1.0, 2.0 * ksum / system.mass)
+    cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n)
+    bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)
     if n == 0 or bound.max() < 0:
         return FrequencyBound(0.0, -1, -1)
     node = int(np.argmax(bound))

@@ -29,14 +29,20 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
    copies of a spring's lambda on the GPU (one per end) stay equal. Then ``lambda += d_lambda``,
    ``x_i += w_i u d_lambda``, ``x_j -= w_j u d_lambda`` (Macklin, Müller & Chentanez 2016, eq. 17), all at once; drags are
    zero-rest-length vector constraints ``C = x - target(t + h)`` of compliance ``1 / k_drag``
-   (``n_s`` = the node's count); then spheres and the ground project x
+   (``n_s`` = the node's count); a system with cells (``SpringSystem.cells``: a material
+   lattice) adds their volume constraints ``J - 1`` and corner barriers ``J_c - J_b >= 0`` in the
+   same sweep (:mod:`deformgl.sim.xpbd_cells`: the constraint potentials are the energies of
+   :mod:`deformgl.sim.volume`, so the fixed point is the equilibrium of ``springs.forces``), and
+   then a node's count n_i also holds its volume constraints and its barriers active after the
+   previous sweep; then spheres and the ground project x
    (``integrators.apply_constraints`` without the velocity rule);
 4. ``v = (x - x^n) / h`` (Algorithm 1, line 15); fixed nodes: x^n exactly, v = 0.
 
 XPBD has no explicit step limit: for any dt a sweep only redistributes bounded corrections. It
 trades accuracy instead: with few iterations a stiff body is too soft (the Jacobi sweep has not
 propagated the load) and the implicit step damps motion. :attr:`XpbdSolver.residual` is the
-relative residual ``|C + at lambda| / |C|`` of Macklin, Müller & Chentanez 2016, eq. 7 at the last iterate.
+relative residual ``|C + at lambda| / |C|`` of Macklin, Müller & Chentanez 2016, eq. 7 at the last iterate
+(the cells' constraints in it times the spacing h, in metres like the springs').
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ import numpy as np
 from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
+from deformgl.sim.xpbd_cells import CellConstraints
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -58,6 +65,7 @@ __all__ = [
     "XpbdNumpy",
     "XpbdSettings",
     "XpbdSolver",
+    "cell_constraints",
     "constraint_counts",
     "node_terms",
     "relative_residual",
@@ -92,14 +100,28 @@ class XpbdSettings:
 
 
 def constraint_counts(system: SpringSystem, drags: tuple[Drag, ...] = ()) -> np.ndarray:
-    """(N,) float64 constraints per node: springs with k > 0 at it, plus its drags (>= 1)."""
+    """(N,) float64 constraints per node: springs with k > 0 at it, its drags and its cells'
+    volume constraints (:mod:`deformgl.sim.xpbd_cells`, where kappa > 0) (>= 1). The active
+    barriers are counted per sweep on top (:meth:`CellConstraints.barrier_counts`)."""
     live = system.stiffness > 0
     n = np.bincount(system.i[live], minlength=system.count) + np.bincount(system.j[live],
                                                                           minlength=system.count)
     n = n.astype(np.float64)
     for d in drags:
         n[d.node] += 1.0
+    cells = cell_constraints(system, np.zeros(system.count))
+    if cells is not None:
+        n += cells.volume_counts()
     return np.maximum(n, 1.0)
+
+
+def cell_constraints(system: SpringSystem, inverse_mass: np.ndarray) -> CellConstraints | None:
+    """The system's cell constraints, or None (no cells, or neither term has a modulus)."""
+    cells = system.cells
+    if cells is None:
+        return None
+    found = CellConstraints(cells, inverse_mass)
+    return found if found.volume or found.barrier else None
 
 
 def node_terms(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
@@ -142,10 +164,15 @@ class XpbdSolver:
         self.w, self.g = node_terms(system)
         counts = constraint_counts(system, self.drags)
         self.omega = float(settings.omega)
+        self.counts = counts                                     # n_i without the active barriers
         self.count = np.maximum(counts[self.i], counts[self.j])  # n_s = max(n_i, n_j)
         self.drag_count = np.array([counts[d.node] for d in self.drags])
+        #: the cells' volume and barrier constraints (:mod:`deformgl.sim.xpbd_cells`), or None
+        self.cells = cell_constraints(system, self.w)
         #: relative residual |C + at lambda| / |C| of Macklin, Müller & Chentanez 2016, eq. 7 after the last sweep (nan: no step yet)
         self.residual = float("nan")
+        #: the cells' multipliers after the last substep, ((C,) volume, (C, 8) barrier), or None
+        self.cell_lambda: tuple[np.ndarray, np.ndarray] | None = None
 
     def _external(self, t: float) -> np.ndarray:
         """(N, 3) a_i = gravity + (loads + wind_drag wind) / m_i at time t."""
@@ -169,28 +196,43 @@ class XpbdSolver:
         targets = [np.asarray(d.target(t + h), np.float64) for d in self.drags]
         at_d = [1.0 / (float(d.stiffness) * h * h) for d in self.drags]
         wi, wj = self.w[self.i], self.w[self.j]
+        cells = self.cells
+        lam_v, lam_b = cells.zeros() if cells is not None else (np.zeros(0), np.zeros((0, 8)))
+        count, drag_count, counts = self.count, self.drag_count, self.counts
         for _ in range(self.settings.iterations):
+            if cells is not None and cells.barrier:
+                # n_i this sweep: the static count plus the barriers active after the last sweep
+                counts = self.counts + cells.barrier_counts(lam_b)
+                count = np.maximum(counts[self.i], counts[self.j])
+                drag_count = np.array([counts[d.node] for d in self.drags])
             d = p[self.i] - p[self.j]
             length = np.linalg.norm(d, axis=1)
             u = d / np.where(length > 0, length, 1.0)[:, None]
             c = length - self.rest
             moved = np.einsum("sk,sk->s", u, (p[self.i] - xn[self.i]) - (p[self.j] - xn[self.j]))
-            dl = -self.omega * (c + at * lam + gs * moved) / ((1.0 + gs) * self.count * (wi + wj) + at)
+            dl = -self.omega * (c + at * lam + gs * moved) / ((1.0 + gs) * count * (wi + wj) + at)
             lam += dl
             dx = np.zeros_like(p)
             np.add.at(dx, self.i, (wi * dl)[:, None] * u)
             np.add.at(dx, self.j, -(wj * dl)[:, None] * u)
             for q, drag in enumerate(self.drags):
                 node = drag.node
-                dld = -self.omega * (p[node] - targets[q] + at_d[q] * lam_d[q]) / (self.drag_count[q] * self.w[node] + at_d[q])
+                dld = -self.omega * (p[node] - targets[q] + at_d[q] * lam_d[q]) / (drag_count[q] * self.w[node] + at_d[q])
                 lam_d[q] += dld
                 dx[node] += self.w[node] * dld
+            if cells is not None:
+                dx += cells.sweep(p, lam_v, lam_b, counts, h, self.omega)
             p = p + dx
             if self.constraints is not None:
                 apply_constraints(self.constraints, p, None, t, h)
             p = np.where(fixed, xn, p)
         c = np.linalg.norm(p[self.i] - p[self.j], axis=1) - self.rest  # at the last iterate
-        self.residual = relative_residual(c, at * lam)
+        at_lam = at * lam
+        if cells is not None:
+            self.cell_lambda = (lam_v, lam_b)
+            c_cells, at_lam_cells = cells.residual_terms(p, lam_v, lam_b, h)
+            c, at_lam = np.concatenate([c, c_cells]), np.concatenate([at_lam, at_lam_cells])
+        self.residual = relative_residual(c, at_lam)
         v_new = np.where(fixed, 0.0, (p - xn) / h)
         return p, v_new
 

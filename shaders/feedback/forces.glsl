@@ -6,7 +6,8 @@
 // u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u
 // (Movania & Feng 2012, eq. 2; lib/spring_force.glsl)
 // per node: m g + wind_drag (wind - v) (WIND) - c v (Movania & Feng 2012, eq. 1) + loads and drags
-// (lib/node_forces.glsl).
+// (lib/node_forces.glsl); with CELLS, a grid body's volumetric term and inversion barrier over
+// the node's full incident cells (feedback/cells.glsl, deformgl/sim/volume.py).
 // Fixed nodes have a = 0.
 //
 // The stage shader defines, before including this file:
@@ -33,6 +34,9 @@ uniform isampler2D u_other;
 uniform sampler2D u_springs;
 #include "lib/node_forces.glsl"
 #include "lib/spring_force.glsl"
+#ifdef CELLS
+#include "feedback/cells.glsl"
+#endif
 
 ivec4 node_info(int n) {
     return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
@@ -53,6 +57,9 @@ vec3 list_acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
         f += spring_force(xi.xyz - eval_x(j).xyz, s.x, s.y, 0.0, vec3(0.0));
 #endif
     }
+#ifdef CELLS
+    f += node_cell_forces(i, xi.xyz);
+#endif
     add_node_forces(f, i, info.w, xi.xyz, vi, xi.w);
     return f / xi.w;
 }

@@ -12,6 +12,10 @@ GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
   list, fixed flag, load-group bits; the neighbour list (CSR, each spring once per end) in
   ``other`` R32I (the other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
   entries per row.
+* Cells (grid bodies whose system has ``cells``, :mod:`deformgl.sim.volume`; define ``CELLS``):
+  ``cell_nodes`` RGBA32I, 7 texels per node: the 27 node numbers of its 3x3x3 neighbourhood and
+  the mask of its full incident cells (:mod:`deformgl.sim.backends.feedback_cells`); every stage
+  adds the cells' volumetric term and corner barrier to the springs' forces.
 * State: a pass writes K vec4 per node, interleaved in varying order (``Program`` captures
   interleaved). The buffer is then copied GPU to GPU into an RGBA32F texture of K * NODE_ROW x
   rows texels (``Texture.write(buffer)``: a pixel-unpack-buffer upload, no CPU round trip), in
@@ -47,6 +51,8 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
+from deformgl.sim.backends.cell_tables import cell_uniforms
+from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit, has_cells
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
@@ -125,7 +131,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
 
     Args:
         ctx: the GL context.
-        system: the spring system.
+        system: the spring system (with ``cells``, a grid body: ValueError without its grid).
         integrator: one of :data:`deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
@@ -162,6 +168,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if self.count == 0:
             raise ValueError("FeedbackSimulation: the system has no nodes")
         self.load_bits = load_groups(self.loads, self.count)
+        self.has_cells = has_cells(system)  #: whether the stages gather the cells' term (CELLS)
         for drag in self.drags:
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FeedbackSimulation: drag node {drag.node} outside the system")
@@ -183,7 +190,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
     def _build(self, state: State | None) -> None:
         system, n = self.system, self.count
         limit = int(self.ctx.info["GL_MAX_TEXTURE_SIZE"])
-        self.node_row = _row(n, min(NODE_ROW_MAX, limit))
+        self.node_row = _row(n, min(NODE_ROW_MAX, cell_node_row_limit(limit) if self.has_cells else limit))
         self.rows = -(-n // self.node_row)
         texels = self.node_row * self.rows
 
@@ -218,6 +225,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.tex_other = self._texture(self.spring_row, spring_rows, "i4", other_img.tobytes(),
                                        components=1)
         self.tex_springs = self._texture(self.spring_row, spring_rows, "f4", param_img.tobytes())
+        self.tex_cells = (self._texture(CELL_SLOTS * self.node_row, self.rows, "i4",
+                                        cell_image(system, self.node_row, self.rows).tobytes())
+                          if self.has_cells else None)
 
         # Start state (float64 on the CPU, uploaded once as float32).
         s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
@@ -279,6 +289,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             common["SPHERES"] = 0
         if sp.velocity:
             common["VELOCITY"] = True
+        if self.has_cells:
+            common["CELLS"] = True
         for stage in sp.stages:
             self._add_pass(stage, {**common, **stage.feedback_defines()})
 
@@ -306,6 +318,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if "WIND" in defines:
             uniforms.update(u_wind=tuple(float(w) for w in system.wind),
                             u_wind_drag=system.wind_drag)
+        if "CELLS" in defines and system.cells is not None:
+            uniforms.update(u_cell_nodes=5, **cell_uniforms(system.cells))
         if not self.spec.velocity:
             uniforms.update(u_x=3, u_x_prev=4)
         else:
@@ -360,6 +374,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.tex_nodes.use(0)
         self.tex_other.use(1)
         self.tex_springs.use(2)
+        if self.tex_cells is not None:
+            self.tex_cells.use(5)
         dt, sp = self.dt, self.spec
         try:
             for _ in range(n):

@@ -10,10 +10,18 @@ the system uses nothing the pass does not model (:func:`verlet_terms`); nothing 
 
 Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
-* node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g),
-  B neighbour mask (18 bits), A the spring-weight levels code (:func:`weight_levels`) or 0.
+* node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g,
+  full incident cell q 64<<q), B neighbour mask (18 bits), A the spring-weight levels code
+  (:func:`weight_levels`) or 0.
 * state, three rotating RGBA32F (H, W, 4): xyz position, w packed Mosegaard & Sørensen 2005, eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
+* with the volumetric term (``system.cells``, :mod:`deformgl.sim.volume`) on a grid that is not
+  dense: the cell diagonals, static, RGBA32I array of 2 layers: the node numbers of the 8 body
+  diagonals (±1, ±1, ±1) (:func:`~deformgl.sim.backends.cell_pass.diagonal_table`), the node itself
+  where absent. The pass computes the term with the springs (define ``CELLS``,
+  ``shaders/sim/cells/node_hood.glsl``: the 18 neighbours the springs fetched and the 8
+  diagonals). Compact layouts only: the z-slice atlas (a benchmark variant) refuses a system with
+  cells.
 
 Texels outside the grid (padding, empty nodes) hold position 0 and are never changed.
 """
@@ -30,12 +38,15 @@ from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
+from deformgl.sim.backends.cell_pass import active_cells, cell_flags, cell_terms, diagonal_table, term_uniforms
+from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.grid_springs import spring_weights
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
 from deformgl.sim.stages import spec
 from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.volume import CellVolumes
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
            "VerletTerms", "verlet_terms", "node_flags", "weight_levels", "NodeTextures", "VerletPass",
@@ -51,6 +62,8 @@ PULL_SHIFT = 2
 MAX_PULLS = MAX_LOADS
 #: Texture unit of the spring-weight texture array (SPRING_WEIGHTS).
 WEIGHT_UNIT = 4
+#: Texture unit of the cell-diagonal table (CELLS on compact layouts that are not dense).
+CELL_DIAGONAL_UNIT = 5
 
 
 @dataclass(frozen=True)
@@ -67,6 +80,8 @@ class VerletTerms:
         gravity: (3,) m/s^2.
         spacing: grid spacing h (rest lengths are h and h*sqrt(2)).
         n_pulls: number of loads (pull groups).
+        cells: the volumetric term's full cells (``system.cells`` when they exert a force:
+            :func:`~deformgl.sim.backends.cell_pass.active_cells`), or None.
     """
 
     k_structural: float
@@ -77,6 +92,7 @@ class VerletTerms:
     n_pulls: int
     mass_damping: float = 0.0
     weights: np.ndarray | None = field(default=None, compare=False, repr=False)
+    cells: CellVolumes | None = field(default=None, compare=False, repr=False)
 
 
 def _one_value(values: np.ndarray) -> float | None:
@@ -91,8 +107,9 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
 
     The pass models: structural and shear springs at the grid's rest lengths (one stiffness per
     class, or per spring as weights of the class's largest), per-node mass, fixed nodes, global
-    velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads. It does not model flexion
-    springs, spring damping, wind, drags or obstacles.
+    velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads, the volumetric term of
+    the full cells (``system.cells``). It does not model flexion springs, spring damping, wind, drags or
+    obstacles.
     """
     cls = system.spring_class
     if np.any(cls == FLEXION):
@@ -117,7 +134,14 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
     return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
-                       weights=weights)
+                       weights=weights, cells=active_cells(system.cells))
+
+
+def _cell_kind(cells: CellVolumes | None) -> str:
+    """The ``cells`` argument of :class:`NodeTextures` for a system's cells."""
+    if cells is None:
+        return "none"
+    return "centre" if cells.volume_modulus > 0 else "barrier"
 
 
 def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
@@ -183,12 +207,16 @@ class NodeTextures(GLOwner):
             5-layer RGBA32F texture array in the layout (bound to :data:`WEIGHT_UNIT`).
         weight_texture: store the weights in the texture array even where levels could hold
             them (to measure what the levels save, and test they match).
+        cells: "none", or the terms of the volumetric term the pass computes: "barrier" (the
+            barrier alone) or "centre" (the centre term, with or without the barrier), which on a
+            compact layout that is not dense needs the node numbers of the 8 body diagonals in
+            :attr:`cell_diagonals` (bound to :data:`CELL_DIAGONAL_UNIT`); the atlas refuses both.
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
                  flags: np.ndarray | None = None, n_state: int = 3, layout: str = "compact",
                  positions: np.ndarray | None = None, weights: np.ndarray | None = None,
-                 weight_texture: bool = False) -> None:
+                 weight_texture: bool = False, cells: str = "none") -> None:
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         super().__init__(ctx)
@@ -207,6 +235,13 @@ class NodeTextures(GLOwner):
         self.size = self.layout.size
         self.neighbours: moderngl.TextureArray | None = None
         self.weights: moderngl.TextureArray | None = None
+        #: RGBA32I array, 2 layers: the node at body diagonal q (channel q % 4 of layer q // 4), or None
+        self.cell_diagonals: moderngl.TextureArray | None = None
+        if cells not in ("none", "barrier", "centre"):
+            raise ValueError(f"cells must be 'none', 'barrier' or 'centre', got {cells!r}")
+        if cells != "none" and not isinstance(self.layout, CompactLayout):
+            raise ValueError("NodeTextures: the atlas layout has no cell term (a system with cells runs on the compact "
+                             "layout)")
         levels = None if weights is None or weight_texture else weight_levels(weights, grid.neighbour_mask)
         #: the spring weights are the levels code in the node texture's alpha (SPRING_WEIGHT_LEVELS)
         self.weight_levels = levels is not None
@@ -218,6 +253,8 @@ class NodeTextures(GLOwner):
                 w, h = self.layout.size
                 self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                if cells == "centre":
+                    self.cell_diagonals = layer_texture(self, ctx, self.layout.size, diagonal_table(grid), "i4", 2)
             if weights is not None and levels is None:
                 padded = np.zeros((n, 20))
                 padded[:, :18] = weights
@@ -248,7 +285,7 @@ class NodeTextures(GLOwner):
         """GPU bytes of every texture (padding texels included)."""
         w, h = self.size
         static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16) + \
-            (0 if self.weights is None else w * h * 5 * 16)
+            (0 if self.weights is None else w * h * 5 * 16) + (0 if self.cell_diagonals is None else w * h * 2 * 16)
         return static + len(self.state) * w * h * 16
 
     def bind_static(self, node_unit: int) -> None:
@@ -258,6 +295,8 @@ class NodeTextures(GLOwner):
             self.neighbours.use(NEIGHBOUR_UNIT)
         if self.weights is not None:
             self.weights.use(WEIGHT_UNIT)
+        if self.cell_diagonals is not None:
+            self.cell_diagonals.use(CELL_DIAGONAL_UNIT)
 
     def release(self) -> None:
         """Release every texture and framebuffer (idempotent)."""
@@ -286,6 +325,9 @@ class VerletPass(GLOwner):
             raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
         super().__init__(ctx)
         layout = textures.layout
+        cells = terms.cells
+        if cells is not None and not isinstance(layout, CompactLayout):
+            raise ValueError("VerletPass: the cell term needs a compact layout")
         if isinstance(layout, CompactLayout) and draw == "rects":
             draw = "quad"  # a compact layout is one rectangle of existing nodes already
         self.draw = draw
@@ -297,7 +339,12 @@ class VerletPass(GLOwner):
             self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
                 "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
-                "SPRING_WEIGHT_LEVELS": textures.weight_levels, **layout.shader_defines()}))
+                "SPRING_WEIGHT_LEVELS": textures.weight_levels, "CELLS": cells is not None,
+                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines()}))
+            if cells is not None:
+                self.program.set(**term_uniforms(cells))
+            if textures.cell_diagonals is not None:
+                self.program.set(u_cell_diagonals=CELL_DIAGONAL_UNIT)
             self.program.set(**layout.shader_uniforms(),
                              u_spacing=terms.spacing, u_k_structural=terms.k_structural,
                              u_k_shear=terms.k_shear, u_damping=terms.damping, u_mass_damping=terms.mass_damping,
@@ -356,6 +403,9 @@ class FoundationVerlet(SimulationBase, GLOwner):
         loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
         t0: time of the start state.
         draw, branch: pass variants, see :class:`VerletPass`; layout, weight_texture: see :class:`NodeTextures`.
+
+    Raises:
+        ValueError: dt <= 0; the atlas layout with cells.
     """
 
     backend = "fragment"
@@ -374,13 +424,13 @@ class FoundationVerlet(SimulationBase, GLOwner):
         self._start_clock(dt, t0)
         self.loads = tuple(loads)
         self.count = grid.count
-        flags = node_flags(system.fixed, load_groups(self.loads, grid.count))
+        flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
         with self.building():
             self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
                                                   positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                  weight_texture=weight_texture))
+                                                  weight_texture=weight_texture, cells=_cell_kind(terms.cells)))
             self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))

@@ -17,10 +17,21 @@ the class's times its weight;
 per-node mass and the fixed flag are a static RGBA32F texture. The constructor checks that the
 system's springs are exactly the grid's.
 
+The lattice's volumetric term (``system.cells``, :mod:`deformgl.sim.volume`: any Poisson's ratio,
+the inversion barrier) is computed in the same passes as the springs (define ``CELLS``, with
+``CELL_CENTRE`` where kappa > 0 and ``CELL_BARRIER``): each node gathers it from its full
+incident cells (``shaders/sim/cells/node_hood.glsl``, ``shaders/lib/cell_forces.glsl``) at the
+stage's evaluation state, from the 18 neighbour positions its springs fetched and, for the
+centre term, the 8 body diagonals of its 3x3x3 neighbourhood
+(:mod:`~deformgl.sim.backends.cell_pass` says why in the pass and what it costs).
+
 GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texelFetch``):
 
-* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, B load-group bits),
-  neighbours RGBA32I array of 5 layers (6 with flexion);
+* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, 64 << q full incident cell q,
+  B load-group bits, A the neighbour mask on dense grids), neighbours RGBA32I array of 5 layers
+  (6 with flexion; not on dense grids); with the centre term on grids that are not dense, the
+  cell diagonals RGBA32I array of 2 layers (the nodes at (±1, ±1, ±1),
+  :func:`~deformgl.sim.backends.cell_pass.diagonal_table`);
 * state (``state_bytes_per_node`` = 16 x the vec4s of :data:`integrators.GPU_BUFFERS`):
   euler / semi-implicit x, v, x', v'; midpoint x, v, x_m, v_m, x', v'; rk4 x, v and two stage
   sets (x_s, v_s, sum_x, sum_v) used ping-pong; verlet three rotating positions (no velocity).
@@ -50,11 +61,13 @@ from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, i
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
-from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, verlet_terms
+from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout, grid_neighbours,
                                                 grid_springs, spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
+from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_terms, check_cells, diagonal_table,
+                                             term_uniforms)
 
 __all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
 
@@ -64,6 +77,8 @@ PATHS = ("auto", "general", "foundation")
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
+#: texture unit of the cell term's body-diagonal table (its centre term on grids that are not dense)
+_CELL_DIAGONAL_UNIT = 9
 
 
 def _sampler(buffer: str) -> str:
@@ -141,6 +156,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FragmentIntegrator: drag node {drag.node} outside the system")
         self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
+        if system.cells is not None:
+            check_cells(grid, system.cells)  # (a node finds its cells by grid offsets)
         #: the foundation pass when it runs this simulation (see ``path``), else None
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
@@ -239,7 +256,14 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
             self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
-        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, self.load_bits, mask], axis=1)
+        #: the volumetric term's cells when they exert a force (define CELLS), else None
+        self.cells = cells = active_cells(system.cells)
+        #: the cell term's body diagonals (its centre term on grids that are not dense), or None
+        self.tex_cell_diagonals: moderngl.TextureArray | None = None
+        if cells is not None and not self.dense and cells.volume_modulus > 0:
+            self.tex_cell_diagonals = layer_texture(self, self.ctx, (w, h), diagonal_table(self.grid), "i4", 2)
+        flags = node_flags(system.fixed) | cell_flags(self.grid, cells)
+        node = np.stack([system.mass, flags, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
 
         s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
@@ -263,6 +287,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                      "LOADS": len(self.loads)}
         if system.wind_drag > 0:
             common["WIND"] = True
+        if cells is not None:
+            common.update(CELLS=True, **cell_terms(cells))
         if sp.velocity:
             common["VELOCITY"] = True
         c = self.constraints
@@ -275,7 +301,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                       for key, p in self.passes.items()}
         self.state_bytes = len(self.pool) * w * h * _VEC4
         static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4) + \
-            (0 if self.tex_weights is None else w * h * layers * _VEC4)
+            (0 if self.tex_weights is None else w * h * layers * _VEC4) + \
+            (0 if self.tex_cell_diagonals is None else w * h * 2 * _VEC4)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
@@ -302,6 +329,10 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("DENSE"):
             uniforms["u_offsets"] = self.neighbour_offsets
+        if defines.get("CELLS") and self.cells is not None:
+            uniforms.update(term_uniforms(self.cells))
+            if self.tex_cell_diagonals is not None:
+                uniforms["u_cell_diagonals"] = _CELL_DIAGONAL_UNIT
         if defines.get("GROUND"):  # (set only with a ground plane)
             c = self.constraints
             if c is None or c.ground is None:
@@ -362,6 +393,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
         if self.tex_weights is not None:
             self.tex_weights.use(_SAMPLERS["u_weights"])
+        if self.tex_cell_diagonals is not None:
+            self.tex_cell_diagonals.use(_CELL_DIAGONAL_UNIT)
         try:
             for _ in range(n):
                 for stage in self.spec.stages:

@@ -21,7 +21,14 @@ start, same stopping test), in float32. A step is (``shaders/sim/implicit/implic
 The matrix-vector product of a node is computed from its 18 (+6 flexion) grid neighbours
 (Mosegaard & Sørensen 2005, section 3.1: the neighbour-index texture of
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, with the per-spring weight texture of
-the calibrated lattice). Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
+the calibrated lattice). A system with full cells (``system.cells``: the volumetric term and
+corner barriers of :mod:`deformgl.sim.volume`) adds, in SETUP, WARM, INIT and MATVEC (define
+IMPLICIT_CELLS, with CELL_CENTRE and CELL_BARRIER for the terms whose modulus is > 0), the
+cells' forces (``shaders/lib/cell_forces.glsl``, in b) and the Gauss-Newton part of their
+Hessian (``shaders/sim/implicit/cells.glsl``: in the product, in ``H v`` and in the
+preconditioner's blocks; the twin of :func:`deformgl.sim.implicit_cells.cell_product`, the
+NumPy backend's "projected" H), each node gathering its 8 incident cells from its 3x3x3
+neighbourhood; the barriers' products only at the nodes SETUP found a barrier term active at. Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
 (``shaders/sim/implicit/reduce.frag``) that the next pass samples: with a fixed iteration count
 (``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
 scalar (``r . P^-1 r``) every ``cg_check_every`` iterations, and ``b . P^-1 b`` once per step;
@@ -29,10 +36,15 @@ without one :meth:`ImplicitFragment.residual` reads the last step's two scalars 
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
 
-* static: node data (R mass, G flags, B load-group bits), neighbours RGBA32I array (5 or 6
-  layers), spring weights array (with SPRING_WEIGHTS), as the fragment backend's;
+* static: node data (R mass, G flags, B load-group bits, A the bit mask of the node's full
+  incident cells, :func:`~deformgl.sim.backends.cell_tables.incident_cells`, 0 without cells),
+  neighbours RGBA32I array (5 or 6 layers), spring weights array (with SPRING_WEIGHTS), as the
+  fragment backend's; with cells the 3x3x3 neighbourhood, RGBA32I array of 7 layers (slot
+  4 l + c of :func:`~deformgl.sim.backends.cell_tables.neighbourhood`'s 27, the node itself
+  where absent);
 * state: x, v and x', v' (xyz; the pairs swap after a step);
-* solver: b (xyz), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
+* solver: b (xyz; w, with the cells' barrier, 1 where a barrier term holds the node, read by
+  the products), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
   inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two,
   ping-pong; the latest is the next step's warm start), r (two), p (two), q (xyz), a per-texel
   product (R, all channels equal; after WARM R and G), the reduction levels (RGBA, each channel
@@ -50,6 +62,7 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
@@ -59,7 +72,7 @@ from deformgl.sim.integrators import Constraints, State, initial_state
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
-__all__ = ["ImplicitFragment", "PASSES", "PRECONDITIONED_PASSES"]
+__all__ = ["ImplicitFragment", "PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES"]
 
 #: The passes of ``implicit.frag`` (one define each).
 PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
@@ -72,12 +85,21 @@ _REDUCE_UNIT = 15
 _UNITS["u_inv_off"] = _REDUCE_UNIT
 #: The passes that apply P^-1 (block-Jacobi: they read ``inv_off`` too).
 PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
+#: The passes that evaluate the cells' terms (define IMPLICIT_CELLS, not the explicit stages'
+#: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in all
+#: four); they read the neighbourhood texture on the unit of ``u_rz``, which only
+#: UPDATE and DIRECTION read.
+CELL_PASSES = ("SETUP", "WARM", "INIT", "MATVEC")
+_UNITS["u_cell_nb"] = _UNITS["u_rz"]
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
-                 scaled: bool = True) -> dict[str, dict[str, object]]:
-    """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists)."""
+                 scaled: bool = True, cells: bool = False) -> dict[str, dict[str, object]]:
+    """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
+    ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
+    :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
+    kappa_b > 0 (none of the three if both are 0)."""
     common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
                                  "SPRING_DAMPING": bool(np.any(system.damping > 0)), "SPRING_WEIGHTS": weights,
                                  "DRAGS": drags, "LOADS": loads, "SPHERES": 0}
@@ -97,6 +119,11 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     if block:
         for name in PRECONDITIONED_PASSES:
             out[name]["PRECOND_BLOCK"] = True
+    terms = {"CELL_CENTRE": system.cells.volume_modulus > 0,
+             "CELL_BARRIER": system.cells.barrier_modulus > 0} if cells and system.cells is not None else {}
+    if any(terms.values()):
+        for name in CELL_PASSES:
+            out[name].update(IMPLICIT_CELLS=True, **{k: True for k, on in terms.items() if on})
     return out
 
 
@@ -148,6 +175,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
                 raise ValueError(f"ImplicitFragment: drag node {drag.node} outside the system")
         self.iterations, self.tolerance, self.check_every = int(cg_iterations), float(cg_tolerance), int(cg_check_every)
         self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
+        cells = system.cells
+        self.cells = (cells if cells is not None and cells.count and max(cells.volume_modulus, cells.barrier_modulus) > 0
+                      else None)
+        self.barrier_flag = self.cells is not None and self.cells.barrier_modulus > 0
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
@@ -178,8 +209,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.tex_neighbours = self._array_texture(table, "i4")
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         self.tex_weights = None if weights is None else self._array_texture(weights.astype(np.float32), "f4")
-        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), np.zeros(n)], axis=1)
+        mask = np.zeros(n) if self.cells is None else incident_cells(self.grid, self.cells)
+        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), mask], axis=1)
         self.tex_node = self._texture(size, self._image(node))
+        self.tex_cells = None if self.cells is None else self._array_texture(neighbourhood(self.grid), "i4")
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
@@ -200,7 +233,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new", "warm")}
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
-                               block=self.block, scaled=self.warm_start == "scaled")
+                               block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None)
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
         self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
@@ -208,7 +241,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.reduce.set(u_src=_REDUCE_UNIT)
         texels = size[0] * size[1]
         self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 if weights is None else 2)
-                                     + sum(a * b for _, (a, b) in self.levels) + len(self.scalars))
+                                     + sum(a * b for _, (a, b) in self.levels) + len(self.scalars)
+                                     + (0 if self.cells is None else 7 * texels))
 
     def _program(self, defines: dict[str, object]) -> Program:
         program = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/implicit.frag", defines=defines))
@@ -220,6 +254,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             "u_gravity": tuple(float(g) for g in system.gravity), "u_velocity_damping": system.velocity_damping,
             "u_mass_damping": system.mass_damping, "u_wind": tuple(float(g) for g in system.wind),
             "u_wind_drag": system.wind_drag}
+        if self.cells is not None:
+            values.update(cell_uniforms(self.cells))
         if self.drags:
             values["u_drag_node"] = uniform_array([d.node for d in self.drags])
             values["u_drag_k"] = uniform_array([float(d.stiffness) for d in self.drags])
@@ -247,6 +283,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             writes = (*writes, "inv_off")
         for sampler, tex in reads.items():
             (self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]).use(_UNITS[sampler])
+        if self.tex_cells is not None and name in CELL_PASSES:
+            self.tex_cells.use(_UNITS["u_cell_nb"])
         self._fbo(*(self.tex[w] for w in writes)).use()
         self._vaos[name].render(moderngl.TRIANGLES, vertices=3)
 
@@ -305,7 +343,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         for k in range(self.iterations):
             if tol and k % self.check_every == 0 and self._residual(self._scalar("rz"), bpb) <= self.tolerance:
                 break
-            self._draw("MATVEC", {"u_vec": "p"}, ("q", "prod"))
+            self._draw("MATVEC", {"u_vec": "p", **({"u_b": "b"} if self.barrier_flag else {})}, ("q", "prod"))
             self._sum("pq")
             self._draw("UPDATE", {"u_dv": "dv", "u_r": "r", "u_p": "p", "u_q": "q", "u_inv": "inv", "u_rz": "$rz",
                                   "u_pq": "$pq"}, ("dv_out", "r_out", "prod"))

@@ -11,13 +11,20 @@ Per substep three kinds of fragment pass (shaders/sim/xpbd/):
   lambda); iterate and multipliers are ping-ponged;
 * ``finish.frag``: v = (x - x^n)/h and x into the state textures (ping-pong pair).
 
+A system with cells (:mod:`deformgl.sim.xpbd_cells`) adds a cell pass ``cells.frag`` before each
+sweep and ``CELLS`` (``CELL_VOLUME``, ``CELL_BARRIER``) to ``iterate.frag``, whose nodes gather
+the cells' corrections and write their active barrier count into the w of the iterate
+(:class:`~deformgl.sim.backends.xpbd_cells_gpu.XpbdCells`, its textures there).
+
 Textures (``width x rows`` of the compact layout, NEAREST, ``texelFetch``; docs/ARCHITECTURE.md):
-node RGBA32F (R inverse mass, 0 fixed; G flags 1 exists, 2 fixed; B load-group bits; A the
-node's constraint count n_i), neighbours RGBA32I array of ``NB_LAYERS`` layers (absent: the node
+node RGBA32F (R inverse mass, 0 fixed; G flags 1 exists, 2 fixed, ``64 << q`` full incident
+cell q; B load-group bits; A the node's constraint count n_i: springs, drags, volume
+constraints), neighbours RGBA32I array of ``NB_LAYERS`` layers (absent: the node
 itself), stiffness RGBA32F array (k_s of the spring to neighbour 4l + c in channel c of layer l,
 0 where there is none: the per-spring weights of the calibrated lattice times the class's k),
-state x, v, x', v' RGBA32F, two iterates, 2 x ``NB_LAYERS`` lambda RGBA32F (channel c of lambda
-texture l: the multiplier of neighbour 4l + c), 2 drag-lambda RGBA32F (xyz) with drags.
+state x, v, x', v' RGBA32F, two iterates (w: with cells the node's active barriers), 2 x
+``NB_LAYERS`` lambda RGBA32F (channel c of lambda texture l: the multiplier of neighbour 4l + c),
+2 drag-lambda RGBA32F (xyz) with drags.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
+from deformgl.sim.backends.xpbd_cells_gpu import CELL_SAMPLERS, XpbdCells
 from deformgl.sim.backends.uniforms import uniform_array
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
@@ -43,6 +51,7 @@ from deformgl.sim.xpbd import (
     OMEGA,
     XpbdSettings,
     _check_drags,
+    cell_constraints,
     constraint_counts,
     node_terms,
     relative_residual,
@@ -52,7 +61,7 @@ __all__ = ["XpbdFragment", "column_stiffness"]
 
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_stiffness": 2, "u_x": 3, "u_v": 4, "u_p": 5,
-             "u_lambda_drag": 6, **{f"u_lambda{layer}": 7 + layer for layer in range(6)}}
+             "u_lambda_drag": 6, **{f"u_lambda{layer}": 7 + layer for layer in range(6)}, **CELL_SAMPLERS}
 
 
 def column_stiffness(system: SpringSystem, nb: np.ndarray, classes: list[tuple[float, float, float]]) -> np.ndarray:
@@ -134,7 +143,12 @@ class XpbdFragment(SimulationBase, GLOwner):
         self.tex_stiffness = self._array_texture(self.k_columns.astype(np.float32), "f4")
         inv_mass, _ = node_terms(system)
         counts = constraint_counts(system, self.drags)
-        node = np.stack([inv_mass, 1.0 + 2.0 * system.fixed, self.load_bits, counts], axis=1)
+        constraints = cell_constraints(system, inv_mass)
+        #: the cells' multipliers and cell pass (:mod:`deformgl.sim.backends.xpbd_cells_gpu`), or None
+        self.cells = None if constraints is None else self.own(
+            XpbdCells(self.ctx, self.grid, self.layout, constraints, float(self.settings.omega)))
+        flags = 1.0 + 2.0 * system.fixed + (0.0 if self.cells is None else self.cells.flag_bits())
+        node = np.stack([inv_mass, flags, self.load_bits, counts], axis=1)
         self.tex_node = self._texture(self._image(node))
         x = np.array(system.rest_positions if state is None else state.x, np.float64)
         v = np.zeros_like(x) if state is None else np.asarray(state.v, np.float64)
@@ -158,19 +172,26 @@ class XpbdFragment(SimulationBase, GLOwner):
                                       "SPRING_DAMPING": sp, "DRAGS": len(self.drags), "SPHERES": 0}
         if c is not None and (c.ground is not None or c.spheres):
             iterate.update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
+        if self.cells is not None:
+            iterate.update(self.cells.defines())
         self.p_predict = self._program("sim/xpbd/predict.frag", common)
         self.p_iterate = self._program("sim/xpbd/iterate.frag", iterate)
         self.p_finish = self._program("sim/xpbd/finish.frag", {})
         h_sub = self.dt / self.settings.substeps
-        for p in (self.p_predict, self.p_iterate, self.p_finish):
+        passes = [self.p_predict, self.p_iterate, self.p_finish]
+        if self.cells is not None:
+            passes.append(self.cells.program)
+            self.p_iterate.set(**self.cells.uniforms(self.p_iterate))
+        for p in passes:
             p.set(**{s: u for s, u in _SAMPLERS.items() if s in p.members}, u_h=h_sub)
+            if "u_width_log2" in p.members:
+                p.set(u_width_log2=int(self.layout.width).bit_length() - 1)
         self.p_predict.set(u_gravity=tuple(float(g) for g in system.gravity),
                            u_mass_damping=system.mass_damping, u_velocity_damping=system.velocity_damping)
         if system.wind_drag > 0:
             self.p_predict.set(u_wind=tuple(float(g) for g in system.wind), u_wind_drag=system.wind_drag)
         ratios = tuple(cl[2] / cl[0] if cl[0] > 0 else 0.0 for cl in self.classes)
-        self.p_iterate.set(u_width_log2=int(self.layout.width).bit_length() - 1,
-                           u_rest=tuple(cl[1] for cl in self.classes), u_omega=float(self.settings.omega))
+        self.p_iterate.set(u_rest=tuple(cl[1] for cl in self.classes), u_omega=float(self.settings.omega))
         if sp:
             self.p_iterate.set(u_ratio=ratios)
         if self.drags:
@@ -182,6 +203,8 @@ class XpbdFragment(SimulationBase, GLOwner):
                       for p in (self.p_predict, self.p_iterate, self.p_finish)}
         tex_count = 4 + 2 + 2 * self.layers + len(self.drag_lambdas)
         self.bytes_allocated = (tex_count + 1 + 2 * self.layers) * w * h * _VEC4
+        if self.cells is not None:
+            self.bytes_allocated += self.cells.bytes_allocated
 
     def _program(self, fragment: str, defines: dict[str, object]) -> Program:
         return self.own(Program(self.ctx, "sim/fullscreen.vert", fragment, defines=defines))
@@ -212,6 +235,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         self._draw(self.p_predict, [self.iterates[0]])
         clear = self.lambdas[0] + self.drag_lambdas[:1]
         self._fbo(clear).clear(0.0, 0.0, 0.0, 0.0)
+        if self.cells is not None:
+            self.cells.clear()
         if self.drags:
             self.p_iterate.set(u_drag_target=uniform_array([tuple(float(c) for c in np.asarray(d.target(t + h), float))
                                                      for d in self.drags]))
@@ -223,6 +248,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         for _ in range(self.settings.iterations):
             b = 1 - a
             self.iterates[a].use(_SAMPLERS["u_p"])
+            if self.cells is not None:
+                self.cells.sweep(a, b)
             for layer, tex in enumerate(self.lambdas[a]):
                 tex.use(_SAMPLERS[f"u_lambda{layer}"])
             if self.drags:
@@ -298,8 +325,11 @@ class XpbdFragment(SimulationBase, GLOwner):
         rest = np.array([cl[1] for cl in self.classes])[np.where(cols < 6, 0, np.where(cols < 18, 1, 2))]
         c = np.linalg.norm(p[rows] - p[self.nb[rows, cols]], axis=1) - rest
         h = self.dt / self.settings.substeps
-        at = 1.0 / (self.k_columns[rows, cols] * h * h)
-        return relative_residual(c, at * lam[rows, cols])
+        at_lam = 1.0 / (self.k_columns[rows, cols] * h * h) * lam[rows, cols]
+        if self.cells is not None:
+            c_cells, at_lam_cells = self.cells.constraints.residual_terms(p, *self.cells.read(self._last), h)
+            c, at_lam = np.concatenate([c, c_cells]), np.concatenate([at_lam, at_lam_cells])
+        return relative_residual(c, at_lam)
 
     @property
     def bytes_per_node(self) -> float:

@@ -14,6 +14,10 @@
 //   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
 //   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
 //   FINAL      v' = v + dv, x' = x + dt v', then the constraints (CONSTRAINTS)
+// IMPLICIT_CELLS (SETUP, WARM, INIT, MATVEC): the full cells' volumetric term and corner
+// barriers, their forces in f (lib/cell_forces.glsl) and their Gauss-Newton block in H
+// (sim/implicit/cells.glsl). Not CELLS: that define switches on the explicit stages' own cell
+// forces inside sim/integrators/forces.glsl, which this file includes for the springs.
 // The scalars rz, pq, rz_new are 1x1 textures (R) reduced on the GPU (sim/implicit/reduce.frag).
 // Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
 // Without a pass define the pass is SETUP (the first of a step).
@@ -22,12 +26,22 @@
 #endif
 #include "lib/node_flags.glsl"
 
-uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups
+uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups,
+                            // A the full incident cells' bit mask (IMPLICIT_CELLS)
 uniform sampler2D u_x;      // xyz position at t
 uniform sampler2D u_v;      // xyz velocity at t
 uniform float u_dt;
+#if defined(INIT) || defined(WARM) || (defined(MATVEC) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
+uniform sampler2D u_b;      // xyz right-hand side; w (IMPLICIT_CELLS, CELL_BARRIER): 1 where a
+                            // barrier term holds the node
+#endif
 #define EVAL_X(T) texelFetch(u_x, T, 0).xyz
 #define EVAL_V(T) texelFetch(u_v, T, 0).xyz
+#ifdef IMPLICIT_CELLS
+// before forces.glsl: it includes this file inside its own #ifdef CELLS, and the preprocessor
+// includes a file once, at its first #include, whether or not that one is compiled
+#include "lib/cell_forces.glsl"
+#endif
 // the neighbour and weight textures, the class uniforms and a = f / m (SETUP's f)
 #include "sim/integrators/forces.glsl"
 #include "sim/implicit/system.glsl"
@@ -37,9 +51,6 @@ uniform sampler2D u_inv;    // xyz 1 / diag(A); PRECOND_BLOCK: the diagonal of t
 #ifdef PRECOND_BLOCK
 uniform sampler2D u_inv_off; // xyz the block inverse's off-diagonal (xy, xz, yz)
 #endif
-#endif
-#if defined(INIT) || defined(WARM)
-uniform sampler2D u_b;      // xyz right-hand side
 #endif
 #if defined(INIT) && defined(WARM_SCALED)
 uniform sampler2D u_q;      // xyz A dv_prev (WARM)
@@ -133,7 +144,24 @@ void main() {
     spring_sums(texel, xi, vi, sk, sc, dk, dc, ok, oc);   // u_vec is v: sk = H_springs v
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
-    vec3 b = dt * (m * grid_acceleration(texel, xi, vi, m, int(node.b)) - dt * hv);
+    vec3 f = m * grid_acceleration(texel, xi, vi, m, int(node.b));
+#ifdef IMPLICIT_CELLS
+    // the cells' forces (lib/cell_forces.glsl), their H v and their block of the node
+    vec3 cell_p[27], cell_v[27], cell_dk, cell_ok;
+    cell_gather(texel, u_x, xi, cell_p);
+    cell_gather(texel, u_v, vec3(0.0), cell_v);
+    uint incident = cell_mask(texel);
+    bool barrier_active;
+    f += cell_forces(cell_p, incident);
+    hv += cell_product(cell_p, cell_v, incident, true, cell_dk, cell_ok, barrier_active);
+    dk += cell_dk;
+    ok += cell_ok;
+#endif
+    vec3 b = dt * (f - dt * hv);
+    float flag = 0.0;   // b's w: a barrier term holds the node (sim/implicit/cells.glsl)
+#ifdef IMPLICIT_CELLS
+    flag = barrier_active ? 1.0 : 0.0;
+#endif
     vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
 #ifdef PRECOND_BLOCK
     vec3 off = (dt * dt) * ok + dt * oc;
@@ -142,13 +170,13 @@ void main() {
                                       off.y, off.z, diag.z));
     vec3 inv = vec3(inverse_block[0][0], inverse_block[1][1], inverse_block[2][2]);
     vec3 inv_off = vec3(inverse_block[1][0], inverse_block[2][0], inverse_block[2][1]);
-    o_0 = vec4(b, 0.0);
+    o_0 = vec4(b, flag);
     o_1 = vec4(inv, 0.0);
     o_2 = vec4(dot(b, apply_preconditioner(inv, inv_off, b)));
     o_3 = vec4(inv_off, 0.0);
 #else
     vec3 inv = 1.0 / diag;
-    o_0 = vec4(b, 0.0);
+    o_0 = vec4(b, flag);
     o_1 = vec4(inv, 0.0);
     o_2 = vec4(dot(b, inv * b));
 #endif

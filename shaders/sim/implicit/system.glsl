@@ -1,6 +1,7 @@
 // The backward-Euler system of one grid node, matrix-free (docs/EQUATIONS.md "Implicit Euler";
 // the float64 reference is deformgl/sim/implicit.py):
-//   A = M + dt C + dt^2 H,  H = -df/dx (projected geometric term),  C = -df/dv.
+//   A = M + dt C + dt^2 H,  H = -df/dx (projected geometric term; IMPLICIT_CELLS: + the
+//   cells' Gauss-Newton block),  C = -df/dv.
 // Per spring (i, j) at the step's start positions, d = x_i - x_j, u = d/|d|, weight w_j (the
 // calibrated lattice's SPRING_WEIGHTS), class stiffness k, rest L, spring damping c:
 //   H_s = w k (u u^T + max(0, 1 - L/|d|) (I - u u^T)),  C_s = w c u u^T.
@@ -9,8 +10,13 @@
 // Every CG vector is 0 at fixed nodes and padding texels, so the rows and columns of the fixed
 // nodes drop out (the solve is over the free nodes).
 // NB_LAYERS and NB_COUNT as sim/integrators/forces.glsl (default 5 and 18).
+// IMPLICIT_CELLS: the full cells' volumetric term and corner barriers add their (Gauss-Newton)
+// block, dt^2 H_cells (sim/implicit/cells.glsl).
 #include "lib/neighbour_count.glsl"
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
+#ifdef IMPLICIT_CELLS
+#include "sim/implicit/cells.glsl"
+#endif
 
 // Sums over the node's springs: sk = sum H_s (y_i - y_j), sc = sum C_s (y_i - y_j), the
 // diagonals dk = sum diag(H_s), dc = sum diag(C_s) and the off-diagonals (xy, xz, yz) of the
@@ -81,7 +87,11 @@ vec3 apply_system(ivec2 texel, vec3 xi, vec3 yi, float m) {
     spring_sums(texel, xi, yi, sk, sc, dk, dc, ok, oc);
     float dt = u_dt;
     float own = m + dt * node_damping(m) + dt * dt * node_drag_stiffness(texel_node(texel));
-    return own * yi + (dt * dt) * sk + dt * sc;
+    vec3 q = own * yi + (dt * dt) * sk + dt * sc;
+#ifdef IMPLICIT_CELLS
+    q += (dt * dt) * cells_times(texel, xi, u_vec);
+#endif
+    return q;
 }
 
 // P^-1 r at this node: the Jacobi inverse diagonal (inv.xyz), or with PRECOND_BLOCK the

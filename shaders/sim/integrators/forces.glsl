@@ -24,6 +24,9 @@
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
 // texel T in the state at which forces are evaluated, and declares u_node.
 // NB_LAYERS and NB_COUNT: 5 and 18 (the default: structural and shear) or 6 and 24 (+ flexion).
+// CELLS (with CELL_CENTRE and/or CELL_BARRIER): the lattice's volumetric term of
+// deformgl/sim/volume.py volume_forces, gathered from the node's full incident cells at the same
+// evaluation state (sim/cells/node_hood.glsl; the incident-cell mask in u_node's G, bits 6-13).
 
 #include "lib/neighbour_count.glsl"
 #ifdef DENSE
@@ -45,47 +48,104 @@ uniform sampler2DArray u_weights;
 #include "lib/node_forces.glsl"
 #include "lib/node_texel.glsl"
 #include "lib/spring_force.glsl"
+#ifdef CELLS
+// CELLS (the lattice's volumetric term, sim/cells/node_hood.glsl): the positions of the 18 grid
+// neighbours the springs fetch are kept, relative to the node, in their slots of the node's
+// 3x3x3 neighbourhood cell_hood (slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1) of NEIGHBOUR_OFFSETS[j]);
+// node_hood.glsl adds the body diagonals where the centre term reads them (the barrier never does).
+vec3 cell_hood[27];
+#define CELL_POSITION(T) EVAL_X(T)
+#include "sim/cells/node_hood.glsl"
+#endif
 
-// The spring of class cls to the neighbour at texel tj (lib/spring_force.glsl).
-vec3 class_spring_force(ivec2 tj, vec3 xi, vec3 vi, int cls) {
+// The spring of class cls to the neighbour at texel tj, d = x_i - x_j (lib/spring_force.glsl).
+vec3 class_spring_force(vec3 d, ivec2 tj, vec3 vi, int cls) {
 #ifdef SPRING_DAMPING
-    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], u_c[cls], vi - EVAL_V(tj));
+    return spring_force(d, u_rest[cls], u_k[cls], u_c[cls], vi - EVAL_V(tj));
 #else
-    return spring_force(xi - EVAL_X(tj), u_rest[cls], u_k[cls], 0.0, vec3(0.0));
+    return spring_force(d, u_rest[cls], u_k[cls], 0.0, vec3(0.0));
 #endif
 }
+
+// Neighbour J (a literal) and its spring; unrolled with literal indices (llvmpipe keeps a
+// dynamically indexed local array in memory). GRID_SPRING: the 18 grid neighbours (SLOT: their
+// slot of cell_hood, kept with CELLS); GRID_FLEXION: the 6 flexion neighbours (with NB_COUNT 24).
+// (each macro on one line: a backslash line continuation is GLSL 4.20, not 3.30 nor ES 3.00)
+#ifdef DENSE
+#define NB_OTHER(J) (((mask >> (J)) & 1) != 0 ? self_node + u_offsets[J] : self_node)
+#else
+#define NB_OTHER(J) nbl[(J) / 4][(J) % 4]
+#endif
+#ifdef SPRING_WEIGHTS
+#define NB_SPRING(J, D, TJ) wl[(J) / 4][(J) % 4] * class_spring_force(D, TJ, vi, (J) < 6 ? 0 : ((J) < 18 ? 1 : 2))
+#else
+#define NB_SPRING(J, D, TJ) class_spring_force(D, TJ, vi, (J) < 6 ? 0 : ((J) < 18 ? 1 : 2))
+#endif
+#ifdef CELLS
+#define CELL_KEEP(SLOT, D) cell_hood[SLOT] = -(D);
+#else
+#define CELL_KEEP(SLOT, D)
+#endif
+#define GRID_SPRING(J, SLOT) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); CELL_KEEP(SLOT, d) f += NB_SPRING(J, d, tj); }
+#define GRID_FLEXION(J) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); f += NB_SPRING(J, d, tj); }
 
 vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     vec3 f = vec3(0.0);
 #ifdef DENSE
     int self_node = texel_node(texel);
     int mask = int(texelFetch(u_node, texel, 0).a);
+#else
+    ivec4 nbl[NB_LAYERS];
+    nbl[0] = texelFetch(u_neighbours, ivec3(texel, 0), 0);
+    nbl[1] = texelFetch(u_neighbours, ivec3(texel, 1), 0);
+    nbl[2] = texelFetch(u_neighbours, ivec3(texel, 2), 0);
+    nbl[3] = texelFetch(u_neighbours, ivec3(texel, 3), 0);
+    nbl[4] = texelFetch(u_neighbours, ivec3(texel, 4), 0);
+#if NB_LAYERS > 5
+    nbl[5] = texelFetch(u_neighbours, ivec3(texel, 5), 0);
 #endif
-    for (int layer = 0; layer < NB_LAYERS; ++layer) {
-#ifndef DENSE
-        ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
 #endif
 #ifdef SPRING_WEIGHTS
-        vec4 w = texelFetch(u_weights, ivec3(texel, layer), 0);
+    vec4 wl[NB_LAYERS];
+    wl[0] = texelFetch(u_weights, ivec3(texel, 0), 0);
+    wl[1] = texelFetch(u_weights, ivec3(texel, 1), 0);
+    wl[2] = texelFetch(u_weights, ivec3(texel, 2), 0);
+    wl[3] = texelFetch(u_weights, ivec3(texel, 3), 0);
+    wl[4] = texelFetch(u_weights, ivec3(texel, 4), 0);
+#if NB_LAYERS > 5
+    wl[5] = texelFetch(u_weights, ivec3(texel, 5), 0);
 #endif
-        for (int c = 0; c < 4; ++c) {
-            int j = 4 * layer + c;
-            if (j >= NB_COUNT) {
-                break;
-            }
-#ifdef DENSE
-            int other = ((mask >> j) & 1) != 0 ? self_node + u_offsets[j] : self_node;
-#else
-            int other = nb[c];
 #endif
-            int cls = j < 6 ? 0 : (j < 18 ? 1 : 2);
-#ifdef SPRING_WEIGHTS
-            f += w[c] * class_spring_force(node_texel(other), xi, vi, cls);
-#else
-            f += class_spring_force(node_texel(other), xi, vi, cls);
+    // the 18 of deformgl/grid/nodes.py NEIGHBOUR_OFFSETS; slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1)
+    GRID_SPRING(0, 14)
+    GRID_SPRING(1, 12)
+    GRID_SPRING(2, 16)
+    GRID_SPRING(3, 10)
+    GRID_SPRING(4, 22)
+    GRID_SPRING(5, 4)
+    GRID_SPRING(6, 17)
+    GRID_SPRING(7, 11)
+    GRID_SPRING(8, 15)
+    GRID_SPRING(9, 9)
+    GRID_SPRING(10, 23)
+    GRID_SPRING(11, 5)
+    GRID_SPRING(12, 21)
+    GRID_SPRING(13, 3)
+    GRID_SPRING(14, 25)
+    GRID_SPRING(15, 7)
+    GRID_SPRING(16, 19)
+    GRID_SPRING(17, 1)
+#if NB_COUNT > 18
+    GRID_FLEXION(18)
+    GRID_FLEXION(19)
+    GRID_FLEXION(20)
+    GRID_FLEXION(21)
+    GRID_FLEXION(22)
+    GRID_FLEXION(23)
 #endif
-        }
-    }
+#ifdef CELLS
+    f += hood_cell_force(texel, xi, cell_bits(int(texelFetch(u_node, texel, 0).g)));
+#endif
     add_node_forces(f, texel_node(texel), groups, xi, vi, m);
     return f / m;
 }

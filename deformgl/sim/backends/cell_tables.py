@@ -1,0 +1,52 @@
+"""Per-node tables of the volumetric term (:mod:`deformgl.sim.volume`) for the GPU backends:
+each node's 3x3x3 neighbourhood and the mask of its full incident cells, in the node order of the
+system, ready for :func:`~deformgl.sim.backends.compact_textures.layer_texture` or a buffer.
+
+Conventions (those of ``shaders/lib/cell_forces.glsl``): neighbourhood slot
+``(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`` holds the node at offset (dx, dy, dz) (slot 13: the node
+itself; an absent node: the node itself, whose cells are then not full); incident cell
+``q = qx + 2 qy + 4 qz`` is the cell whose lower corner is at offset (qx - 1, qy - 1, qz - 1), and
+bit q of the mask is set when that cell is one of ``system.cells``.
+"""
+
+from __future__ import annotations
+
+from itertools import product
+
+import numpy as np
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.volume import CellVolumes
+
+__all__ = ["neighbourhood", "incident_cells", "cell_uniforms"]
+
+
+def neighbourhood(grid: NodeGrid) -> np.ndarray:
+    """(N, 27) int32 node numbers of every node's 3x3x3 neighbourhood (absent: the node itself)."""
+    padded = np.pad(grid.index, 1, constant_values=-1)
+    ijk = grid.ijk.astype(np.int64) + 1
+    own = np.arange(grid.count, dtype=np.int64)
+    table = np.empty((grid.count, 27), np.int32)
+    for dz, dy, dx in product((-1, 0, 1), repeat=3):
+        slot = (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1)
+        other = padded[ijk[:, 0] + dx, ijk[:, 1] + dy, ijk[:, 2] + dz].astype(np.int64)
+        table[:, slot] = np.where(other >= 0, other, own)
+    return table
+
+
+def incident_cells(grid: NodeGrid, cells: CellVolumes) -> np.ndarray:
+    """(N,) int32 bit mask of each node's incident cells that are in ``cells`` (bit q: the cell
+    whose lower corner is at offset (qx - 1, qy - 1, qz - 1), q = qx + 2 qy + 4 qz)."""
+    mask = np.zeros(grid.count, np.int32)
+    if cells.count == 0:
+        return mask
+    # the node at corner c = dx + 2 dy + 4 dz of a cell sees it as its incident cell 7 - c
+    for c in range(8):
+        np.bitwise_or.at(mask, cells.corners[:, c], np.int32(1 << (7 - c)))
+    return mask
+
+
+def cell_uniforms(cells: CellVolumes) -> dict[str, float]:
+    """The uniforms of ``shaders/lib/cell_forces.glsl``."""
+    return {"u_cell_h": cells.spacing, "u_cell_kappa": cells.volume_modulus,
+            "u_cell_barrier": cells.barrier_modulus, "u_cell_jb": cells.barrier_j}
