@@ -72,7 +72,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
     b.add_argument("--poisson", type=_nus, default=None, metavar="NU[,NU...]",
                    help="trade: Poisson's ratio as a workload axis: also a 6x6x6 liver block (E = 4 kPa) at each of "
-                        "these ratios (0.25 to 0.499), e.g. 0.25,0.45")
+                        "these ratios (0.25 to 0.499), e.g. 0.25,0.45; sim: instead of its tables, the cost per "
+                        "step of the cells' volumetric term at these ratios against nu = 1/4 on the fragment backend")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--workers", type=int, default=0,
@@ -208,6 +209,11 @@ def run(args: argparse.Namespace) -> int:
         if args.what in ("sim", "integrators"):
             from deformgl.bench.studies import bench_integrators, format_integrators
 
+            if args.what == "sim" and args.poisson:
+                from deformgl.bench.cells_cost import bench_poisson, format_poisson
+
+                print(format_poisson(bench_poisson(ctx, args.poisson, steps=args.steps), machine_line(ctx)))
+                return 0
             if args.what == "sim":
                 print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)), flush=True)
                 print()

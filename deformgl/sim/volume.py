@@ -45,7 +45,7 @@ __all__ = ["BARRIER_J", "BARRIER_SCALE", "CORNER_SIGNS", "CellVolumes", "grid_ce
            "rest_product", "rest_stiffness_triplets", "frequency_terms"]
 
 #: J below which a corner's barrier acts (dimensionless; measured in docs/ACCURACY.md section 7).
-BARRIER_J = 0.5
+BARRIER_J = 0.6
 #: the barrier's modulus over the material's shear modulus μ (measured in docs/ACCURACY.md
 #: section 7: the smallest multiple that leaves no cell of the hanging cantilevers inverted).
 BARRIER_SCALE = 12.0
