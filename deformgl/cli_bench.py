@@ -210,9 +210,11 @@ def run(args: argparse.Namespace) -> int:
             from deformgl.bench.studies import bench_integrators, format_integrators
 
             if args.what == "sim" and args.poisson:
-                from deformgl.bench.cells_cost import bench_poisson, format_poisson
+                from deformgl.bench.cells_cost import bench_poisson, cg_iterations, format_cg, format_poisson
 
                 print(format_poisson(bench_poisson(ctx, args.poisson, steps=args.steps), machine_line(ctx)))
+                print()
+                print(format_cg(cg_iterations(args.poisson)))
                 return 0
             if args.what == "sim":
                 print(format_sim(bench_sim(ctx, steps=args.steps), machine_line(ctx)), flush=True)

@@ -34,11 +34,12 @@ eigenvalues set to 0: what clamping g is for a spring, at the cost of a 24x24 ei
 per cell and step, which the GPU's matrix-free product does not do. :func:`cell_product` is the
 matrix-free Gauss-Newton product, the twin of the GPU's ``shaders/sim/implicit/cells.glsl``.
 
-Measured with direct solves at dt = 1/30 s (tests/test_cells_implicit.py: the 5x3x3-node block
-clamped at one end under gravity, and the 4x4x4-node block clamped at its bottom, half its top
-pushed down by F per node, E = 3 kPa): the static residual (max free-node force over the largest
-node weight) after 20 / 40 / 80 steps, and the squash's lowest corner Jacobian over 30 steps
-(below 0: a cell inverted on the way; at nu = 0.45 and 0.4 N two were, for a few steps):
+Measured (with the barrier's first J_b = 0.5) with direct solves at dt = 1/30 s
+(tests/test_cells_implicit.py: the 5x3x3-node block clamped at one end under gravity, and the
+4x4x4-node block clamped at its bottom, half its top pushed down by F per node, E = 3 kPa): the
+static residual (max free-node force over the largest node weight) after 20 / 40 / 80 steps,
+and the squash's lowest corner Jacobian over 30 steps (below 0: a cell inverted on the way; at
+nu = 0.45 and 0.4 N two were, for a few steps):
 
 ======  ========================  ========================  ========================
 nu      projected (Gauss-Newton)  eigen                     full
