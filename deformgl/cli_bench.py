@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from deformgl.data import scene_file as _scene_file
 from deformgl.errors import DeformglError, InputError
@@ -152,11 +153,13 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
             _need_dask()
             report = distributed_trade(quick=args.quick, workers=args.workers or 2, scheduler=args.scheduler)
         else:
-            from deformgl.bench.trade import standard_workloads
-            from deformgl.bench.trade_tissue import tissue_workloads
+            extra: dict[str, Any] = {}
+            if args.poisson:  # the standard workloads and the tissue's at each nu asked for
+                from deformgl.bench.trade import standard_workloads
+                from deformgl.bench.trade_tissue import tissue_workloads
 
-            workloads = standard_workloads() + (tissue_workloads(args.poisson) if args.poisson else ())
-            report = trade_study(ctx, quick=args.quick, progress=note, workloads=workloads)
+                extra["workloads"] = standard_workloads() + tissue_workloads(args.poisson)
+            report = trade_study(ctx, quick=args.quick, progress=note, **extra)
         print(report.format())
         if out is not None:
             with outputs:

@@ -20,7 +20,7 @@ relative error of the body's deflection is below the tolerance, and say why:
   point is the equilibrium at any dt, so its time-stepping error of the static deflection is 0
   and what remains is :data:`IMPLICIT_STATIC_ERROR` (the largest measured residue at the
   iterations :func:`implicit_iterations` picks: 10 CG iterations up to 17 nodes across, 30
-  above); one step costs :func:`implicit_step_cost` explicit steps of the same grid (measured per
+  above, at nu = 1/4, more at a larger nu); one step costs :func:`implicit_step_cost` explicit steps of the same grid (measured per
   node count, :data:`IMPLICIT_STEP_COST`), so it is cheaper when the explicit integrator needs
   more steps than that per frame (stiff materials, fine grids). It damps motion: the plan prints
   how much of the lowest mode (beam estimate ``w1 = 3.516 t / L^2 sqrt(E / (12 rho))``) survives
@@ -40,7 +40,8 @@ from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
 __all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "FRAME_DT",
-           "IMPLICIT_STEP_COST", "IMPLICIT_STATIC_ERROR", "Plan", "implicit_iterations", "implicit_step_cost",
+           "IMPLICIT_STEP_COST", "IMPLICIT_STATIC_ERROR", "Plan", "POISSON_CG_FACTOR", "implicit_iterations",
+           "implicit_step_cost", "poisson_iteration_factor",
            "fit", "make_plan", "lowest_mode_estimate", "plan_scene", "planned_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
@@ -77,6 +78,12 @@ IMPLICIT_STATIC_ERROR = 6.0e-4
 #: The largest grid ``bench trade --stiff`` measured implicit Euler on (a cube, 33 nodes along
 #: each side): the plan does not extrapolate the iteration counts and residue above beyond it.
 IMPLICIT_MEASURED_ALONG = 33
+#: CG iterations at Poisson's ratio nu over those at 1/4 (the cells' lambda - mu): the mean CG
+#: iterations per step to a relative residual of 1e-4 on a 9-across liver block in float64
+#: (``bench sim --poisson``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
+#: beam the static residue reached 6e-4 of the sag at 30 iterations at 1/4, 60 at 0.45 (30 left
+#: 0.59 %) and 150 at 0.49 (100 left 0.15 %): within these factors.
+POISSON_CG_FACTOR = {0.25: 1.0, 0.45: 42.4 / 17.3, 0.49: 90.3 / 17.3}
 
 
 def fit(load: str, finest: int = 4) -> tuple[float, float]:
@@ -186,19 +193,39 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     return _consider_implicit(plan) if implicit else plan
 
 
-def implicit_iterations(along: int) -> int:
+def implicit_iterations(along: int, poissons_ratio: float = 0.25) -> int:
     """CG iterations per step of the plan's implicit Euler (:data:`IMPLICIT_STATIC_ERROR`), by
     the nodes along the body's longest side: how far truncated CG must carry a correction (on a
     beam 6 across and 21 along, 10 iterations never settle: 7-66 % of the sag over 2 s; 30 reach
-    3e-4 of it within 80 steps)."""
-    return 10 if along <= 17 else 30
+    3e-4 of it within 80 steps), times :func:`poisson_iteration_factor` (the cells' volumetric
+    stiffness lambda - mu raises the system's condition number), rounded up to a multiple of 10."""
+    base = 10 if along <= 17 else 30
+    return int(math.ceil(base * poisson_iteration_factor(poissons_ratio) / 10.0 - 1e-9)) * 10
+
+
+def poisson_iteration_factor(poissons_ratio: float) -> float:
+    """How many times more CG iterations implicit Euler needs at ``poissons_ratio`` than at 1/4
+    (:data:`POISSON_CG_FACTOR`, interpolated linearly in log factor against log 1/(1 - 2 nu);
+    extrapolated above 0.49 along the last segment)."""
+    xs = [math.log(1.0 / (1.0 - 2.0 * nu)) for nu in POISSON_CG_FACTOR]
+    ys = [math.log(f) for f in POISSON_CG_FACTOR.values()]
+    x = math.log(1.0 / (1.0 - 2.0 * max(0.25, poissons_ratio)))
+    if x > xs[-1]:
+        return math.exp(ys[-1] + (x - xs[-1]) * (ys[-1] - ys[-2]) / (xs[-1] - xs[-2]))
+    return math.exp(float(np.interp(x, xs, ys)))
 
 
 def implicit_step_cost(iterations: int, nodes: int) -> float:
     """One implicit step in explicit steps of a grid of ``nodes`` (:data:`IMPLICIT_STEP_COST`,
-    interpolated in log nodes, clamped at the measured ends)."""
-    table = sorted(IMPLICIT_STEP_COST[iterations].items())
-    return float(np.interp(math.log(nodes), [math.log(n) for n, _ in table], [c for _, c in table]))
+    interpolated in log nodes, clamped at the measured ends; other iteration counts than the
+    measured 10 and 30 linearly in the iterations: each CG iteration runs the same passes)."""
+    def at(its: int) -> float:
+        table = sorted(IMPLICIT_STEP_COST[its].items())
+        return float(np.interp(math.log(nodes), [math.log(n) for n, _ in table], [c for _, c in table]))
+    if iterations in IMPLICIT_STEP_COST:
+        return at(iterations)
+    low, high = at(10), at(30)
+    return low + (iterations - 10) * (high - low) / 20.0
 
 
 def lowest_mode_estimate(size: tuple[float, float, float], material: ElasticMaterial) -> float:
@@ -233,7 +260,7 @@ def _consider_implicit(plan: Plan) -> Plan:
         return dataclasses.replace(plan, why_integrator=(
             f"implicit-euler not considered: its grid would have {along} nodes along the longest side, beyond "
             f"the {IMPLICIT_MEASURED_ALONG} that bench trade --stiff measured its CG iterations and residue on"))
-    its = implicit_iterations(along)
+    its = implicit_iterations(along, plan.material.poissons_ratio)
     nodes_i, nodes_e = _nodes(plan.size, h), _nodes(plan.size, plan.spacing)
     step = implicit_step_cost(its, nodes_i)         # in explicit steps of its grid
     steps = FRAME_DT / plan.dt                      # explicit steps per frame
