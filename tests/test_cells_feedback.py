@@ -94,7 +94,7 @@ def test_cells_that_are_not_the_grids_are_refused():
     assert cells is not None
     swapped = cells.corners.copy()
     swapped[3, [1, 2]] = swapped[3, [2, 1]]
-    with pytest.raises(ValueError, match="cell 3 .* is not a cell of the system's node grid"):
+    with pytest.raises(ValueError, match="cell 3 .* is not a unit cell of the system's node grid"):
         refused(dataclasses.replace(system, cells=dataclasses.replace(cells, corners=swapped)))
     twice = np.concatenate([cells.corners, cells.corners[:1]])
     with pytest.raises(ValueError, match="more than once"):

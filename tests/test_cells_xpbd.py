@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.integrators import Constraints, Drag, Load, Sphere, State
+from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import cloth, forces
 from deformgl.sim.volume import corner_jacobians, inverted_cells
 from deformgl.sim.xpbd import XpbdNumpy, XpbdSettings, XpbdSolver, cell_constraints, constraint_counts
+from test_xpbd import _everything  # loads, a drag, a ground and a sphere: every term of the sweep
 
 
 def _block(n=3, nu=0.45, e=1.0e4, size=0.1, gravity=(0.0, -9.81, 0.0), **material):
@@ -135,16 +136,6 @@ def test_an_inverted_block_recovers(nu):
     y = sim.positions()
     assert np.all(np.isfinite(y)) and not inverted_cells(cells.corners, system.spacing, y).any()
     assert y[:, 1].min() > -1e-9 and y[:, 1].max() > 0.08  # upright again
-
-
-def _everything(system):
-    """Loads, a drag, a ground and a sphere (every term of the node sweep), as tests/test_xpbd.py."""
-    top = system.rest_positions[:, 1] > 0.099
-    loads = (Load(top, lambda t: (0.01, -0.02 * (1 + t), 0.0)),)
-    far = int(np.argmax(system.rest_positions.sum(axis=1)))
-    drags = (Drag(far, lambda t: (0.12 + 0.1 * t, 0.11, 0.1), 50.0),)
-    constraints = Constraints(ground=0.0, spheres=(Sphere(lambda t: (0.05, 0.16 - 0.2 * t, 0.05), 0.03),))
-    return {"loads": loads, "drags": drags, "constraints": constraints}
 
 
 @pytest.mark.gl

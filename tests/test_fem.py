@@ -61,9 +61,10 @@ def test_patch_test_a_uniform_strain_gives_the_stress_of_the_elasticity_tensor(s
         assert sigma[0, 1] / (2 * eps[0, 1]) == pytest.approx(k / h, rel=1e-5)
 
 
-def uniaxial(n, h=0.01, p=1.0e4):
-    """A block on three symmetry planes (rollers) under a pressure on its top face: E and nu."""
-    grid, system = block(n, h)
+def uniaxial(n, h=0.01, p=1.0e4, material=MATERIAL):
+    """A block on three symmetry planes (rollers) under a pressure on its top face: E and nu
+    (tests/test_volume.py uses it at nu > 1/4)."""
+    grid, system = block(n, h, material)
     ijk = grid.ijk
     hold = np.zeros((system.count, 3), bool)
     for axis in range(3):

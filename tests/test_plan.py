@@ -80,12 +80,14 @@ def test_a_stiff_body_gets_implicit_euler_a_soft_one_explicit():
     assert 0.0 <= stiff.mode_left < 1e-6
     lines = "\n".join(stiff.lines())
     assert "integrator: implicit-euler at dt = 0.0167 s" in lines and "[physics.implicit] iterations = " in lines
+    assert "measured at nu = 1/4; at this body's nu = 0.49" in lines   # rubber: the tables' nu is said
     # (liver at the lattice's old nu = 1/4: the planner's implicit cost model, its CG iteration
     # counts, was measured at 1/4; at the preset's 0.45 the explicit limit is 1.8x smaller)
     soft = make_plan(block, dataclasses.replace(PRESETS["liver"], poissons_ratio=0.25), 0.002, "compression")
     assert soft.integrator in ("verlet", "semi-implicit") and FRAME_DT / soft.dt < implicit_step_cost(
         implicit_iterations(soft.across), soft.across ** 3)
     assert "x cheaper per simulated second" in soft.why_integrator
+    assert "measured at nu = 1/4" not in "\n".join(soft.lines())
     assert implicit_step_cost(10, 729) == 75.0 and implicit_step_cost(10, 10) == 204.0   # measured; clamped
     assert soft.why_integrator.startswith("implicit-euler rejected:") and "explicit is" in soft.why_integrator
 

@@ -10,12 +10,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from deformgl.bench.fem import face_weights, stiffness_matrix, static_displacement
+from deformgl.bench.fem import stiffness_matrix
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.springs import forces, max_angular_frequency
 from deformgl.sim.volume import (BARRIER_J, CellVolumes, corner_jacobians, describe_inverted, inverted_cells,
                                  rest_product, volume_energy, volume_forces)
+from test_fem import uniaxial  # a block on three symmetry planes under a top-face pressure: E and nu
 
 NUS = (0.25, 0.3, 0.45, 0.49)
 
@@ -72,19 +73,10 @@ def test_patch_test_a_uniform_strain_gives_the_stress_of_lambda_and_mu_at_any_nu
 def test_a_uniaxial_block_has_the_materials_youngs_modulus_and_poissons_ratio(nu):
     """A block on three symmetry planes under a top-face pressure: E and nu exactly (the
     affine field is the lattice's solution), through the rest stiffness of springs + cells."""
-    n, h, p = 4, 0.01, 1.0e3
-    grid, system = block((n, n, n), h, nu)
-    hold = np.stack([grid.ijk[:, a] == 0 for a in range(3)], axis=1)
-    f = np.zeros((system.count, 3))
-    top, area = face_weights(grid, 1, 1)
-    f[top, 1] = -p * area
-    u = static_displacement(system, f, hold)
-    size = (n - 1) * h
-    strain_y = (area * u[top, 1]).sum() / area.sum() / size
-    side, a2 = face_weights(grid, 0, 1)
-    strain_x = (a2 * u[side, 0]).sum() / a2.sum() / size
-    assert -p / strain_y == pytest.approx(system.material.youngs_modulus, rel=1e-9)
-    assert -strain_x / strain_y == pytest.approx(nu, rel=1e-9)
+    material = ElasticMaterial(1.0e4, 1000.0, poissons_ratio=nu)
+    youngs, poisson = uniaxial(4, 0.01, 1.0e3, material)
+    assert youngs == pytest.approx(material.youngs_modulus, rel=1e-9)
+    assert poisson == pytest.approx(nu, rel=1e-9)
 
 
 def test_the_rest_stiffness_is_the_jacobian_of_the_cell_forces():

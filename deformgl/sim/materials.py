@@ -14,7 +14,9 @@ uniform small strain eps. Summed over the infinite lattice per node volume h^3 (
     C11 = 3k/h,   C12 = C44 = k/h,
 
 which is isotropic (C11 - C12 = 2 C44) with Lamé constants lambda = mu = k/h: Poisson's ratio
-1/4 and Young's modulus E = 5k/(2h). So ``k = 2 E h / 5``. One cell alone reproduces the same
+1/4 and Young's modulus E = 5k/(2h). So ``k = mu h`` (``= 2 E h / 5`` at nu = 1/4; at a larger
+nu the springs carry the shear modulus mu = E / (2 (1 + nu)) and each full cell adds the missing
+``kappa = lambda - mu`` as a volumetric term, :mod:`deformgl.sim.volume`, ``system.cells``). One cell alone reproduces the same
 tensor when each of its edges carries k/4 and each face diagonal k/2 (an interior edge is shared
 by 4 cells, a diagonal by 2), so a body of full cells has exactly the continuum's energy under
 any uniform strain: the lattice passes the patch test, and its boundary springs get the right
@@ -202,7 +204,7 @@ class LatticeReport:
     cells: int
     thin_nodes: int
     thin_springs: int
-    spring_constant: float  # k = 2 E h / 5 (N/m) of an interior spring; the sheet's k_d
+    spring_constant: float  # k = mu h (N/m) of an interior spring (2 E h / 5 at nu = 1/4); the sheet's k_d
     node_mass: float        # rho h^3 (kg) of an interior node; the sheet's rho_A h^2
 
     def summary(self) -> str:
@@ -272,9 +274,11 @@ def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLik
                    wind_drag: float = 0.0) -> tuple[SpringSystem, LatticeReport]:
     """The calibrated spring system of a solid ``material`` on ``grid`` (world units: metres).
 
-    Edge and face-diagonal springs of the grid with ``k = 2 E h / 5`` times (full cells
-    containing the spring) / (4 for an edge, 2 for a diagonal); node masses ``rho h^3 / 8`` per
-    full cell at the node; Rayleigh damping from the material. See the module docstring.
+    Edge and face-diagonal springs of the grid with ``k = mu h`` (``2 E h / 5`` at nu = 1/4) times
+    (full cells containing the spring) / (4 for an edge, 2 for a diagonal); node masses
+    ``rho h^3 / 8`` per full cell at the node; Rayleigh damping from the material; the full cells'
+    volumetric term (``kappa = lambda - mu`` and the corner barrier) as ``system.cells``. See the
+    module docstring.
 
     Returns:
         The system and the :class:`LatticeReport`.

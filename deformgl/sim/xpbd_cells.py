@@ -34,7 +34,11 @@ the springs alone. A node's count is its springs and drags, its volume constrain
 interior node where kappa > 0) and its *active* barriers: the corner tets at the node whose
 multiplier is > 0 after the previous sweep (:meth:`CellConstraints.barrier_counts`; none at a
 substep's start). Counting every potential barrier (up to 32 per node) instead would slow every
-sweep about threefold for a term that acts only near inversion.
+sweep about threefold for a term that acts only near inversion. The price: a barrier that
+switches on during a sweep is counted only from the next one, so for that one sweep the bound
+above may not hold at its nodes (the sweep may overshoot there; the next is bounded again). The
+tests' inverted blocks recover (tests/test_cells_xpbd.py); the convergence claim holds for sweeps
+whose active set does not change.
 """
 
 from __future__ import annotations

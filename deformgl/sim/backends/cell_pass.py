@@ -33,8 +33,6 @@ What travels (the node layout of :class:`~deformgl.grid.nodes.CompactLayout`):
 
 from __future__ import annotations
 
-from itertools import product
-
 import moderngl
 import numpy as np
 
@@ -42,40 +40,26 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
+from deformgl.sim.backends.cell_tables import cell_uniforms, check_cells, incident_cells, neighbourhood
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.volume import CellVolumes
 
-__all__ = ["CELL_SHIFT", "DIAGONAL_SLOTS", "active_cells", "check_cells", "cell_flags", "cell_terms",
+__all__ = ["CELL_SHIFT", "DIAGONAL_SLOTS", "active_cells", "check_cells", "cell_flags", "cell_kind", "cell_terms",
            "term_uniforms", "diagonal_table", "NodeCellForces"]
 
 #: Bit of incident cell q in the node data's flag channel is ``1 << (CELL_SHIFT + q)``
 #: (``shaders/lib/node_flags.glsl``).
 CELL_SHIFT = 6
-#: (8, 3) offset of corner c = dx + 2 dy + 4 dz from the cell's corner 0.
-_CORNER_OFFSETS = np.array([(dx, dy, dz) for dz, dy, dx in product((0, 1), repeat=3)], np.int64)
 #: Neighbourhood slots of the body diagonals (2 qx - 1, 2 qy - 1, 2 qz - 1), in the order of q.
 DIAGONAL_SLOTS = (0, 2, 6, 8, 18, 20, 24, 26)
 
 
-def check_cells(grid: NodeGrid, cells: CellVolumes) -> None:
-    """The cells must be unit cells of ``grid`` (corner c of each at its corner 0 + (dx, dy, dz)),
-    each listed once: a node finds its cells by grid offsets.
-
-    Raises:
-        ValueError: a cell that is not a unit cell of the grid, or one listed twice.
-    """
-    if cells.count == 0:
-        return
-    if cells.corners.max() >= grid.count:
-        raise ValueError(f"cells: corner node numbers outside the grid's {grid.count} nodes")
-    ijk = grid.ijk.astype(np.int64)
-    corner0 = ijk[cells.corners[:, 0]]
-    if not np.array_equal(ijk[cells.corners], corner0[:, None, :] + _CORNER_OFFSETS[None, :, :]):
-        raise ValueError("cells: not unit cells of the grid (corner dx + 2 dy + 4 dz at corner 0 + (dx, dy, dz)); "
-                         "build them with volume.grid_cells on the system's grid")
-    if len(np.unique(cells.corners[:, 0])) != cells.count:
-        raise ValueError("cells: a cell is listed twice")
+def cell_kind(cells: CellVolumes | None) -> str:
+    """The ``cells`` argument of :class:`~deformgl.sim.backends.foundation.NodeTextures` for a
+    system's active cells: "none", "barrier" (the barrier alone) or "centre"."""
+    if cells is None:
+        return "none"
+    return "centre" if cells.volume_modulus > 0 else "barrier"
 
 
 def cell_flags(grid: NodeGrid, cells: CellVolumes | None) -> np.ndarray:

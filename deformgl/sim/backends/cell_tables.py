@@ -18,7 +18,34 @@ import numpy as np
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.volume import CellVolumes
 
-__all__ = ["neighbourhood", "incident_cells", "cell_uniforms"]
+__all__ = ["check_cells", "neighbourhood", "incident_cells", "cell_uniforms"]
+
+#: (8, 3) offset of corner c = dx + 2 dy + 4 dz from the cell's corner 0.
+_CORNER_OFFSETS = np.array([(dx, dy, dz) for dz, dy, dx in product((0, 1), repeat=3)], np.int64)
+
+
+def check_cells(grid: NodeGrid, cells: CellVolumes, who: str = "cells") -> None:
+    """The cells must be unit cells of ``grid`` (corner c of each at its corner 0 + (dx, dy, dz),
+    c = dx + 2 dy + 4 dz), each listed once: a node finds its cells by grid offsets.
+
+    Raises:
+        ValueError: (one line, starting with ``who``) a cell that is not a unit cell of the grid,
+            named with its corners, or one listed twice.
+    """
+    if cells.count == 0:
+        return
+    corners = np.asarray(cells.corners, np.int64)
+    if corners.min() < 0 or corners.max() >= grid.count:
+        raise ValueError(f"{who}: corner node numbers outside the grid's {grid.count} nodes")
+    ijk = grid.ijk.astype(np.int64)
+    wrong = np.any(ijk[corners] != ijk[corners[:, :1]] + _CORNER_OFFSETS[None, :, :], axis=2)
+    if wrong.any():
+        bad = int(np.argmax(wrong.any(axis=1)))
+        raise ValueError(f"{who}: cell {bad} (corners {corners[bad].tolist()}) is not a unit cell of the system's "
+                         f"node grid (corner {int(np.argmax(wrong[bad]))} is not at corner 0 + (dx, dy, dz), "
+                         f"c = dx + 2 dy + 4 dz); build them with volume.grid_cells on the system's grid")
+    if len(np.unique(corners[:, 0])) != cells.count:
+        raise ValueError(f"{who}: a grid cell is listed more than once")
 
 
 def neighbourhood(grid: NodeGrid) -> np.ndarray:

@@ -10,17 +10,15 @@ slot m of :func:`deformgl.sim.backends.cell_tables.neighbourhood`) and, last (te
 bit mask of its full incident cells (:func:`deformgl.sim.backends.cell_tables.incident_cells`).
 
 Only grid bodies have cells; the tables assume the system's cells are cells of its node grid, as
-:func:`deformgl.sim.materials.lattice_system` builds them, and :func:`check_cells` refuses any
+:func:`deformgl.sim.materials.lattice_system` builds them, and :func:`check_system_cells` refuses any
 other.
 """
 
 from __future__ import annotations
 
-from itertools import product
-
 import numpy as np
 
-from deformgl.sim.backends.cell_tables import incident_cells, neighbourhood
+from deformgl.sim.backends.cell_tables import check_cells, incident_cells, neighbourhood
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["CELL_SLOTS", "has_cells", "cell_node_row_limit", "cell_image"]
@@ -33,36 +31,23 @@ _MASK = 4 * CELL_SLOTS - 1
 
 def has_cells(system: SpringSystem) -> bool:
     """Whether the system carries a volumetric term to gather (cells set, at least one full
-    cell), after :func:`check_cells`; ``cells`` set on a system without a node grid is an error."""
+    cell), after :func:`check_system_cells`; ``cells`` set on a system without a node grid is an error."""
     if system.cells is None:
         return False
-    check_cells(system)
+    check_system_cells(system)
     return system.cells.count > 0
 
 
-def check_cells(system: SpringSystem) -> None:
-    """Raise ValueError (one line) unless ``system.cells`` are distinct cells of ``system.grid``."""
+def check_system_cells(system: SpringSystem) -> None:
+    """Raise ValueError (one line) unless ``system.cells`` are distinct cells of ``system.grid``
+    (:func:`~deformgl.sim.backends.cell_tables.check_cells`)."""
     cells, grid = system.cells, system.grid
     if cells is None:
         return
     if grid is None:
         raise ValueError("FeedbackSimulation: the system has cells (a volumetric term) but no node "
                          "grid; only grid bodies (lattice_system) can carry cells")
-    if cells.count == 0:
-        return
-    corners = cells.corners
-    table = neighbourhood(grid)
-    lower = corners[:, 0]
-    for c, (dz, dy, dx) in enumerate(product((0, 1), repeat=3)):
-        if c == 0:
-            continue
-        found = table[lower, 13 + dx + 3 * dy + 9 * dz]
-        if np.any(found != corners[:, c]) or np.any(corners[:, c] == lower):
-            bad = int(np.argmax((found != corners[:, c]) | (corners[:, c] == lower)))
-            raise ValueError(f"FeedbackSimulation: cell {bad} (corners {corners[bad].tolist()}) is not "
-                             f"a cell of the system's node grid (corner {c})")
-    if np.unique(lower).size != cells.count:
-        raise ValueError("FeedbackSimulation: the system's cells list a grid cell more than once")
+    check_cells(grid, cells, "FeedbackSimulation")
 
 
 def cell_node_row_limit(limit: int) -> int:

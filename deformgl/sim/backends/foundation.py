@@ -38,7 +38,8 @@ from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
-from deformgl.sim.backends.cell_pass import active_cells, cell_flags, cell_terms, diagonal_table, term_uniforms
+from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind, cell_terms, diagonal_table,
+                                             term_uniforms)
 from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.grid_springs import spring_weights
 from deformgl.sim.base import SimulationBase
@@ -135,13 +136,6 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
                        weights=weights, cells=active_cells(system.cells))
-
-
-def _cell_kind(cells: CellVolumes | None) -> str:
-    """The ``cells`` argument of :class:`NodeTextures` for a system's cells."""
-    if cells is None:
-        return "none"
-    return "centre" if cells.volume_modulus > 0 else "barrier"
 
 
 def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
@@ -430,7 +424,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         with self.building():
             self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
                                                   positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                  weight_texture=weight_texture, cells=_cell_kind(terms.cells)))
+                                                  weight_texture=weight_texture, cells=cell_kind(terms.cells)))
             self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))
