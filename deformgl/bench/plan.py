@@ -7,7 +7,8 @@ relative error of the body's deflection is below the tolerance, and say why:
 * discretisation: ``e_d = C (h / t)^p`` with ``t`` the body's thickness (the smallest side of
   its bounding box, in m) and (C, p) fitted by least squares to the measured lattice-vs-FEM errors
   of the workload that deforms like the body (:data:`MEASURED`: bending, the cantilever;
-  compression, the block; torsion, the twisted bar). The grid gets the fewest nodes across the
+  compression, the block; torsion, the twisted bar), at the body's Poisson's ratio
+  (:func:`measured_errors`, :data:`MEASURED_NU`: compression's error grows with nu). The grid gets the fewest nodes across the
   thickness with ``e_d <= tolerance - e_t - e_32``;
 * time stepping: Verlet (the cheapest step of the resolution study) at dt = 0.9 x
   :func:`~deformgl.sim.materials.critical_dt` when its measured time-stepping error
@@ -39,7 +40,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
-__all__ = ["MEASURED", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "FRAME_DT",
+__all__ = ["MEASURED", "MEASURED_NU", "measured_errors", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "FRAME_DT",
            "IMPLICIT_STEP_COST", "IMPLICIT_STATIC_ERROR", "Plan", "POISSON_CG_FACTOR", "implicit_iterations",
            "implicit_step_cost", "poisson_iteration_factor",
            "fit", "make_plan", "lowest_mode_estimate", "plan_scene", "planned_scene", "add_parser", "run"]
@@ -52,6 +53,22 @@ MEASURED: dict[str, dict[int, float]] = {
     "torsion": {2: 0.719, 3: 0.439, 5: 0.185, 9: 0.0576, 17: 0.0155},
 }
 LOADS = tuple(MEASURED)
+#: The same at the body's Poisson's ratio (the lattice with its cells' volumetric term), at 5, 9
+#: and 17 nodes across (2-core Intel Xeon, 2026-12-05): compression and torsion against
+#: ``bench accuracy``'s displacement FEM at that nu (Richardson-extrapolated; its own estimated
+#: error on the block grows to 0.4 % at 0.45 and 0.9 % at 0.49, the locking of displacement
+#: elements; ``python -m deformgl.bench.tissue_accuracy``, table 4), bending against the
+#: locking-free mixed FEM (the same command's table 1, ``--across 5,9,17``; docs/ACCURACY.md
+#: sections 3 and 5). Torsion is shear and does not move with nu; compression
+#: does: 3.7x the 1/4 error at 0.45 and 4.6x at 0.49 (9 across).
+MEASURED_NU: dict[float, dict[str, dict[int, float]]] = {
+    0.3: {"bending": {5: 0.0549, 9: 0.0154, 17: 0.0043}, "compression": {5: 0.0145, 9: 0.0057, 17: 0.0022},
+          "torsion": {5: 0.1847, 9: 0.0575, 17: 0.0155}},
+    0.45: {"bending": {5: 0.0487, 9: 0.0151, 17: 0.0047}, "compression": {5: 0.0362, 9: 0.0141, 17: 0.0052},
+           "torsion": {5: 0.1841, 9: 0.0571, 17: 0.0152}},
+    0.49: {"bending": {5: 0.0496, 9: 0.0159, 17: 0.0052}, "compression": {5: 0.0446, 9: 0.0175, 17: 0.0064},
+           "torsion": {5: 0.1836, 9: 0.0566, 17: 0.0147}},
+}
 MAX_FRACTION = 0.9
 #: Time-stepping error of the tip per unit dt / critical dt (``bench trade --resolution``, first
 #: order): Verlet 3.3e-4 at 0.9, semi-implicit Euler 8.6e-4 at 0.9 (2 across, the largest).
@@ -86,10 +103,26 @@ IMPLICIT_MEASURED_ALONG = 33
 POISSON_CG_FACTOR = {0.25: 1.0, 0.45: 42.4 / 17.3, 0.49: 90.3 / 17.3}
 
 
-def fit(load: str, finest: int = 4) -> tuple[float, float]:
+def measured_errors(load: str, poissons_ratio: float = 0.25) -> dict[int, float]:
+    """The lattice's measured errors of ``load`` by nodes across at ``poissons_ratio``: at 1/4
+    :data:`MEASURED`; above, at the resolutions of :data:`MEASURED_NU`, log e interpolated
+    linearly in log 1/(1 - 2 nu) between the measured ratios (1/4 included), held at the 0.49
+    table above 0.49 (the largest measured)."""
+    if poissons_ratio <= 0.25:
+        return dict(MEASURED[load])
+    tables = {0.25: MEASURED, **MEASURED_NU}
+    nus = sorted(tables)
+    xs = [math.log(1.0 / (1.0 - 2.0 * nu)) for nu in nus]
+    x = min(math.log(1.0 / (1.0 - 2.0 * poissons_ratio)), xs[-1])
+    return {n: math.exp(float(np.interp(x, xs, [math.log(tables[nu][load][n]) for nu in nus])))
+            for n in MEASURED_NU[nus[-1]][load]}
+
+
+def fit(load: str, finest: int = 4, poissons_ratio: float = 0.25) -> tuple[float, float]:
     """(C, p) of ``e_d = C (h / t)^p``: least squares of log e against log(h/t) over the
-    ``finest`` finest measured resolutions of ``load``."""
-    pts = sorted(MEASURED[load].items())[-finest:]
+    ``finest`` finest measured resolutions of ``load`` at ``poissons_ratio``
+    (:func:`measured_errors`)."""
+    pts = sorted(measured_errors(load, poissons_ratio).items())[-finest:]
     x = np.log([1.0 / (n - 1) for n, _ in pts])
     y = np.log([e for _, e in pts])
     p, logc = np.polyfit(x, y, 1)
@@ -146,10 +179,10 @@ class Plan:
              f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (36 mu + 12 kappa))): predicted time-stepping "
              f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}"),
             *([f"why: {self.why_integrator}"] if self.why_integrator else []),
-            *([f"note: the discretisation errors were measured at nu = 1/4; at this body's nu = "
-               f"{m.poissons_ratio:g} the bending check (python -m deformgl.bench.tissue_accuracy) measures "
-               f"about the same (1.5-1.6 % at 9 across, nu 0.30-0.49, against 1.64 %); compression and "
-               f"torsion were not measured again"] if m.poissons_ratio > 0.25 else []),
+            *([f"note: the discretisation errors are those measured at this body's nu = {m.poissons_ratio:g} "
+               f"(interpolated between the lattice's measurements at nu 0.25, 0.3, 0.45 and 0.49"
+               f"{', held at 0.49' if m.poissons_ratio > 0.49 else ''}; compression grows with nu)"]
+              if m.poissons_ratio > 0.25 else []),
             f"predicted total error {self.error:.2%} <= {self.tolerance:.2%}",
             "scene keys: [grid] spacing = " f"{self.spacing:.6g} (or nodes_along_longest = "
             f"{self.nodes_along_longest}); [physics] integrator = \"{self.integrator}\", dt = {self.dt:.6g}"
@@ -181,7 +214,7 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
         fraction = min(MAX_FRACTION, 0.1 * tolerance / TIME_STEP_ERROR[integrator])
     e_t, e_32 = TIME_STEP_ERROR[integrator] * fraction, FLOAT32_ERROR[integrator]
     budget = tolerance - e_t - e_32
-    c, p = fit(load)
+    c, p = fit(load, poissons_ratio=material.poissons_ratio)
     if budget <= 0:
         raise InputError(f"--tolerance {tolerance}: below the float32 error {e_32:g}")
     cells = max(1, math.ceil((c / budget) ** (1.0 / p)))  # cells across: e_d(1/cells) <= budget

@@ -32,6 +32,7 @@ import dataclasses
 import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +45,7 @@ from deformgl.sim.implicit import assemble
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import SpringSystem, forces
 
-__all__ = ["CANTILEVER_FEM", "COLUMN_FEM", "ELASTICA", "NEO_HOOKEAN_FEM", "cantilever_sag_ratio",
+__all__ = ["CANTILEVER_FEM", "COLUMN_FEM", "ELASTICA", "NEO_HOOKEAN_FEM", "cantilever_sag_ratio", "workload_errors",
            "column_ratio", "static_equilibrium", "large_deflection_tip", "main"]
 
 G = 9.81
@@ -207,15 +208,28 @@ def tip_row(across: int, youngs_modulus: float, nu: float, *, cells: bool = True
     return TipRow(youngs_modulus, nu, cells, across, tip, name, error, time.perf_counter() - start)
 
 
+def workload_errors(name: str, nu: float, across: Sequence[int]) -> tuple[float, dict[int, float]]:
+    """``bench accuracy``'s workload ``name`` ("block" or "twist") at Poisson's ratio ``nu``: the
+    displacement FEM's estimated relative error, and the lattice's |lattice / FEM - 1| (springs and
+    cells at ``nu``) at each of ``across`` (:data:`deformgl.bench.plan.MEASURED_NU` holds them at 5,
+    9 and 17). Needs the 'fem' extra."""
+    from deformgl.bench.accuracy import FEM_MESHES
+    from deformgl.bench.fem import fem_reference
+
+    w = WORKLOADS[name]
+    value, estimate, _ = fem_reference(w, FEM_MESHES[name], nu=nu)
+    return estimate, {n: abs(lattice_value(lattice_case(w, n, _material(nu))) / value - 1.0) for n in across}
+
+
 def _errors(tip: tuple[float, float], ref: tuple[float, float]) -> str:
     return f"u_x {100 * (tip[0] / ref[0] - 1.0):+.2f} %, u_y {100 * (tip[1] / ref[1] - 1.0):+.2f} %"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the three tables."""
+    """Print the four tables."""
     parser = argparse.ArgumentParser(prog="python -m deformgl.bench.tissue_accuracy",
                                      description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="9 nodes across only")
+    parser.add_argument("--quick", action="store_true", help="9 nodes across only (5 too in table 4)")
     parser.add_argument("--across", default=None, help="nodes across, comma separated (default 9,17; table 3 "
                         "at those up to 9 only)")
     args = parser.parse_args(argv)
@@ -245,6 +259,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  E={e:>8.0f} nu={nu:<4} {'cells' if cells else 'springs':<7} {n:>2} across: "
                   f"({r.tip[0]:+.6f}, {r.tip[1]:+.6f}); elastica {_errors(r.tip, ELASTICA[e])}; "
                   f"neo-Hookean FEM {_errors(r.tip, NEO_HOOKEAN_FEM[(e, nu)])}  [{r.seconds:.1f} s]", flush=True)
+    print("\n4. bench accuracy's block (compression) and bar (torsion) at the body's nu: |lattice / FEM - 1| "
+          "(displacement Q2 FEM at that nu, Richardson-extrapolated; the plan's MEASURED_NU)")
+    for name in ("block", "twist"):
+        for nu in (0.3, 0.45, 0.49):
+            estimate, errors = workload_errors(name, nu, [5, *across])
+            cols = "  ".join(f"{n} across {e:.4f}" for n, e in errors.items())
+            print(f"  {name:>5} nu={nu:<4} FEM est. error {estimate:.1e} | {cols}", flush=True)
     return 0
 
 
