@@ -53,21 +53,24 @@ MEASURED: dict[str, dict[int, float]] = {
     "torsion": {2: 0.719, 3: 0.439, 5: 0.185, 9: 0.0576, 17: 0.0155},
 }
 LOADS = tuple(MEASURED)
-#: The same at the body's Poisson's ratio (the lattice with its cells' volumetric term), at 5, 9
-#: and 17 nodes across (2-core Intel Xeon, 2026-12-05): compression and torsion against
+#: The same at the body's Poisson's ratio (the lattice with its cells' volumetric term), at 3, 5,
+#: 9 and 17 nodes across (the finest four, as :func:`fit` takes at 1/4) (2-core Intel Xeon, 2026-12-05): compression and torsion against
 #: ``bench accuracy``'s displacement FEM at that nu (Richardson-extrapolated; its own estimated
 #: error on the block grows to 0.4 % at 0.45 and 0.9 % at 0.49, the locking of displacement
 #: elements; ``python -m deformgl.bench.tissue_accuracy``, table 4), bending against the
-#: locking-free mixed FEM (the same command's table 1, ``--across 5,9,17``; docs/ACCURACY.md
+#: locking-free mixed FEM (the same command's table 1, ``--across 3,5,9,17``; docs/ACCURACY.md
 #: sections 3 and 5). Torsion is shear and does not move with nu; compression
 #: does: 3.7x the 1/4 error at 0.45 and 4.6x at 0.49 (9 across).
 MEASURED_NU: dict[float, dict[str, dict[int, float]]] = {
-    0.3: {"bending": {5: 0.0549, 9: 0.0154, 17: 0.0043}, "compression": {5: 0.0145, 9: 0.0057, 17: 0.0022},
-          "torsion": {5: 0.1847, 9: 0.0575, 17: 0.0155}},
-    0.45: {"bending": {5: 0.0487, 9: 0.0151, 17: 0.0047}, "compression": {5: 0.0362, 9: 0.0141, 17: 0.0052},
-           "torsion": {5: 0.1841, 9: 0.0571, 17: 0.0152}},
-    0.49: {"bending": {5: 0.0496, 9: 0.0159, 17: 0.0052}, "compression": {5: 0.0446, 9: 0.0175, 17: 0.0064},
-           "torsion": {5: 0.1836, 9: 0.0566, 17: 0.0147}},
+    0.3: {"bending": {3: 0.1774, 5: 0.0549, 9: 0.0154, 17: 0.0043},
+          "compression": {3: 0.0366, 5: 0.0145, 9: 0.0057, 17: 0.0022},
+          "torsion": {3: 0.4385, 5: 0.1847, 9: 0.0575, 17: 0.0155}},
+    0.45: {"bending": {3: 0.1490, 5: 0.0487, 9: 0.0151, 17: 0.0047},
+           "compression": {3: 0.0907, 5: 0.0362, 9: 0.0141, 17: 0.0052},
+           "torsion": {3: 0.4379, 5: 0.1841, 9: 0.0571, 17: 0.0152}},
+    0.49: {"bending": {3: 0.1480, 5: 0.0496, 9: 0.0159, 17: 0.0052},
+           "compression": {3: 0.1114, 5: 0.0446, 9: 0.0175, 17: 0.0064},
+           "torsion": {3: 0.4375, 5: 0.1836, 9: 0.0566, 17: 0.0147}},
 }
 MAX_FRACTION = 0.9
 #: Time-stepping error of the tip per unit dt / critical dt (``bench trade --resolution``, first
@@ -99,7 +102,7 @@ IMPLICIT_MEASURED_ALONG = 33
 #: iterations per step to a relative residual of 1e-4 on a 9-across liver block in float64
 #: (``bench sim --poisson``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
 #: beam the static residue reached 6e-4 of the sag at 30 iterations at 1/4, 60 at 0.45 (30 left
-#: 0.59 %) and 150 at 0.49 (100 left 0.15 %): within these factors.
+#: 0.59 %) and 150 at 0.49 (100 left 0.15 %): within these factors (74 and 157).
 POISSON_CG_FACTOR = {0.25: 1.0, 0.45: 42.4 / 17.3, 0.49: 90.3 / 17.3}
 
 
@@ -230,14 +233,18 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     return _consider_implicit(plan) if implicit else plan
 
 
-def implicit_iterations(along: int, poissons_ratio: float = 0.25) -> int:
+def implicit_iterations(along: int, poissons_ratio: float = 0.25, across: int | None = None) -> int:
     """CG iterations per step of the plan's implicit Euler (:data:`IMPLICIT_STATIC_ERROR`), by
-    the nodes along the body's longest side: how far truncated CG must carry a correction (on a
-    beam 6 across and 21 along, 10 iterations never settle: 7-66 % of the sag over 2 s; 30 reach
-    3e-4 of it within 80 steps), times :func:`poisson_iteration_factor` (the cells' volumetric
-    stiffness lambda - mu raises the system's condition number), rounded up to a multiple of 10."""
-    base = 10 if along <= 17 else 30
-    return int(math.ceil(base * poisson_iteration_factor(poissons_ratio) / 10.0 - 1e-9)) * 10
+    the nodes along the body's longest side and across its thickness (``None``: as many as
+    along): how far truncated CG must carry a correction, times :func:`poisson_iteration_factor`
+    (the cells' volumetric stiffness lambda - mu raises the system's condition number), rounded
+    up. 10 for compact bodies up to 17 along (cubes to 17: 2.1e-4 of the sag left), else 30:
+    measured on beams, 10 iterations never settle 6 x 21 nodes (7-66 % of the sag over 2 s) and
+    leave 1.0e-3 of it on 9 x 17 (rubber at 1/4, 1 s at 1/60 s), 30 leave 2e-8 there and 1.2e-5
+    on 12 x 23. So 10 only where ``along <= 17`` and ``along <= 1.5 across``."""
+    compact = along <= 17 and (across is None or along <= 1.5 * across)
+    base = 10 if compact else 30
+    return int(math.ceil(base * poisson_iteration_factor(poissons_ratio) - 1e-9))
 
 
 def poisson_iteration_factor(poissons_ratio: float) -> float:
@@ -297,9 +304,11 @@ def _consider_implicit(plan: Plan) -> Plan:
         return dataclasses.replace(plan, why_integrator=(
             f"implicit-euler not considered: its grid would have {along} nodes along the longest side, beyond "
             f"the {IMPLICIT_MEASURED_ALONG} that bench trade --stiff measured its CG iterations and residue on"))
-    its = implicit_iterations(along, plan.material.poissons_ratio)
+    its = implicit_iterations(along, plan.material.poissons_ratio, cells + 1)
     nodes_i, nodes_e = _nodes(plan.size, h), _nodes(plan.size, plan.spacing)
     step = implicit_step_cost(its, nodes_i)         # in explicit steps of its grid
+    source = ("bench trade --stiff" if its in IMPLICIT_STEP_COST else
+              "bench trade --stiff at 10 and 30, linear in the iterations")
     steps = FRAME_DT / plan.dt                      # explicit steps per frame
     # explicit cost / implicit cost per simulated second (cost per step ~ nodes)
     ratio = steps * nodes_e / (step * nodes_i)
@@ -307,7 +316,7 @@ def _consider_implicit(plan: Plan) -> Plan:
             f"a grid of {cells + 1} across for its budget ({nodes_i} nodes against {nodes_e})")
     if ratio > 1.0:
         why = (f"{plan.integrator} would need {steps:.0f} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
-               f"step ({its} CG iterations) costs about {step:.0f} explicit steps (bench trade --stiff), on "
+               f"step ({its} CG iterations) costs about {step:.0f} explicit steps ({source}), on "
                f"{grid}: implicit-euler is {ratio:.3g}x cheaper per simulated second; it damps motion: the "
                f"lowest mode (w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics "
                f"use {plan.integrator})")
@@ -316,7 +325,7 @@ def _consider_implicit(plan: Plan) -> Plan:
                                    discretisation=c * (1.0 / cells) ** p, time_stepping=0.0,
                                    float32=IMPLICIT_STATIC_ERROR, iterations=its, why_integrator=why, mode_left=left)
     why = (f"implicit-euler rejected: {plan.integrator} needs {steps:.3g} steps per 1/60 s frame and one implicit "
-           f"step ({its} CG iterations) costs about {step:.0f} explicit steps, on {grid}: explicit is "
+           f"step ({its} CG iterations) costs about {step:.0f} explicit steps ({source}), on {grid}: explicit is "
            f"{1 / ratio:.3g}x cheaper per simulated second (and keeps the motion that implicit Euler damps to "
            f"{left:.2g} per second)")
     return dataclasses.replace(plan, why_integrator=why)
