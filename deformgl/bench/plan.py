@@ -114,11 +114,22 @@ def measured_errors(load: str, poissons_ratio: float = 0.25) -> dict[int, float]
     if poissons_ratio <= 0.25:
         return dict(MEASURED[load])
     tables = {0.25: MEASURED, **MEASURED_NU}
-    nus = sorted(tables)
-    xs = [math.log(1.0 / (1.0 - 2.0 * nu)) for nu in nus]
-    x = min(math.log(1.0 / (1.0 - 2.0 * poissons_ratio)), xs[-1])
-    return {n: math.exp(float(np.interp(x, xs, [math.log(tables[nu][load][n]) for nu in nus])))
-            for n in MEASURED_NU[nus[-1]][load]}
+    return {n: _in_nu({nu: t[load][n] for nu, t in tables.items()}, poissons_ratio, extrapolate=False)
+            for n in MEASURED_NU[max(MEASURED_NU)][load]}
+
+
+def _in_nu(values: dict[float, float], poissons_ratio: float, *, extrapolate: bool) -> float:
+    """``values`` (measured at some Poisson's ratios, 1/4 the smallest) at ``poissons_ratio``: log
+    value linear in log 1/(1 - 2 nu) between them; above the largest, along the last segment
+    (``extrapolate``) or held."""
+    def axis(nu: float) -> float:
+        return math.log(1.0 / (1.0 - 2.0 * nu))
+    nus = sorted(values)
+    xs, ys = [axis(nu) for nu in nus], [math.log(values[nu]) for nu in nus]
+    x = axis(max(nus[0], poissons_ratio))
+    if x > xs[-1] and extrapolate:
+        return math.exp(ys[-1] + (x - xs[-1]) * (ys[-1] - ys[-2]) / (xs[-1] - xs[-2]))
+    return math.exp(float(np.interp(x, xs, ys)))
 
 
 def fit(load: str, finest: int = 4, poissons_ratio: float = 0.25) -> tuple[float, float]:
@@ -251,12 +262,7 @@ def poisson_iteration_factor(poissons_ratio: float) -> float:
     """How many times more CG iterations implicit Euler needs at ``poissons_ratio`` than at 1/4
     (:data:`POISSON_CG_FACTOR`, interpolated linearly in log factor against log 1/(1 - 2 nu);
     extrapolated above 0.49 along the last segment)."""
-    xs = [math.log(1.0 / (1.0 - 2.0 * nu)) for nu in POISSON_CG_FACTOR]
-    ys = [math.log(f) for f in POISSON_CG_FACTOR.values()]
-    x = math.log(1.0 / (1.0 - 2.0 * max(0.25, poissons_ratio)))
-    if x > xs[-1]:
-        return math.exp(ys[-1] + (x - xs[-1]) * (ys[-1] - ys[-2]) / (xs[-1] - xs[-2]))
-    return math.exp(float(np.interp(x, xs, ys)))
+    return _in_nu(POISSON_CG_FACTOR, poissons_ratio, extrapolate=True)
 
 
 def implicit_step_cost(iterations: int, nodes: int) -> float:
@@ -266,10 +272,8 @@ def implicit_step_cost(iterations: int, nodes: int) -> float:
     def at(its: int) -> float:
         table = sorted(IMPLICIT_STEP_COST[its].items())
         return float(np.interp(math.log(nodes), [math.log(n) for n, _ in table], [c for _, c in table]))
-    if iterations in IMPLICIT_STEP_COST:
-        return at(iterations)
-    low, high = at(10), at(30)
-    return low + (iterations - 10) * (high - low) / 20.0
+    low = at(10)
+    return low + (iterations - 10) * (at(30) - low) / 20.0
 
 
 def lowest_mode_estimate(size: tuple[float, float, float], material: ElasticMaterial) -> float:

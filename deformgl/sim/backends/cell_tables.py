@@ -16,12 +16,12 @@ from itertools import product
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.volume import CellVolumes
+from deformgl.sim.volume import CORNER_SIGNS, CellVolumes
 
 __all__ = ["check_cells", "neighbourhood", "incident_cells", "cell_uniforms"]
 
-#: (8, 3) offset of corner c = dx + 2 dy + 4 dz from the cell's corner 0.
-_CORNER_OFFSETS = np.array([(dx, dy, dz) for dz, dy, dx in product((0, 1), repeat=3)], np.int64)
+#: (8, 3) offset of corner c = dx + 2 dy + 4 dz from the cell's corner 0 (the volume's corner signs).
+_CORNER_OFFSETS = ((CORNER_SIGNS + 1.0) / 2.0).astype(np.int64)
 
 
 def check_cells(grid: NodeGrid, cells: CellVolumes, who: str = "cells") -> None:
