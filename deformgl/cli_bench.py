@@ -75,6 +75,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="trade: Poisson's ratio as a workload axis: also a 6x6x6 liver block (E = 4 kPa) at each of "
                         "these ratios (0.25 to 0.499), e.g. 0.25,0.45; sim: instead of its tables, the cost per "
                         "step of the cells' volumetric term at these ratios against nu = 1/4 on the fragment backend")
+    b.add_argument("--bending", action="store_true",
+                   help="sim: instead of its tables, the cost per step of a cloth's bending stiffness (the plate "
+                        "term) against flexion springs and a membrane on the fragment backend")
     b.add_argument("--quick", action="store_true",
                    help="trade, scaling: a smaller, faster study; binding: one timing per case instead of three")
     b.add_argument("--workers", type=int, default=0,
@@ -212,6 +215,13 @@ def run(args: argparse.Namespace) -> int:
         if args.what in ("sim", "integrators"):
             from deformgl.bench.studies import bench_integrators, format_integrators
 
+            if args.what == "sim" and args.bending:
+                if args.poisson:
+                    raise InputError("bench sim: --bending and --poisson print two different tables; give one")
+                from deformgl.bench.bending_cost import bench_bending, format_bending
+
+                print(format_bending(bench_bending(ctx, steps=args.steps), machine_line(ctx)))
+                return 0
             if args.what == "sim" and args.poisson:
                 from deformgl.bench.cells_cost import bench_poisson, cg_iterations, format_cg, format_poisson
 

@@ -136,10 +136,13 @@ def fragment_backend() -> Iterator[Variant]:
     """``FragmentIntegrator``: each integrator's stages (``_build``)."""
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for (layers, count), dense, weights, forces, cells in itertools.product(
-                ((5, 18), (6, 24)), (False, True), (False, True), list(_forces()), CELL_SWITCHES):
+        for (layers, count), dense, weights, forces, cells, bending in itertools.product(
+                ((5, 18), (6, 24)), (False, True), (False, True), list(_forces()), CELL_SWITCHES, (False, True)):
+            if bending and (count != 24 or cells):  # a sheet's bending: flexion neighbours, no cells
+                continue
             common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "DENSE": dense,
-                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces, **cells}
+                                         "SPRING_WEIGHTS": weights, "BENDING": bending, "SPHERES": 0,
+                                         **forces, **cells}
             if sp.velocity:
                 common["VELOCITY"] = True
             for stage in sp.stages:
@@ -265,9 +268,12 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import CELL_PASSES, PASSES, PRECONDITIONED_PASSES
+    from deformgl.sim.backends.implicit_gpu import BENDING_PASSES, CELL_PASSES, PASSES, PRECONDITIONED_PASSES
 
-    for (layers, count), weights, forces in itertools.product(((5, 18), (6, 24)), (False, True), list(_forces())):
+    for (layers, count), weights, forces, bending in itertools.product(((5, 18), (6, 24)), (False, True),
+                                                                        list(_forces()), (False, True)):
+        if bending and count != 24:  # a sheet's bending reads the flexion neighbours
+            continue
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
@@ -275,13 +281,17 @@ def implicit() -> Iterator[Variant]:
             if name in ("WARM", "INIT", "MATVEC") and forces["LOADS"]:
                 continue
             defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC") else nb
+            if bending and name in BENDING_PASSES:
+                defines = {**defines, "BENDING": True}
+            elif bending:
+                continue  # (the passes without BENDING are the variants above)
             # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner, the
             # scaled warm start (WARM_SCALED) in INIT
             blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
             warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
             # the cells' terms (pass_defines' cells): none, or a (centre, barrier) pair
             cells: list[dict[str, object]] = [{}]
-            if name in CELL_PASSES:
+            if name in CELL_PASSES and not bending:  # (a sheet has no cells)
                 cells += [{"IMPLICIT_CELLS": True, "CELL_CENTRE": centre, "CELL_BARRIER": barrier}
                           for centre, barrier in CELL_TERMS]
             for c, block, scaled, cell in itertools.product(_constraints() if name == "FINAL" else [{}], blocks,

@@ -178,7 +178,7 @@ def estimate(scene: Any) -> Budget:
     physics = scene.physics
     material = getattr(physics, "material", None)
     flexion = (physics.flexion.stiffness > 0 if material is None
-               else bool(getattr(material, "flexion_ratio", 0.0)))
+               else bool(getattr(material, "flexion_ratio", 0.0) or getattr(material, "bending_stiffness", 0.0)))
     if scene.cloth is not None:
         nx, nz = scene.cloth.nodes
         shape = (int(nx), 1, int(nz))
@@ -228,6 +228,8 @@ def estimate(scene: Any) -> Budget:
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
         weights = (6 if flexion else 5) if material is not None else 0  # the spring-weight layers
+        if getattr(material, "bending_stiffness", 0.0):
+            weights += 6  # the bending coefficients (deformgl.sim.bending), one per neighbour
         if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
             layers, weights = 2 * (6 if flexion else 5), 0
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights

@@ -20,6 +20,7 @@ _MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
     "stretch_modulus": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e10), unit="N/m"), None),
     "areal_density": (_num(lo=0.0, lo_open=True, sane=(1e-6, 1e4), unit="kg/m^2"), None),
     "flexion_ratio": (_num(lo=0.0, hi=0.5), None),
+    "bending_stiffness": (_num(lo=0.0, lo_open=True, sane=(1e-12, 1e6), unit="N*m"), None),
     "poissons_ratio": (_num(), None),  # the range and why: _build_body_material
     "mass_damping": (_num(lo=0.0, sane=(0.0, 1e6), unit="1/s"), 0.0),
     "stiffness_damping": (_num(lo=0.0, sane=(0.0, 1e3), unit="s"), 0.0),
@@ -28,8 +29,8 @@ _MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
 
 def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMaterial | SheetMaterial:
     """``[material]``: a solid (a preset and/or youngs_modulus + density) or a sheet
-    (stretch_modulus + areal_density, for cloth)."""
-    sheet = [k for k in ("stretch_modulus", "areal_density", "flexion_ratio") if d[k] is not None]
+    (stretch_modulus + areal_density, for cloth; bending_stiffness in N*m or flexion_ratio)."""
+    sheet = [k for k in ("stretch_modulus", "areal_density", "flexion_ratio", "bending_stiffness") if d[k] is not None]
     solid = [k for k in ("preset", "youngs_modulus", "density", "poissons_ratio") if d[k] is not None]
     if sheet and solid:
         _fail(file, _join(key, sheet[0]), f"a sheet (cloth) key; not used with {solid[0]!r} (a solid)")
@@ -37,8 +38,12 @@ def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMater
         for k in ("stretch_modulus", "areal_density"):
             if d[k] is None:
                 _fail(file, _join(key, k), "required for a sheet material (cloth)")
+        if d["flexion_ratio"] and d["bending_stiffness"] is not None:
+            _fail(file, _join(key, "bending_stiffness"), "not used with flexion_ratio: give one (bending_stiffness, "
+                  "the plate's D in N*m, is the calibrated bending; flexion springs would add to it)")
         return SheetMaterial(d["stretch_modulus"], d["areal_density"], d["mass_damping"],
-                             d["stiffness_damping"], d["flexion_ratio"] or 0.0)
+                             d["stiffness_damping"], d["flexion_ratio"] or 0.0,
+                             bending_stiffness=d["bending_stiffness"] or 0.0)
     base = PRESETS[d["preset"]] if d["preset"] is not None else None
     if base is not None and all(d[k] is not None for k in ("youngs_modulus", "density", "poissons_ratio")):
         _fail(file, _join(key, "preset"), "not used when youngs_modulus, density and poissons_ratio are all given "

@@ -473,6 +473,9 @@ def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Sce
                 _fail(file, "material", "a cloth needs a sheet material (stretch_modulus, areal_density)"
                       if d["cloth"] is not None else
                       "stretch_modulus and areal_density are for a cloth; a mesh needs youngs_modulus and density")
+            if getattr(material, "bending_stiffness", 0.0) and d["physics"].integrator == "xpbd":
+                _fail(file, "material.bending_stiffness", "has no XPBD constraint: run it with an explicit integrator "
+                      "or implicit-euler (physics.integrator), or use flexion_ratio with xpbd")
             d["physics"] = dataclasses.replace(d["physics"], material=material, damping=0.0)
         return Scene(source, **d)
 

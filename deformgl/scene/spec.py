@@ -426,6 +426,10 @@ class Scene:
             if value is not None:
                 scene = dataclasses.replace(scene, physics=dataclasses.replace(
                     scene.physics, **{key: check(file, flag, value)}))
+        if integrator == "xpbd" and isinstance(scene.physics.material, SheetMaterial) \
+                and scene.physics.material.bending_stiffness > 0:
+            _fail(file, "--integrator", "xpbd has no constraint for the scene's material.bending_stiffness: use an "
+                  "explicit integrator or implicit-euler")
         if steps is not None:
             scene = dataclasses.replace(
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))

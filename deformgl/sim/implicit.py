@@ -163,6 +163,10 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
         cells_h = cell_matrix(system.cells, x, n, CELL_HESSIAN[geometric])
         hess = hess + cells_h
         a_full = a_full + dt * dt * cells_h
+    if system.bending is not None:  # a sheet's bending: the constant B on each coordinate
+        bending_h = sp.kron(system.bending.matrix, sp.identity(3), format="csr")
+        hess = hess + bending_h
+        a_full = a_full + dt * dt * bending_h
     f = forces(system, x, v, t + dt, drags, loads)
     b_full = dt * (f.ravel() - dt * (hess @ v.ravel()))
     free = ~system.fixed

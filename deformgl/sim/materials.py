@@ -51,6 +51,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.bending import sheet_bending
 from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
 from deformgl.sim.volume import BARRIER_SCALE, CellVolumes, grid_cells
 
@@ -133,12 +134,19 @@ class ElasticMaterial:
 @dataclass(frozen=True)
 class SheetMaterial:
     """A membrane (cloth): 2D Young's modulus ``stretch_modulus`` in N/m (E times thickness),
-    ``areal_density`` in kg/m^2, Rayleigh damping as :class:`ElasticMaterial`, and
-    ``flexion_ratio`` r in [0, 0.5]: flexion springs (2h along an axis) of r k_d, the edges
-    reduced to (2 - 4r) k_d so the membrane keeps its modulus (0: none). A flat sheet's flexion
-    springs resist bending only through the geometry (at second order in the out-of-plane
-    displacement), so r is a shape knob, not a calibrated bending modulus: deformgl has no
-    bending modulus for cloth."""
+    ``areal_density`` in kg/m^2, Rayleigh damping as :class:`ElasticMaterial` (its beta damps the
+    springs, not the bending), and one of two ways to resist bending:
+
+    * ``bending_stiffness`` D in N·m, the plate's ``E t^3 / (12 (1 - nu^2))`` (a fabric's bending
+      rigidity per unit width, as a cantilever test measures it, is ``D (1 - nu^2)``, nu = 1/3):
+      the calibrated plate term of :mod:`deformgl.sim.bending`, linear in the positions
+      (Bergou et al. 2006), checked against the analytic plate (docs/ACCURACY.md, "Cloth bending");
+    * ``flexion_ratio`` r in [0, 0.5]: flexion springs (2h along an axis) of r k_d, the edges
+      reduced to (2 - 4r) k_d so the membrane keeps its modulus (0: none). A flat sheet's flexion
+      springs resist bending only through the geometry (at second order in the out-of-plane
+      displacement), so r is a shape knob, not a calibrated bending modulus.
+
+    Both 0 (the default): a membrane with no bending stiffness. Giving both is an error."""
 
     stretch_modulus: float
     areal_density: float
@@ -147,19 +155,23 @@ class SheetMaterial:
     flexion_ratio: float = 0.0
     name: str = ""
     source: str = ""
+    bending_stiffness: float = 0.0
 
     def __post_init__(self) -> None:
         for key in ("stretch_modulus", "areal_density"):
             value = getattr(self, key)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"material.{key} must be a finite number > 0, got {value}")
-        for key in ("mass_damping", "stiffness_damping", "flexion_ratio"):
+        for key in ("mass_damping", "stiffness_damping", "flexion_ratio", "bending_stiffness"):
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
         if self.flexion_ratio > 0.5:
             raise ValueError(f"material.flexion_ratio must be at most 0.5 (the edges keep (2 - 4 r) k_d), "
                              f"got {self.flexion_ratio}")
+        if self.flexion_ratio > 0 and self.bending_stiffness > 0:
+            raise ValueError("material.bending_stiffness and material.flexion_ratio: give one (the plate's D in "
+                             "N·m is the calibrated bending; flexion springs would add to it)")
 
 
 #: Named materials (E in Pa, rho in kg/m^3, Poisson's ratio) with the source of the values. Soft
@@ -308,7 +320,8 @@ def sheet_system(grid: NodeGrid, material: SheetMaterial, *, fixed: ArrayLike | 
                  wind_drag: float = 0.0) -> tuple[SpringSystem, LatticeReport]:
     """The calibrated system of a membrane on a one-node-thick grid (a cloth): edges
     ``k_e = 2 k_d`` and diagonals ``k_d = 3 Y / 8`` times their share of full square cells,
-    node masses ``rho_A h^2 / 4`` per cell at the node (see the module docstring)."""
+    node masses ``rho_A h^2 / 4`` per cell at the node (see the module docstring), and with
+    ``bending_stiffness`` the plate term of :func:`deformgl.sim.bending.sheet_bending`."""
     shape = grid.shape
     thin_axes = [a for a in range(3) if shape[a] == 1]
     if not thin_axes:
@@ -355,9 +368,10 @@ def sheet_system(grid: NodeGrid, material: SheetMaterial, *, fixed: ArrayLike | 
     stiffness = np.where(edge, (k_e - 4.0 * r * k_d) * np.maximum(counts, 1) / 2.0, k_d * np.maximum(counts, 1))
     stiffness = np.where(flex, r * k_d * np.maximum(halves, 1) / 4.0, stiffness)
     mass = material.areal_density * h ** 2 / 4.0 * np.maximum(node_cells, 1)
+    bending = sheet_bending(grid, material.bending_stiffness) if material.bending_stiffness > 0 else None
     system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
                                  mass=mass, mass_damping=material.mass_damping,
-                                 material=material)
+                                 material=material, bending=bending)
     thin_springs = int(((counts == 0) & ~flex).sum())
     report = LatticeReport(int(full.sum()), int((node_cells == 0).sum()), thin_springs, k_d,
                            material.areal_density * h ** 2)

@@ -60,6 +60,8 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray) -> np.ndarray:
     out = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)], axis=1)
     if system.cells is not None:  # the cells' centre term (its barrier is inactive at rest)
         out += rest_product(system.cells, dx)
+    if system.bending is not None:  # a sheet's bending, linear: the same B at any state
+        out += system.bending.matrix @ dx
     return out
 
 
@@ -78,6 +80,8 @@ def stiffness_matrix(system: SpringSystem) -> np.ndarray:
     if system.cells is not None:
         rows, cols, values = rest_stiffness_triplets(system.cells)
         np.add.at(k, (rows, cols), values)
+    if system.bending is not None:  # B on each coordinate: the blocks B_ij I
+        k += np.kron(system.bending.matrix.toarray(), np.eye(3))
     return k
 
 
@@ -257,4 +261,6 @@ def modal_damping(system: SpringSystem) -> ModalDamping:
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
     if system.cells is not None and system.cells.volume_modulus > 0:
         b = np.append(b, 0.0)  # the cells' centre term is stiffness that Rayleigh beta does not damp
+    if system.bending is not None:
+        b = np.append(b, 0.0)  # nor a sheet's bending
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

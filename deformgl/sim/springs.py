@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
 from deformgl.sim.volume import CellVolumes, frequency_terms, volume_forces
+from deformgl.sim.bending import SheetBending
 
 STRUCTURAL = 0
 SHEAR = 1
@@ -75,6 +76,8 @@ class SpringSystem:
             dt check words its refusal in the material's terms.
         cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.volume`: any
             Poisson's ratio, the inversion barrier), or None (springs only).
+        bending: a sheet's bending term (:mod:`deformgl.sim.bending`: the plate's D in N·m,
+            ``f = -B x``), or None.
     """
 
     rest_positions: np.ndarray
@@ -95,6 +98,7 @@ class SpringSystem:
     grid: NodeGrid | None = None
     material: object = None
     cells: CellVolumes | None = None
+    bending: SheetBending | None = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]
@@ -124,6 +128,8 @@ class SpringSystem:
         if self.cells is not None and self.cells.count and (self.cells.corners.min() < 0
                                                             or self.cells.corners.max() >= n):
             raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
+        if self.bending is not None and self.bending.count != n:
+            raise ValueError(f"SpringSystem.bending: {self.bending.count} nodes, the system {n}")
 
     @property
     def count(self) -> int:
@@ -360,7 +366,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per full cell (``system.cells``): the volumetric term and the corner barrier of
-    :func:`deformgl.sim.volume.volume_forces`;
+    :func:`deformgl.sim.volume.volume_forces`; a sheet's bending ``-B x`` (``system.bending``);
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
     (Movania & Feng 2012 eq. 1) and Rayleigh mass damping ``-alpha m v``, each drag's ``k_d (target(t) - x)`` and each load's
     ``force(t)`` on its nodes.
@@ -404,6 +410,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     del ends, f, u
     if system.cells is not None:
         volume_forces(system.cells, x, out=total)
+    if system.bending is not None:
+        system.bending.forces(x, total)
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
               - (system.velocity_damping + system.mass_damping * system.mass)[:, None] * v)
     for drag in drags:
@@ -437,12 +445,15 @@ def max_angular_frequency(system: SpringSystem) -> FrequencyBound:
     geometric stiffness ``k (1 - L/|d|)`` across the spring is below k. Drags are not included
     (a drag of stiffness k_d adds ``2 k_d / m`` at its node). The cells' centre term adds
     :func:`deformgl.sim.volume.frequency_terms` (``1.5 kappa h`` per cell at the node); their
-    inversion barrier, inactive at rest, is not included.
+    inversion barrier, inactive at rest, is not included. A sheet's bending adds its row sum
+    ``sum_j |B_ij|`` (:meth:`deformgl.sim.bending.SheetBending.frequency_terms`).
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
             + np.bincount(system.j, weights=system.stiffness, minlength=n))
     cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n)
+    if system.bending is not None:
+        cell_terms = cell_terms + system.bending.frequency_terms()
     bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)
     if n == 0 or bound.max() < 0:
         return FrequencyBound(0.0, -1, -1)

@@ -12,7 +12,7 @@ from deformgl.errors import GLError
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
-__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
+__all__ = ["FLEXION_OFFSETS", "bending_coefficients", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
            "spring_weights"]
 
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
@@ -110,13 +110,23 @@ def grid_springs(system: SpringSystem, grid: NodeGrid) -> tuple[bool, np.ndarray
     """(flexion, neighbour table, class values) of a system on its grid, as every fragment-pass
     solver reads them: whether it has flexion springs, :func:`grid_neighbours` (checked against
     the system's springs by :func:`check_topology`) and :func:`class_values` of the structural,
-    shear and flexion classes."""
-    flexion = bool(np.any(system.spring_class == FLEXION))
+    shear and flexion classes. A sheet's bending (``system.bending``) reads the flexion
+    neighbours too (:func:`bending_coefficients`), so they are in the table with it."""
+    flexion = bool(np.any(system.spring_class == FLEXION)) or system.bending is not None
     nb = grid_neighbours(grid, flexion)
     check_topology(system, grid, nb)
     classes = [class_values(system, c, name) for c, name in
                ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
     return flexion, nb, classes
+
+
+def bending_coefficients(system: SpringSystem, nb: np.ndarray) -> np.ndarray | None:
+    """(N, 24) float64 coefficient of each neighbour in the sheet's bending gather
+    (:meth:`deformgl.sim.bending.SheetBending.neighbour_coefficients`: ``f_i = -sum_j c_ij (x_i -
+    x_j)``), or None without bending."""
+    if system.bending is None:
+        return None
+    return system.bending.neighbour_coefficients(nb)
 
 
 def compact_layout(grid: NodeGrid, max_texture_size: int) -> CompactLayout:

@@ -21,7 +21,9 @@ start, same stopping test), in float32. A step is (``shaders/sim/implicit/implic
 The matrix-vector product of a node is computed from its 18 (+6 flexion) grid neighbours
 (Mosegaard & Sørensen 2005, section 3.1: the neighbour-index texture of
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, with the per-spring weight texture of
-the calibrated lattice). A system with full cells (``system.cells``: the volumetric term and
+the calibrated lattice). A sheet's bending (``system.bending``, :mod:`deformgl.sim.bending`)
+adds its constant B in the same loop (define BENDING, :data:`BENDING_PASSES`: a coefficient
+texture array of the 24 neighbours, on the unit of ``u_r``). A system with full cells (``system.cells``: the volumetric term and
 corner barriers of :mod:`deformgl.sim.volume`) adds, in SETUP, WARM, INIT and MATVEC (define
 IMPLICIT_CELLS, with CELL_CENTRE and CELL_BARRIER for the terms whose modulus is > 0), the
 cells' forces (``shaders/lib/cell_forces.glsl``, in b) and the Gauss-Newton part of their
@@ -63,7 +65,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
-from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
+from deformgl.sim.backends.grid_springs import bending_coefficients, compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, check_cg,
@@ -91,15 +93,21 @@ PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 #: UPDATE and DIRECTION read.
 CELL_PASSES = ("SETUP", "WARM", "INIT", "MATVEC")
 _UNITS["u_cell_nb"] = _UNITS["u_rz"]
+#: The passes that read a sheet's bending coefficients (define BENDING: forces in SETUP, B y in
+#: all four, ``sim/implicit/system.glsl``), on the unit of ``u_r``, which only UPDATE and
+#: DIRECTION read.
+BENDING_PASSES = CELL_PASSES
+_UNITS["u_bending"] = _UNITS["u_r"]
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
-                 scaled: bool = True, cells: bool = False) -> dict[str, dict[str, object]]:
+                 scaled: bool = True, cells: bool = False, bending: bool = False) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
     ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
     :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
-    kappa_b > 0 (none of the three if both are 0)."""
+    kappa_b > 0 (none of the three if both are 0); ``bending``: a sheet's bending term
+    (``system.bending``): BENDING in :data:`BENDING_PASSES`."""
     common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
                                  "SPRING_DAMPING": bool(np.any(system.damping > 0)), "SPRING_WEIGHTS": weights,
                                  "DRAGS": drags, "LOADS": loads, "SPHERES": 0}
@@ -124,6 +132,9 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     if any(terms.values()):
         for name in CELL_PASSES:
             out[name].update(IMPLICIT_CELLS=True, **{k: True for k, on in terms.items() if on})
+    if bending:
+        for name in BENDING_PASSES:
+            out[name]["BENDING"] = True
     return out
 
 
@@ -209,6 +220,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.tex_neighbours = self._array_texture(table, "i4")
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         self.tex_weights = None if weights is None else self._array_texture(weights.astype(np.float32), "f4")
+        bending = bending_coefficients(system, nb)
+        self.tex_bending = None if bending is None else self._array_texture(bending.astype(np.float32), "f4")
         mask = np.zeros(n) if self.cells is None else incident_cells(self.grid, self.cells)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), mask], axis=1)
         self.tex_node = self._texture(size, self._image(node))
@@ -233,14 +246,16 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new", "warm")}
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
-                               block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None)
+                               block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None,
+                               bending=self.tex_bending is not None)
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
         self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
         self._reduce_vao = self.own(self.ctx.vertex_array(self.reduce.gl, []))
         self.reduce.set(u_src=_REDUCE_UNIT)
         texels = size[0] * size[1]
-        self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 if weights is None else 2)
+        self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 + (weights is not None)
+                                                                             + (bending is not None))
                                      + sum(a * b for _, (a, b) in self.levels) + len(self.scalars)
                                      + (0 if self.cells is None else 7 * texels))
 
@@ -285,6 +300,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             (self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]).use(_UNITS[sampler])
         if self.tex_cells is not None and name in CELL_PASSES:
             self.tex_cells.use(_UNITS["u_cell_nb"])
+        if self.tex_bending is not None and name in BENDING_PASSES:
+            self.tex_bending.use(_UNITS["u_bending"])
         self._fbo(*(self.tex[w] for w in writes)).use()
         self._vaos[name].render(moderngl.TRIANGLES, vertices=3)
 

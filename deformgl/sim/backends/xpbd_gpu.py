@@ -51,6 +51,7 @@ from deformgl.sim.xpbd import (
     OMEGA,
     XpbdSettings,
     _check_drags,
+    check_bending,
     cell_constraints,
     constraint_counts,
     node_terms,
@@ -105,6 +106,7 @@ class XpbdFragment(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"xpbd: dt must be > 0, got {dt}")
         self.settings = XpbdSettings(iterations, substeps, omega)
+        check_bending(system)
         _check_drags(tuple(drags), system.count)
         self.ctx, self.system, self.grid = ctx, system, grid
         self._start_clock(dt, t0)

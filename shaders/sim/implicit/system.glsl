@@ -10,6 +10,8 @@
 // Every CG vector is 0 at fixed nodes and padding texels, so the rows and columns of the fixed
 // nodes drop out (the solve is over the free nodes).
 // NB_LAYERS and NB_COUNT as sim/integrators/forces.glsl (default 5 and 18).
+// BENDING: a sheet's bending, the constant B of deformgl/sim/bending.py on each coordinate:
+// (B y)_i = sum_j c_j (y_i - y_j), diagonal sum_j c_j (c_j from u_bending, as forces.glsl reads it).
 // IMPLICIT_CELLS: the full cells' volumetric term and corner barriers add their (Gauss-Newton)
 // block, dt^2 H_cells (sim/implicit/cells.glsl).
 #include "lib/neighbour_count.glsl"
@@ -32,6 +34,9 @@ void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out ve
 #else
         vec4 w = vec4(1.0);
 #endif
+#ifdef BENDING
+        vec4 bc = texelFetch(u_bending, ivec3(texel, layer), 0);
+#endif
         for (int c = 0; c < 4; ++c) {
             int j = 4 * layer + c;
             if (j >= NB_COUNT) {
@@ -50,6 +55,10 @@ void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out ve
             dk += k * (u * u + g * (vec3(1.0) - u * u));
             vec3 uu = u.xxy * u.yzz;   // u_x u_y, u_x u_z, u_y u_z
             ok += k * (1.0 - g) * uu;
+#ifdef BENDING
+            sk += bc[c] * dy;
+            dk += vec3(bc[c]);
+#endif
 #ifdef SPRING_DAMPING
             float cs = w[c] * u_c[cls];
             sc += cs * along * u;
