@@ -203,6 +203,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--stiff: only for bench trade, without --resolution")
     if args.resolution and args.what != "trade":
         raise InputError(f"--resolution: only for bench trade, not bench {args.what}")
+    if args.bending and (args.what != "sim" or args.poisson):
+        raise InputError(f"--bending: only for bench sim, without --poisson (not bench {args.what})")
     if args.what == "accuracy":  # CPU only: no GL context
         from deformgl.bench.accuracy import run_cli
 
@@ -216,8 +218,6 @@ def run(args: argparse.Namespace) -> int:
             from deformgl.bench.studies import bench_integrators, format_integrators
 
             if args.what == "sim" and args.bending:
-                if args.poisson:
-                    raise InputError("bench sim: --bending and --poisson print two different tables; give one")
                 from deformgl.bench.bending_cost import bench_bending, format_bending
 
                 print(format_bending(bench_bending(ctx, steps=args.steps), machine_line(ctx)))

@@ -12,13 +12,14 @@ bending stiffness D (N·m), in NumPy/SciPy float64:
 2. the twisted plate: a square plate held at three corners and pulled by P at the fourth, whose
    exact solution is the pure twist ``w = P x y / (2 D (1 - nu))`` (Timoshenko &
    Woinowsky-Krieger 1959, section 11): the lattice's twist stencil reproduces it exactly;
-3. the cantilever strip two nodes wide (no anticlastic curvature, so its rigidity per width is
-   D) under uniform load: ``q L^4 / (8 D)``; the clamp is two fixed node columns, which act at
-   their midpoint, so L runs from there (L + h/2 from the second column);
+3. the cantilever strip under uniform load: ``q L^4 / (8 D (1 - nu^2))`` (its free edges carry no
+   moment, so it curls anticlastically and bends as a narrow plate, ``E t^3 / 12`` per width); the
+   clamp is two fixed node columns, which act at their midpoint, so L runs from there (L + h/2
+   from the second column); two nodes wide and, 0.1 m wide, at 3 to 17 nodes across;
 4. large deflection: the same strip, inextensible (a stiff membrane), under its own weight by
    Newton's method on the full nonlinear sheet (:func:`deformgl.bench.tissue_accuracy.static_equilibrium`),
-   its tip against the heavy elastica (:func:`deformgl.bench.fem_tissue.elastica_tip`) at
-   ``rho_A g L^3 / D`` = 5 and 30 (a tip sag of half and of 0.9 of the length).
+   its tip against the heavy elastica (:func:`deformgl.bench.fem_tissue.elastica_tip`) of rigidity
+   ``D (1 - nu^2)`` at ``rho_A g L^3 / D`` = 5 and 30 (a tip sag of about half and 0.9 of the length).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.bending import SHEET_BENDING_POISSON, sheet_bending
+from deformgl.sim.bending import SHEET_BENDING_POISSON, node_weights, sheet_bending
 from deformgl.sim.materials import SheetMaterial, sheet_system
 
 __all__ = ["elastica_errors", "navier_centre", "plate_ratio", "strip_ratio", "twisted_plate_ratio"]
@@ -63,13 +64,7 @@ def _solve(grid: NodeGrid, stiffness: float, free: np.ndarray, load: np.ndarray)
 
 def _node_areas(grid: NodeGrid) -> np.ndarray:
     """(N,) each node's share of the sheet's area in m^2 (a quarter of each full cell at it)."""
-    plane = grid.index[:, 0, :]
-    full = (plane[:-1, :-1] >= 0) & (plane[1:, :-1] >= 0) & (plane[:-1, 1:] >= 0) & (plane[1:, 1:] >= 0)
-    cells = np.zeros(plane.shape)
-    for di in (0, 1):
-        for dj in (0, 1):
-            cells[di:di + full.shape[0], dj:dj + full.shape[1]] += full
-    return cells[grid.ijk[:, 0], grid.ijk[:, 2]] * grid.spacing ** 2 / 4.0
+    return node_weights(grid, (0, 2))[0] * grid.spacing ** 2
 
 
 def plate_ratio(n: int) -> float:
@@ -95,21 +90,26 @@ def twisted_plate_ratio(n: int) -> float:
     return float(w[corner[n - 1, n - 1]] / (1.0 / (2.0 * (1.0 - SHEET_BENDING_POISSON))))
 
 
-def _strip(n: int, length: float) -> NodeGrid:
-    """A strip two nodes wide: ``n`` nodes from x = 0 to ``length`` and a clamp column at x = -h."""
+def _strip(n: int, length: float, across: int = 2) -> NodeGrid:
+    """A strip ``across`` nodes wide: ``n`` nodes from x = 0 to ``length`` and a clamp column at x = -h."""
     h = length / (n - 1)
-    return NodeGrid(np.array([-h, 0.0, 0.0]), h, np.ones((n + 1, 1, 2), bool))
+    return NodeGrid(np.array([-h, 0.0, 0.0]), h, np.ones((n + 1, 1, across), bool))
 
 
-def strip_ratio(n: int) -> float:
-    """Cantilever strip, ``n`` nodes along 1 m, uniform load: tip deflection / ``q L^4 / (8 D)``
-    with L from the clamp's midpoint (1 + h/2)."""
-    grid = _strip(n, 1.0)
+#: a free strip's rigidity per width over D: its edges carry no moment, so it curls
+#: anticlastically (k_across = -nu k_along) and bends as a narrow plate, D (1 - nu^2) = E t^3 / 12
+STRIP_RIGIDITY = 1.0 - SHEET_BENDING_POISSON ** 2
+
+
+def strip_ratio(n: int, across: int = 2) -> float:
+    """Cantilever strip ``across`` nodes wide, ``n`` nodes along 1 m, uniform load: tip deflection
+    / ``q L^4 / (8 D (1 - nu^2))`` with L from the clamp's midpoint (1 + h/2)."""
+    grid = _strip(n, 1.0, across)
     free = grid.ijk[:, 0] >= 2
     w = _solve(grid, 1.0, free, _node_areas(grid))
     tip = grid.ijk[:, 0] == n
     effective = 1.0 + grid.spacing / 2.0
-    return float(w[tip].mean() / (effective ** 4 / 8.0))  # q = 1 Pa, D = 1 N m: q b L^4 / (8 D b)
+    return float(w[tip].mean() / (effective ** 4 / (8.0 * STRIP_RIGIDITY)))  # q = 1 Pa, D = 1 N m
 
 
 def elastica_errors(n: int, load: float, *, length: float = 0.2, areal_density: float = 0.2) -> tuple[float, float]:
@@ -125,8 +125,8 @@ def elastica_errors(n: int, load: float, *, length: float = 0.2, areal_density: 
     x = static_equilibrium(system, increments=8)
     tip = grid.ijk[:, 0] == n
     u = (x[tip] - grid.rest_positions[tip]).mean(axis=0)
-    # elastica_tip takes a beam of E and a square section: E w^4 / 12 = D and rho w^2 = rho_A at w = 1
-    ref = elastica_tip(length + grid.spacing / 2.0, 1.0, 12.0 * stiffness, areal_density, G)
+    # elastica_tip takes a beam of E and a square section: E w^4 / 12 = D (1 - nu^2) and rho w^2 = rho_A at w = 1
+    ref = elastica_tip(length + grid.spacing / 2.0, 1.0, 12.0 * STRIP_RIGIDITY * stiffness, areal_density, G)
     return float(u[0] / ref[0] - 1.0), float(u[1] / ref[1] - 1.0)
 
 
@@ -144,9 +144,11 @@ def main(argv: list[str] | None = None) -> int:
           f"nu = {SHEET_BENDING_POISSON:.4f}")
     for n in (3, 9, 17):
         print(f"  {n:>3} across: {twisted_plate_ratio(n):.12f}")
-    print("\n3. Cantilever strip 2 nodes wide, uniform load: tip / (q L^4 / (8 D))")
+    print("\n3. Cantilever strip, uniform load: tip / (q L^4 / (8 D (1 - nu^2))), the free strip's rigidity")
     for n in (9, 17, 33, 65):
-        print(f"  {n:>3} along: {strip_ratio(n):.5f}")
+        print(f"  2 across, {n:>3} along: {strip_ratio(n):.5f}")
+    for across in (3, 5, 9, 17):  # 0.1 m wide, 1 m long: the clamp holds the curl near the root
+        print(f"  {across:>2} across (0.1 m), {10 * (across - 1) + 1:>3} along: {strip_ratio(10 * (across - 1) + 1, across):.5f}")
     print("\n4. Inextensible strip under its weight, static equilibrium: tip (u_x, u_y) / heavy elastica - 1")
     for load in (5.0, 30.0):
         for n in (11, 21, 41):

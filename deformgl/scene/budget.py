@@ -170,6 +170,11 @@ def _mesh_counts(scene: Any) -> tuple[np.ndarray, int, int]:
 #: on a 125k-node block: +456 over ``from_grid``'s peak for the cell counts and the weighted
 #: stiffness, +1,258 for the spring-weight table and its lookup keys; 2,000 with a margin.
 MATERIAL_HOST_BYTES_PER_NODE = 2000
+#: a sheet's bending term on the host: its stencils and B (1.37 kB per node measured), with a margin
+BENDING_HOST_BYTES_PER_NODE = 1600
+#: the feedback backend's list entries per node for a sheet's bending: B's off-diagonal entries
+#: (12 at an interior node: 4 at h, 4 at 2h, 4 diagonals)
+BENDING_LIST_ENTRIES = 12
 
 
 def estimate(scene: Any) -> Budget:
@@ -223,12 +228,17 @@ def estimate(scene: Any) -> Budget:
         # the cells (C, 8) int64, about one per node, and the (N, 27) int32 neighbourhood table of
         # the GPU backends' cell gather (deformgl.sim.volume, sim/backends/cell_tables.py)
         host["material lattice"] += int(CELL_HOST_BYTES_PER_NODE * nodes)
+    bending = bool(getattr(material, "bending_stiffness", 0.0))
+    if bending:
+        # the plate term's stencils and its sparse B being assembled (measured 1.37 kB per node at
+        # the peak on 250k nodes, 270 B kept; deformgl.sim.bending)
+        host["material lattice"] += int(BENDING_HOST_BYTES_PER_NODE * nodes)
     texels = _texels(nodes)
     if physics.backend == "fragment":
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
         weights = (6 if flexion else 5) if material is not None else 0  # the spring-weight layers
-        if getattr(material, "bending_stiffness", 0.0):
+        if bending:
             weights += 6  # the bending coefficients (deformgl.sim.bending), one per neighbour
         if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
             layers, weights = 2 * (6 if flexion else 5), 0
@@ -236,7 +246,8 @@ def estimate(scene: Any) -> Budget:
                         + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + (CELL_TABLE if solid else 0))
     elif physics.backend == "feedback":
         sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + (CELL_TABLE if solid else 0))
-               + 2 * springs * FEEDBACK_SPRING_END)
+               + 2 * springs * FEEDBACK_SPRING_END
+               + (BENDING_LIST_ENTRIES * nodes * FEEDBACK_SPRING_END if bending else 0))
     else:  # the NumPy reference: its state is host memory; textures only to draw
         sim = texels * 2 * VEC4_BYTES
     gpu = {

@@ -117,6 +117,8 @@ def material_line(material: object, spacing: float) -> str:
         what = f"E = {material.youngs_modulus:.4g} Pa, rho = {material.density:.4g} kg/m^3"
     elif isinstance(material, SheetMaterial):
         what = f"Y = {material.stretch_modulus:.4g} N/m, rho_A = {material.areal_density:.4g} kg/m^2"
+        if material.bending_stiffness:
+            what += f", D = {material.bending_stiffness:.4g} N*m"
     else:
         return "per-spring constants"
     name = getattr(material, "name", "")

@@ -38,6 +38,7 @@ from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.scene.material_table import _BODY_MATERIAL, _MATERIAL_KEYS  # noqa: F401
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
+from deformgl.sim.xpbd import BENDING_REFUSAL
 
 __all__ = ["Animation", "BACKENDS", "CameraKey", "apply_overrides", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
            "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",
@@ -474,8 +475,7 @@ def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Sce
                       if d["cloth"] is not None else
                       "stretch_modulus and areal_density are for a cloth; a mesh needs youngs_modulus and density")
             if getattr(material, "bending_stiffness", 0.0) and d["physics"].integrator == "xpbd":
-                _fail(file, "material.bending_stiffness", "has no XPBD constraint: run it with an explicit integrator "
-                      "or implicit-euler (physics.integrator), or use flexion_ratio with xpbd")
+                _fail(file, "material.bending_stiffness", BENDING_REFUSAL)
             d["physics"] = dataclasses.replace(d["physics"], material=material, damping=0.0)
         return Scene(source, **d)
 

@@ -17,6 +17,7 @@ from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
 from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
+from deformgl.sim.xpbd import BENDING_REFUSAL
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384
@@ -428,8 +429,7 @@ class Scene:
                     scene.physics, **{key: check(file, flag, value)}))
         if integrator == "xpbd" and isinstance(scene.physics.material, SheetMaterial) \
                 and scene.physics.material.bending_stiffness > 0:
-            _fail(file, "--integrator", "xpbd has no constraint for the scene's material.bending_stiffness: use an "
-                  "explicit integrator or implicit-euler")
+            _fail(file, "--integrator", f"xpbd: the scene's material.bending_stiffness {BENDING_REFUSAL}")
         if steps is not None:
             scene = dataclasses.replace(
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))

@@ -172,10 +172,12 @@ class EquilibriumMonitor:
         return float(np.max(f[self._free], initial=0.0))
 
     def elastic_energy(self, x: np.ndarray) -> float:
-        """The springs' elastic energy ``sum 1/2 k (|x_i - x_j| - L)^2`` at positions x (J)."""
+        """The springs' elastic energy ``sum 1/2 k (|x_i - x_j| - L)^2`` at positions x (J), and a
+        sheet's bending energy (:meth:`deformgl.sim.bending.SheetBending.energy`)."""
         s = self.system
         stretch = np.linalg.norm(x[s.i] - x[s.j], axis=1) - s.rest_length
-        return 0.5 * float(np.sum(s.stiffness * stretch * stretch))
+        energy = 0.5 * float(np.sum(s.stiffness * stretch * stretch))
+        return energy + (s.bending.energy(x) if s.bending is not None else 0.0)
 
     def observe(self, sim: Simulation) -> bool:
         """A check: read the positions, update the measures; True when converged."""

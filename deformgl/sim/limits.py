@@ -195,12 +195,17 @@ class DtLimit:
     spring: int
     stiffness: float
     mass: float
+    bending: float = 0.0
 
     def message(self, dt: float) -> str:
         """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s = 2/w,
-        w = 645 rad/s set by node 17 (spring 40, k = 500 N/m, m = 0.01 kg)``."""
-        where = (f"w = {self.omega:.4g} rad/s set by node {self.node} (spring {self.spring}, "
-                 f"k = {self.stiffness:.4g} N/m, m = {self.mass:.4g} kg; {self.bound} bound)")
+        w = 645 rad/s set by node 17 (spring 40, k = 500 N/m, m = 0.01 kg)``; a sheet whose
+        bending is the larger part of the node's stiffness names it instead of the spring."""
+        if self.bending:
+            what = f"a sheet's bending, D = {self.bending:.4g} N*m"
+        else:
+            what = f"spring {self.spring}, k = {self.stiffness:.4g} N/m"
+        where = f"w = {self.omega:.4g} rad/s set by node {self.node} ({what}, m = {self.mass:.4g} kg; {self.bound} bound)"
         if self.dt == 0.0:
             return (f"dt {dt:.4g} s: {self.integrator} is {self.formula}: its growth factor "
                     f"exceeds 1 at every dt; {where}. Add damping (velocity_damping or spring "
@@ -242,7 +247,12 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
         omega, node, spring = top.omega, top.node, top.spring
     k = float(system.stiffness[spring]) if spring >= 0 else 0.0
     m = float(system.mass[node]) if node >= 0 else 0.0
-    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m)
+    bending = 0.0
+    if system.bending is not None and node >= 0:  # the node's Gershgorin terms: bending's against the springs'
+        springs = 2.0 * float(system.stiffness[(system.i == node) | (system.j == node)].sum())
+        if system.bending.frequency_terms()[node] > springs:
+            bending = system.bending.bending_stiffness
+    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, bending)
 
 
 def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None,

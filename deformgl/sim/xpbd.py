@@ -66,6 +66,7 @@ __all__ = [
     "XpbdSettings",
     "XpbdSolver",
     "cell_constraints",
+    "BENDING_REFUSAL",
     "check_bending",
     "constraint_counts",
     "node_terms",
@@ -132,14 +133,18 @@ def node_terms(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
     return w, g
 
 
+#: Why XPBD refuses a sheet's bending stiffness, and what to do (every refusal says it).
+BENDING_REFUSAL = ("has no XPBD constraint: run it with an explicit integrator or implicit-euler, or use "
+                   "flexion_ratio with xpbd")
+
+
 def check_bending(system: SpringSystem) -> None:
     """ValueError (one line) for a sheet with a bending term (``system.bending``): XPBD has no
     bending constraint. (The plate term's stencils couple 3 to 5 nodes each, about 15 per node;
     the Jacobi sweep keeps one multiplier per constraint end, so the GPU sweep would store 45
     more floats per node.)"""
     if system.bending is not None:
-        raise ValueError("xpbd: a sheet's bending_stiffness has no XPBD constraint; run it with an explicit "
-                         "integrator or implicit-euler, or use flexion_ratio with xpbd")
+        raise ValueError(f"xpbd: a sheet's bending_stiffness {BENDING_REFUSAL}")
 
 
 def _check_drags(drags: tuple[Drag, ...], count: int) -> None:
