@@ -63,10 +63,10 @@ SLOW_FIXTURES = (
 )
 
 
-#: marker -> (module it imports, the extra that installs it)
+#: marker -> (module(s) it imports, the extra that installs them)
 EXTRAS = {
     "plot": ("matplotlib", "plot"),
-    "fem": ("skfem", "fem"),
+    "fem": (("skfem", "pyamg", "tetgen", "pymeshfix"), "fem"),
     "video": ("imageio_ffmpeg", "video"),
     "sweep": ("distributed", "sweep"),
     "peers": ("taichi", "peers"),  # (tests/test_peers.py also skips per peer)
@@ -82,9 +82,10 @@ def missing_extra(marker: str) -> str | None:
     """The skip reason of a test carrying ``marker`` when its extra or tool is missing, else None.
     Every reason says "optional extra" (the word :func:`pytest_sessionfinish` allows)."""
     if marker in EXTRAS:
-        module, extra = EXTRAS[marker]
-        if importlib.util.find_spec(module) is None:
-            return f"optional extra '{extra}': {module} is not installed (pip install '.[{extra}]')"
+        modules, extra = EXTRAS[marker]
+        for module in (modules,) if isinstance(modules, str) else modules:
+            if importlib.util.find_spec(module) is None:
+                return f"optional extra '{extra}': {module} is not installed (pip install '.[{extra}]')"
     elif marker in TOOLS:
         exes, package = TOOLS[marker]
         if not any(shutil.which(exe) for exe in exes):

@@ -11,14 +11,12 @@ kept, and the table prints the median ratio with its spread.
 
 from __future__ import annotations
 
-import statistics
-import time
 from collections.abc import Sequence
 
 import moderngl
 import numpy as np
 
-from deformgl.bench.cells_cost import CostRow
+from deformgl.bench.cells_cost import CostRow, cost_rows
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import SheetMaterial, sheet_system
 from deformgl.sim.simulation import make_simulation
@@ -53,25 +51,7 @@ def bench_bending(ctx: moderngl.Context, *, steps: int = 40, rounds: int = 7,
             extra = {"cg_iterations": 20} if integrator == "implicit-euler" else {}
             sims = {name: make_simulation(s, integrator, "fragment", dt=dt, ctx=ctx, grid=s.grid, **extra)
                     for name, s in systems.items()}
-            try:
-                for sim in sims.values():
-                    sim.step(3)
-                ctx.finish()
-                per_round: dict[str, list[float]] = {name: [] for name in sims}
-                for _ in range(rounds):
-                    for name, sim in sims.items():
-                        start = time.perf_counter()
-                        sim.step(steps)
-                        ctx.finish()
-                        per_round[name].append((time.perf_counter() - start) / steps * 1e3)
-            finally:
-                for sim in sims.values():
-                    sim.release()
-            base = per_round["flexion springs"]
-            for name, ms in per_round.items():
-                ratios = [a / b for a, b in zip(ms, base)]
-                rows.append(CostRow(f"{n}x{n}", n * n, integrator, name, statistics.median(ms),
-                                    (statistics.median(ratios), min(ratios), max(ratios))))
+            rows += cost_rows(ctx, sims, "flexion springs", f"{n}x{n}", n * n, integrator, steps=steps, rounds=rounds)
     return rows
 
 

@@ -29,7 +29,7 @@ from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 
-__all__ = ["COST_GRIDS", "CostRow", "bench_poisson", "format_poisson", "cg_iterations"]
+__all__ = ["COST_GRIDS", "CostRow", "bench_poisson", "cost_rows", "format_poisson", "cg_iterations"]
 
 #: Grids (nodes along x, y, z) of the cost table.
 COST_GRIDS = ((27, 27, 27), (64, 64, 32))
@@ -69,27 +69,35 @@ def bench_poisson(ctx: moderngl.Context, nus: Sequence[float], *, steps: int = 4
         for integrator in INTEGRATORS:
             sims = {name: make_simulation(s, integrator, "fragment", dt=dt, ctx=ctx, grid=s.grid)
                     for name, s in systems.items()}
-            try:
-                for sim in sims.values():
-                    sim.step(3)
+            rows += cost_rows(ctx, sims, "nu=0.25", "x".join(map(str, shape)), int(np.prod(shape)), integrator,
+                              steps=steps, rounds=rounds)
+    return rows
+
+
+def cost_rows(ctx: moderngl.Context, sims: dict, baseline: str, label: str, nodes: int, integrator: str, *,
+              steps: int, rounds: int) -> list[CostRow]:
+    """Time the simulations ``sims`` (name -> simulation, released here) in ``rounds`` alternating
+    rounds of ``steps`` steps after 3 warm-up steps: a row each, its median ms per step and its
+    ratio to ``baseline``'s of the same round (median, lowest, highest)."""
+    try:
+        for sim in sims.values():
+            sim.step(3)
+        ctx.finish()
+        per_round: dict[str, list[float]] = {name: [] for name in sims}
+        for _ in range(rounds):
+            for name, sim in sims.items():
+                start = time.perf_counter()
+                sim.step(steps)
                 ctx.finish()
-                per_round: dict[str, list[float]] = {name: [] for name in sims}
-                for _ in range(rounds):
-                    for name, sim in sims.items():
-                        start = time.perf_counter()
-                        sim.step(steps)
-                        ctx.finish()
-                        per_round[name].append((time.perf_counter() - start) / steps * 1e3)
-            finally:
-                for sim in sims.values():
-                    sim.release()
-            base = per_round["nu=0.25"]
-            label = "x".join(map(str, shape))
-            count = int(np.prod(shape))
-            for name, ms in per_round.items():
-                ratios = [a / b for a, b in zip(ms, base)]
-                rows.append(CostRow(label, count, integrator, name, statistics.median(ms),
-                                    (statistics.median(ratios), min(ratios), max(ratios))))
+                per_round[name].append((time.perf_counter() - start) / steps * 1e3)
+    finally:
+        for sim in sims.values():
+            sim.release()
+    rows = []
+    for name, ms in per_round.items():
+        ratios = [a / b for a, b in zip(ms, per_round[baseline])]
+        rows.append(CostRow(label, nodes, integrator, name, statistics.median(ms),
+                            (statistics.median(ratios), min(ratios), max(ratios))))
     return rows
 
 
