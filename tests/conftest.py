@@ -66,7 +66,7 @@ SLOW_FIXTURES = (
 #: marker -> (module(s) it imports, the extra that installs them)
 EXTRAS = {
     "plot": ("matplotlib", "plot"),
-    "fem": (("skfem", "pyamg", "tetgen", "pymeshfix"), "fem"),
+    "fem": (("skfem", "pyamg", "tetgen", "pymeshfix", "manifold3d"), "fem"),
     "video": ("imageio_ffmpeg", "video"),
     "sweep": ("distributed", "sweep"),
     "peers": ("taichi", "peers"),  # (tests/test_peers.py also skips per peer)

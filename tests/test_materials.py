@@ -281,14 +281,23 @@ def test_a_preset_gives_its_values(tmp_path):
     assert material.youngs_modulus == PRESETS["liver"].youngs_modulus and material.name == "liver"
 
 
-def test_a_region_that_catches_no_node_is_an_error_naming_the_key(ctx, tmp_path, capsys):
+def test_a_region_that_holds_no_material_is_an_error_naming_the_key(ctx, tmp_path, capsys):
+    """At 5 along the jelly's `below y 0.05` caught no node (it holds space); selected by material
+    it holds the bottom plane (issue 28). A region with none of the mesh's material (above the
+    finned bar's bar, beside its fin) is one line naming the key, and the render writes nothing."""
     path = scene_copy(tmp_path, edit=lambda t: t.replace("nodes_along_longest = 9", "nodes_along_longest = 5"))
-    with pytest.raises(SceneError, match=r"jelly.toml: physics.fixed\[0\]: the region catches no node"):
-        build_scene_model(load_scene(path))
-    code = main(["render", str(path), "-o", str(tmp_path / "out.png"), "--quiet"])
+    built = build_scene_model(load_scene(path))
+    assert set(built.grid.ijk[built.system.fixed, 1].tolist()) == {0} and built.system.fixed.sum() >= 16
+    fin = (SCENES / "assets" / "finned_bar.obj").as_posix()
+    scene = tmp_path / "fin.toml"
+    scene.write_text(f'[mesh]\npath = "{fin}"\n[grid]\nnodes_along_longest = 12\n[material]\nyoungs_modulus = 1e6\n'
+                     f'density = 1000.0\n[[physics.fixed]]\nregion = "box"\nmin = [0.0, 0.9, 0.6]\nmax = [1.0, 1.0, 1.0]\n')
+    with pytest.raises(SceneError, match=r"fin.toml: physics.fixed\[0\]: the region holds none of the mesh's material"):
+        build_scene_model(load_scene(scene))
+    code = main(["render", str(scene), "-o", str(tmp_path / "out.png"), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2, err
-    assert "physics.fixed[0]: the region catches no node" in err and len(err.strip().splitlines()) == 1
+    assert "physics.fixed[0]: the region holds none of the mesh's material" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out.png").exists()
 
 

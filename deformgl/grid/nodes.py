@@ -11,9 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from deformgl.grid.fill import CellFill
 
 #: The 18 neighbour offsets: first the 6 at distance 1 (D1), then the 12 at sqrt(2) (D2).
 #: Bit j of a node's neighbour mask is set when the neighbour at NEIGHBOUR_OFFSETS[j] exists.
@@ -45,15 +48,21 @@ class NodeGrid:
         origin: (3,) float64, world position of grid index (0, 0, 0).
         spacing: grid spacing h in world units.
         occupied: (nx, ny, nz) bool, True where a node exists.
+        fill: the mesh's material in the cells (:class:`~deformgl.grid.fill.CellFill`, cells of
+            this grid), or None: every cell whose 8 corners exist is full.
     """
 
     origin: np.ndarray
     spacing: float
     occupied: np.ndarray
+    fill: CellFill | None = None
 
     def __post_init__(self) -> None:
         self.origin.setflags(write=False)
         self.occupied.setflags(write=False)
+        if self.fill is not None and self.fill.cells != tuple(max(n - 1, 0) for n in self.occupied.shape):
+            raise ValueError(f"NodeGrid: the fill's cells {self.fill.cells} are not those of a grid of "
+                             f"{self.occupied.shape} nodes")
 
     @property
     def shape(self) -> tuple[int, int, int]:

@@ -138,6 +138,30 @@ def voxelize(
             (with ``nodes_along_longest``), or the spacing makes a grid of more than
             :data:`MAX_GRID_NODES` nodes.
     """
+    index_space, shape, origin, h = grid_frame(mesh, nodes_along_longest=nodes_along_longest,
+                                               spacing=spacing, source=source)
+    occupied = _surface_nodes(index_space, shape) | _inside_corner_nodes(index_space, shape)
+    occupied = ndimage.binary_fill_holes(occupied)
+    if not occupied.any():  # every finite triangle lies in some cube; kept as a safeguard
+        raise InputError(f"{source}: no grid node is occupied at spacing {h:g}")
+    used = [np.flatnonzero(occupied.any(axis=other)) for other in ((1, 2), (0, 2), (0, 1))]
+    trim = tuple(slice(int(u[0]), int(u[-1]) + 1) for u in used)
+    first = np.array([u[0] for u in used], dtype=np.float64)
+    return Voxelization(origin=origin + h * first, spacing=h, occupied=occupied[trim])
+
+
+def grid_frame(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing: float | None,
+               source: str) -> tuple[np.ndarray, tuple[int, int, int], np.ndarray, float]:
+    """The padded node grid :func:`voxelize` builds around a mesh, before any node is occupied.
+
+    Returns:
+        ``(triangles, shape, origin, h)``: ``(F, 3, 3)`` triangle vertices in index space (node
+        ``(i, j, k)`` at integer point ``(i, j, k)``), the grid shape with one empty plane of
+        padding on every side, the world position of node ``(0, 0, 0)`` and the spacing.
+
+    Raises:
+        ValueError, InputError: as :func:`voxelize`.
+    """
     _check_resolution(nodes_along_longest, spacing)
     vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
@@ -170,14 +194,7 @@ def voxelize(
     shape = tuple(int(n) + 2 for n in nodes)
     origin = (low + high) / 2 - h * ((nodes - 1) / 2 + 1)
     index_space = (triangles - origin) / h  # node (i, j, k) is at integer point (i, j, k)
-    occupied = _surface_nodes(index_space, shape) | _inside_corner_nodes(index_space, shape)
-    occupied = ndimage.binary_fill_holes(occupied)
-    if not occupied.any():  # every finite triangle lies in some cube; kept as a safeguard
-        raise InputError(f"{source}: no grid node is occupied at spacing {h:g}")
-    used = [np.flatnonzero(occupied.any(axis=other)) for other in ((1, 2), (0, 2), (0, 1))]
-    trim = tuple(slice(int(u[0]), int(u[-1]) + 1) for u in used)
-    first = np.array([u[0] for u in used], dtype=np.float64)
-    return Voxelization(origin=origin + h * first, spacing=h, occupied=occupied[trim])
+    return index_space, shape, origin, h  # type: ignore[return-value]  # shape has 3 entries
 
 
 def _check_resolution(nodes_along_longest: int | None, spacing: float | None) -> None:
@@ -258,17 +275,32 @@ def _triangle_meets_unit_cube(v: np.ndarray) -> np.ndarray:
     return meets
 
 
-def _inside_corner_nodes(triangles: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """Nodes with at least one cube corner inside the surface (triangles in index space)."""
-    corners = tuple(n + 1 for n in shape)
-    shifted = triangles + 0.5  # corner (i, j, k) is at index point (i, j, k) - 1/2
-    votes = np.zeros(corners, dtype=np.uint8)
+def inside_points(triangles: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Which integer points of a box are inside a (possibly leaky) surface, by the vote of their
+    26 half-rays (module docstring, step 2).
+
+    Args:
+        triangles: ``(F, 3, 3)`` vertices in the points' index space (point ``(i, j, k)`` at
+            integer coordinates ``(i, j, k)``).
+        shape: The box of points.
+
+    Returns:
+        ``shape`` bool.
+    """
+    votes = np.zeros(shape, dtype=np.uint8)
     for direction in RAY_DIRECTIONS:
-        votes += _odd_half_rays(shifted, corners, direction)
+        votes += _odd_half_rays(triangles, shape, direction)
     # A strict majority of half-rays, i.e. more lines whose two half-rays both say inside than
     # lines whose two both say outside: a line whose half-rays disagree passed a hole or an
     # open edge, and abstains. Ties go outside, so an open sheet is never thickened.
-    inside = votes > len(RAY_DIRECTIONS)
+    return votes > len(RAY_DIRECTIONS)
+
+
+def _inside_corner_nodes(triangles: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Nodes with at least one cube corner inside the surface (triangles in index space)."""
+    corners = tuple(n + 1 for n in shape)
+    # corner (i, j, k) is at index point (i, j, k) - 1/2
+    inside = inside_points(triangles + 0.5, corners)
     nodes = np.zeros(shape, dtype=bool)
     for di, dj, dk in np.ndindex(2, 2, 2):
         nodes |= inside[di : di + shape[0], dj : dj + shape[1], dk : dk + shape[2]]

@@ -155,7 +155,7 @@ class Body:
         self.centre: np.ndarray = centre
         self.source = source
         self.grid = mesh_grid(self.mesh, nodes_along_longest=resolution, spacing=spacing, source=source,
-                              finer="a larger resolution or a smaller spacing")
+                              finer="a larger resolution or a smaller spacing", solid=material is not None)
         self.bbox = np.array(self.mesh.bounds, dtype=np.float64)
         g = tuple(float(v) for v in gravity)
         self.physics = Physics(dt=1e-3, steps=0, stiffness=float(stiffness), damping=0.0 if material else float(damping),

@@ -38,6 +38,7 @@ from deformgl.scene.run import SceneBox, SceneRun, run_scene, scene_constraints,
 from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
+from deformgl.grid.fill import fill_cells
 from deformgl.grid.voxelize import voxelize
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, SheetMaterial
 
@@ -134,12 +135,21 @@ def recentred(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
 
 
 def mesh_grid(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing: float | None, source: str,
-              finer: str) -> NodeGrid:
+              finer: str, solid: bool = False) -> NodeGrid:
     """The node grid of a (recentred) mesh; a mesh too thin for any cell or 2x2 sheet is an
-    InputError naming ``source`` and what to change (``finer``)."""
-    vox = voxelize(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
+    InputError naming ``source`` and what to change (``finer``).
+
+    ``solid``: a body of an elastic material: the grid is the cells that hold the mesh's
+    material, each carrying its fill (:mod:`deformgl.grid.fill`); otherwise the nodes whose
+    cubes meet the mesh (:mod:`deformgl.grid.voxelize`, the per-spring-constant model of
+    Mosegaard & Sørensen 2005)."""
+    fill = None
+    if solid:
+        vox, fill = fill_cells(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
+    else:
+        vox = voxelize(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
     grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
-                    occupied=np.asarray(vox.occupied, dtype=bool))
+                    occupied=np.asarray(vox.occupied, dtype=bool), fill=fill)
     if len(grid_surface(grid).triangles) == 0:
         raise InputError(f"{source}: too thin for a node grid at spacing {grid.spacing:.4g}: its "
                          f"{grid.count} node(s) form no cell and no sheet of 2x2 nodes; use a finer grid "
@@ -161,7 +171,8 @@ def build_scene_model(scene: Scene) -> SceneModel:
     spacing = None if scene.grid.spacing is None else scene.grid.spacing * mesh_spec.scale
     grid = mesh_grid(mesh, nodes_along_longest=scene.grid.nodes_along_longest, spacing=spacing,
                      source=str(mesh_spec.path),
-                     finer=f"grid.nodes_along_longest or grid.spacing in {scene.source.name}")
+                     finer=f"grid.nodes_along_longest or grid.spacing in {scene.source.name}",
+                     solid=isinstance(scene.physics.material, ElasticMaterial))
     return SceneModel.build(scene, mesh, centre, grid, np.array(mesh.bounds, dtype=np.float64))
 
 

@@ -44,7 +44,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["xpbd_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -72,12 +72,41 @@ def _fractions(grid: NodeGrid, bbox: np.ndarray) -> np.ndarray:
     return grid.bbox_fraction(grid.rest_positions, bbox[0], bbox[1])
 
 
-def _caught(region: Region, frac: np.ndarray, grid: NodeGrid, source: str, key: str) -> np.ndarray:
+#: a node is held by a region when at least this share of its material lies in the region
+MATERIAL_MAJORITY = 0.5
+
+
+def region_nodes(region: Region, grid: NodeGrid, bbox: np.ndarray) -> np.ndarray:
+    """(N,) bool: the nodes a region (fractions of ``bbox``, (2, 3)) selects.
+
+    On a grid without a fill: the nodes whose rest positions lie in the region. On a grid whose
+    cells carry the mesh (:mod:`deformgl.grid.fill`) a region selects the mesh's material in it:
+    each node's material is the fill's samples inside the mesh spread over their cells' corners
+    with the trilinear weights, and a node is selected when at least :data:`MATERIAL_MAJORITY`
+    of it lies in the region; where the region holds material but no node has that majority
+    (a region thinner than a cell), the nodes with at least half the largest share are (the
+    node plane next to a thin slab of material, its border nodes' partial cells included).
+    A region that holds none of the mesh's material selects no node.
+    """
+    fill = grid.fill
+    if fill is None:
+        return region.contains(_fractions(grid, bbox))
+    points = fill.inside_positions(grid.origin, grid.spacing)
+    held = region.contains(grid.bbox_fraction(points, bbox[0], bbox[1]))
+    if not held.any():
+        return np.zeros(grid.count, bool)
+    share = fill.node_weights(grid.index, held) / fill.node_weights(grid.index)
+    nodes = share >= MATERIAL_MAJORITY
+    return nodes if nodes.any() else share >= share.max() / 2.0
+
+
+def _caught(region: Region, grid: NodeGrid, bbox: np.ndarray, source: str, key: str) -> np.ndarray:
     """The nodes a region selects; none is an error naming the key (a silent no-op would let
     an unfixed body fall out of the frame)."""
-    nodes = region.contains(frac)
+    nodes = region_nodes(region, grid, bbox)
     if not nodes.any():
-        raise SceneError(f"{source}: {key}: the region catches no node of the grid ({grid.count} nodes "
+        what = "holds none of the mesh's material" if grid.fill is not None else "catches no node of the grid"
+        raise SceneError(f"{source}: {key}: the region {what} ({grid.count} nodes "
                          f"at spacing {grid.spacing:.4g}); widen it or refine the grid")
     return nodes
 
@@ -94,10 +123,9 @@ def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: 
     Raises:
         SceneError: a fixed region that catches no node (``source: physics.fixed[i]: ...``).
     """
-    frac = _fractions(grid, bbox)
     fixed = np.zeros(grid.count, bool)
     for i, region in enumerate(physics.fixed):
-        fixed |= _caught(region, frac, grid, source, f"physics.fixed[{i}]")
+        fixed |= _caught(region, grid, bbox, source, f"physics.fixed[{i}]")
     material = physics.material
     if material is not None:
         build = lattice_system if isinstance(material, ElasticMaterial) else sheet_system
@@ -122,10 +150,9 @@ def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: s
     Raises:
         SceneError: a pull region that catches no node.
     """
-    frac = _fractions(grid, bbox)
     loads = []
     for i, pull in enumerate(physics.pull):
-        nodes = _caught(pull.region, frac, grid, source, f"physics.pull[{i}]")
+        nodes = _caught(pull.region, grid, bbox, source, f"physics.pull[{i}]")
         force: Callable[[float], np.ndarray] = pull.force_at
         if physics.material is not None:
             force = _split(pull.force_at, int(nodes.sum()))

@@ -27,6 +27,16 @@ voxelization) is given the share of one cell (edge k/4, diagonal k/2), and a nod
 the mass of one cell corner (rho h^3/8), so every node stays connected and massive;
 :class:`LatticeReport` counts them.
 
+Cells that carry the mesh: on a grid with a fill (:mod:`deformgl.grid.fill`, every solid mesh
+scene) each cell carries its fraction f of the mesh's material instead: its springs f of a full
+cell's shares in all (:func:`fill_shares`: half evenly, half where the material lies), a spring
+in no cell with material nothing, and each node the mass ``rho h^3 (sum of its springs) / 18 k``,
+which is ``rho h^3`` at an interior node of full cells and sums to rho times the fill's volume.
+A node's springs and mass then scale together, so its Gershgorin bound ``sum_j |K_ij| / m_i`` is
+a full cell's whatever its fill: nearly empty cells neither stiffen the body nor lower the stable
+dt. The volumetric term (``system.cells``) has no per-cell weight on the GPU, so a cell carries it
+whole where the mesh fills at least half of it and not at all below (docs/EQUATIONS.md).
+
 Damping is Rayleigh damping, independent of the resolution: ``mass_damping`` alpha (1/s) gives
 each node the force ``-alpha m v`` and ``stiffness_damping`` beta (s) gives each spring the damping
 ``c_s = beta k_s`` along it; a mode of angular frequency w then has the damping ratio
@@ -60,7 +70,8 @@ MIN_POISSON = 0.25
 MAX_POISSON = 0.499
 
 __all__ = ["MIN_POISSON", "MAX_POISSON", "ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
-           "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts"]
+           "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts", "cell_weights", "fill_shares",
+           "EVEN_SHARE"]
 
 
 @dataclass(frozen=True)
@@ -218,9 +229,13 @@ class LatticeReport:
     thin_springs: int
     spring_constant: float  # k = mu h (N/m) of an interior spring (2 E h / 5 at nu = 1/4); the sheet's k_d
     node_mass: float        # rho h^3 (kg) of an interior node; the sheet's rho_A h^2
+    fill: float | None = None  # cells' fill fractions summed (full cells' worth of material), or None
 
     def summary(self) -> str:
         """One line for logs and the CLI."""
+        if self.fill is not None:
+            return (f"{self.cells} cells holding the mesh's material, {self.fill:.1f} full cells' worth "
+                    f"(each carries its fill)")
         text = f"{self.cells} full cells"
         if self.thin_nodes or self.thin_springs:
             text += (f"; {self.thin_nodes} nodes and {self.thin_springs} springs in no full cell "
@@ -253,32 +268,80 @@ def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "ve
     return factor / omega
 
 
-def cell_counts(grid: NodeGrid, system: SpringSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per spring of a :func:`from_grid` system (structural and shear only): the number of full
-    cells that contain it; per node: the number of full cells it is a corner of; and the
-    (nx-1, ny-1, nz-1) bool array of full cells."""
+def cell_weights(grid: NodeGrid) -> np.ndarray:
+    """(nx-1, ny-1, nz-1) float64 share of a full cell that each cell carries: the mesh's fill
+    fraction where the grid has one (:mod:`deformgl.grid.fill`), else 1 for every cell whose 8
+    corners exist and 0 for the others."""
+    if grid.fill is not None:
+        return np.asarray(grid.fill.fraction, np.float64)
     occ = grid.occupied
     nx, ny, nz = occ.shape
     full = np.ones((max(nx - 1, 0), max(ny - 1, 0), max(nz - 1, 0)), bool)
     for dx, dy, dz in product((0, 1), repeat=3):
         full &= occ[dx:nx - 1 + dx, dy:ny - 1 + dy, dz:nz - 1 + dz]
-    padded = np.pad(full, 1)  # cell (a, b, c) is padded[a + 1, b + 1, c + 1]
+    return full.astype(np.float64)
+
+
+def cell_counts(grid: NodeGrid, system: SpringSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per spring of a :func:`from_grid` system (structural and shear only): the full cells that
+    contain it, each counted by its :func:`cell_weights` (a count of full cells without a fill);
+    per node: the same sum over the cells it is a corner of; and the (nx-1, ny-1, nz-1) cell
+    weights."""
+    weights = cell_weights(grid)
+    padded = np.pad(weights, 1)  # cell (a, b, c) is padded[a + 1, b + 1, c + 1]
     ijk = grid.ijk.astype(np.int64)
     a, b = ijk[system.i], ijk[system.j]
     lo = np.minimum(a, b)
     differs = a != b                                  # (S, 3): the axes the spring spans
-    counts = np.zeros(system.spring_count, np.int64)
+    counts = np.zeros(system.spring_count, np.float64)
     for off in product((-1, 0), repeat=3):
         # along a spanned axis the cell index is lo (offset 0 only); along the others lo - 1 or lo
         o = np.array(off)
         valid = ~(differs & (o != 0)).any(axis=1)
         idx = lo + np.where(differs, 0, o) + 1
-        counts += valid & padded[idx[:, 0], idx[:, 1], idx[:, 2]]
-    node_cells = np.zeros(grid.count, np.int64)
+        counts += valid * padded[idx[:, 0], idx[:, 1], idx[:, 2]]
+    node_cells = np.zeros(grid.count, np.float64)
     for off in product((-1, 0), repeat=3):
         idx = ijk + np.array(off) + 1
         node_cells += padded[idx[:, 0], idx[:, 1], idx[:, 2]]
-    return counts, node_cells, full
+    return counts, node_cells, weights
+
+
+#: the part of a filled cell's share its springs get evenly; the rest goes where its material
+#: lies (:func:`fill_shares`; docs/ACCURACY.md section 9 measures 0, 0.2, 0.5 and 1)
+EVEN_SHARE = 0.5
+
+
+def fill_shares(grid: NodeGrid, system: SpringSystem) -> np.ndarray:
+    """Per spring of a :func:`from_grid` system on a grid with a fill: its share of the cells that
+    hold it, in full cells (a count of full cells where the mesh fills them).
+
+    A cell of fill fraction f gives each of its springs :data:`EVEN_SHARE` f, and the rest by
+    where its material lies: an edge stands for the quarter of the cell nearest to it, a face
+    diagonal for the half on its face's side (the octants of
+    :attr:`~deformgl.grid.fill.CellFill.octants`), and gets that part's fill. A cell's 12 edges
+    cover its 8 octants evenly (each 3 times), as do its 12 diagonals (each 6 times), so the
+    cell's springs carry f of a full cell's in all either way; the even part keeps every cell
+    with material braced on all its faces (a cell braced on some faces only is a mechanism)."""
+    if grid.fill is None:
+        raise ValueError("fill_shares: the grid has no fill")
+    octants = np.pad(grid.fill.octants.reshape(*grid.fill.cells, 8), ((1, 1), (1, 1), (1, 1), (0, 0)))
+    bits = np.array(list(product((0, 1), repeat=3)))  # (8, 3) octant (ox, oy, oz) in C order
+    ijk = grid.ijk.astype(np.int64)
+    a, b = ijk[system.i], ijk[system.j]
+    lo = np.minimum(a, b)
+    differs = a != b
+    shares = np.zeros(system.spring_count, np.float64)
+    for off in product((-1, 0), repeat=3):
+        o = np.array(off)
+        valid = ~(differs & (o != 0)).any(axis=1)
+        idx = lo + np.where(differs, 0, o) + 1
+        cell = octants[idx[:, 0], idx[:, 1], idx[:, 2]]                       # (S, 8)
+        side = np.where(o == -1, 1, 0)                                         # the spring's side where it does not span
+        chosen = ((bits[None, :, :] == side[None, None, :]) | differs[:, None, :]).all(axis=2)  # (S, 8)
+        placed = (cell * chosen).sum(axis=1) / chosen.sum(axis=1)
+        shares += valid * ((1.0 - EVEN_SHARE) * placed + EVEN_SHARE * cell.mean(axis=1))
+    return shares
 
 
 def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLike | None = None,
@@ -299,19 +362,30 @@ def lattice_system(grid: NodeGrid, material: ElasticMaterial, *, fixed: ArrayLik
     k = lattice_stiffness(material, h)
     base = from_grid(grid, k_structural=1.0, k_shear=1.0, fixed=fixed, gravity=gravity,
                      wind=wind, wind_drag=wind_drag)
-    counts, node_cells, full = cell_counts(grid, base)
+    counts, node_cells, weights = cell_counts(grid, base)
     share = np.where(base.spring_class == STRUCTURAL, 4.0, 2.0)
     thin_springs = counts == 0
-    stiffness = k * np.maximum(counts, 1) / share
     thin_nodes = node_cells == 0
-    mass = material.density * h ** 3 / 8.0 * np.maximum(node_cells, 1)
-    cells = CellVolumes(grid_cells(grid.occupied, grid.index), h, material.volume_modulus,
-                        BARRIER_SCALE * material.shear_modulus)
+    if grid.fill is None:  # the voxeliser's thin features: one cell's share each
+        stiffness = k * np.maximum(counts, 1.0) / share
+        mass = material.density * h ** 3 / 8.0 * np.maximum(node_cells, 1.0)
+        volumetric = grid_cells(grid.occupied, grid.index)
+    else:  # cells carry their fill where it lies: a spring in no cell with material carries nothing
+        stiffness = k * fill_shares(grid, base) / share
+        # a node's mass in proportion to its springs: rho h^3 at an interior node of full cells
+        # (18 k of springs), the cell's fill in all, and every node's k / m that of a full cell
+        row = np.bincount(base.i, stiffness, grid.count) + np.bincount(base.j, stiffness, grid.count)
+        mass = material.density * h ** 3 * row / (18.0 * k)
+        # the volumetric term has no per-cell weight on the GPU: a cell carries it whole when the
+        # mesh fills at least half of it (docs/EQUATIONS.md, "Cells that carry the mesh")
+        volumetric = grid_cells(grid.occupied, grid.index, weights >= 0.5)
+    cells = CellVolumes(volumetric, h, material.volume_modulus, BARRIER_SCALE * material.shear_modulus)
     system = dataclasses.replace(base, stiffness=stiffness, damping=material.stiffness_damping * stiffness,
                                  mass=mass, mass_damping=material.mass_damping,
                                  material=material, cells=cells)
-    report = LatticeReport(int(full.sum()), int(thin_nodes.sum()), int(thin_springs.sum()), k,
-                           material.density * h ** 3)
+    report = LatticeReport(int((weights > 0).sum()), int(thin_nodes.sum()), int(thin_springs.sum()), k,
+                           material.density * h ** 3,
+                           fill=None if grid.fill is None else float(weights.sum()))
     return system, report
 
 

@@ -99,12 +99,13 @@ class CellVolumes:
         return self.spacing ** 3
 
 
-def grid_cells(occupied: np.ndarray, index: np.ndarray) -> np.ndarray:
+def grid_cells(occupied: np.ndarray, index: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
     """(C, 8) corner node numbers of every full cell of a node grid (``NodeGrid.occupied`` and
-    ``NodeGrid.index``, -1 where no node), in C order of the cell's lower corner (a, b, c)."""
+    ``NodeGrid.index``, -1 where no node), in C order of the cell's lower corner (a, b, c);
+    ``among`` ((nx-1, ny-1, nz-1) bool), if given: only the full cells it marks."""
     nx, ny, nz = occupied.shape
     shape = (max(nx - 1, 0), max(ny - 1, 0), max(nz - 1, 0))
-    full = np.ones(shape, bool)
+    full = np.ones(shape, bool) if among is None else np.array(among, bool)
     for dx, dy, dz in product((0, 1), repeat=3):
         full &= occupied[dx:nx - 1 + dx, dy:ny - 1 + dy, dz:nz - 1 + dz]
     a, b, c = np.nonzero(full)
