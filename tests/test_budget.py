@@ -60,7 +60,7 @@ def test_check_refuses_with_one_line_naming_what_to_change():
         check(b, available_host=int(9.8e9))
     msg = str(exc.value)
     assert "\n" not in msg
-    assert msg.startswith("jelly.toml: needs about ") and "GB of host memory for 12,960,000 nodes" in msg
+    assert msg.startswith("jelly.toml: needs about ") and "GB of host memory for 13,301,288 nodes" in msg
     assert msg.endswith("9.8 GB available: lower grid.nodes_along_longest (300)")
     check(estimate(_jelly(9)), available_host=int(9.8e9))  # the shipped jelly fits
 

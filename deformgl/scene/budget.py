@@ -198,6 +198,15 @@ def estimate(scene: Any) -> Budget:
         else:
             key = ("grid.nodes_along_longest", scene.grid.nodes_along_longest)
         mesh_box = math.prod(n + 3 for n in shape)  # the voxelizer's padded corner lattice
+        if material is not None and not hasattr(material, "areal_density"):
+            # a solid's grid is the cells its material fills (deformgl.grid.fill): up to one node
+            # plane more on each side, and the fill's samples, box-sized intermediates of their own
+            from deformgl.grid.fill import MAX_SAMPLES, MIN_SAMPLES, SAMPLES_ALONG_LONGEST
+
+            along = max(max(shape) - 1, 1)
+            per_cell = max(MIN_SAMPLES, math.ceil(SAMPLES_ALONG_LONGEST / along))
+            mesh_box += min(MAX_SAMPLES, math.prod((n + 1) * per_cell for n in shape))
+            shape = (shape[0] + 2, shape[1] + 2, shape[2] + 2)
     nodes = math.prod(shape)
     springs = box_springs(shape, flexion)
     box = nodes
