@@ -134,6 +134,26 @@ def recentred(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
                            process=False), centre
 
 
+#: the last fills built in this process, by mesh bytes and resolution (both results are immutable)
+_FILLS: dict[tuple, tuple] = {}
+_FILLS_KEPT = 8
+
+
+def _filled(mesh: trimesh.Trimesh, nodes_along_longest: int | None, spacing: float | None, source: str):
+    """:func:`~deformgl.grid.fill.fill_cells` of the mesh, reused when the same mesh at the same
+    resolution was filled before in this process (a scene rebuilt, a study's repeated runs)."""
+    import hashlib
+
+    digest = hashlib.sha256(np.ascontiguousarray(mesh.vertices, np.float64).tobytes()
+                            + np.ascontiguousarray(mesh.faces, np.int64).tobytes()).hexdigest()
+    key = (digest, nodes_along_longest, spacing)
+    if key not in _FILLS:
+        if len(_FILLS) >= _FILLS_KEPT:
+            _FILLS.pop(next(iter(_FILLS)))
+        _FILLS[key] = fill_cells(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
+    return _FILLS[key]
+
+
 def mesh_grid(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing: float | None, source: str,
               finer: str, solid: bool = False) -> NodeGrid:
     """The node grid of a (recentred) mesh; a mesh too thin for any cell or 2x2 sheet is an
@@ -145,7 +165,7 @@ def mesh_grid(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing
     Mosegaard & Sørensen 2005)."""
     fill = None
     if solid:
-        vox, fill = fill_cells(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
+        vox, fill = _filled(mesh, nodes_along_longest, spacing, source)
     else:
         vox = voxelize(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing, source=source)
     grid = NodeGrid(origin=np.asarray(vox.origin, dtype=np.float64), spacing=float(vox.spacing),
