@@ -282,6 +282,26 @@ def cell_weights(grid: NodeGrid) -> np.ndarray:
     return full.astype(np.float64)
 
 
+def _spans(grid: NodeGrid, system: SpringSystem) -> np.ndarray:
+    """(S, 3) bool: the axes each spring spans."""
+    ijk = grid.ijk.astype(np.int64)
+    return ijk[system.i] != ijk[system.j]
+
+
+def _spring_cells(grid: NodeGrid, system: SpringSystem):
+    """The up to 4 cells that hold each spring (edge or face diagonal), one offset at a time:
+    yields ``(o, valid, idx)``, the (3,) offset in {-1, 0} of the cell from the spring's lower
+    end along the axes it does not span, (S,) whether that cell holds the spring, and (S, 3) the
+    cell's index + 1 (into an array padded by one cell)."""
+    ijk = grid.ijk.astype(np.int64)
+    lo = np.minimum(ijk[system.i], ijk[system.j])
+    differs = _spans(grid, system)
+    for off in product((-1, 0), repeat=3):
+        # along a spanned axis the cell index is lo (offset 0 only); along the others lo - 1 or lo
+        o = np.array(off)
+        yield o, ~(differs & (o != 0)).any(axis=1), lo + np.where(differs, 0, o) + 1
+
+
 def cell_counts(grid: NodeGrid, system: SpringSystem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per spring of a :func:`from_grid` system (structural and shear only): the full cells that
     contain it, each counted by its :func:`cell_weights` (a count of full cells without a fill);
@@ -290,15 +310,8 @@ def cell_counts(grid: NodeGrid, system: SpringSystem) -> tuple[np.ndarray, np.nd
     weights = cell_weights(grid)
     padded = np.pad(weights, 1)  # cell (a, b, c) is padded[a + 1, b + 1, c + 1]
     ijk = grid.ijk.astype(np.int64)
-    a, b = ijk[system.i], ijk[system.j]
-    lo = np.minimum(a, b)
-    differs = a != b                                  # (S, 3): the axes the spring spans
     counts = np.zeros(system.spring_count, np.float64)
-    for off in product((-1, 0), repeat=3):
-        # along a spanned axis the cell index is lo (offset 0 only); along the others lo - 1 or lo
-        o = np.array(off)
-        valid = ~(differs & (o != 0)).any(axis=1)
-        idx = lo + np.where(differs, 0, o) + 1
+    for _, valid, idx in _spring_cells(grid, system):
         counts += valid * padded[idx[:, 0], idx[:, 1], idx[:, 2]]
     node_cells = np.zeros(grid.count, np.float64)
     for off in product((-1, 0), repeat=3):
@@ -327,15 +340,9 @@ def fill_shares(grid: NodeGrid, system: SpringSystem) -> np.ndarray:
         raise ValueError("fill_shares: the grid has no fill")
     octants = np.pad(grid.fill.octants.reshape(*grid.fill.cells, 8), ((1, 1), (1, 1), (1, 1), (0, 0)))
     bits = np.array(list(product((0, 1), repeat=3)))  # (8, 3) octant (ox, oy, oz) in C order
-    ijk = grid.ijk.astype(np.int64)
-    a, b = ijk[system.i], ijk[system.j]
-    lo = np.minimum(a, b)
-    differs = a != b
     shares = np.zeros(system.spring_count, np.float64)
-    for off in product((-1, 0), repeat=3):
-        o = np.array(off)
-        valid = ~(differs & (o != 0)).any(axis=1)
-        idx = lo + np.where(differs, 0, o) + 1
+    differs = _spans(grid, system)
+    for o, valid, idx in _spring_cells(grid, system):
         cell = octants[idx[:, 0], idx[:, 1], idx[:, 2]]                       # (S, 8)
         side = np.where(o == -1, 1, 0)                                         # the spring's side where it does not span
         chosen = ((bits[None, :, :] == side[None, None, :]) | differs[:, None, :]).all(axis=2)  # (S, 8)
