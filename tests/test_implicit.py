@@ -57,7 +57,7 @@ def test_block_jacobi_is_the_inverse_of_the_node_blocks():
         make_simulation(s, "implicit-euler", "numpy", dt=0.01, cg_preconditioner="ilu")
 
 
-@pytest.mark.parametrize("preconditioner", ["jacobi", "block-jacobi"])
+@pytest.mark.parametrize("preconditioner", ["jacobi", "block-jacobi", "multigrid"])
 def test_gpu_matches_numpy_at_fixed_iterations(ctx, preconditioner):
     """One step and the warm-started next ones at a fixed iteration count, each preconditioner,
     on a deformed body (the blocks' off-diagonals matter)."""

@@ -268,7 +268,8 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import BENDING_PASSES, CELL_PASSES, PASSES, PRECONDITIONED_PASSES
+    from deformgl.sim.backends.implicit_gpu import (BENDING_PASSES, CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
+                                                    PRECONDITIONED_PASSES)
 
     for (layers, count), weights, forces, bending in itertools.product(((5, 18), (6, 24)), (False, True),
                                                                         list(_forces()), (False, True)):
@@ -277,17 +278,26 @@ def implicit() -> Iterator[Variant]:
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
-        for name in PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
-            if name in ("WARM", "INIT", "MATVEC") and forces["LOADS"]:
+        for name in PASSES + MG_PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
+            if name in ("WARM", "INIT", "MATVEC", *MG_PASSES) and forces["LOADS"]:
                 continue
-            defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC") else nb
+            defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC", *MG_PASSES) else nb
             if bending and name in BENDING_PASSES:
                 defines = {**defines, "BENDING": True}
             elif bending:
                 continue  # (the passes without BENDING are the variants above)
             # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner, the
             # scaled warm start (WARM_SCALED) in INIT
-            blocks = ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},)
+            # multigrid (pass_defines' multigrid): MULTIGRID in the CG passes, PRECOND_BLOCK in
+            # the smoothing (MG_SMOOTH_ZERO: MG_SMOOTH from zero)
+            blocks: tuple[dict[str, object], ...] = (
+                ({}, {"PRECOND_BLOCK": True}) if name in PRECONDITIONED_PASSES else ({},))
+            if name in MG_CG_PASSES:
+                blocks += ({"MULTIGRID": True},)
+            if name in MG_PASSES:
+                blocks = ({"PRECOND_BLOCK": True},) if name != "MG_RESIDUAL" else ({},)
+            pass_name: dict[str, object] = ({"MG_SMOOTH": True, "FROM_ZERO": True} if name == "MG_SMOOTH_ZERO"
+                                            else {name: True})
             warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
             # the cells' terms (pass_defines' cells): none, or a (centre, barrier) pair
             cells: list[dict[str, object]] = [{}]
@@ -297,8 +307,13 @@ def implicit() -> Iterator[Variant]:
             for c, block, scaled, cell in itertools.product(_constraints() if name == "FINAL" else [{}], blocks,
                                                             warm, cells):
                 yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag",
-                         {**defines, **c, **block, **scaled, **cell, name: True})
+                         {**defines, **c, **block, **scaled, **cell, **pass_name})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
+    # the multigrid's coarse levels (deformgl.sim.backends.multigrid_gpu)
+    for level_pass in ({"LEVEL_SMOOTH": True}, {"LEVEL_SMOOTH": True, "FROM_ZERO": True}, {"LEVEL_RESIDUAL": True},
+                       {"RESTRICT": True}, {"PROLONG": True}, {"COARSEST": True}, {"RZ": True},
+                       {"RZ": True, "RZ_INIT": True}):
+        yield _v("sim/fullscreen.vert", "sim/implicit/multigrid.frag", level_pass)
 
 
 GROUPS["implicit"] = implicit

@@ -5,7 +5,10 @@ Keys (SI, the unit in the name): ``mesh``, ``nodes``, ``springs``, ``integrator`
 ``steps`` (scene steps taken), ``frames``, ``fps``, ``dt_s`` (the scene step), ``substeps`` (per
 scene step), ``simulated_time_s``, ``wall_time_s``, ``converged`` (the convergence stop's verdict: at
 equilibrium, by default), ``convergence`` (its last check's measures), ``inverted_cells`` (the
-inversion census at the end: cells with a corner Jacobian <= 0; None without cells), ``mapping``, ``size``,
+inversion census at the end: cells with a corner Jacobian <= 0; None without cells), ``solver``
+(implicit Euler's linear solves, apart from ``converged``: preconditioner, tolerance, residual
+floor in N s, iterations mean and most per step, the last and worst relative residual
+``|b - A dv| / |b|``, steps that missed the tolerance; None for the other integrators), ``mapping``, ``size``,
 ``renderer``, ``deformgl`` (the version), and ``outputs`` once written.
 """
 
@@ -66,6 +69,7 @@ def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, 
         "converged": run.converged if simulated else None,
         "convergence": getattr(run, "convergence", None) if simulated else None,
         "inverted_cells": getattr(run, "inverted_cells", None) if simulated else None,
+        "solver": getattr(run, "solver", None) if simulated else None,
         "mapping": scene.mapping.mode,
         **material_fields(scene),
         "size": list(scene.render.size),

@@ -206,6 +206,8 @@ class SceneRun:
     #: the inversion census at the end (None: a body without cells); its phrase ("" if none)
     inverted_cells: int | None = None
     inverted: str = ""
+    #: an implicit integrator's linear solves (:attr:`deformgl.sim.run.RunResult.solver`)
+    solver: dict | None = None
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
@@ -287,7 +289,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         step_dt = result.dt if result.dt is not None else physics.dt
         out = SceneRun(positions, result.steps, result.converged, sim.bytes_per_node, result.steps * step_dt,
                        result.substeps, sim if kept else None, result.convergence, result.inverted_cells,
-                       result.inverted)
+                       result.inverted, result.solver)
         if kept:
             made.clear()
         return out

@@ -37,16 +37,21 @@ The solver is preconditioned conjugate gradients, warm-started from the previous
 written out here (not ``scipy.sparse.linalg.cg``) so the GPU backend
 (:mod:`deformgl.sim.backends.implicit_gpu`) runs the same iteration and can be matched against it
 step for step: ``iterations`` is the most iterations per step; with ``tolerance`` > 0 it stops
-when the preconditioned residual ``sqrt(r.P^-1 r / b.P^-1 b)`` is at most ``tolerance``, tested
-every ``check_every`` iterations. ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
-The preconditioner P (:data:`PRECONDITIONERS`) is "jacobi", the diagonal of A, or "block-jacobi",
+when the relative residual ``|r| / |b|`` is at most ``tolerance`` or ``|r|`` is at most the
+absolute floor (:func:`residual_floor`, in N s), tested every ``check_every`` iterations: the
+same test for every preconditioner (``r = b - A dv``, CG's updated residual; the report gives the
+true ``|b - A dv| / |b|`` at the end). ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
+The preconditioner P (:data:`PRECONDITIONERS`) is "jacobi", the diagonal of A, "block-jacobi",
 the 3x3 diagonal block of A per node (its x y z coupling: the springs' ``u u^T`` terms), inverted
-per node; both are symmetric positive definite where A is, so CG stays CG.
+per node, or "multigrid", a geometric V-cycle over the node grid at 2h, 4h, ...
+(:mod:`deformgl.sim.multigrid`; grid systems only); all three are symmetric positive definite
+where A is, so CG stays CG.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -56,17 +61,19 @@ import scipy.sparse.linalg as spla
 from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
+from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
-__all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULTS", "SolveReport", "LinearSystem",
+__all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULTS", "SolveReport", "SolverStats",
+           "EPS32", "residual_floor", "multigrid_levels", "LinearSystem",
            "WARM_STARTS", "DEFAULT_WARM_START", "assemble", "check_preconditioner", "check_warm_start",
            "warm_start", "preconditioner", "pcg", "implicit_step", "ImplicitNumpySimulation",
            "solver_note"]
 
 #: How the geometric stiffness of a spring (and a cell) enters H (module docstring).
 GEOMETRIC = ("projected", "full", "none", "eigen")
-#: The CG preconditioners: the diagonal of A, or its 3x3 block per node.
-PRECONDITIONERS = ("jacobi", "block-jacobi")
+#: The CG preconditioners: the diagonal of A, its 3x3 block per node, or the grid's V-cycle.
+PRECONDITIONERS = ("jacobi", "block-jacobi", "multigrid")
 DEFAULT_PRECONDITIONER = "jacobi"
 #: How CG starts a step: "scaled", the last step's dv times the s that minimises the A-norm
 #: error along it, ``s = (b . dv) / (dv . A dv)`` (0 if that is not > 0; never worse than
@@ -87,8 +94,10 @@ class SolveReport:
 
     Attributes:
         iterations: CG iterations done.
-        residual: ``sqrt(r.P^-1 r / b.P^-1 b)`` after them (0 for a zero right-hand side).
-        within_tolerance: residual <= tolerance (True without a tolerance): the solver's own
+        residual: the relative residual ``|b - A dv| / |b|`` after them (0 for a zero
+            right-hand side; NaN where it was not read: the GPU without a tolerance).
+        within_tolerance: the residual is at most the tolerance, or ``|b - A dv|`` at most the
+            absolute floor (:func:`residual_floor`); True without a tolerance: the solver's own
             per-step convergence, not the run's equilibrium (a run's ``converged``,
             :mod:`deformgl.sim.equilibrium`).
     """
@@ -96,6 +105,63 @@ class SolveReport:
     iterations: int
     residual: float
     within_tolerance: bool
+
+
+@dataclass
+class SolverStats:
+    """A run's linear solves, what the run record reports as ``solver`` (apart from the run's
+    equilibrium ``converged``): steps, iterations (mean and most per step), the last and the
+    worst relative residual, the absolute floor (N s, :func:`residual_floor`) and the steps
+    that missed both."""
+
+    preconditioner: str
+    tolerance: float
+    floor: float = 0.0
+    steps: int = 0
+    iterations_total: int = 0
+    iterations_most: int = 0
+    residual_last: float = float("nan")
+    residual_worst: float = float("nan")
+    unconverged: int = 0
+
+    def add(self, report: SolveReport) -> None:
+        self.steps += 1
+        self.iterations_total += report.iterations
+        self.iterations_most = max(self.iterations_most, report.iterations)
+        if not np.isnan(report.residual):
+            self.residual_last = report.residual
+            self.residual_worst = (report.residual if np.isnan(self.residual_worst)
+                                   else max(self.residual_worst, report.residual))
+        if not report.within_tolerance:
+            self.unconverged += 1
+
+    def summary(self) -> dict[str, Any]:
+        """The record's ``solver`` entry (residuals None where none was read)."""
+        def value(x: float) -> float | None:
+            return None if np.isnan(x) else float(x)
+
+        return {"method": "cg", "preconditioner": self.preconditioner, "tolerance": self.tolerance,
+                "residual_floor_Ns": self.floor, "steps": self.steps,
+                "iterations_mean": self.iterations_total / self.steps if self.steps else 0.0,
+                "iterations_most": self.iterations_most, "residual_last": value(self.residual_last),
+                "residual_worst": value(self.residual_worst), "unconverged_steps": self.unconverged}
+
+
+#: float32's unit roundoff: the relative precision of a GPU node position.
+EPS32 = float(np.finfo(np.float32).eps) / 2
+
+
+def residual_floor(system: SpringSystem, x: np.ndarray, dt: float) -> float:
+    """The absolute floor of the solve's residual, in N s (an impulse, b's unit): ``dt`` times the
+    force noise that rounding the node positions to float32 makes, each spring's
+    ``k EPS32 |x|`` at the farthest node's ``|x|`` (at least the spacing), summed in quadrature
+    over a node's springs and over the nodes. A right-hand side this size is float32 noise (a
+    stiff body at rest in equilibrium, on the GPU): the solve counts a residual this small as
+    solved, whatever its relative size, on every backend alike."""
+    node_k2 = (np.bincount(system.i, system.stiffness ** 2, system.count)
+               + np.bincount(system.j, system.stiffness ** 2, system.count))
+    reach = max(float(np.max(np.abs(x))) if x.size else 0.0, float(system.spacing))
+    return float(dt * EPS32 * reach * np.sqrt(node_k2.sum()))
 
 
 @dataclass(frozen=True)
@@ -201,52 +267,56 @@ def check_preconditioner(name: object) -> str:
 
 def preconditioner(a: sp.csr_matrix, kind: str = DEFAULT_PRECONDITIONER) -> sp.spmatrix:
     """P^-1 of ``a`` (3F x 3F, x y z per node): ``1 / diag(A)`` ("jacobi") or the inverses of the
-    3x3 diagonal blocks (``"block-jacobi"``), as a sparse matrix."""
+    3x3 diagonal blocks (``"block-jacobi"``), as a sparse matrix ("multigrid" is a cycle, not a
+    matrix: :class:`deformgl.sim.multigrid.Hierarchy`)."""
     check_preconditioner(kind)
     if kind == "jacobi":
         return sp.diags(1.0 / a.diagonal()).tocsr()
-    nodes = a.shape[0] // 3
-    base = 3 * np.arange(nodes)
-    blocks = np.empty((nodes, 3, 3))
-    for r in range(3):
-        for c in range(3):
-            blocks[:, r, c] = np.asarray(a[base + r, base + c]).ravel()
-    return sp.bsr_matrix((np.linalg.inv(blocks), np.arange(nodes), np.arange(nodes + 1)),
-                         shape=a.shape).tocsr()
+    if kind == "multigrid":
+        raise ValueError("preconditioner: 'multigrid' is a V-cycle (deformgl.sim.multigrid.Hierarchy), not a matrix")
+    return block_inverse(a)
 
 
 def pcg(a: sp.csr_matrix, b: np.ndarray, x0: np.ndarray, *, iterations: int, tolerance: float = 0.0,
-        check_every: int = 4, preconditioner_kind: str = DEFAULT_PRECONDITIONER) -> tuple[np.ndarray, SolveReport]:
-    """Preconditioned CG from ``x0`` (:func:`preconditioner`), the iteration of the GPU backend
-    (module docstring)."""
-    inv = preconditioner(a, preconditioner_kind)
+        check_every: int = 4, preconditioner_kind: str = DEFAULT_PRECONDITIONER,
+        apply: Callable[[np.ndarray], np.ndarray] | None = None,
+        floor: float = 0.0) -> tuple[np.ndarray, SolveReport]:
+    """Preconditioned CG from ``x0``, the iteration of the GPU backend (module docstring).
+
+    Args:
+        preconditioner_kind: "jacobi" or "block-jacobi" (:func:`preconditioner`), unless
+            ``apply`` (``r -> P^-1 r``, a multigrid cycle) is given.
+        tolerance: stop when ``|r| <= tolerance |b|`` or ``|r| <= floor`` (N s), tested every
+            ``check_every`` iterations (0: always ``iterations``).
+    """
+    if apply is None:
+        inv = preconditioner(a, preconditioner_kind)
+        apply = inv.__matmul__
     x = x0.copy()
     r = b - a @ x
-    z = inv @ r
+    z = apply(r)
     p = z.copy()
     rz = float(r @ z)
-    bpb = float(b @ (inv @ b))
+    b_norm = float(np.linalg.norm(b))
+    stop = max(tolerance * b_norm, floor)
     done = 0
-
-    def residual(value: float) -> float:
-        return float(np.sqrt(max(value, 0.0) / bpb)) if bpb > 0 else 0.0
-
     for k in range(iterations):
-        if tolerance > 0 and k % check_every == 0 and residual(rz) <= tolerance:
+        if tolerance > 0 and k % check_every == 0 and float(np.linalg.norm(r)) <= stop:
             break
         q = a @ p
         pq = float(p @ q)
         alpha = rz / pq if pq != 0 else 0.0
         x += alpha * p
         r -= alpha * q
-        z = inv @ r
+        z = apply(r)
         rz_new = float(r @ z)
         beta = rz_new / rz if rz != 0 else 0.0
         p = z + beta * p
         rz = rz_new
         done = k + 1
-    res = residual(rz)
-    return x, SolveReport(done, res, tolerance <= 0 or res <= tolerance)
+    true = float(np.linalg.norm(b - a @ x))
+    res = true / b_norm if b_norm > 0 else 0.0
+    return x, SolveReport(done, res, tolerance <= 0 or res <= tolerance or true <= floor)
 
 
 def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv0: np.ndarray | None = None,
@@ -254,14 +324,19 @@ def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv
                   loads: tuple[Load, ...] = (), iterations: int = 20, tolerance: float = 0.0,
                   check_every: int = 4, solver: str = "cg", geometric: str = "projected",
                   preconditioner: str = DEFAULT_PRECONDITIONER,
-                  warm: str = DEFAULT_WARM_START) -> tuple[State, np.ndarray, SolveReport]:
+                  warm: str = DEFAULT_WARM_START, floor: float = 0.0,
+                  multigrid: CoarseLevels | None = None) -> tuple[State, np.ndarray, SolveReport]:
     """One backward-Euler step from t to t + dt.
 
     Args:
         dv0: (N, 3) warm start of dv (default 0).
         solver: "cg" (:func:`pcg`) or "direct".
-        preconditioner: CG's, one of :data:`PRECONDITIONERS`.
+        preconditioner: CG's, one of :data:`PRECONDITIONERS` ("multigrid": the system needs its
+            node grid).
         warm: how CG starts from ``dv0`` (:func:`warm_start`).
+        floor: the residual's absolute floor in N s (:func:`residual_floor`).
+        multigrid: "multigrid"'s levels (:func:`multigrid_levels`: the coarse operators of the
+            first step they served, kept); built from this step's matrix if not given.
         the rest: as :func:`deformgl.sim.integrators.step` and :func:`pcg`.
 
     Returns:
@@ -278,9 +353,12 @@ def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv
         sol = np.asarray(spla.spsolve(lin.matrix.tocsc(), lin.rhs)) if lin.rhs.size else lin.rhs
         report = SolveReport(0, 0.0, True)
     elif solver == "cg":
+        apply = None
+        if preconditioner == "multigrid":
+            apply = (multigrid_levels(system) if multigrid is None else multigrid).cycle(lin.matrix)
         sol, report = pcg(lin.matrix, lin.rhs, warm_start(lin.matrix, lin.rhs, start[dof], warm),
-                          iterations=iterations, tolerance=tolerance,
-                          check_every=check_every, preconditioner_kind=preconditioner)
+                          iterations=iterations, tolerance=tolerance, check_every=check_every,
+                          preconditioner_kind=preconditioner, apply=apply, floor=floor)
     else:
         raise ValueError(f"solver must be 'cg' or 'direct', got {solver!r}")
     dv = np.zeros(3 * system.count)
@@ -292,6 +370,15 @@ def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv
         apply_constraints(constraints, x_new, v_new, t, dt)
     x_new = np.where(fixed, state.x, x_new)
     return State(x=x_new, v=np.where(fixed, 0.0, v_new), x_prev=state.x), dv3, report
+
+
+def multigrid_levels(system: SpringSystem) -> CoarseLevels:
+    """The multigrid of ``system``'s free nodes (:func:`deformgl.sim.multigrid.grid_levels`);
+    ValueError naming ``preconditioner`` for a system without a node grid."""
+    if system.grid is None:
+        raise ValueError("cg_preconditioner 'multigrid' needs a grid system (a node grid: springs.from_grid, "
+                         "springs.cloth or materials.lattice_system); use 'jacobi' or 'block-jacobi'")
+    return CoarseLevels(grid_levels(system.grid.occupied, system.grid.ijk[~system.fixed]))
 
 
 def solver_note(unconverged: int, steps: int, worst: float, tolerance: float) -> str | None:
@@ -316,7 +403,9 @@ class ImplicitNumpySimulation(CpuSimulationBase):
 
     Attributes:
         last_report: the last step's :class:`SolveReport`; unconverged: steps that missed the
-        tolerance; worst_residual: the largest residual of those.
+        tolerance; worst_residual: the largest residual of those; stats: the run's
+        :class:`SolverStats`; floor: the residual's absolute floor (N s, :func:`residual_floor`
+        at the start state).
     """
 
     integrator = "implicit-euler"
@@ -332,6 +421,7 @@ class ImplicitNumpySimulation(CpuSimulationBase):
         check_cg(cg_iterations, cg_tolerance, cg_check_every)
         check_preconditioner(cg_preconditioner)
         check_warm_start(cg_warm_start)
+        multigrid = multigrid_levels(system) if cg_preconditioner == "multigrid" else None
         self.system = system
         self._start_clock(dt, t0)
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)
@@ -339,12 +429,15 @@ class ImplicitNumpySimulation(CpuSimulationBase):
         self.state = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                       if state is None else state)
         self.tolerance = float(cg_tolerance)
+        self.floor = residual_floor(system, self.state.x, self.dt)
         self.options: dict[str, Any] = dict(iterations=int(cg_iterations), tolerance=float(cg_tolerance),
                             check_every=int(cg_check_every), solver=solver, geometric=geometric,
-                            preconditioner=cg_preconditioner, warm=cg_warm_start)
+                            preconditioner=cg_preconditioner, warm=cg_warm_start, floor=self.floor,
+                            multigrid=multigrid)
         self.dv = np.zeros((self.count, 3))
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
+        self.stats = SolverStats("direct" if solver == "direct" else cg_preconditioner, self.tolerance, self.floor)
 
     def step(self, n: int = 1) -> None:
         for _ in range(n):
@@ -352,6 +445,7 @@ class ImplicitNumpySimulation(CpuSimulationBase):
                                                  constraints=self.constraints, drags=self.drags,
                                                  loads=self.loads, **self.options)
             self.last_report = report
+            self.stats.add(report)
             if not report.within_tolerance:
                 self.unconverged += 1
                 self.worst_residual = max(self.worst_residual, report.residual)
@@ -360,6 +454,10 @@ class ImplicitNumpySimulation(CpuSimulationBase):
     def solver_note(self) -> str | None:
         """What the run loop notes about the solves (CG missed its tolerance), or None."""
         return solver_note(self.unconverged, self.steps_done, self.worst_residual, self.tolerance)
+
+    def solver_stats(self) -> dict[str, Any]:
+        """The run's solves for the run record (:meth:`SolverStats.summary`)."""
+        return self.stats.summary()
 
 
 def check_cg(iterations: object, tolerance: object, check_every: object) -> None:

@@ -61,6 +61,9 @@ class RunResult:
             cells whose trilinear map has a Jacobian <= 0 at a corner; None for a system without
             cells (springs only).
         inverted: the census's phrase naming the first inverted cell, "" when there is none.
+        solver: an implicit integrator's linear solves (its ``solver_stats()``: iterations mean
+            and most per step, last and worst relative residual, steps that missed the
+            tolerance), None for the others: the solver's convergence, apart from ``converged``.
     """
 
     steps: int
@@ -72,6 +75,7 @@ class RunResult:
     convergence: str | None = None
     inverted_cells: int | None = None
     inverted: str = ""
+    solver: dict | None = None
 
 
 #: what :func:`run` takes as its convergence stop: a monitor, or ``(threshold, every)`` of the
@@ -316,7 +320,9 @@ def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[fl
     if note:
         noted.append(note)
     residual_note(sim, noted)
-    return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]))
+    stats = getattr(sim, "solver_stats", None)
+    return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]),
+                   solver=stats() if callable(stats) else None)
 
 
 def residual_note(sim: Simulation, notes: list[str]) -> None:

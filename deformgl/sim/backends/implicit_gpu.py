@@ -33,8 +33,10 @@ NumPy backend's "projected" H), each node gathering its 8 incident cells from it
 neighbourhood; the barriers' products only at the nodes SETUP found a barrier term active at. Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
 (``shaders/sim/implicit/reduce.frag``) that the next pass samples: with a fixed iteration count
 (``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
-scalar (``r . P^-1 r``) every ``cg_check_every`` iterations, and ``b . P^-1 b`` once per step;
-without one :meth:`ImplicitFragment.residual` reads the last step's two scalars on request.
+scalar (``r . r``) every ``cg_check_every`` iterations, and ``b . b`` once per step, and stops at
+``|r| <= max(tol |b|, floor)`` (:func:`~deformgl.sim.implicit.residual_floor`), the NumPy
+reference's test; without one :meth:`ImplicitFragment.residual` reads the last step's two scalars
+on request.
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
 
@@ -49,10 +51,11 @@ GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless 
   the products), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
   inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two,
   ping-pong; the latest is the next step's warm start), r (two), p (two), q (xyz), a per-texel
-  product (R, all channels equal; after WARM R and G), the reduction levels (RGBA, each channel
+  product (after SETUP, INIT and UPDATE R the preconditioned, G the plain dot product; after
+  MATVEC R; after WARM R and G), the reduction levels (RGBA, each channel
   summed; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and five 1x1 scalars (R:
-  ``b.P^-1 b``, ``p.q``, ``r.P^-1 r`` twice: before and after an update; the warm start's R
-  ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
+  ``b.P^-1 b`` (G ``b.b``), ``p.q``, ``r.P^-1 r`` twice (G ``r.r``): before and after an update;
+  the warm start's R ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
 """
 
 from __future__ import annotations
@@ -68,8 +71,11 @@ from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, nei
 from deformgl.sim.backends.grid_springs import bending_coefficients, compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, check_cg,
-                                   check_preconditioner, check_warm_start, solver_note)
+from deformgl.sim.backends.multigrid_gpu import GpuMultigrid
+from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, SolverStats, assemble,
+                                   check_cg, check_preconditioner, check_warm_start, multigrid_levels, residual_floor,
+                                   solver_note)
+from deformgl.sim.multigrid import Hierarchy
 from deformgl.sim.integrators import Constraints, State, initial_state
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
@@ -78,6 +84,10 @@ __all__ = ["ImplicitFragment", "PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES"]
 
 #: The passes of ``implicit.frag`` (one define each).
 PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
+#: Its multigrid passes on the finest level (MG_SMOOTH_ZERO: MG_SMOOTH with FROM_ZERO).
+MG_PASSES = ("MG_SMOOTH_ZERO", "MG_SMOOTH", "MG_RESIDUAL")
+#: The passes that apply P^-1 (multigrid: MULTIGRID instead, the cycle runs between them).
+MG_CG_PASSES = ("INIT", "UPDATE", "DIRECTION")
 _UNITS = {"u_node": 0, "u_neighbours": 1, "u_weights": 2, "u_x": 3, "u_v": 4, "u_vec": 5, "u_inv": 6,
           "u_b": 7, "u_dv": 8, "u_r": 9, "u_p": 10, "u_q": 11, "u_rz": 12, "u_pq": 13, "u_rz_new": 14,
           "u_warm": 13}  # (u_warm: INIT only, which reads no u_pq)
@@ -91,8 +101,10 @@ PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 #: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in all
 #: four); they read the neighbourhood texture on the unit of ``u_rz``, which only
 #: UPDATE and DIRECTION read.
-CELL_PASSES = ("SETUP", "WARM", "INIT", "MATVEC")
+CELL_PASSES = ("SETUP", "WARM", "INIT", "MATVEC", *MG_PASSES)
 _UNITS["u_cell_nb"] = _UNITS["u_rz"]
+#: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
+_UNITS["u_mg_rhs"] = _UNITS["u_z"] = _UNITS["u_q"]
 #: The passes that read a sheet's bending coefficients (define BENDING: forces in SETUP, B y in
 #: all four, ``sim/implicit/system.glsl``), on the unit of ``u_r``, which only UPDATE and
 #: DIRECTION read.
@@ -102,12 +114,15 @@ _UNITS["u_bending"] = _UNITS["u_r"]
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
-                 scaled: bool = True, cells: bool = False, bending: bool = False) -> dict[str, dict[str, object]]:
+                 scaled: bool = True, cells: bool = False, bending: bool = False,
+                 multigrid: bool = False) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
     ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
     :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
     kappa_b > 0 (none of the three if both are 0); ``bending``: a sheet's bending term
-    (``system.bending``): BENDING in :data:`BENDING_PASSES`."""
+    (``system.bending``): BENDING in :data:`BENDING_PASSES`; ``multigrid``: the V-cycle's passes
+    (:data:`MG_PASSES`, with PRECOND_BLOCK in MG_SMOOTH's) and MULTIGRID in
+    :data:`MG_CG_PASSES` (``block`` then puts PRECOND_BLOCK in SETUP only)."""
     common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
                                  "SPRING_DAMPING": bool(np.any(system.damping > 0)), "SPRING_WEIGHTS": weights,
                                  "DRAGS": drags, "LOADS": loads, "SPHERES": 0}
@@ -117,23 +132,31 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     # INIT, MATVEC); UPDATE, DIRECTION and FINAL combine vectors (FINAL: and the constraints)
     nb = {"NB_LAYERS": common["NB_LAYERS"], "NB_COUNT": common["NB_COUNT"], "SPHERES": 0}
     product = {**common, "LOADS": 0}
-    out = {name: {**(common if name == "SETUP" else product if name in ("WARM", "INIT", "MATVEC") else nb),
-                  name: True} for name in PASSES}
+    names = PASSES + (MG_PASSES if multigrid else ())
+    out = {name: {**(common if name == "SETUP" else product if name in ("WARM", "INIT", "MATVEC", *MG_PASSES)
+                     else nb), name: True} for name in names}
+    if multigrid:
+        out["MG_SMOOTH_ZERO"] = {**out.pop("MG_SMOOTH_ZERO"), "MG_SMOOTH": True, "FROM_ZERO": True}
+        del out["MG_SMOOTH_ZERO"]["MG_SMOOTH_ZERO"]
+        for name in MG_CG_PASSES:
+            out[name]["MULTIGRID"] = True
+        for name in ("MG_SMOOTH_ZERO", "MG_SMOOTH"):
+            out[name]["PRECOND_BLOCK"] = True
     if scaled:
         out["INIT"]["WARM_SCALED"] = True
     c = constraints
     if c is not None and (c.ground is not None or c.spheres):
         out["FINAL"].update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
     if block:
-        for name in PRECONDITIONED_PASSES:
+        for name in ("SETUP",) if multigrid else PRECONDITIONED_PASSES:
             out[name]["PRECOND_BLOCK"] = True
     terms = {"CELL_CENTRE": system.cells.volume_modulus > 0,
              "CELL_BARRIER": system.cells.barrier_modulus > 0} if cells and system.cells is not None else {}
     if any(terms.values()):
-        for name in CELL_PASSES:
+        for name in (n for n in CELL_PASSES if n in out):
             out[name].update(IMPLICIT_CELLS=True, **{k: True for k, on in terms.items() if on})
     if bending:
-        for name in BENDING_PASSES:
+        for name in (n for n in BENDING_PASSES if n in out):
             out[name]["BENDING"] = True
     return out
 
@@ -145,7 +168,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         ctx, system, grid, dt, constraints, drags, loads, state, t0: as
             :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`.
         cg_iterations: CG iterations per step (the most, with a tolerance).
-        cg_tolerance: relative preconditioned residual to stop at (0: always ``cg_iterations``,
+        cg_tolerance: relative residual ``|r| / |b|`` to stop at, or ``|r|`` at most the absolute
+            floor (:func:`~deformgl.sim.implicit.residual_floor`) (0: always ``cg_iterations``,
             no read-back).
         cg_check_every: iterations between residual read-backs (with a tolerance).
         cg_preconditioner: "jacobi" or "block-jacobi"
@@ -175,7 +199,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
             raise ValueError(f"ImplicitFragment: dt must be > 0, got {dt}")
         check_cg(cg_iterations, cg_tolerance, cg_check_every)
         self.preconditioner = check_preconditioner(cg_preconditioner)
-        self.block = self.preconditioner == "block-jacobi"
+        self.multigrid = self.preconditioner == "multigrid"
+        self.block = self.preconditioner in ("block-jacobi", "multigrid")  # (multigrid: the smoother's blocks)
+        self.mg: GpuMultigrid | None = None
+        self._z: moderngl.Texture | None = None  # (multigrid: the texture the last cycle left z in)
         self.warm_start = check_warm_start(cg_warm_start)
         self.ctx, self.system, self.grid = ctx, system, grid
         self._start_clock(dt, t0)
@@ -193,6 +220,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
+        self.floor = 0.0  # (set in _build, from the start state)
+        self.stats = SolverStats(self.preconditioner, self.tolerance)
         self.last_moved = float("inf")
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         GLOwner.__init__(self, ctx)
@@ -229,11 +258,14 @@ class ImplicitFragment(SimulationBase, GLOwner):
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
+        self.floor = residual_floor(system, x, self.dt)
+        self.stats.floor = self.floor
         if x.shape != (n, 3) or v.shape != (n, 3):
             raise ValueError(f"ImplicitFragment: state of shape {x.shape}, expected ({n}, 3)")
         zero = np.zeros((n, 3))
         names: tuple[str, ...] = ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p",
-                                  "p_out", "q", "prod") + (("inv_off",) if self.block else ())
+                                  "p_out", "q", "prod") + (("inv_off",) if self.block else ()) + (
+                                  ("mg_x", "mg_x_out", "mg_res") if self.multigrid else ())
         start = {"x": x, "v": v, "x_out": x, "v_out": v}
         self.tex = {name: self._texture(size, self._image(start.get(name, zero))) for name in names}
         # reduction levels: 4x4 blocks down to 1x1, then the scalars
@@ -247,7 +279,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
                                block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None,
-                               bending=self.tex_bending is not None)
+                               bending=self.tex_bending is not None, multigrid=self.multigrid)
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
         self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
@@ -258,6 +290,21 @@ class ImplicitFragment(SimulationBase, GLOwner):
                                                                              + (bending is not None))
                                      + sum(a * b for _, (a, b) in self.levels) + len(self.scalars)
                                      + (0 if self.cells is None else 7 * texels))
+        if self.multigrid:
+            self.mg = self._build_multigrid(s)
+
+    def _build_multigrid(self, start: State) -> GpuMultigrid:
+        """The V-cycle's coarse levels from the start state's step matrix (float64, on the CPU)."""
+        system = self.system
+        lin = assemble(system, np.asarray(start.x, np.float64), np.where(system.fixed[:, None], 0.0, start.v),
+                       self.t, self.dt, drags=self.drags, loads=self.loads)
+        hierarchy = Hierarchy(lin.matrix, multigrid_levels(system).prolongations)
+        mg = GpuMultigrid(self, self.ctx, hierarchy, ~system.fixed, self.layout.width,
+                          int(self.ctx.info["GL_MAX_TEXTURE_SIZE"]))
+        for name in ("MG_SMOOTH_ZERO", "MG_SMOOTH"):
+            self.passes[name].set(u_omega=mg.omega)
+        self.bytes_allocated += mg.bytes_allocated
+        return mg
 
     def _program(self, defines: dict[str, object]) -> Program:
         program = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/implicit.frag", defines=defines))
@@ -291,19 +338,55 @@ class ImplicitFragment(SimulationBase, GLOwner):
             self._fbos[key] = fbo
         return fbo
 
-    def _draw(self, name: str, reads: dict[str, str], writes: tuple[str, ...]) -> None:
+    def _draw(self, name: str, reads: dict[str, str | moderngl.Texture], writes: tuple[str | moderngl.Texture, ...]) -> None:
+        """Pass ``name`` reading ``reads`` (sampler: a texture, the name of one of ``self.tex``,
+        or "$" and a scalar's name) into ``writes``."""
         if self.block and "u_inv" in reads:
             reads = {**reads, "u_inv_off": "inv_off"}
         if self.block and name == "SETUP":
             writes = (*writes, "inv_off")
         for sampler, tex in reads.items():
-            (self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]).use(_UNITS[sampler])
+            if isinstance(tex, str):
+                tex = self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]
+            tex.use(_UNITS[sampler])
         if self.tex_cells is not None and name in CELL_PASSES:
             self.tex_cells.use(_UNITS["u_cell_nb"])
         if self.tex_bending is not None and name in BENDING_PASSES:
             self.tex_bending.use(_UNITS["u_bending"])
-        self._fbo(*(self.tex[w] for w in writes)).use()
+        self._fbo(*(self.tex[w] if isinstance(w, str) else w for w in writes)).use()
         self._vaos[name].render(moderngl.TRIANGLES, vertices=3)
+
+    def _bind_static(self) -> None:
+        """The textures every pass reads on fixed units (node data, neighbours, weights, x)."""
+        self.tex_node.use(_UNITS["u_node"])
+        self.tex_neighbours.use(_UNITS["u_neighbours"])
+        if self.tex_weights is not None:
+            self.tex_weights.use(_UNITS["u_weights"])
+        self.tex["x"].use(_UNITS["u_x"])
+
+    def _fine_pass(self, name: str, rhs: moderngl.Texture, x: moderngl.Texture | None,
+                   out: moderngl.Texture) -> None:
+        """A multigrid pass on the finest level (:data:`MG_PASSES`; the coarse levels' passes
+        rebind the units in between)."""
+        self._bind_static()
+        reads: dict[str, str | moderngl.Texture] = {"u_mg_rhs": rhs}
+        if x is not None:
+            reads["u_vec"] = x
+        if name != "MG_RESIDUAL":
+            reads["u_inv"] = "inv"
+        if self.barrier_flag:
+            reads["u_b"] = "b"
+        self._draw(name, reads, (out,))
+
+    def _precondition(self, p: str | None) -> None:
+        """z = M^-1 r by the V-cycle, and per texel r . z and r . r into ``prod`` (with ``p``:
+        p = z too)."""
+        assert self.mg is not None
+        z = self.mg.cycle(self.tex["r"], self.tex["mg_x"], self.tex["mg_x_out"], self.tex["mg_res"],
+                          self._fine_pass)
+        self.mg.rz(self.tex["r"], z, self.tex["prod"], None if p is None else self.tex[p])
+        self._z = z
+        self._bind_static()
 
     def _sum(self, target: str) -> None:
         """Sum the product texture's R into the 1x1 scalar ``target``."""
@@ -318,8 +401,9 @@ class ImplicitFragment(SimulationBase, GLOwner):
     def _swap(self, a: str, b: str) -> None:
         self.tex[a], self.tex[b] = self.tex[b], self.tex[a]
 
-    def _scalar(self, name: str) -> float:
-        return float(np.frombuffer(read_texture(self.scalars[name]), dtype=np.float32)[0])
+    def _scalar(self, name: str, channel: int = 0) -> float:
+        """Channel ``channel`` of the 1x1 scalar ``name`` (R 0, G 1)."""
+        return float(np.frombuffer(read_texture(self.scalars[name]), dtype=np.float32)[channel])
 
     def _set_time(self, program: Program, t: float) -> None:
         if self.loads:
@@ -335,11 +419,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
             self.passes["FINAL"].set(**values)
 
     def _one_step(self) -> None:
-        self.tex_node.use(_UNITS["u_node"])
-        self.tex_neighbours.use(_UNITS["u_neighbours"])
-        if self.tex_weights is not None:
-            self.tex_weights.use(_UNITS["u_weights"])
-        self.tex["x"].use(_UNITS["u_x"])
+        self._bind_static()
         self._set_time(self.passes["SETUP"], self.t + self.dt)
         self._draw("SETUP", {"u_v": "v", "u_vec": "v"}, ("b", "inv", "prod"))
         tol = self.tolerance > 0
@@ -354,11 +434,14 @@ class ImplicitFragment(SimulationBase, GLOwner):
             if self.warm_start == "zero":
                 self._fbo(self.tex["dv"]).clear(0.0, 0.0, 0.0, 0.0)
             self._draw("INIT", {"u_vec": "dv", "u_b": "b", "u_inv": "inv"}, ("r", "p", "prod"))
+        if self.multigrid:
+            self._precondition("p")
         self._sum("rz")
-        bpb = self._scalar("bpb") if tol else 0.0
+        bb = self._scalar("bpb", 1) if tol else 0.0
+        stop = max(self.tolerance * float(np.sqrt(max(bb, 0.0))), self.floor)
         done = 0
         for k in range(self.iterations):
-            if tol and k % self.check_every == 0 and self._residual(self._scalar("rz"), bpb) <= self.tolerance:
+            if tol and k % self.check_every == 0 and float(np.sqrt(max(self._scalar("rz", 1), 0.0))) <= stop:
                 break
             self._draw("MATVEC", {"u_vec": "p", **({"u_b": "b"} if self.barrier_flag else {})}, ("q", "prod"))
             self._sum("pq")
@@ -366,8 +449,12 @@ class ImplicitFragment(SimulationBase, GLOwner):
                                   "u_pq": "$pq"}, ("dv_out", "r_out", "prod"))
             self._swap("dv", "dv_out")
             self._swap("r", "r_out")
+            if self.multigrid:
+                self._precondition(None)
             self._sum("rz_new")
-            self._draw("DIRECTION", {"u_r": "r", "u_p": "p", "u_inv": "inv", "u_rz": "$rz", "u_rz_new": "$rz_new"},
+            z: dict[str, str | moderngl.Texture] = ({"u_z": self._z} if self.multigrid and self._z is not None
+                                                    else {"u_inv": "inv"})
+            self._draw("DIRECTION", {"u_r": "r", "u_p": "p", **z, "u_rz": "$rz", "u_rz_new": "$rz_new"},
                        ("p_out",))
             self._swap("p", "p_out")
             self.scalars["rz"], self.scalars["rz_new"] = self.scalars["rz_new"], self.scalars["rz"]
@@ -377,17 +464,19 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self._swap("x", "x_out")
         self._swap("v", "v_out")
         if tol:
-            res = self._residual(self._scalar("rz"), bpb)
-            self.last_report = SolveReport(done, res, res <= self.tolerance)
+            rr = self._scalar("rz", 1)
+            res = self._residual(rr, bb)
+            self.last_report = SolveReport(done, res, res <= self.tolerance or float(np.sqrt(max(rr, 0.0))) <= self.floor)
             if not self.last_report.within_tolerance:
                 self.unconverged += 1
                 self.worst_residual = max(self.worst_residual, res)
         else:
             self.last_report = SolveReport(done, float("nan"), True)
+        self.stats.add(self.last_report)
 
     @staticmethod
-    def _residual(rz: float, bpb: float) -> float:
-        return float(np.sqrt(max(rz, 0.0) / bpb)) if bpb > 0 else 0.0
+    def _residual(rr: float, bb: float) -> float:
+        return float(np.sqrt(max(rr, 0.0) / bb)) if bb > 0 else 0.0
 
     def step(self, n: int = 1) -> None:
         """``n`` steps on the GPU; with a tolerance, one scalar read every ``cg_check_every``
@@ -403,10 +492,18 @@ class ImplicitFragment(SimulationBase, GLOwner):
             restore_framebuffer(self.ctx, previous)
 
     def residual(self) -> float:
-        """The last step's relative residual ``sqrt(r.P^-1 r / b.P^-1 b)`` (two scalar reads)."""
+        """The last step's relative residual ``|r| / |b|`` (CG's updated r; two scalar reads)."""
         if self.tolerance > 0:
             return self.last_report.residual
-        return self._residual(self._scalar("rz"), self._scalar("bpb"))
+        return self._residual(self._scalar("rz", 1), self._scalar("bpb", 1))
+
+    def solver_stats(self) -> dict[str, object]:
+        """The run's solves for the run record (:meth:`~deformgl.sim.implicit.SolverStats.summary`;
+        without a tolerance nothing is read while stepping, so the last residual is read here)."""
+        out = self.stats.summary()
+        if self.tolerance <= 0 and self.steps_done:
+            out["residual_last"] = self.residual()
+        return out
 
     def solver_note(self) -> str | None:
         """What the run loop notes about the solves (CG missed its tolerance), or None."""

@@ -4,24 +4,30 @@
 // Preconditioned conjugate gradients on A dv = b, A = M + dt C + dt^2 H, matrix-free
 // (sim/implicit/system.glsl): Jacobi, P^-1 = 1 / diag(A), or with PRECOND_BLOCK block-Jacobi,
 // P^-1 = the inverse of A's 3x3 diagonal block per node. One define selects the pass:
-//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1, and b . P^-1 b per texel
+//   SETUP      b = dt (f(x, v, t + dt) - dt H v), P^-1, and per texel R: b . P^-1 b, G: b . b
 //   WARM       (the scaled warm start) q = A dv_prev, and per texel R: dv_prev . q, G: b . dv_prev
-//   INIT       r = b - A dv (the warm start), p = P^-1 r, and r . P^-1 r per texel; with
+//   INIT       r = b - A dv (the warm start), p = P^-1 r, and per texel R: r . P^-1 r, G: r . r; with
 //              WARM_SCALED dv = s dv_prev, s = (b . dv_prev) / (dv_prev . A dv_prev) (0 if that
 //              is not > 0), the multiple of the last step's dv nearest the solution in the A norm,
 //              r = b - s q (no product here), and dv is written too
 //   MATVEC     q = A p, and p . q per texel
-//   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and r . P^-1 r per texel
+//   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and per texel R: r . P^-1 r, G: r . r
 //   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
 //   FINAL      v' = v + dv, x' = x + dt v', then the constraints (CONSTRAINTS)
+//   MG_SMOOTH  the multigrid cycle's smoothing on this (the finest) level, x' = x + w D^-1 (rhs - A x),
+//              D^-1 the block inverse SETUP wrote (PRECOND_BLOCK); with FROM_ZERO x' = w D^-1 rhs
+//   MG_RESIDUAL  res = rhs - A x on this level (the coarse levels: sim/implicit/multigrid.frag)
+// MULTIGRID (INIT, UPDATE, DIRECTION): P^-1 is the V-cycle, run between the passes: INIT and
+// UPDATE leave r . z to multigrid.frag's RZ, DIRECTION reads z = M^-1 r from u_z.
 // IMPLICIT_CELLS (SETUP, WARM, INIT, MATVEC): the full cells' volumetric term and corner
 // barriers, their forces in f (lib/cell_forces.glsl) and their Gauss-Newton block in H
 // (sim/implicit/cells.glsl). Not CELLS: that define switches on the explicit stages' own cell
 // forces inside sim/integrators/forces.glsl, which this file includes for the springs.
-// The scalars rz, pq, rz_new are 1x1 textures (R) reduced on the GPU (sim/implicit/reduce.frag).
+// The scalars rz, pq, rz_new are 1x1 textures (R; rz and rz_new G: r . r, the stopping test's)
+// reduced on the GPU (sim/implicit/reduce.frag).
 // Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
 // Without a pass define the pass is SETUP (the first of a step).
-#if !defined(SETUP) && !defined(WARM) && !defined(INIT) && !defined(MATVEC) && !defined(UPDATE) && !defined(DIRECTION) && !defined(FINAL)
+#if !defined(SETUP) && !defined(WARM) && !defined(INIT) && !defined(MATVEC) && !defined(UPDATE) && !defined(DIRECTION) && !defined(FINAL) && !defined(MG_SMOOTH) && !defined(MG_RESIDUAL)
 #define SETUP
 #endif
 #include "lib/node_flags.glsl"
@@ -31,7 +37,7 @@ uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 f
 uniform sampler2D u_x;      // xyz position at t
 uniform sampler2D u_v;      // xyz velocity at t
 uniform float u_dt;
-#if defined(INIT) || defined(WARM) || (defined(MATVEC) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
+#if defined(INIT) || defined(WARM) || ((defined(MATVEC) || defined(MG_SMOOTH) || defined(MG_RESIDUAL)) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
 uniform sampler2D u_b;      // xyz right-hand side; w (IMPLICIT_CELLS, CELL_BARRIER): 1 where a
                             // barrier term holds the node
 #endif
@@ -46,7 +52,7 @@ uniform sampler2D u_b;      // xyz right-hand side; w (IMPLICIT_CELLS, CELL_BARR
 #include "sim/integrators/forces.glsl"
 #include "sim/implicit/system.glsl"
 
-#if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
+#if ((defined(INIT) || defined(UPDATE) || defined(DIRECTION)) && !defined(MULTIGRID)) || defined(MG_SMOOTH)
 uniform sampler2D u_inv;    // xyz 1 / diag(A); PRECOND_BLOCK: the diagonal of the block's inverse
 #ifdef PRECOND_BLOCK
 uniform sampler2D u_inv_off; // xyz the block inverse's off-diagonal (xy, xz, yz)
@@ -71,6 +77,15 @@ uniform sampler2D u_pq;     // 1x1 R: p . q
 #ifdef DIRECTION
 uniform sampler2D u_rz_new; // 1x1 R: r . P^-1 r after the update
 #endif
+#if defined(MG_SMOOTH) || defined(MG_RESIDUAL)
+uniform sampler2D u_mg_rhs; // xyz the cycle's right-hand side on this level (CG's r)
+#endif
+#ifdef MG_SMOOTH
+uniform float u_omega;      // the smoother's damping w (deformgl/sim/multigrid.py)
+#endif
+#if defined(DIRECTION) && defined(MULTIGRID)
+uniform sampler2D u_z;      // xyz M^-1 r, the V-cycle's
+#endif
 #ifdef FINAL
 #define VELOCITY
 #include "lib/constraints.glsl"
@@ -94,7 +109,11 @@ float scalar(sampler2D s) {
 #if defined(INIT) || defined(UPDATE) || defined(DIRECTION)
 // z = P^-1 r at this texel
 vec3 precondition(ivec2 texel, vec3 r) {
-#ifdef PRECOND_BLOCK
+#if defined(MULTIGRID) && defined(DIRECTION)
+    return texelFetch(u_z, texel, 0).xyz;
+#elif defined(MULTIGRID)
+    return vec3(0.0);   // (not used: RZ sums r . z once the cycle has run)
+#elif defined(PRECOND_BLOCK)
     return apply_preconditioner(texelFetch(u_inv, texel, 0).xyz, texelFetch(u_inv_off, texel, 0).xyz, r);
 #else
     return texelFetch(u_inv, texel, 0).xyz * r;
@@ -172,13 +191,13 @@ void main() {
     vec3 inv_off = vec3(inverse_block[1][0], inverse_block[2][0], inverse_block[2][1]);
     o_0 = vec4(b, flag);
     o_1 = vec4(inv, 0.0);
-    o_2 = vec4(dot(b, apply_preconditioner(inv, inv_off, b)));
+    o_2 = vec4(dot(b, apply_preconditioner(inv, inv_off, b)), dot(b, b), 0.0, 0.0);
     o_3 = vec4(inv_off, 0.0);
 #else
     vec3 inv = 1.0 / diag;
     o_0 = vec4(b, flag);
     o_1 = vec4(inv, 0.0);
-    o_2 = vec4(dot(b, inv * b));
+    o_2 = vec4(dot(b, inv * b), dot(b, b), 0.0, 0.0);
 #endif
 #elif defined(WARM)
     vec3 dv = texelFetch(u_vec, texel, 0).xyz;     // u_vec is the last step's dv
@@ -196,10 +215,10 @@ void main() {
 #else
     vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, dv, m);
 #endif
-    vec3 z = precondition(texel, r);
+    vec3 z = precondition(texel, r);   // (MULTIGRID: 0, and RZ_INIT writes p)
     o_0 = vec4(r, 0.0);
     o_1 = vec4(z, 0.0);
-    o_2 = vec4(dot(r, z));
+    o_2 = vec4(dot(r, z), dot(r, r), 0.0, 0.0);
 #elif defined(MATVEC)
     vec3 p = texelFetch(u_vec, texel, 0).xyz;      // u_vec is p
     vec3 q = apply_system(texel, xi, p, m);
@@ -212,12 +231,25 @@ void main() {
     vec3 r = texelFetch(u_r, texel, 0).xyz - alpha * texelFetch(u_q, texel, 0).xyz;
     o_0 = vec4(texelFetch(u_dv, texel, 0).xyz + alpha * p, 0.0);
     o_1 = vec4(r, 0.0);
-    o_2 = vec4(dot(r, precondition(texel, r)));
+    o_2 = vec4(dot(r, precondition(texel, r)), dot(r, r), 0.0, 0.0);
 #elif defined(DIRECTION)
     float rz = scalar(u_rz);
     float beta = rz != 0.0 ? scalar(u_rz_new) / rz : 0.0;
     vec3 z = precondition(texel, texelFetch(u_r, texel, 0).xyz);
     o_0 = vec4(z + beta * texelFetch(u_p, texel, 0).xyz, 0.0);
+#elif defined(MG_SMOOTH)
+    vec3 res = texelFetch(u_mg_rhs, texel, 0).xyz;
+#ifdef FROM_ZERO
+    vec3 y = vec3(0.0);
+#else
+    vec3 y = texelFetch(u_vec, texel, 0).xyz;      // u_vec is the cycle's x on this level
+    res -= apply_system(texel, xi, y, m);
+#endif
+    o_0 = vec4(y + u_omega * apply_preconditioner(texelFetch(u_inv, texel, 0).xyz,
+                                                  texelFetch(u_inv_off, texel, 0).xyz, res), 0.0);
+#elif defined(MG_RESIDUAL)
+    vec3 y = texelFetch(u_vec, texel, 0).xyz;
+    o_0 = vec4(texelFetch(u_mg_rhs, texel, 0).xyz - apply_system(texel, xi, y, m), 0.0);
 #endif
 #endif
 }
