@@ -133,7 +133,7 @@ def _parser() -> argparse.ArgumentParser:
                                "texture size, vertex texture units and whether RGBA32F render "
                                "targets work.")
 
-    from deformgl.bench.plan import add_parser as add_plan_parser
+    from deformgl.plan.planner import add_parser as add_plan_parser
 
     add_plan_parser(sub)
 
@@ -179,7 +179,7 @@ def _render(args: argparse.Namespace) -> int:
                                  integrator=args.integrator, backend=args.backend, unstable=args.unstable,
                                  check_every=args.check_every)
     if args.tolerance is not None:
-        from deformgl.bench.plan import planned_scene
+        from deformgl.plan.planner import planned_scene
 
         scene, chosen = planned_scene(scene, args.tolerance, args.load)
         if not args.quiet:
@@ -289,7 +289,7 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _plan(args: argparse.Namespace) -> int:
-    from deformgl.bench.plan import run
+    from deformgl.plan.planner import run
 
     return run(args, _scene_file(args.scene))
 

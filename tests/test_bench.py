@@ -108,3 +108,11 @@ def test_bench_render_times_every_draw_path_and_the_renderers_frame(ctx):
     assert set(info["budgets"]) == {"no AA", "4x MSAA", "FXAA", "no AA + cull", "4x MSAA + cull", "FXAA + cull"}
     text = format_render(rows, frame_ms, info, "machine")
     assert "curvature, culled" in text and f"the frame below: {RENDER_MAPPING_PASS}" in text
+
+
+def test_the_pack_enumerates_every_profile_stage():
+    """deformgl.pack.variants counts the ablation stages without importing the bench."""
+    from deformgl.bench.profile import STAGES
+    from deformgl.pack.variants import PROFILE_STAGES
+
+    assert PROFILE_STAGES == len(STAGES)

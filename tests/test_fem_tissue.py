@@ -206,10 +206,10 @@ def test_the_references_stored_for_the_lattice_checks_are_this_fem():
 
 
 def test_the_plans_errors_at_the_bodys_nu_are_what_the_lattice_and_fem_give():
-    """deformgl.bench.plan.MEASURED_NU (the plan's discretisation errors at nu > 1/4) is what
+    """deformgl.plan.planner.MEASURED_NU (the plan's discretisation errors at nu > 1/4) is what
     ``python -m deformgl.bench.tissue_accuracy`` table 4 prints: re-measured at 5 across (block at
     0.45, bar in torsion at 0.49), to the 4 digits stored. Compression's error grows with nu."""
-    from deformgl.bench.plan import MEASURED, MEASURED_NU
+    from deformgl.plan.planner import MEASURED, MEASURED_NU
     from deformgl.bench.tissue_accuracy import workload_errors
 
     estimate, block = workload_errors("block", 0.45, [5])

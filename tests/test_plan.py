@@ -7,7 +7,7 @@ import dataclasses
 
 import pytest
 
-from deformgl.bench.plan import MEASURED, fit, make_plan, plan_scene
+from deformgl.plan.planner import MEASURED, fit, make_plan, plan_scene
 from deformgl.cli import main
 from deformgl.errors import InputError
 from deformgl.sim.materials import PRESETS, critical_dt
@@ -26,7 +26,7 @@ def test_the_error_model_reproduces_the_measurements():
 def test_the_error_model_follows_the_bodys_poissons_ratio():
     """At a measured nu the model is that nu's table; between, in between; above 0.49, 0.49's.
     Compression grows with nu (the column of a nearly incompressible body), torsion does not."""
-    from deformgl.bench.plan import MEASURED_NU, measured_errors
+    from deformgl.plan.planner import MEASURED_NU, measured_errors
 
     for nu, tables in MEASURED_NU.items():
         for load, table in tables.items():
@@ -90,7 +90,7 @@ def test_the_dt_follows_the_material():
 def test_a_stiff_body_gets_implicit_euler_a_soft_one_explicit():
     """Implicit Euler at the 60 Hz frame step where the explicit limit makes steps expensive (a
     rubber block on a fine grid), explicit where it does not (liver), and the reason either way."""
-    from deformgl.bench.plan import FRAME_DT, implicit_iterations, implicit_step_cost
+    from deformgl.plan.planner import FRAME_DT, implicit_iterations, implicit_step_cost
 
     block = (0.1, 0.1, 0.1)
     stiff = make_plan(block, PRESETS["rubber"], 0.01, "compression")
@@ -187,7 +187,7 @@ def test_planned_scene_carries_the_implicit_iterations(tmp_path):
     and the frame step, keeping the simulated time."""
     from pathlib import Path
 
-    from deformgl.bench.plan import planned_scene
+    from deformgl.plan.planner import planned_scene
     from deformgl.scene.schema import load_scene
 
     mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
@@ -212,7 +212,7 @@ def test_the_plans_cg_iterations_follow_the_longest_side_and_nu_and_settle_there
     import numpy as np
 
     from deformgl.bench.fem import Workload, lattice_case
-    from deformgl.bench.plan import IMPLICIT_STATIC_ERROR, implicit_iterations
+    from deformgl.plan.planner import IMPLICIT_STATIC_ERROR, implicit_iterations
     from deformgl.sim.simulation import make_simulation
 
     rubber = dataclasses.replace(PRESETS["rubber"], poissons_ratio=nu)
@@ -237,7 +237,7 @@ def test_the_plans_cg_iterations_follow_the_longest_side_and_nu_and_settle_there
 
 
 def test_a_long_body_is_not_planned_on_implicit_euler_beyond_the_measured_grids():
-    from deformgl.bench.plan import IMPLICIT_MEASURED_ALONG
+    from deformgl.plan.planner import IMPLICIT_MEASURED_ALONG
 
     plan = make_plan((0.6, 0.05, 0.05), PRESETS["rubber"], 0.05, "bending")
     assert plan.integrator != "implicit-euler"
@@ -250,7 +250,7 @@ def test_render_tolerance_keeps_explicit_where_implicit_would_not_run_or_would_d
     none), nor with a drag or a pull that stops (motion it would damp), and the plan says why."""
     from pathlib import Path
 
-    from deformgl.bench.plan import planned_scene
+    from deformgl.plan.planner import planned_scene
     from deformgl.scene.schema import load_scene
 
     mesh = Path(__file__).resolve().parents[1] / "scenes" / "assets" / "jelly_block.obj"
@@ -270,7 +270,7 @@ def test_the_iterations_grow_smoothly_with_nu_and_with_slenderness():
     """Rounded up, not to tens: just above 1/4 a step costs about what it costs at 1/4. A beam of
     17 nodes along and 9 across is slender: 30 iterations, as above 17 along (10 left 1.0e-3 of
     its sag)."""
-    from deformgl.bench.plan import implicit_iterations
+    from deformgl.plan.planner import implicit_iterations
 
     assert [implicit_iterations(9, nu) for nu in (0.25, 0.26, 0.3, 0.45, 0.49)] == [10, 11, 12, 25, 53]
     assert implicit_iterations(17, 0.25, 17) == 10 and implicit_iterations(17, 0.25, 9) == 30
@@ -286,7 +286,7 @@ def test_compact_and_slender_bodies_settle_at_their_iterations(size, across, nu)
     import numpy as np
 
     from deformgl.bench.fem import Workload, lattice_case
-    from deformgl.bench.plan import FRAME_DT, IMPLICIT_STATIC_ERROR, implicit_iterations
+    from deformgl.plan.planner import FRAME_DT, IMPLICIT_STATIC_ERROR, implicit_iterations
     from deformgl.sim.simulation import make_simulation
 
     material = dataclasses.replace(PRESETS["rubber"], poissons_ratio=nu)

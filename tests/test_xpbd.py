@@ -281,7 +281,7 @@ def test_converged_setting_matches_the_lattice_and_fem_statics():
     pressure on 100 kPa) is the springs' static solve within 1 %, and so within the lattice's
     own discretisation error against hexahedral FEM (plan.MEASURED, 2.5 % at 3 across) + 1 %."""
     from deformgl.bench.fem import fem_reference
-    from deformgl.bench.plan import MEASURED
+    from deformgl.plan.planner import MEASURED
 
     material = ElasticMaterial(1.0e5, 1000.0, mass_damping=30.0)
     w = WORKLOADS["block"]

@@ -22,7 +22,7 @@ lattice of nu = 1/4 (``cells=None``: what deformgl was before), and a fourth tab
 * **the plan's errors at nu** (:func:`workload_errors`): ``bench accuracy``'s block in
   compression and bar in torsion at nu 0.3, 0.45, 0.49, the lattice against the displacement FEM
   computed here (the ``fem`` extra; without it the table is skipped with a line saying so):
-  :data:`deformgl.bench.plan.MEASURED_NU`.
+  :data:`deformgl.plan.planner.MEASURED_NU`.
 
 The FEM values of the three checks are stored (computing them takes minutes and the ``fem`` extra; ``python -m
 deformgl.bench.fem_tissue`` prints them, ``tests/test_fem_tissue.py`` checks the stored ones
@@ -216,7 +216,7 @@ def tip_row(across: int, youngs_modulus: float, nu: float, *, cells: bool = True
 def workload_errors(name: str, nu: float, across: Sequence[int]) -> tuple[float, dict[int, float]]:
     """``bench accuracy``'s workload ``name`` ("block" or "twist") at Poisson's ratio ``nu``: the
     displacement FEM's estimated relative error, and the lattice's |lattice / FEM - 1| (springs and
-    cells at ``nu``) at each of ``across`` (:data:`deformgl.bench.plan.MEASURED_NU` holds them at 5,
+    cells at ``nu``) at each of ``across`` (:data:`deformgl.plan.planner.MEASURED_NU` holds them at 5,
     9 and 17). Needs the 'fem' extra."""
     from deformgl.bench.accuracy import FEM_MESHES
     from deformgl.bench.fem import fem_reference
