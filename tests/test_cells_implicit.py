@@ -189,7 +189,7 @@ def test_gauss_newton_against_projection_and_exact_hessian():
 
 
 def test_springs_only_systems_have_no_cell_passes(ctx):
-    from deformgl.sim.backends.implicit_gpu import pass_defines
+    from deformgl.sim.backends.implicit_passes import pass_defines
     from deformgl.sim.springs import from_grid
 
     grid = NodeGrid(np.zeros(3), H, np.ones((3, 3, 3), bool))

@@ -52,7 +52,7 @@ from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["BLOCK", "CASES", "StiffCase", "StiffRow", "stiff_cases", "stiff_study", "format_stiff", "lowest_frequency",
+__all__ = ["BLOCK", "CASES", "StiffCase", "StiffRow", "stiff_cases", "stiff_study", "stiff_row", "format_stiff", "lowest_frequency",
            "PreconditionerRow", "preconditioner_bodies", "preconditioner_iterations", "format_preconditioners",
            "fem_sag"]
 
@@ -193,10 +193,10 @@ def stiff_cases(quick: bool = False, cases: tuple[tuple[float, int], ...] | None
 
 
 def _run(ctx, case: StiffCase, integrator: str, dt: float, iterations: int, sim_time: float,
-         substeps: int = 1) -> StiffRow:
+         substeps: int = 1, preconditioner: str = "jacobi") -> StiffRow:
     options: dict[str, object] = {}
     if integrator == "implicit-euler":
-        options = {"cg_iterations": iterations}
+        options = {"cg_iterations": iterations, "cg_preconditioner": preconditioner}
     elif integrator == "xpbd":
         options = {"iterations": iterations, "substeps": substeps}
     per_chunk = max(1, round(CHUNK / dt))
@@ -231,6 +231,14 @@ def _run(ctx, case: StiffCase, integrator: str, dt: float, iterations: int, sim_
     return StiffRow(case.name, case.youngs_modulus, case.across, case.system.count, integrator, dt, iterations,
                     substeps, wall / simulated, v and v[0], v and v[1], r and r[0], r and r[1], error,
                     error / case.sag if case.sag > 0 else math.nan, fem_error, decay)
+
+
+def stiff_row(ctx, case: StiffCase, integrator: str, dt: float, iterations: int, sim_time: float, *,
+              substeps: int = 1, preconditioner: str = "jacobi") -> StiffRow:
+    """One row of the study: ``integrator`` at ``dt`` (implicit Euler: ``iterations`` CG
+    iterations a step with ``preconditioner``; XPBD: ``iterations`` x ``substeps``) on ``case``
+    for ``sim_time`` s, timed per chunk of :data:`CHUNK` s."""
+    return _run(ctx, case, integrator, dt, iterations, sim_time, substeps, preconditioner)
 
 
 def stiff_study(ctx, *, quick: bool = False, progress: Callable[[str], None] | None = None,

@@ -273,7 +273,7 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_gpu import (BENDING_PASSES, CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
+    from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
                                                     PRECONDITIONED_PASSES)
 
     for (layers, count), weights, forces, bending in itertools.product(((5, 18), (6, 24)), (False, True),

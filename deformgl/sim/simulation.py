@@ -125,7 +125,7 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
             system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
             ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
             "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
-            ``cg_preconditioner`` ("jacobi", "block-jacobi"), ``cg_warm_start`` ("scaled",
+            ``cg_preconditioner`` ("jacobi", "block-jacobi", "multigrid"), ``cg_warm_start`` ("scaled",
             "previous", "zero") (:data:`IMPLICIT_OPTIONS`) and on
             numpy ``solver`` and ``geometric``.
 

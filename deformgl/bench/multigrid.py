@@ -1,0 +1,242 @@
+"""``python -m deformgl.bench.multigrid``: the implicit step's multigrid against Jacobi and
+block-Jacobi (issue 29).
+
+Three measurements, each printed with the machine line:
+
+1. **Iterations** (:func:`iteration_rows`): CG iterations to a true relative residual of 1e-4 on
+   the first step (dt = 1/60 s, from rest) of the stiff block (:data:`~deformgl.bench.implicit.BLOCK`
+   at E = 1 MPa) at 9, 17, 33 and 65 nodes across, at nu = 1/4 and 0.45, and of the heart scene's
+   body (the res3 dragon filled with the heart preset, fixed at its base) at 17, 33 and 65 along,
+   per preconditioner (float64, :mod:`deformgl.sim.implicit`). The multigrid's set-up (its
+   Galerkin levels) is timed apart.
+2. **The stiff block against explicit** (:func:`stiff_rows`): the block at 33 across (and 17),
+   wall time per simulated second on the fragment backend until every node stays within 5 % of
+   the equilibrium's largest sag (:func:`deformgl.bench.implicit.stiff_row`): Verlet and
+   semi-implicit Euler at 0.9 of their limits, implicit Euler at dt = 1/60 s with a fixed number
+   of CG iterations a step per preconditioner; the verdict is the cheapest converged row of each
+   preconditioner against the cheapest explicit one.
+3. **The heart frame** (:func:`heart_frames`): the heart scene at its default material and size
+   with FXAA and back faces culled, one frame = one implicit step of 1/60 s whose solve stops at a
+   relative residual of 1e-3 (at most 200 iterations), the curvature-corrected mapping and the
+   draw, per preconditioner, the preconditioners alternating within each round; median and
+   spread of the frames per second, iterations per step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from deformgl.bench.implicit import ALPHA, BLOCK, REL, stiff_cases, stiff_row
+from deformgl.bench.fem import lattice_case
+from deformgl.sim.implicit import PRECONDITIONERS, assemble, multigrid_levels, pcg, preconditioner
+from deformgl.sim.integrators import initial_state
+from deformgl.sim.limits import dt_limit
+from deformgl.sim.materials import ElasticMaterial
+from deformgl.sim.springs import SpringSystem
+
+__all__ = ["IterationRow", "iteration_rows", "format_iterations", "stiff_rows", "format_stiff_rows",
+           "heart_frames", "format_frames", "heart_body"]
+
+HEART = Path(__file__).resolve().parent.parent / "scenes" / "heart.toml"
+FRAME_DT = 1.0 / 60.0
+TOLERANCE = 1e-4
+FRAME_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class IterationRow:
+    body: str
+    nodes: int
+    iterations: dict[str, int]
+    setup_s: float   # the multigrid's levels (prolongations and Galerkin products)
+
+
+def _scene_path() -> Path:
+    from deformgl.data import find_scene
+
+    return Path(find_scene("heart.toml"))
+
+
+def heart_body(along: int) -> SpringSystem:
+    """The heart scene's body at ``along`` nodes along its longest side (its fixed base, the
+    scene's gravity; its pull is a load of the run, not of the body)."""
+    from deformgl.scene.pipeline import build_scene_model
+    from deformgl.scene.schema import load_scene
+
+    return build_scene_model(load_scene(_scene_path(), {"grid.nodes_along_longest": along})).system
+
+
+def _count(system: SpringSystem) -> tuple[dict[str, int], float]:
+    st = initial_state(system, FRAME_DT)
+    lin = assemble(system, st.x, st.v, 0.0, FRAME_DT)
+    out = {}
+    setup = 0.0
+    for kind in PRECONDITIONERS:
+        if kind == "multigrid":
+            t0 = time.perf_counter()
+            apply = multigrid_levels(system).cycle(lin.matrix)
+            setup = time.perf_counter() - t0
+        else:
+            apply = preconditioner(lin.matrix, kind).__matmul__
+        _, report = pcg(lin.matrix, lin.rhs, np.zeros_like(lin.rhs), iterations=5000, tolerance=TOLERANCE,
+                        check_every=1, apply=apply)
+        out[kind] = report.iterations
+    return out, setup
+
+
+def iteration_rows(across=(9, 17, 33, 65), nus=(0.25, 0.45), heart=(17, 33, 65)) -> list[IterationRow]:
+    rows = []
+    for nu in nus:
+        for n in across:
+            system = lattice_case(BLOCK, n, ElasticMaterial(1.0e6, 1060.0, mass_damping=ALPHA,
+                                                            poissons_ratio=nu)).system
+            counts, setup = _count(system)
+            rows.append(IterationRow(f"block nu={nu:g}, {n} across", system.count, counts, setup))
+    for n in heart:
+        system = heart_body(n)
+        counts, setup = _count(system)
+        rows.append(IterationRow(f"heart body, {n} along", system.count, counts, setup))
+    return rows
+
+
+def format_iterations(rows: list[IterationRow]) -> str:
+    lines = [f"CG iterations to a true relative residual of {TOLERANCE:g}, first step of dt = 1/60 s from rest "
+             "(float64); multigrid set-up seconds apart",
+             f"{'body':<28} {'nodes':>7} " + " ".join(f"{k:>12}" for k in PRECONDITIONERS) + f" {'MG set-up s':>11}"]
+    for r in rows:
+        lines.append(f"{r.body:<28} {r.nodes:>7} " + " ".join(f"{r.iterations[k]:>12}" for k in PRECONDITIONERS)
+                     + f" {r.setup_s:>11.2f}")
+    return "\n".join(lines)
+
+
+def stiff_rows(ctx, across=(17, 33), sim_time: float = 0.5,
+               iterations: dict[str, tuple[int, ...]] | None = None) -> list[tuple[str, object]]:
+    """(label, :class:`~deformgl.bench.implicit.StiffRow`) of the stiff block at each resolution."""
+    iterations = iterations or {"jacobi": (10, 30), "block-jacobi": (10, 30), "multigrid": (1, 2, 3, 5)}
+    out: list[tuple[str, object]] = []
+    for case in stiff_cases(cases=tuple((1.0e6, n) for n in across)):
+        for name in ("verlet", "semi-implicit"):
+            dt = 0.9 * dt_limit(case.system, name).dt
+            out.append((name, stiff_row(ctx, case, name, dt, 0, sim_time)))
+        for kind, counts in iterations.items():
+            for its in counts:
+                out.append((f"implicit {kind}", stiff_row(ctx, case, "implicit-euler", FRAME_DT, its, sim_time,
+                                                          preconditioner=kind)))
+    return out
+
+
+def format_stiff_rows(rows: list[tuple[str, object]]) -> str:
+    lines = [f"the stiff block (E = 1 MPa) on the fragment backend: wall s per simulated s, and the simulated s "
+             f"after which every node stays within {REL:g} of the equilibrium's largest sag",
+             f"{'case':<26} {'method':<24} {'dt s':>9} {'it':>4} {'wall/sim s':>10} {'rel. at s':>9} {'/sag':>9}"]
+    for label, r in rows:
+        lines.append(f"{r.case:<26} {label:<24} {r.dt:>9.3g} {r.iterations or '-':>4} {r.wall_per_sim_s:>10.3g} "  # type: ignore[attr-defined]
+                     f"{'-' if r.converged_rel_at is None else format(r.converged_rel_at, '.3f'):>9} "  # type: ignore[attr-defined]
+                     f"{r.relative_error:>9.3g}")  # type: ignore[attr-defined]
+    for case in dict.fromkeys(r.case for _, r in rows):  # type: ignore[attr-defined]
+        done = [(label, r) for label, r in rows if r.case == case and r.converged_rel_at is not None]  # type: ignore[attr-defined]
+        explicit = [r for label, r in done if not label.startswith("implicit")]
+        if not explicit:
+            continue
+        best = min(explicit, key=lambda r: r.wall_per_sim_s)  # type: ignore[attr-defined]
+        for kind in ("jacobi", "block-jacobi", "multigrid"):
+            mine = [r for label, r in done if label == f"implicit {kind}"]
+            if mine:
+                m = min(mine, key=lambda r: r.wall_per_sim_s)  # type: ignore[attr-defined]
+                lines.append(f"{case}: implicit {kind} ({m.iterations} it) {best.wall_per_sim_s / m.wall_per_sim_s:.3g}x "  # type: ignore[attr-defined]
+                             f"cheaper per simulated s than {best.integrator} to {REL:g} of the sag")  # type: ignore[attr-defined]
+            else:
+                lines.append(f"{case}: implicit {kind}: no row reached {REL:g} of the sag")
+    return "\n".join(lines)
+
+
+def heart_frames(ctx, rounds: int = 7, kinds=PRECONDITIONERS) -> dict[str, tuple[list[float], float]]:
+    """{preconditioner: (frames per second of each round, mean CG iterations per step)} of the
+    heart frame (module docstring)."""
+    from deformgl.render.mapped import MappedMeshPass, closed_front_face
+    from deformgl.render.mapped_setup import get_binding, mapped_vertices
+    from deformgl.render.passes import RenderTarget
+    from deformgl.grid.surface import grid_surface
+    from deformgl.scene.pipeline import RENDER_MAPPING_PASS, scene_lighting, scene_view
+    from deformgl.scene.schema import load_scene
+    from deformgl.sim.normals import rest_normals
+    from deformgl.scene.pipeline import build_scene_model
+    from deformgl.sim.backends.implicit_gpu import ImplicitFragment
+
+    scene = load_scene(_scene_path())
+    built = build_scene_model(scene)
+    system = built.system
+    surface = grid_surface(built.grid)
+    binding = get_binding(built.mesh, built.grid, surface, use_cache=True, uv=None)
+    data = mapped_vertices(binding, "curvature", built.grid.rest_positions, rest_normals(built.grid))
+    front = closed_front_face(built.mesh.vertices, built.mesh.faces)
+    view = scene_view(scene, built.bbox)
+    lighting = scene_lighting(scene)
+    sims = {k: ImplicitFragment(ctx, system, None, FRAME_DT, loads=built.loads, cg_preconditioner=k,
+                                cg_tolerance=FRAME_TOLERANCE, cg_iterations=200, cg_check_every=1) for k in kinds}
+    width, height = scene.render.size
+    target = RenderTarget(ctx, (int(width), int(height)), 0, fxaa=True)
+    passes = {k: MappedMeshPass(ctx, built.grid, sims[k].layout, built.mesh.faces,
+                                data, front_face=front, mapping_pass=RENDER_MAPPING_PASS) for k in kinds}
+    fps: dict[str, list[float]] = {k: [] for k in kinds}
+    try:
+        for k in kinds:  # compile and warm up
+            sims[k].step(1)
+        for r in range(rounds):
+            for k in (list(kinds) if r % 2 == 0 else list(reversed(kinds))):
+                ctx.finish()
+                t0 = time.perf_counter()
+                sims[k].step(1)
+                target.begin((0.96, 0.96, 0.94))
+                passes[k].draw(sims[k].position_texture, view, lighting)
+                target.resolve()
+                ctx.finish()
+                fps[k].append(1.0 / (time.perf_counter() - t0))
+        return {k: (fps[k], sims[k].stats.iterations_total / max(sims[k].stats.steps, 1)) for k in kinds}
+    finally:
+        target.release()
+        for p in passes.values():
+            p.release()
+        for s in sims.values():
+            s.release()
+
+
+def format_frames(frames: dict[str, tuple[list[float], float]]) -> str:
+    lines = ["the heart frame (640x480, FXAA, back faces culled): one implicit step of 1/60 s to a relative "
+             f"residual of {FRAME_TOLERANCE:g}, the curvature-corrected mapping and the draw",
+             f"{'preconditioner':<14} {'frames/s':>9} {'spread':>15} {'CG it/step':>10}"]
+    for k, (values, its) in frames.items():
+        lines.append(f"{k:<14} {statistics.median(values):>9.2f} {min(values):>7.2f}-{max(values):<7.2f} {its:>10.1f}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.multigrid", description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=["iterations", "stiff", "heart"], default=None)
+    parser.add_argument("--quick", action="store_true", help="smaller sizes (the tests')")
+    args = parser.parse_args(argv)
+    from deformgl.bench.studies import machine_line
+    from deformgl.gl.context import create_context
+
+    ctx = create_context()
+    print(machine_line(ctx))
+    if args.only in (None, "iterations"):
+        rows = (iteration_rows((9, 17), (0.25,), (17,)) if args.quick else iteration_rows())
+        print(format_iterations(rows), flush=True)
+    if args.only in (None, "stiff"):
+        print(format_stiff_rows(stiff_rows(ctx, (9,) if args.quick else (17, 33),
+                                           0.25 if args.quick else 0.5)), flush=True)
+    if args.only in (None, "heart"):
+        print(format_frames(heart_frames(ctx, 2 if args.quick else 7)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
