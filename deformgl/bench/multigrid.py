@@ -44,7 +44,6 @@ from deformgl.sim.springs import SpringSystem
 __all__ = ["IterationRow", "iteration_rows", "format_iterations", "stiff_rows", "format_stiff_rows",
            "heart_frames", "format_frames", "heart_body"]
 
-HEART = Path(__file__).resolve().parent.parent / "scenes" / "heart.toml"
 FRAME_DT = 1.0 / 60.0
 TOLERANCE = 1e-4
 FRAME_TOLERANCE = 1e-3

@@ -226,7 +226,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
                        self.t, self.dt, drags=self.drags, loads=self.loads)
         hierarchy = Hierarchy(lin.matrix, multigrid_levels(system).prolongations)
         mg = GpuMultigrid(self, self.ctx, hierarchy, ~system.fixed, self.layout.width,
-                          int(self.ctx.info["GL_MAX_TEXTURE_SIZE"]))
+                          int(self.ctx.info["GL_MAX_TEXTURE_SIZE"]), self._fbo)
         for name in ("MG_SMOOTH_ZERO", "MG_SMOOTH"):
             self.passes[name].set(u_omega=mg.omega)
         self.bytes_allocated += mg.bytes_allocated
@@ -378,8 +378,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
             if self.multigrid:
                 self._precondition(None)
             self._sum("rz_new")
-            z: dict[str, str | moderngl.Texture] = ({"u_z": self._z} if self.multigrid and self._z is not None
-                                                    else {"u_inv": "inv"})
+            z: dict[str, str | moderngl.Texture] = {"u_inv": "inv"}
+            if self.multigrid:
+                assert self._z is not None  # (_precondition just ran)
+                z = {"u_z": self._z}
             self._draw("DIRECTION", {"u_r": "r", "u_p": "p", **z, "u_rz": "$rz", "u_rz_new": "$rz_new"},
                        ("p_out",))
             self._swap("p", "p_out")

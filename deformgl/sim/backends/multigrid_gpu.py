@@ -79,11 +79,13 @@ class GpuMultigrid:
         free: (N,) bool, the finest level's free nodes (the hierarchy's rows, in node order).
         fine_width: the finest level's texture width (the owner's compact layout).
         max_size: GL_MAX_TEXTURE_SIZE.
+        fbo: the owner's framebuffer of a set of targets (made once, kept: ``fbo(*textures)``).
     """
 
     def __init__(self, owner: GLOwner, ctx: moderngl.Context, hierarchy: Hierarchy, free: np.ndarray,
-                 fine_width: int, max_size: int) -> None:
-        self.owner, self.ctx = owner, ctx
+                 fine_width: int, max_size: int,
+                 fbo: Callable[..., moderngl.Framebuffer]) -> None:
+        self.owner, self.ctx, self._fbo = owner, ctx, fbo
         if hierarchy.depth < 2:
             raise ValueError("cg_preconditioner 'multigrid' needs a grid of at least 3 nodes along some axis "
                              "(it has no coarser level); use 'block-jacobi'")
@@ -99,7 +101,6 @@ class GpuMultigrid:
                 raise GLError(f"multigrid: a coarse level of {count} nodes does not fit a texture")
         self._programs: dict[tuple, Program] = {}
         self._vaos: dict[tuple, moderngl.VertexArray] = {}
-        self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.bytes_allocated = 0
         finer_nodes = rows_to_nodes  # the finer level's node numbers of the prolongation's rows
         finer_count = self.fine_count
@@ -166,14 +167,6 @@ class GpuMultigrid:
             self._programs[key] = program
             self._vaos[key] = self.owner.own(self.ctx.vertex_array(program.gl, []))
         return self._programs[key], self._vaos[key]
-
-    def _fbo(self, *targets: moderngl.Texture) -> moderngl.Framebuffer:
-        key = tuple(t.glo for t in targets)
-        fbo = self._fbos.get(key)
-        if fbo is None:
-            fbo = self.owner.own(self.ctx.framebuffer(color_attachments=list(targets)))
-            self._fbos[key] = fbo
-        return fbo
 
     def _draw(self, name: str, uniforms: dict[str, object], reads: dict[str, object],
               *targets: moderngl.Texture, **defines: object) -> None:
