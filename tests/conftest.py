@@ -45,6 +45,7 @@ GL_WITHOUT_CTX = (
     "tests/test_context.py::",
     "tests/test_api.py::test_a_body_releases_the_context_it_made",
     "tests/test_installed.py::",
+    "tests/test_multigrid.py::test_the_multigrid_bench_prints_its_iteration_table",  # (the bench makes its own)
 )
 #: Tests taking more than ~3 s on 2 cores, with their fixtures' setup (node-id prefixes; measured
 #: with ``pytest --durations=40``).
@@ -56,6 +57,15 @@ SLOW = (
     "tests/test_bench.py::test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart",
     "tests/test_sweep.py::test_bench_trade_on_dask_workers",  # the quick trade study twice, ~30 s
     "tests/test_budget.py::test_the_estimate_is_within_30_percent_of_the_measured_peak",  # 35-55 s each
+    "tests/test_budget.py::test_the_mesh_estimate_bounds_the_voxelized_grid",  # ~15 s
+    "tests/test_tissue.py::test_no_cell_inverts_in_the_quick_inversion_runs",  # ~19 s
+    "tests/test_glslang.py::test_the_pairwise_cover_holds_every_value_and_pair",  # ~15 s
+    "tests/test_materials.py::test_the_jelly_scene_is_a_material_scene_at_any_resolution",  # ~15-20 s
+    "tests/test_plugin.py::test_plugin_update_pass_fail_and_a_second_accepted_baseline",  # ~9 s
+    "tests/test_bending.py::test_gpu_backends_match_numpy[True-implicit-euler-0.002-backends3]",  # ~8 s
+    "tests/test_tissue.py::test_the_dt_check_predicts_the_limit_at_high_nu",  # ~8 s
+    "tests/test_implicit.py::test_scaled_warm_start_keeps_truncated_cg_on_the_equilibrium",  # ~7 s
+    "tests/test_bending.py::test_flap_scene_settles_at_the_static_equilibrium",  # ~7 s
 )
 #: (test file, fixture): the tests of that file using that fixture are slow (its setup is).
 SLOW_FIXTURES = (

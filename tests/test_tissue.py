@@ -112,6 +112,11 @@ def test_no_cell_inverts_in_the_quick_inversion_runs(ctx):
 COMBOS = [(b, i) for b in ("fragment", "numpy") for i in ("euler", "semi-implicit", "midpoint", "rk4", "verlet",
                                                            "implicit-euler", "xpbd")]
 COMBOS += [("feedback", i) for i in ("euler", "semi-implicit", "midpoint", "rk4", "verlet")]
+#: one combination per backend, and implicit Euler and XPBD once, in the README's test command (each
+#: run is a CLI process of 3 to 13 s); the others are slow
+QUICK_COMBOS = {("fragment", "semi-implicit"), ("fragment", "xpbd"), ("numpy", "implicit-euler"),
+                ("feedback", "verlet")}
+COMBOS = [pytest.param(b, i, marks=() if (b, i) in QUICK_COMBOS else pytest.mark.slow) for b, i in COMBOS]
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:

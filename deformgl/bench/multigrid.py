@@ -35,6 +35,7 @@ import numpy as np
 
 from deformgl.bench.implicit import ALPHA, BLOCK, REL, stiff_cases, stiff_row
 from deformgl.bench.fem import lattice_case
+from deformgl.errors import DeformglError
 from deformgl.sim.implicit import PRECONDITIONERS, assemble, multigrid_levels, pcg, preconditioner
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.limits import dt_limit
@@ -86,6 +87,9 @@ def _count(system: SpringSystem) -> tuple[dict[str, int], float]:
             apply = preconditioner(lin.matrix, kind).__matmul__
         _, report = pcg(lin.matrix, lin.rhs, np.zeros_like(lin.rhs), iterations=5000, tolerance=TOLERANCE,
                         check_every=1, apply=apply)
+        if not report.within_tolerance:
+            raise DeformglError(f"bench multigrid: {kind} CG did not reach {TOLERANCE:g} in 5000 iterations "
+                                f"({report.residual:.1e})")
         out[kind] = report.iterations
     return out, setup
 

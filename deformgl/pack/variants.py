@@ -274,7 +274,7 @@ def all_variants() -> list[Variant]:
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
     from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
-                                                    PRECONDITIONED_PASSES)
+                                                    PRECONDITIONED_PASSES, PRODUCT_PASSES)
 
     for (layers, count), weights, forces, bending in itertools.product(((5, 18), (6, 24)), (False, True),
                                                                         list(_forces()), (False, True)):
@@ -284,9 +284,9 @@ def implicit() -> Iterator[Variant]:
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
         for name in PASSES + MG_PASSES:  # (pass_defines: loads in SETUP only, no force switches after MATVEC)
-            if name in ("WARM", "INIT", "MATVEC", *MG_PASSES) and forces["LOADS"]:
+            if name in (*PRODUCT_PASSES, *MG_PASSES) and forces["LOADS"]:
                 continue
-            defines = common if name in ("SETUP", "WARM", "INIT", "MATVEC", *MG_PASSES) else nb
+            defines = common if name in ("SETUP", *PRODUCT_PASSES, *MG_PASSES) else nb
             if bending and name in BENDING_PASSES:
                 defines = {**defines, "BENDING": True}
             elif bending:
@@ -322,3 +322,33 @@ def implicit() -> Iterator[Variant]:
 
 
 GROUPS["implicit"] = implicit
+
+
+def _pairs(v: Variant, keys: tuple[str, ...]) -> set[tuple]:
+    """The (define, value, define, value) pairs of ``v`` over ``keys`` (absent and False alike)."""
+    d = v.define_map
+    values = [d.get(k) if d.get(k) is not False else None for k in keys]
+    return {(a, values[a], b, values[b]) for a in range(len(keys)) for b in range(a, len(keys))}
+
+
+def pairwise_cover(variants: list[Variant]) -> list[Variant]:
+    """A subset of ``variants`` that, for each pair of shader files, holds every value of every
+    define and every pair of values of two defines that the full set holds together (a greedy
+    pairwise covering set, in enumeration order: deterministic). The full product of a stage's
+    switches runs to tens of thousands of sources (the integrators' step.frag alone ~34,000); a
+    fault needs a combination of three or more switches to escape it. What
+    :mod:`deformgl.pack.glslang` runs in CI; :func:`all_variants` is what programs are checked
+    against (tests/conftest.py)."""
+    groups: dict[tuple, list[Variant]] = {}
+    for v in variants:
+        groups.setdefault((v.vertex, v.fragment), []).append(v)
+    out: list[Variant] = []
+    for group in groups.values():
+        keys = tuple(sorted({k for v in group for k, _ in v.defines}))
+        covered: set[tuple] = set()
+        for i, v in enumerate(group):
+            new = _pairs(v, keys) - covered
+            if new or i == 0:  # (a program without defines: its one variant)
+                covered |= new
+                out.append(v)
+    return out

@@ -39,13 +39,14 @@ written out here (not ``scipy.sparse.linalg.cg``) so the GPU backend
 step for step: ``iterations`` is the most iterations per step; with ``tolerance`` > 0 it stops
 when the relative residual ``|r| / |b|`` is at most ``tolerance`` or ``|r|`` is at most the
 absolute floor (:func:`residual_floor`, in N s), tested every ``check_every`` iterations: the
-same test for every preconditioner (``r = b - A dv``, CG's updated residual; the report gives the
-true ``|b - A dv| / |b|`` at the end). ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
+same test for every preconditioner (``r = b - A dv``, CG's updated residual; the report gives and
+judges the true ``|b - A dv| / |b|`` at the end, the GPU backend's too). ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
 The preconditioner P (:data:`PRECONDITIONERS`) is "jacobi", the diagonal of A, "block-jacobi",
 the 3x3 diagonal block of A per node (its x y z coupling: the springs' ``u u^T`` terms), inverted
 per node, or "multigrid", a geometric V-cycle over the node grid at 2h, 4h, ...
-(:mod:`deformgl.sim.multigrid`; grid systems only); all three are symmetric positive definite
-where A is, so CG stays CG.
+(:mod:`deformgl.sim.multigrid`; grid systems only). Jacobi and block-Jacobi are symmetric
+positive definite where A is; the V-cycle is symmetric, and positive definite while its smoother
+converges on the step's A (docs/EQUATIONS.md "Multigrid"), so CG stays CG.
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
 
 __all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULTS", "SolveReport", "SolverStats",
-           "EPS32", "residual_floor", "multigrid_levels", "LinearSystem",
+           "EPS32", "EPS64", "residual_floor", "multigrid_levels", "LinearSystem",
            "WARM_STARTS", "DEFAULT_WARM_START", "assemble", "check_preconditioner", "check_warm_start",
            "warm_start", "preconditioner", "pcg", "implicit_step", "ImplicitNumpySimulation",
            "solver_note"]
@@ -149,19 +150,30 @@ class SolverStats:
 
 #: float32's unit roundoff: the relative precision of a GPU node position.
 EPS32 = float(np.finfo(np.float32).eps) / 2
+#: Half float64's machine epsilon (the NumPy reference's rounding).
+EPS64 = float(np.finfo(np.float64).eps) / 2
 
 
-def residual_floor(system: SpringSystem, x: np.ndarray, dt: float) -> float:
+def residual_floor(system: SpringSystem, x: np.ndarray, dt: float, *, drags: tuple[Drag, ...] = (),
+                   eps: float = EPS32) -> float:
     """The absolute floor of the solve's residual, in N s (an impulse, b's unit): ``dt`` times the
-    force noise that rounding the node positions to float32 makes, each spring's
-    ``k EPS32 |x|`` at the farthest node's ``|x|`` (at least the spacing), summed in quadrature
-    over a node's springs and over the nodes. A right-hand side this size is float32 noise (a
-    stiff body at rest in equilibrium, on the GPU): the solve counts a residual this small as
-    solved, whatever its relative size, on every backend alike."""
-    node_k2 = (np.bincount(system.i, system.stiffness ** 2, system.count)
-               + np.bincount(system.j, system.stiffness ** 2, system.count))
-    reach = max(float(np.max(np.abs(x))) if x.size else 0.0, float(system.spacing))
-    return float(dt * EPS32 * reach * np.sqrt(node_k2.sum()))
+    force noise that rounding the node positions to the backend's precision makes (``eps``, half
+    its machine epsilon: :data:`EPS32` on the GPU, :data:`EPS64` in NumPy). Rounding a coordinate
+    ``x_j`` errs uniformly within half its ulp, at most ``eps |x_j|``: a standard deviation of
+    ``s_j = eps |x_j| / sqrt(3)``. The force on the free nodes moves by ``H dx``, whose expected size
+    for independent errors is ``sqrt(sum_j s_j^2 |H_j|^2)`` (``H_j`` the free nodes' rows of column
+    j of the stiffness H at ``x``: the springs', the volumetric cells', a sheet's bending and the
+    drags' terms alike). A right-hand side this size is rounding noise (a stiff body at rest in
+    equilibrium, on the GPU): the solve counts a residual this small as solved, whatever its
+    relative size, on every backend alike. (In float32 it can be a good part of a stiff body's
+    first ``|b|``: rounding the positions of a 1 m steel cantilever moves the forces by a third of
+    its nodes' weight.)"""
+    x = np.asarray(x, np.float64)
+    hessian = assemble(system, x, np.zeros_like(x), 0.0, dt, drags=drags).hessian
+    rows = hessian[np.flatnonzero(np.repeat(~system.fixed, 3))]
+    column2 = np.asarray(rows.multiply(rows).sum(axis=0)).ravel()
+    sigma = eps * np.abs(x).ravel() / np.sqrt(3.0)
+    return float(dt * np.sqrt(column2 @ sigma ** 2))
 
 
 @dataclass(frozen=True)
@@ -374,11 +386,16 @@ def implicit_step(system: SpringSystem, state: State, dt: float, t: float, *, dv
 
 def multigrid_levels(system: SpringSystem) -> CoarseLevels:
     """The multigrid of ``system``'s free nodes (:func:`deformgl.sim.multigrid.grid_levels`);
-    ValueError naming ``preconditioner`` for a system without a node grid."""
+    ValueError naming ``preconditioner`` for a system without a node grid or without a coarser
+    level (at most 2 nodes along every axis), on every backend alike."""
     if system.grid is None:
         raise ValueError("cg_preconditioner 'multigrid' needs a grid system (a node grid: springs.from_grid, "
                          "springs.cloth or materials.lattice_system); use 'jacobi' or 'block-jacobi'")
-    return CoarseLevels(grid_levels(system.grid.occupied, system.grid.ijk[~system.fixed]))
+    levels = grid_levels(system.grid.occupied, system.grid.ijk[~system.fixed])
+    if not levels:
+        raise ValueError("cg_preconditioner 'multigrid' needs a grid of at least 3 nodes along some axis "
+                         "(it has no coarser level); use 'block-jacobi'")
+    return CoarseLevels(levels)
 
 
 def solver_note(unconverged: int, steps: int, worst: float, tolerance: float) -> str | None:
@@ -429,7 +446,7 @@ class ImplicitNumpySimulation(CpuSimulationBase):
         self.state = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                       if state is None else state)
         self.tolerance = float(cg_tolerance)
-        self.floor = residual_floor(system, self.state.x, self.dt)
+        self.floor = residual_floor(system, self.state.x, self.dt, drags=self.drags, eps=EPS64)
         self.options: dict[str, Any] = dict(iterations=int(cg_iterations), tolerance=float(cg_tolerance),
                             check_every=int(cg_check_every), solver=solver, geometric=geometric,
                             preconditioner=cg_preconditioner, warm=cg_warm_start, floor=self.floor,

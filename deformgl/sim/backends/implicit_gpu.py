@@ -1,5 +1,5 @@
-"""Implicit (backward) Euler on the fragment backend: matrix-free preconditioned (Jacobi or
-block-Jacobi) conjugate gradients in fragment passes over the compact node texture, the dot
+"""Implicit (backward) Euler on the fragment backend: matrix-free preconditioned (Jacobi,
+block-Jacobi or multigrid) conjugate gradients in fragment passes over the compact node texture, the dot
 products summed on the GPU.
 
 The same method as the float64 reference :mod:`deformgl.sim.implicit` (same iteration, same warm
@@ -35,7 +35,8 @@ neighbourhood; the barriers' products only at the nodes SETUP found a barrier te
 (``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
 scalar (``r . r``) every ``cg_check_every`` iterations, and ``b . b`` once per step, and stops at
 ``|r| <= max(tol |b|, floor)`` (:func:`~deformgl.sim.implicit.residual_floor`), the NumPy
-reference's test; without one :meth:`ImplicitFragment.residual` reads the last step's two scalars
+reference's test; after the iterations TRUE_RESIDUAL sums the true ``|b - A dv|^2`` (one more
+product, one more read), which the step's report gives and judges; without one :meth:`ImplicitFragment.residual` reads the last step's two scalars
 on request.
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
@@ -54,7 +55,7 @@ GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless 
   product (after SETUP, INIT and UPDATE R the preconditioned, G the plain dot product; after
   MATVEC R; after WARM R and G), the reduction levels (RGBA, each channel
   summed; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and five 1x1 scalars (R:
-  ``b.P^-1 b`` (G ``b.b``), ``p.q``, ``r.P^-1 r`` twice (G ``r.r``): before and after an update;
+  ``b.P^-1 b`` (G ``b.b``), ``p.q`` (after a step with a tolerance, G the true ``|b - A dv|^2``), ``r.P^-1 r`` twice (G ``r.r``): before and after an update;
   the warm start's R ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
 """
 
@@ -184,7 +185,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
-        self.floor = residual_floor(system, x, self.dt)
+        self.floor = residual_floor(system, x, self.dt, drags=self.drags)
         self.stats.floor = self.floor
         if x.shape != (n, 3) or v.shape != (n, 3):
             raise ValueError(f"ImplicitFragment: state of shape {x.shape}, expected ({n}, 3)")
@@ -387,12 +388,15 @@ class ImplicitFragment(SimulationBase, GLOwner):
             self._swap("p", "p_out")
             self.scalars["rz"], self.scalars["rz_new"] = self.scalars["rz_new"], self.scalars["rz"]
             done = k + 1
+        if tol:  # the report's residual: the true |b - A dv|, not CG's updated r (at x, before FINAL)
+            self._draw("TRUE_RESIDUAL", {"u_vec": "dv", "u_b": "b"}, ("prod",))
+            self._sum("pq")
         self._set_spheres()
         self._draw("FINAL", {"u_v": "v", "u_dv": "dv"}, ("x_out", "v_out"))
         self._swap("x", "x_out")
         self._swap("v", "v_out")
         if tol:
-            rr = self._scalar("rz", 1)
+            rr = self._scalar("pq", 1)
             res = self._residual(rr, bb)
             self.last_report = SolveReport(done, res, res <= self.tolerance or float(np.sqrt(max(rr, 0.0))) <= self.floor)
             if not self.last_report.within_tolerance:
@@ -420,7 +424,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             restore_framebuffer(self.ctx, previous)
 
     def residual(self) -> float:
-        """The last step's relative residual ``|r| / |b|`` (CG's updated r; two scalar reads)."""
+        """The last step's relative residual ``|r| / |b|`` (with a tolerance the true residual; without
+        one CG's updated r, two scalar reads)."""
         if self.tolerance > 0:
             return self.last_report.residual
         return self._residual(self._scalar("rz", 1), self._scalar("bpb", 1))

@@ -10,11 +10,13 @@ import numpy as np
 from deformgl.sim.integrators import Constraints
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES", "BENDING_PASSES",
+__all__ = ["PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES", "BENDING_PASSES",
            "UNITS", "REDUCE_UNIT", "pass_defines"]
 
 #: The passes of ``implicit.frag`` (one define each).
-PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL")
+PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL", "TRUE_RESIDUAL")
+#: The passes that evaluate A's product (the spring, node, cell and bending terms).
+PRODUCT_PASSES = ("WARM", "INIT", "MATVEC", "TRUE_RESIDUAL")
 #: Its multigrid passes on the finest level (MG_SMOOTH_ZERO: MG_SMOOTH with FROM_ZERO).
 MG_PASSES = ("MG_SMOOTH_ZERO", "MG_SMOOTH", "MG_RESIDUAL")
 #: The passes that apply P^-1 (multigrid: MULTIGRID instead, the cycle runs between them).
@@ -32,7 +34,7 @@ PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 #: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in all
 #: four); they read the neighbourhood texture on the unit of ``u_rz``, which only
 #: UPDATE and DIRECTION read.
-CELL_PASSES = ("SETUP", "WARM", "INIT", "MATVEC", *MG_PASSES)
+CELL_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
 UNITS["u_cell_nb"] = UNITS["u_rz"]
 #: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
 UNITS["u_mg_rhs"] = UNITS["u_z"] = UNITS["u_q"]
@@ -64,7 +66,7 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     nb = {"NB_LAYERS": common["NB_LAYERS"], "NB_COUNT": common["NB_COUNT"], "SPHERES": 0}
     product = {**common, "LOADS": 0}
     names = PASSES + (MG_PASSES if multigrid else ())
-    out = {name: {**(common if name == "SETUP" else product if name in ("WARM", "INIT", "MATVEC", *MG_PASSES)
+    out = {name: {**(common if name == "SETUP" else product if name in (*PRODUCT_PASSES, *MG_PASSES)
                      else nb), name: True} for name in names}
     if multigrid:
         out["MG_SMOOTH_ZERO"] = {**out.pop("MG_SMOOTH_ZERO"), "MG_SMOOTH": True, "FROM_ZERO": True}

@@ -14,12 +14,14 @@
 //   UPDATE     alpha = rz / pq; dv += alpha p, r -= alpha q, and per texel R: r . P^-1 r, G: r . r
 //   DIRECTION  beta = rz_new / rz; p = P^-1 r + beta p
 //   FINAL      v' = v + dv, x' = x + dt v', then the constraints (CONSTRAINTS)
+//   TRUE_RESIDUAL  per texel R and G: r . r of the true residual r = b - A dv (after the
+//              iterations, with a tolerance: the step's report, not CG's updated r)
 //   MG_SMOOTH  the multigrid cycle's smoothing on this (the finest) level, x' = x + w D^-1 (rhs - A x),
 //              D^-1 the block inverse SETUP wrote (PRECOND_BLOCK); with FROM_ZERO x' = w D^-1 rhs
 //   MG_RESIDUAL  res = rhs - A x on this level (the coarse levels: sim/implicit/multigrid.frag)
 // MULTIGRID (INIT, UPDATE, DIRECTION): P^-1 is the V-cycle, run between the passes: INIT and
 // UPDATE leave r . z to multigrid.frag's RZ, DIRECTION reads z = M^-1 r from u_z.
-// IMPLICIT_CELLS (SETUP, WARM, INIT, MATVEC): the full cells' volumetric term and corner
+// IMPLICIT_CELLS (SETUP, WARM, INIT, MATVEC, TRUE_RESIDUAL, MG_*): the full cells' volumetric term and corner
 // barriers, their forces in f (lib/cell_forces.glsl) and their Gauss-Newton block in H
 // (sim/implicit/cells.glsl). Not CELLS: that define switches on the explicit stages' own cell
 // forces inside sim/integrators/forces.glsl, which this file includes for the springs.
@@ -27,7 +29,7 @@
 // reduced on the GPU (sim/implicit/reduce.frag).
 // Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
 // Without a pass define the pass is SETUP (the first of a step).
-#if !defined(SETUP) && !defined(WARM) && !defined(INIT) && !defined(MATVEC) && !defined(UPDATE) && !defined(DIRECTION) && !defined(FINAL) && !defined(MG_SMOOTH) && !defined(MG_RESIDUAL)
+#if !defined(SETUP) && !defined(WARM) && !defined(INIT) && !defined(MATVEC) && !defined(UPDATE) && !defined(DIRECTION) && !defined(FINAL) && !defined(TRUE_RESIDUAL) && !defined(MG_SMOOTH) && !defined(MG_RESIDUAL)
 #define SETUP
 #endif
 #include "lib/node_flags.glsl"
@@ -37,7 +39,7 @@ uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 f
 uniform sampler2D u_x;      // xyz position at t
 uniform sampler2D u_v;      // xyz velocity at t
 uniform float u_dt;
-#if defined(INIT) || defined(WARM) || ((defined(MATVEC) || defined(MG_SMOOTH) || defined(MG_RESIDUAL)) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
+#if defined(INIT) || defined(WARM) || defined(TRUE_RESIDUAL) || ((defined(MATVEC) || defined(MG_SMOOTH) || defined(MG_RESIDUAL)) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
 uniform sampler2D u_b;      // xyz right-hand side; w (IMPLICIT_CELLS, CELL_BARRIER): 1 where a
                             // barrier term holds the node
 #endif
@@ -224,6 +226,9 @@ void main() {
     vec3 q = apply_system(texel, xi, p, m);
     o_0 = vec4(q, 0.0);
     o_1 = vec4(dot(p, q));
+#elif defined(TRUE_RESIDUAL)
+    vec3 r = texelFetch(u_b, texel, 0).xyz - apply_system(texel, xi, texelFetch(u_vec, texel, 0).xyz, m);
+    o_0 = vec4(dot(r, r), dot(r, r), 0.0, 0.0);   // (u_vec is dv)
 #elif defined(UPDATE)
     float pq = scalar(u_pq);
     float alpha = pq != 0.0 ? scalar(u_rz) / pq : 0.0;
