@@ -132,9 +132,10 @@ def _mesh_system():
     return replace(system, fixed=y < y.min() + 1.5 * system.spacing)
 
 
-def test_the_stopping_rule_is_the_true_residual_for_every_preconditioner() -> None:
-    """With a tolerance of 1e-3 each preconditioner's CG stops at the first iteration whose true
-    |b - A dv| / |b| is at most 1e-3 (one iteration fewer is above it), and reports that residual."""
+def test_the_stopping_rule_is_the_residual_for_every_preconditioner() -> None:
+    """With a tolerance of 1e-3 each preconditioner's CG stops at the first iteration whose
+    residual |r| / |b| is at most 1e-3 (CG's updated r, in float64 the true |b - A dv| to 1e-6, which
+    the report gives; one iteration fewer is above it): the same test whatever the preconditioner."""
     system = _block(9, TISSUE)
     lin = _step_matrix(system)
     b_norm = np.linalg.norm(lin.rhs)
@@ -185,8 +186,10 @@ def test_a_body_at_rest_in_equilibrium_counts_as_solved_on_the_gpu(ctx, material
 @pytest.mark.parametrize("kind", PRECONDITIONERS)
 def test_the_gpu_reports_the_true_residual(ctx, kind) -> None:
     """The fragment backend's reported residual is |b - A dv| / |b| of the dv it computed (the
-    float64 A and b of the same start state), not CG's updated r: within 2 % after 4 iterations
-    of a deformed nu = 0.45 block (where the updated r has drifted from the true one)."""
+    float64 A and b of the same start state) within 2 %, after 4 iterations on a deformed
+    nu = 0.45 block. (Where the residual is this far above float32 noise CG's updated r agrees
+    with it too: the test pins the quantity reported, not the drift the TRUE_RESIDUAL pass guards
+    against; at the floor, 1e-6 here, float32's |b - A dv| and float64's differ by a factor of 3.)"""
     system = _block(9, TISSUE)
     rng = np.random.default_rng(5)
     x0 = system.rest_positions + 0.05 * system.spacing * rng.normal(size=(system.count, 3))
@@ -269,7 +272,8 @@ def test_hierarchy_depth_and_coarsest_size() -> None:
 
 def test_the_static_solve_by_multigrid_is_the_direct_solve() -> None:
     """bench.fem.static_displacement(method="multigrid") (the tissue checks' 17-across sags) equals
-    the direct solve on the nearly incompressible cantilever (nu = 0.49, 9 across) to 1e-9."""
+    the direct solve on the nearly incompressible cantilever (nu = 0.49, 9 across) to 1e-6 (its
+    relative residual 1e-8; measured 5e-11)."""
     from dataclasses import replace
 
     from deformgl.bench.fem import MATERIAL, static_displacement
@@ -277,7 +281,7 @@ def test_the_static_solve_by_multigrid_is_the_direct_solve() -> None:
     case = lattice_case(WORKLOADS["cantilever"], 9, replace(MATERIAL, poissons_ratio=0.49))
     direct = static_displacement(case.system, case.forces, method="direct")
     multigrid = static_displacement(case.system, case.forces, method="multigrid")
-    assert np.abs(multigrid - direct).max() <= 1e-9 * np.abs(direct).max()
+    assert np.abs(multigrid - direct).max() <= 1e-6 * np.abs(direct).max()
     with pytest.raises(ValueError, match="method 'multigrid' needs a grid system"):
         static_displacement(case.system, case.forces, np.zeros((case.system.count, 3), bool), method="multigrid")
 

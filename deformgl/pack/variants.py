@@ -24,6 +24,8 @@ import itertools
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
+import numpy as np
+
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
 from deformgl.sim.backends.xpbd_cells_gpu import CELL_TERMS, cell_pass_defines, sweep_defines
@@ -35,7 +37,7 @@ from deformgl.trilinear.batches import PATHS
 from deformgl.trilinear.normals import NORMAL_MODES
 from deformgl.trilinear.renderer import shader_defines as trilinear_defines
 
-__all__ = ["COUNT_LIMITS", "ROW_LIMITS", "Variant", "all_variants", "variant_key"]
+__all__ = ["COUNT_LIMITS", "ROW_LIMITS", "Variant", "all_variants", "covering_set", "held_tuples", "variant_key"]
 
 #: Count defines and the largest value the code builds (the scene file's and the springs' limits).
 COUNT_LIMITS: dict[str, int] = {"DRAGS": MAX_DRAGS, "LOADS": MAX_LOADS, "SPHERES": MAX_SPHERES,
@@ -324,31 +326,52 @@ def implicit() -> Iterator[Variant]:
 GROUPS["implicit"] = implicit
 
 
-def _pairs(v: Variant, keys: tuple[str, ...]) -> set[tuple]:
-    """The (define, value, define, value) pairs of ``v`` over ``keys`` (absent and False alike)."""
-    d = v.define_map
-    values = [d.get(k) if d.get(k) is not False else None for k in keys]
-    return {(a, values[a], b, values[b]) for a in range(len(keys)) for b in range(a, len(keys))}
+
+def _codes(group: list[Variant], strength: int) -> tuple[np.ndarray, np.ndarray]:
+    """(variants, columns) the index of each define's value (absent and False alike) per variant,
+    with ``strength`` constant columns after the defines (so a program with fewer defines still
+    has whole tuples), and the (tuples, strength) column index of every ``strength``-tuple."""
+    keys = sorted({k for v in group for k, _ in v.defines})
+    values = np.zeros((len(group), len(keys) + strength), np.int64)
+    for j, k in enumerate(keys):
+        index: dict[object, int] = {}
+        for i, v in enumerate(group):
+            value = v.define_map.get(k)
+            values[i, j] = index.setdefault(None if value is False else value, len(index))
+    return values, np.array(list(itertools.combinations(range(values.shape[1]), strength)), np.int64)
 
 
-def pairwise_cover(variants: list[Variant]) -> list[Variant]:
-    """A subset of ``variants`` that, for each pair of shader files, holds every value of every
-    define and every pair of values of two defines that the full set holds together (a greedy
-    pairwise covering set, in enumeration order: deterministic). The full product of a stage's
-    switches runs to tens of thousands of sources (the integrators' step.frag alone ~34,000); a
-    fault needs a combination of three or more switches to escape it. What
-    :mod:`deformgl.pack.glslang` runs in CI; :func:`all_variants` is what programs are checked
-    against (tests/conftest.py)."""
+def held_tuples(group: list[Variant], strength: int = 3) -> set[int]:
+    """Every ``strength``-tuple of define values ``group`` (variants of one pair of files) holds,
+    each as one integer (the tuple's columns and values)."""
+    values, tuples = _codes(group, strength)
+    radix = int(values.max()) + 1
+    weights = radix ** np.arange(strength - 1, -1, -1)
+    codes = np.concatenate([values[i:i + 1024][:, tuples] @ weights for i in range(0, len(group), 1024)])
+    return set(np.unique(codes + np.arange(len(tuples)) * radix ** strength).tolist())
+
+
+def covering_set(variants: list[Variant], strength: int = 3) -> list[Variant]:
+    """A subset of ``variants`` that, for each pair of shader files, holds every combination of
+    values of any ``strength`` of its defines that the full set holds (every triple by default:
+    a pass with both cell terms, a preconditioner with bending, ...; a greedy covering array,
+    in enumeration order: deterministic). The full product of a stage's switches runs to tens of
+    thousands of sources (the integrators' step.frag alone 34,272); a fault needs four switches
+    together to escape the triples. What :mod:`deformgl.pack.glslang` runs in CI;
+    :func:`all_variants` is what built programs are checked against (tests/conftest.py)."""
     groups: dict[tuple, list[Variant]] = {}
     for v in variants:
         groups.setdefault((v.vertex, v.fragment), []).append(v)
     out: list[Variant] = []
     for group in groups.values():
-        keys = tuple(sorted({k for v in group for k, _ in v.defines}))
-        covered: set[tuple] = set()
+        values, tuples = _codes(group, strength)
+        radix = int(values.max()) + 1
+        weights = radix ** np.arange(strength - 1, -1, -1)
+        covered = np.zeros((len(tuples), radix ** strength), bool)
+        rows = np.arange(len(tuples))
         for i, v in enumerate(group):
-            new = _pairs(v, keys) - covered
-            if new or i == 0:  # (a program without defines: its one variant)
-                covered |= new
+            codes = values[i, tuples] @ weights
+            if i == 0 or not covered[rows, codes].all():
+                covered[rows, codes] = True
                 out.append(v)
     return out

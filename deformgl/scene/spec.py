@@ -182,7 +182,7 @@ class Safety:
 class Implicit:
     """The solver of ``integrator = "implicit-euler"`` (``[physics.implicit]``): at most
     ``iterations`` conjugate-gradient iterations per step, stopping early at the relative
-    residual ``tolerance`` (``|b - A dv| / |b|``, or below the float32-noise floor; 0: always
+    residual ``tolerance`` (``|b - A dv| / |b|``, or below the positions' rounding-noise floor; 0: always
     ``iterations``, nothing read back while stepping), with the ``preconditioner`` "jacobi" (the
     diagonal), "block-jacobi" (the 3x3 block per node) or "multigrid" (a V-cycle over the node
     grid, :mod:`deformgl.sim.multigrid`)."""

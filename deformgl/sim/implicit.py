@@ -165,7 +165,7 @@ def residual_floor(system: SpringSystem, x: np.ndarray, dt: float, *, drags: tup
     j of the stiffness H at ``x``: the springs', the volumetric cells', a sheet's bending and the
     drags' terms alike). A right-hand side this size is rounding noise (a stiff body at rest in
     equilibrium, on the GPU): the solve counts a residual this small as solved, whatever its
-    relative size, on every backend alike. (In float32 it can be a good part of a stiff body's
+    relative size, each backend at its own precision. (In float32 it can be a good part of a stiff body's
     first ``|b|``: rounding the positions of a 1 m steel cantilever moves the forces by a third of
     its nodes' weight.)"""
     x = np.asarray(x, np.float64)

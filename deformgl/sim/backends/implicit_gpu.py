@@ -185,10 +185,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
-        self.floor = residual_floor(system, x, self.dt, drags=self.drags)
-        self.stats.floor = self.floor
         if x.shape != (n, 3) or v.shape != (n, 3):
             raise ValueError(f"ImplicitFragment: state of shape {x.shape}, expected ({n}, 3)")
+        self.floor = residual_floor(system, x, self.dt, drags=self.drags)
+        self.stats.floor = self.floor
         zero = np.zeros((n, 3))
         names: tuple[str, ...] = ("x", "v", "x_out", "v_out", "b", "inv", "dv", "dv_out", "r", "r_out", "p",
                                   "p_out", "q", "prod") + (("inv_off",) if self.block else ()) + (

@@ -31,15 +31,15 @@ UNITS["u_inv_off"] = REDUCE_UNIT
 #: The passes that apply P^-1 (block-Jacobi: they read ``inv_off`` too).
 PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 #: The passes that evaluate the cells' terms (define IMPLICIT_CELLS, not the explicit stages'
-#: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in all
-#: four); they read the neighbourhood texture on the unit of ``u_rz``, which only
+#: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in
+#: :data:`PRODUCT_PASSES` and the multigrid's fine passes); they read the neighbourhood texture on the unit of ``u_rz``, which only
 #: UPDATE and DIRECTION read.
 CELL_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
 UNITS["u_cell_nb"] = UNITS["u_rz"]
 #: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
 UNITS["u_mg_rhs"] = UNITS["u_z"] = UNITS["u_q"]
 #: The passes that read a sheet's bending coefficients (define BENDING: forces in SETUP, B y in
-#: all four, ``sim/implicit/system.glsl``), on the unit of ``u_r``, which only UPDATE and
+#: the product passes, ``sim/implicit/system.glsl``), on the unit of ``u_r``, which only UPDATE and
 #: DIRECTION read.
 BENDING_PASSES = CELL_PASSES
 UNITS["u_bending"] = UNITS["u_r"]

@@ -143,7 +143,8 @@ vec3 cell_product(vec3 p[27], vec3 y[27], uint cells, bool barrier, out vec3 dia
     return hy;
 }
 
-// H_cells y at the node at `texel` (xi its position, s the sampler of y): WARM, INIT, MATVEC
+// H_cells y at the node at `texel` (xi its position, s the sampler of y): WARM, INIT, MATVEC,
+// TRUE_RESIDUAL and the multigrid's MG_SMOOTH, MG_RESIDUAL
 // (with CELL_BARRIER they declare u_b: its w is SETUP's flag).
 vec3 cells_times(ivec2 texel, vec3 xi, sampler2D s) {
 #if defined(CELL_BARRIER) && defined(SETUP)
