@@ -89,7 +89,8 @@ def cantilever_sag_ratio(across: int, nu: float, *, cells: bool = True) -> float
     scale = MATERIAL.density * G * size[0] ** 4 / (MATERIAL.youngs_modulus * size[1] ** 2)
     # by multigrid CG: the cells' nearly incompressible blocks defeat the aggregation AMG would try
     # first, and at 17 across the direct solve took 30 s a case
-    return lattice_value(case, static_displacement(case.system, case.forces, method="multigrid")) / scale / CANTILEVER_FEM[nu]
+    u = static_displacement(case.system, case.forces, method="multigrid")
+    return lattice_value(case, u) / scale / CANTILEVER_FEM[nu]
 
 
 def column_ratio(across: int, nu: float, *, cells: bool = True, side: float = 0.02,

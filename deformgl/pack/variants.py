@@ -326,11 +326,12 @@ def implicit() -> Iterator[Variant]:
 GROUPS["implicit"] = implicit
 
 
-
-def _codes(group: list[Variant], strength: int) -> tuple[np.ndarray, np.ndarray]:
-    """(variants, columns) the index of each define's value (absent and False alike) per variant,
-    with ``strength`` constant columns after the defines (so a program with fewer defines still
-    has whole tuples), and the (tuples, strength) column index of every ``strength``-tuple."""
+def _encoding(group: list[Variant], strength: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """How :func:`held_tuples` and :func:`covering_set` number a group's ``strength``-tuples: the
+    (variants, columns) index of each define's value per variant (absent and False alike), with
+    ``strength`` constant columns after the defines (so a program with fewer defines still has
+    whole tuples); the (tuples, strength) columns of every tuple; the weights that make a tuple's
+    values one integer, below ``span``."""
     keys = sorted({k for v in group for k, _ in v.defines})
     values = np.zeros((len(group), len(keys) + strength), np.int64)
     for j, k in enumerate(keys):
@@ -338,17 +339,17 @@ def _codes(group: list[Variant], strength: int) -> tuple[np.ndarray, np.ndarray]
         for i, v in enumerate(group):
             value = v.define_map.get(k)
             values[i, j] = index.setdefault(None if value is False else value, len(index))
-    return values, np.array(list(itertools.combinations(range(values.shape[1]), strength)), np.int64)
+    tuples = np.array(list(itertools.combinations(range(values.shape[1]), strength)), np.int64)
+    radix = int(values.max()) + 1
+    return values, tuples, radix ** np.arange(strength - 1, -1, -1), radix ** strength
 
 
 def held_tuples(group: list[Variant], strength: int = 3) -> set[int]:
     """Every ``strength``-tuple of define values ``group`` (variants of one pair of files) holds,
     each as one integer (the tuple's columns and values)."""
-    values, tuples = _codes(group, strength)
-    radix = int(values.max()) + 1
-    weights = radix ** np.arange(strength - 1, -1, -1)
+    values, tuples, weights, span = _encoding(group, strength)
     codes = np.concatenate([values[i:i + 1024][:, tuples] @ weights for i in range(0, len(group), 1024)])
-    return set(np.unique(codes + np.arange(len(tuples)) * radix ** strength).tolist())
+    return set(np.unique(codes + np.arange(len(tuples)) * span).tolist())
 
 
 def covering_set(variants: list[Variant], strength: int = 3) -> list[Variant]:
@@ -364,10 +365,8 @@ def covering_set(variants: list[Variant], strength: int = 3) -> list[Variant]:
         groups.setdefault((v.vertex, v.fragment), []).append(v)
     out: list[Variant] = []
     for group in groups.values():
-        values, tuples = _codes(group, strength)
-        radix = int(values.max()) + 1
-        weights = radix ** np.arange(strength - 1, -1, -1)
-        covered = np.zeros((len(tuples), radix ** strength), bool)
+        values, tuples, weights, span = _encoding(group, strength)
+        covered = np.zeros((len(tuples), span), bool)
         rows = np.arange(len(tuples))
         for i, v in enumerate(group):
             codes = values[i, tuples] @ weights

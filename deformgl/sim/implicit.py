@@ -40,7 +40,8 @@ step for step: ``iterations`` is the most iterations per step; with ``tolerance`
 when the relative residual ``|r| / |b|`` is at most ``tolerance`` or ``|r|`` is at most the
 absolute floor (:func:`residual_floor`, in N s), tested every ``check_every`` iterations: the
 same test for every preconditioner (``r = b - A dv``, CG's updated residual; the report gives and
-judges the true ``|b - A dv| / |b|`` at the end, the GPU backend's too). ``solver="direct"`` solves exactly (``scipy.sparse.linalg.spsolve``).
+judges the true ``|b - A dv| / |b|`` at the end, the GPU backend's too). ``solver="direct"``
+solves exactly (``scipy.sparse.linalg.spsolve``).
 The preconditioner P (:data:`PRECONDITIONERS`) is "jacobi", the diagonal of A, "block-jacobi",
 the 3x3 diagonal block of A per node (its x y z coupling: the springs' ``u u^T`` terms), inverted
 per node, or "multigrid", a geometric V-cycle over the node grid at 2h, 4h, ...
@@ -165,8 +166,8 @@ def residual_floor(system: SpringSystem, x: np.ndarray, dt: float, *, drags: tup
     j of the stiffness H at ``x``: the springs', the volumetric cells', a sheet's bending and the
     drags' terms alike). A right-hand side this size is rounding noise (a stiff body at rest in
     equilibrium, on the GPU): the solve counts a residual this small as solved, whatever its
-    relative size, each backend at its own precision. (In float32 it can be a good part of a stiff body's
-    first ``|b|``: rounding the positions of a 1 m steel cantilever moves the forces by a third of
+    relative size, each backend at its own precision. (In float32 it can be a good part of a
+    stiff body's first ``|b|``: rounding the positions of a 1 m steel cantilever moves the forces by a third of
     its nodes' weight.)"""
     x = np.asarray(x, np.float64)
     hessian = assemble(system, x, np.zeros_like(x), 0.0, dt, drags=drags).hessian

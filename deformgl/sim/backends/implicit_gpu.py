@@ -1,6 +1,6 @@
 """Implicit (backward) Euler on the fragment backend: matrix-free preconditioned (Jacobi,
-block-Jacobi or multigrid) conjugate gradients in fragment passes over the compact node texture, the dot
-products summed on the GPU.
+block-Jacobi or multigrid) conjugate gradients in fragment passes over the compact node texture,
+the dot products summed on the GPU.
 
 The same method as the float64 reference :mod:`deformgl.sim.implicit` (same iteration, same warm
 start, same stopping test), in float32. A step is (``shaders/sim/implicit/implicit.frag``):
@@ -36,8 +36,8 @@ neighbourhood; the barriers' products only at the nodes SETUP found a barrier te
 scalar (``r . r``) every ``cg_check_every`` iterations, and ``b . b`` once per step, and stops at
 ``|r| <= max(tol |b|, floor)`` (:func:`~deformgl.sim.implicit.residual_floor`), the NumPy
 reference's test; after the iterations TRUE_RESIDUAL sums the true ``|b - A dv|^2`` (one more
-product, one more read), which the step's report gives and judges; without one :meth:`ImplicitFragment.residual` reads the last step's two scalars
-on request.
+product, one more read), which the step's report gives and judges; without one
+:meth:`ImplicitFragment.residual` reads the last step's two scalars on request.
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
 
@@ -55,7 +55,8 @@ GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless 
   product (after SETUP, INIT and UPDATE R the preconditioned, G the plain dot product; after
   MATVEC R; after WARM R and G), the reduction levels (RGBA, each channel
   summed; each ``ceil(w/4) x ceil(h/4)`` of the last, down to 1x1) and five 1x1 scalars (R:
-  ``b.P^-1 b`` (G ``b.b``), ``p.q`` (after a step with a tolerance, G the true ``|b - A dv|^2``), ``r.P^-1 r`` twice (G ``r.r``): before and after an update;
+  ``b.P^-1 b`` (G ``b.b``), ``p.q`` (after a step with a tolerance, G the true
+  ``|b - A dv|^2``), ``r.P^-1 r`` twice (G ``r.r``): before and after an update;
   the warm start's R ``dv_prev . A dv_prev`` and G ``b . dv_prev``).
 """
 

@@ -10,8 +10,8 @@ import numpy as np
 from deformgl.sim.integrators import Constraints
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES", "BENDING_PASSES",
-           "UNITS", "REDUCE_UNIT", "pass_defines"]
+__all__ = ["PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES",
+           "BENDING_PASSES", "UNITS", "REDUCE_UNIT", "pass_defines"]
 
 #: The passes of ``implicit.frag`` (one define each).
 PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL", "TRUE_RESIDUAL")
@@ -32,8 +32,8 @@ UNITS["u_inv_off"] = REDUCE_UNIT
 PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
 #: The passes that evaluate the cells' terms (define IMPLICIT_CELLS, not the explicit stages'
 #: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in
-#: :data:`PRODUCT_PASSES` and the multigrid's fine passes); they read the neighbourhood texture on the unit of ``u_rz``, which only
-#: UPDATE and DIRECTION read.
+#: :data:`PRODUCT_PASSES` and the multigrid's fine passes); they read the neighbourhood texture
+#: on the unit of ``u_rz``, which only UPDATE and DIRECTION read.
 CELL_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
 UNITS["u_cell_nb"] = UNITS["u_rz"]
 #: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
