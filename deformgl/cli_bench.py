@@ -68,7 +68,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "block at E = 3 kPa (5, 9 across) and 1 MPa (5 to 33 across): wall time per simulated second "
                         "and to a converged sag (every node within 0.05 h, and within 5 %% of the sag, of the "
                         "equilibrium), the error against FEM statics, implicit Euler's damping of the lowest mode and "
-                        "CG iterations with the Jacobi and block-Jacobi preconditioners (--out DIR: stiff.csv, "
+                        "CG iterations with the Jacobi, block-Jacobi and multigrid preconditioners; implicit Euler runs "
+                        "with Jacobi and with multigrid (--out DIR: stiff.csv, "
                         "stiff.json, stiff.png); then (not with --quick) "
                         "the heart-scale scene (--scene) in 60 Hz frames per second, implicit at dt 1/60 s vs explicit")
     b.add_argument("--poisson", type=_nus, default=None, metavar="NU[,NU...]",

@@ -272,14 +272,16 @@ def stiff_rows(ctx):
 
 
 def test_stiff_study_quick(stiff_rows):
-    from deformgl.bench.implicit import QUICK_ITERATIONS, QUICK_XPBD, format_stiff
+    from deformgl.bench.implicit import QUICK_ITERATIONS, QUICK_MULTIGRID, QUICK_XPBD, format_stiff
 
     cases, rows = stiff_rows
     assert cases and cases[0].omega1 > 100.0 and cases[0].linear_gap < 1e-3
     implicit = [r for r in rows if r.integrator == "implicit-euler"]
     xpbd = [r for r in rows if r.integrator == "xpbd"]
     explicit = [r for r in rows if r.integrator in ("verlet", "semi-implicit")]
-    assert len(implicit) == len(QUICK_ITERATIONS) and len(xpbd) == len(QUICK_XPBD) and len(explicit) == 2
+    assert [r.preconditioner for r in implicit] == ["jacobi"] * len(QUICK_ITERATIONS) + ["multigrid"] * len(QUICK_MULTIGRID)
+    assert len(xpbd) == len(QUICK_XPBD) and len(explicit) == 2
+    assert all(r.preconditioner == "" for r in xpbd + explicit)
     assert all(r.converged_at is not None for r in rows)
     assert all(r.final_error <= 0.05 for r in rows)
     # the body at rest is within 0.05 h (the sag is 0.002 h): the relative criterion asks for the sag
@@ -289,6 +291,7 @@ def test_stiff_study_quick(stiff_rows):
     assert all(r.dt > 10 * max(e.dt for e in explicit) for r in implicit)
     text = format_stiff(rows, cases=cases)
     assert "in favour of" in text and "(0.05 of sag)" in text
+    assert "cheapest converged implicit-euler (multigrid)" in text and "cheapest converged implicit-euler (jacobi)" in text
 
 
 @pytest.mark.fem
@@ -313,6 +316,7 @@ def test_stiff_csv_json_and_chart(stiff_rows, tmp_path):
     assert tuple(table[0]) == stiff_files.FIELDS and len(table) == len(rows)
     assert {"wall_per_sim_s", "fem_error", "final_error", "converged_rel_at", "substeps"} <= set(table[0])
     assert [t["integrator"] for t in table] == [r.integrator for r in rows]
+    assert [t["preconditioner"] for t in table] == [r.preconditioner for r in rows]
     assert float(table[-1]["wall_per_sim_s"]) == rows[-1].wall_per_sim_s
     stiff_files.write_json(tmp_path / "stiff.json", rows, cases, "machine")
     data = json.loads((tmp_path / "stiff.json").read_text())

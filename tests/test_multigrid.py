@@ -310,3 +310,16 @@ def test_the_multigrid_bench_prints_its_iteration_table(capsys) -> None:
     for row in rows:
         jacobi, block, multigrid = (int(x) for x in row[-4:-1])
         assert multigrid * 3 < block <= jacobi, row
+
+
+def test_the_stiff_studys_preconditioner_table_has_multigrid() -> None:
+    """``bench trade --stiff``'s CG table (float64) has a multigrid column beside Jacobi and
+    block-Jacobi, and on the FEM-checked cantilever multigrid needs a fraction of their iterations."""
+    from deformgl.bench.implicit import format_preconditioners, preconditioner_bodies, preconditioner_iterations
+
+    rows = preconditioner_iterations(preconditioner_bodies([], quick=True), dts=(1 / 60,))
+    first = rows[0].first
+    assert first["multigrid"] * 3 < first["block-jacobi"] <= first["jacobi"], first
+    assert rows[0].warm["multigrid"] * 3 < rows[0].warm["jacobi"], rows[0].warm
+    text = format_preconditioners(rows)
+    assert "first MG" in text and "warm MG" in text and f"{first['multigrid']:>8}" in text.splitlines()[-1]

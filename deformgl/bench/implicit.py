@@ -19,7 +19,8 @@ linear hexahedral FEM of the same cube (:func:`~deformgl.bench.fem.fem_reference
 NaN without it): the lattice's discretisation error plus the run's.
 
 Rows: implicit Euler (:mod:`deformgl.sim.backends.implicit_gpu`) at dt = 1/60 ... 1/1000 s x CG
-iterations per step, XPBD (:mod:`deformgl.sim.backends.xpbd_gpu`) at dt = 1/60 s x iterations x
+iterations per step with the Jacobi preconditioner, and at 1/60 s with the multigrid V-cycle
+(:data:`MULTIGRID`, the ``preconditioner`` column; the verdicts name each preconditioner), XPBD (:mod:`deformgl.sim.backends.xpbd_gpu`) at dt = 1/60 s x iterations x
 substeps, and Verlet / semi-implicit Euler at 0.9 of their stability limit
 (:func:`~deformgl.sim.limits.dt_limit`); the finer grids (from :data:`FINE` across) run a smaller
 set (:data:`FINE_IMPLICIT`, :data:`FINE_XPBD`) for :data:`FINE_SIM_TIME`. Columns: wall seconds per
@@ -71,6 +72,9 @@ IMPLICIT_DTS, QUICK_IMPLICIT_DTS = (1 / 60, 1 / 250, 1 / 1000), (1 / 60,)
 ITERATIONS, QUICK_ITERATIONS = (10, 30, 100), (10, 30)
 #: (dt, CG iterations) of the finer grids.
 FINE_IMPLICIT = ((1 / 60, 5), (1 / 60, 10), (1 / 60, 30), (1 / 250, 10))
+#: (dt, CG iterations) of implicit Euler with the multigrid preconditioner (issue 29: its
+#: iterations to a given residual do not grow with the grid, so the fine grids run the same set).
+MULTIGRID, QUICK_MULTIGRID = ((1 / 60, 2), (1 / 60, 3), (1 / 60, 5)), ((1 / 60, 3),)
 #: (iterations, substeps) of XPBD at dt = 1/60 s.
 XPBD, QUICK_XPBD, FINE_XPBD = ((10, 1), (10, 10), (30, 30)), ((10, 4),), ((10, 10),)
 EXPLICIT = ("verlet", "semi-implicit")
@@ -108,6 +112,7 @@ class StiffRow:
     dt: float
     iterations: int               # CG (implicit) or constraint (XPBD) iterations; 0 explicit
     substeps: int                 # XPBD substeps; 1 otherwise
+    preconditioner: str           # implicit Euler's CG preconditioner (jacobi, block-jacobi, multigrid); "" otherwise
     wall_per_sim_s: float
     converged_at: float | None    # simulated s at which the error stays <= 0.05 h; None: not within the run
     wall_to_converge: float | None
@@ -229,7 +234,8 @@ def _run(ctx, case: StiffCase, integrator: str, dt: float, iterations: int, sim_
                  if np.all(np.isfinite(x)) else math.inf)
     v, r = at["visual"], at["relative"]
     return StiffRow(case.name, case.youngs_modulus, case.across, case.system.count, integrator, dt, iterations,
-                    substeps, wall / simulated, v and v[0], v and v[1], r and r[0], r and r[1], error,
+                    substeps, preconditioner if integrator == "implicit-euler" else "", wall / simulated,
+                    v and v[0], v and v[1], r and r[0], r and r[1], error,
                     error / case.sag if case.sag > 0 else math.nan, fem_error, decay)
 
 
@@ -243,7 +249,8 @@ def stiff_row(ctx, case: StiffCase, integrator: str, dt: float, iterations: int,
 
 def stiff_study(ctx, *, quick: bool = False, progress: Callable[[str], None] | None = None,
                 cases: list[StiffCase] | None = None) -> list[StiffRow]:
-    """Every case x (explicit at 0.9 of its limit, implicit dt x iterations, XPBD iterations x substeps)."""
+    """Every case x (explicit at 0.9 of its limit, implicit dt x iterations with Jacobi and with
+    multigrid (:data:`MULTIGRID`), XPBD iterations x substeps)."""
     rows = []
     for case in (stiff_cases(quick) if cases is None else cases):
         fine = not quick and case.across >= FINE
@@ -256,10 +263,11 @@ def stiff_study(ctx, *, quick: bool = False, progress: Callable[[str], None] | N
         implicit = (FINE_IMPLICIT if fine else
                     [(dt, its) for dt in (QUICK_IMPLICIT_DTS if quick else IMPLICIT_DTS)
                      for its in (QUICK_ITERATIONS if quick else ITERATIONS)])
-        for dt, its in implicit:
-            if progress:
-                progress(f"{case.name}: implicit-euler dt {dt:.3g} s x {its} CG iterations")
-            rows.append(_run(ctx, case, "implicit-euler", dt, its, sim_time))
+        for kind, runs in (("jacobi", implicit), ("multigrid", QUICK_MULTIGRID if quick else MULTIGRID)):
+            for dt, its in runs:
+                if progress:
+                    progress(f"{case.name}: implicit-euler ({kind}) dt {dt:.3g} s x {its} CG iterations")
+                rows.append(_run(ctx, case, "implicit-euler", dt, its, sim_time, preconditioner=kind))
         for its, sub in (QUICK_XPBD if quick else FINE_XPBD if fine else XPBD):
             if progress:
                 progress(f"{case.name}: xpbd dt {CHUNK:.3g} s x {its} iterations x {sub} substeps")
@@ -267,8 +275,10 @@ def stiff_study(ctx, *, quick: bool = False, progress: Callable[[str], None] | N
     return rows
 
 
-def _best(rows: list[StiffRow], case: str, kind: str, relative: bool = False) -> StiffRow | None:
+def _best(rows: list[StiffRow], case: str, kind: str, relative: bool = False,
+          preconditioner: str | None = None) -> StiffRow | None:
     done = [r for r in rows if r.case == case and _kind(r.integrator) == kind
+            and (preconditioner is None or r.preconditioner == preconditioner)
             and (r.wall_to_converge_rel if relative else r.wall_to_converge) is not None]
     return min(done, key=lambda r: r.wall_per_sim_s) if done else None
 
@@ -282,11 +292,11 @@ def format_stiff(rows: list[StiffRow], machine: str = "", cases: list[StiffCase]
     against the cheapest explicit one."""
     head = [f"{c.name}: equilibrium sag {c.sag:.3g} h, {c.linear_gap:.3g} h from the linear static solve, "
             f"w1 {c.omega1:.4g} rad/s, {c.system.count} nodes, FEM top sag {c.fem:.4g} m" for c in (cases or [])]
-    lines = [*head, f"Implicit Euler and XPBD vs explicit on stiff blocks (fragment backend)"
+    lines = [*head, f"Implicit Euler (Jacobi and multigrid CG) and XPBD vs explicit on stiff blocks (fragment backend)"
                     f"{'; ' + machine if machine else ''}",
              f"converged: every node within 0.05 h (visual) / within {REL:g} of the sag (rel.) of the "
              "lattice's equilibrium, staying there; FEM err: the top face's mean sag against FEM",
-             f"{'case':<28} {'integrator':<15} {'dt s':>9} {'it':>4} {'sub':>4} {'wall/sim s':>10} "
+             f"{'case':<28} {'integrator':<15} {'precond.':<10} {'dt s':>9} {'it':>4} {'sub':>4} {'wall/sim s':>10} "
              f"{'visual at s':>11} {'wall':>7} {'rel. at s':>9} {'wall':>7} {'final err h':>11} {'/sag':>8} "
              f"{'FEM err':>8} {'mode left/s':>11}"]
 
@@ -296,7 +306,8 @@ def format_stiff(rows: list[StiffRow], machine: str = "", cases: list[StiffCase]
     for r in rows:
         its = "-" if r.integrator not in ("implicit-euler", "xpbd") else str(r.iterations)
         sub = str(r.substeps) if r.integrator == "xpbd" else "-"
-        lines.append(f"{r.case:<28} {r.integrator:<15} {r.dt:>9.3g} {its:>4} {sub:>4} {r.wall_per_sim_s:>10.3g} "
+        lines.append(f"{r.case:<28} {r.integrator:<15} {r.preconditioner or '-':<10} {r.dt:>9.3g} {its:>4} {sub:>4} "
+                     f"{r.wall_per_sim_s:>10.3g} "
                      f"{opt(r.converged_at, '.3f'):>11} {opt(r.wall_to_converge, '.3g'):>7} "
                      f"{opt(r.converged_rel_at, '.3f'):>9} {opt(r.wall_to_converge_rel, '.3g'):>7} "
                      f"{r.final_error:>11.3g} {r.relative_error:>8.3g} {r.fem_error:>8.3g} {r.mode_decay:>11.3g}")
@@ -312,18 +323,21 @@ def verdicts(rows: list[StiffRow]) -> list[str]:
     for case in dict.fromkeys(r.case for r in rows):
         for relative, label in ((False, "visual"), (True, f"{REL:g} of sag")):
             exp = _best(rows, case, "explicit", relative)
-            for kind in ("implicit-euler", "xpbd"):
-                best = _best(rows, case, kind, relative)
+            methods = [("implicit-euler", p, f"implicit-euler ({p})") for p in
+                       dict.fromkeys(r.preconditioner for r in rows if r.integrator == "implicit-euler")]
+            for kind, pre, name in (*methods, ("xpbd", None, "xpbd")):
+                best = _best(rows, case, kind, relative, pre)
                 if best and exp:
                     ratio = exp.wall_per_sim_s / best.wall_per_sim_s
-                    better = kind if ratio > 1 else "explicit"
+                    better = name if ratio > 1 else "explicit"
                     setting = (f"{best.iterations} it" if kind == "implicit-euler"
                                else f"{best.iterations} it x {best.substeps} sub")
-                    lines.append(f"{case} ({label}): cheapest converged {kind} (dt {best.dt:.3g} s, {setting}) "
+                    lines.append(f"{case} ({label}): cheapest converged {name} (dt {best.dt:.3g} s, {setting}) "
                                  f"{best.wall_per_sim_s:.3g} s/sim s vs {exp.integrator} {exp.wall_per_sim_s:.3g}: "
                                  f"{max(ratio, 1 / ratio):.3g}x in favour of {better}")
-                elif any(r.case == case and r.integrator == kind for r in rows):
-                    lines.append(f"{case} ({label}): {kind} converged: {best is not None}, "
+                elif any(r.case == case and r.integrator == kind and (pre is None or r.preconditioner == pre)
+                         for r in rows):
+                    lines.append(f"{case} ({label}): {name} converged: {best is not None}, "
                                  f"explicit converged: {exp is not None}")
     return lines
 
@@ -353,7 +367,7 @@ def preconditioner_bodies(cases: list[StiffCase], quick: bool = False) -> list[t
 def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,
                               dts: tuple[float, ...] = (1 / 60, 1 / 1000),
                               tolerance: float = 1e-4) -> list[PreconditionerRow]:
-    """Jacobi against block-Jacobi (:data:`~deformgl.sim.implicit.PRECONDITIONERS`) on (name,
+    """Jacobi, block-Jacobi and multigrid (:data:`~deformgl.sim.implicit.PRECONDITIONERS`) on (name,
     system) bodies: CG iterations to ``tolerance`` (the float64 reference, the GPU's iteration)
     on the first step from rest and averaged over the warm-started steps of
     :data:`QUICK_SIM_TIME` s."""
@@ -378,12 +392,16 @@ def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,
 
 
 def format_preconditioners(rows: list[PreconditionerRow]) -> str:
-    lines = ["CG iterations to a relative residual, Jacobi vs block-Jacobi (float64 reference): first step "
-             f"from dv = 0, and the mean over {QUICK_SIM_TIME:g} s of warm-started steps",
-             f"{'case':<32} {'dt s':>8} {'tol':>6} {'first J':>8} {'first BJ':>8} {'warm J':>8} {'warm BJ':>8}"]
+    kinds = {"jacobi": "J", "block-jacobi": "BJ", "multigrid": "MG"}
+    lines = ["CG iterations to a true relative residual, Jacobi vs block-Jacobi vs multigrid (float64 reference): "
+             f"first step from dv = 0, and the mean over {QUICK_SIM_TIME:g} s of warm-started steps",
+             f"{'case':<32} {'dt s':>8} {'tol':>6} "
+             + " ".join(f"{'first ' + k:>8}" for k in kinds.values()) + " "
+             + " ".join(f"{'warm ' + k:>8}" for k in kinds.values())]
     for r in rows:
-        lines.append(f"{r.case:<32} {r.dt:>8.3g} {r.tolerance:>6.0e} {r.first['jacobi']:>8} "
-                     f"{r.first['block-jacobi']:>8} {r.warm['jacobi']:>8.3g} {r.warm['block-jacobi']:>8.3g}")
+        lines.append(f"{r.case:<32} {r.dt:>8.3g} {r.tolerance:>6.0e} "
+                     + " ".join(f"{r.first[k]:>8}" for k in kinds) + " "
+                     + " ".join(f"{r.warm[k]:>8.3g}" for k in kinds))
     return "\n".join(lines)
 
 

@@ -43,7 +43,9 @@ def write_json(path: str | os.PathLike[str], rows: Sequence[StiffRow], cases: Se
                                    "rows": [{k: clean(v) for k, v in dataclasses.asdict(r).items()} for r in rows]})
 
 
-_MARKERS = {"verlet": "o", "semi-implicit": "s", "implicit-euler": "^", "xpbd": "D"}
+#: (integrator, preconditioner) -> marker.
+_MARKERS = {("verlet", ""): "o", ("semi-implicit", ""): "s", ("implicit-euler", "jacobi"): "^",
+            ("implicit-euler", "block-jacobi"): "v", ("implicit-euler", "multigrid"): "P", ("xpbd", ""): "D"}
 
 
 def write_chart(path: str | os.PathLike[str], rows: Sequence[StiffRow], machine: str) -> None:
@@ -64,8 +66,9 @@ def write_chart(path: str | os.PathLike[str], rows: Sequence[StiffRow], machine:
     for col, e in enumerate(moduli):
         top, bottom = axes[0][col], axes[1][col]
         for n in grids:
-            for name, marker in _MARKERS.items():
-                sel = [r for r in rows if r.youngs_modulus == e and r.across == n and r.integrator == name]
+            for (name, pre), marker in _MARKERS.items():
+                sel = [r for r in rows if r.youngs_modulus == e and r.across == n and r.integrator == name
+                       and r.preconditioner == pre]
                 if not sel:
                     continue
                 for ax, value in ((top, lambda r: r.fem_error), (bottom, lambda r: r.final_error)):
@@ -75,7 +78,7 @@ def write_chart(path: str | os.PathLike[str], rows: Sequence[StiffRow], machine:
                         pts = [(r.wall_per_sim_s, value(r)) for r in group if math.isfinite(value(r))]
                         if pts:
                             ax.plot([p[0] for p in pts], [max(p[1], 1e-12) for p in pts], ls="none",
-                                    marker=marker, ms=5, color=colours[n], mfc=face, label=f"{n} across, {name}")
+                                    marker=marker, ms=5, color=colours[n], mfc=face, label=f"{n} across, {name}{f' ({pre})' if pre else ''}")
         bottom.axhline(VISUAL, color="k", lw=0.6, ls=":", label="0.05 h (visual)")
         top.set(xscale="log", yscale="log", ylabel="top-face sag error vs FEM statics (relative)",
                 title=f"E = {e:g} Pa block: error vs FEM")
