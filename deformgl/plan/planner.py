@@ -20,10 +20,14 @@ relative error of the body's deflection is below the tolerance, and say why:
   :data:`FRAME_DT` instead, when it is cheaper per simulated second and its error fits: its fixed
   point is the equilibrium at any dt, so its time-stepping error of the static deflection is 0
   and what remains is :data:`IMPLICIT_STATIC_ERROR` (the largest measured residue at the
-  iterations :func:`implicit_iterations` picks: 10 CG iterations up to 17 nodes across, 30
-  above, at nu = 1/4, more at a larger nu); one step costs :func:`implicit_step_cost` explicit steps of the same grid (measured per
-  node count, :data:`IMPLICIT_STEP_COST`), so it is cheaper when the explicit integrator needs
-  more steps than that per frame (stiff materials, fine grids). It damps motion: the plan prints
+  iterations the plan picks). Two preconditioners are weighed: Jacobi CG, whose iterations grow
+  with the body's length (:func:`implicit_iterations`: 10 up to 17 nodes along, 30 above, more at
+  a larger nu, measured to 33 along), and the multigrid V-cycle, whose iterations do not
+  (:func:`multigrid_iterations`, measured to 65 along). Every method is priced in its own terms
+  (:mod:`deformgl.plan.cost`): the fragment passes, texel fetches, reductions and reads of its
+  steps in a 60 Hz frame, at the renderer's measured rates (:data:`~deformgl.plan.cost.RATES`):
+  an explicit step is one pass of 31 fetches a node, an implicit step tens of passes and
+  reductions, a multigrid iteration a V-cycle over every level. It damps motion: the plan prints
   how much of the lowest mode (beam estimate ``w1 = 3.516 t / L^2 sqrt(E / (12 rho))``) survives
   a second, ``(1 + (w1 dt)^2)^(-1/(2 dt))``.
 """
@@ -38,11 +42,12 @@ from typing import Any
 import numpy as np
 
 from deformgl.errors import InputError
+from deformgl.plan.cost import RATES, coarse_counts, explicit_work, implicit_work
 from deformgl.sim.materials import PRESETS, ElasticMaterial, critical_dt
 
 __all__ = ["MEASURED", "MEASURED_NU", "measured_errors", "LOADS", "MAX_FRACTION", "TIME_STEP_ERROR", "FLOAT32_ERROR", "FRAME_DT",
-           "IMPLICIT_STEP_COST", "IMPLICIT_STATIC_ERROR", "Plan", "POISSON_CG_FACTOR", "implicit_iterations",
-           "implicit_step_cost", "poisson_iteration_factor",
+           "IMPLICIT_STATIC_ERROR", "Plan", "POISSON_CG_FACTOR", "implicit_iterations", "MULTIGRID_ITERATIONS",
+           "MULTIGRID_MEASURED_ALONG", "multigrid_iterations", "poisson_iteration_factor",
            "fit", "make_plan", "lowest_mode_estimate", "plan_scene", "planned_scene", "add_parser", "run"]
 
 #: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
@@ -82,22 +87,22 @@ FLOAT32_ERROR = {"verlet": 1.0e-4, "semi-implicit": 1.0e-5}
 MAX_ACROSS = 257
 #: Implicit Euler's step in s (one 60 Hz frame).
 FRAME_DT = 1.0 / 60.0
-#: One implicit step at dt = 1/60 s in Verlet steps of the same grid, per CG iteration count and
-#: node count: (ms per implicit step) / (ms per Verlet step at 0.9 x its limit), measured by
-#: ``bench trade --stiff`` on the 1 MPa block, 5 to 33 across (docs/PERFORMANCE.md; the fixed cost
-#: of its ~80 passes weighs most on small grids).
-IMPLICIT_STEP_COST: dict[int, dict[int, float]] = {
-    10: {125: 204.0, 729: 75.0, 4913: 68.0, 15625: 64.0, 35937: 57.0},
-    30: {125: 632.0, 729: 205.0, 4913: 176.0, 15625: 168.0, 35937: 114.0},
-}
 #: Implicit Euler's largest measured static residue (relative to the sag, against the lattice's
 #: equilibrium, after 0.5-1 s at dt 1/60 s) at the iterations :func:`implicit_iterations` picks:
 #: 10 up to 17 across (2.1e-4), 30 above (5.2e-4); 10 at 33 across left 5.6 %. (Its fixed point
 #: is the equilibrium: a longer run leaves less.)
 IMPLICIT_STATIC_ERROR = 6.0e-4
-#: The largest grid ``bench trade --stiff`` measured implicit Euler on (a cube, 33 nodes along
-#: each side): the plan does not extrapolate the iteration counts and residue above beyond it.
+#: The largest grid ``bench trade --stiff`` measured implicit Euler with Jacobi CG on (a cube, 33
+#: nodes along each side): the plan does not extrapolate its iteration counts and residue beyond it.
 IMPLICIT_MEASURED_ALONG = 33
+#: Multigrid CG iterations per step at nu = 1/4 (times :func:`poisson_iteration_factor` above):
+#: on the 1 MPa block at dt = 1/60 s, 3 iterations a step left 2.0e-4 of the sag (float32, 9 and
+#: 17 across) and 5.0e-4 at 33 across, where 10 Jacobi iterations left 5.6 % (``python -m
+#: deformgl.bench.multigrid``; its iterations to a residual of 1e-4 stay 6 to 8 from 9 to 65
+#: across, 13 to 18 at nu = 0.45).
+MULTIGRID_ITERATIONS = 3
+#: The largest grid the multigrid's iterations were measured on (the block at 65 across).
+MULTIGRID_MEASURED_ALONG = 65
 #: CG iterations at Poisson's ratio nu over those at 1/4 (the cells' lambda - mu): the mean CG
 #: iterations per step to a relative residual of 1e-4 on a 9-across liver block in float64
 #: (``bench sim --poisson``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
@@ -165,6 +170,8 @@ class Plan:
     iterations: int = 0           # CG iterations per step (implicit Euler), 0 explicit
     why_integrator: str = ""      # why this integrator and not the other kind
     mode_left: float = 1.0        # amplitude of the lowest mode left after 1 s (implicit: < 1)
+    preconditioner: str = ""      # implicit Euler's CG preconditioner, "" explicit
+    priced: tuple[str, ...] = ()  # each method's frame in passes, fetches, reductions and seconds
 
     @property
     def error(self) -> float:
@@ -184,7 +191,8 @@ class Plan:
             f"nodes_along_longest = {self.nodes_along_longest}: the coarsest grid whose predicted "
             f"discretisation error {self.discretisation:.2%} (e = {c:.3g} (h/t)^{p:.2f}, fitted to "
             f"bench accuracy's {self.load} workload) leaves room for the time stepping and float32",
-            (f"integrator: implicit-euler at dt = {self.dt:.3g} s with {self.iterations} CG iterations "
+            (f"integrator: implicit-euler at dt = {self.dt:.3g} s with {self.iterations} {self.preconditioner} CG "
+             f"iterations "
              f"(stable at any dt; the explicit integrators' critical dt on their grid is {self.critical:.3g} s): its "
              f"fixed point is the "
              f"equilibrium, predicted static error {self.float32:.2%} (bench trade --stiff)"
@@ -193,6 +201,7 @@ class Plan:
              f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (36 mu + 12 kappa))): predicted time-stepping "
              f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}"),
             *([f"why: {self.why_integrator}"] if self.why_integrator else []),
+            *(f"cost of a 1/60 s frame: {line}" for line in self.priced),
             *([f"note: the discretisation errors are those measured at this body's nu = {m.poissons_ratio:g} "
                f"(interpolated between the lattice's measurements at nu 0.25, 0.3, 0.45 and 0.49"
                f"{', held at 0.49' if m.poissons_ratio > 0.49 else ''}; compression grows with nu)"]
@@ -200,7 +209,8 @@ class Plan:
             f"predicted total error {self.error:.2%} <= {self.tolerance:.2%}",
             "scene keys: [grid] spacing = " f"{self.spacing:.6g} (or nodes_along_longest = "
             f"{self.nodes_along_longest}); [physics] integrator = \"{self.integrator}\", dt = {self.dt:.6g}"
-            + (f"; [physics.implicit] iterations = {self.iterations}" if self.iterations else ""),
+            + (f"; [physics.implicit] iterations = {self.iterations}, preconditioner = \"{self.preconditioner}\""
+               if self.iterations else ""),
         ]
 
 
@@ -265,15 +275,11 @@ def poisson_iteration_factor(poissons_ratio: float) -> float:
     return _in_nu(POISSON_CG_FACTOR, poissons_ratio, extrapolate=True)
 
 
-def implicit_step_cost(iterations: int, nodes: int) -> float:
-    """One implicit step in explicit steps of a grid of ``nodes`` (:data:`IMPLICIT_STEP_COST`,
-    interpolated in log nodes, clamped at the measured ends; other iteration counts than the
-    measured 10 and 30 linearly in the iterations: each CG iteration runs the same passes)."""
-    def at(its: int) -> float:
-        table = sorted(IMPLICIT_STEP_COST[its].items())
-        return float(np.interp(math.log(nodes), [math.log(n) for n, _ in table], [c for _, c in table]))
-    low = at(10)
-    return low + (iterations - 10) * (at(30) - low) / 20.0
+def multigrid_iterations(poissons_ratio: float = 0.25) -> int:
+    """Multigrid CG iterations per step of the plan's implicit Euler: :data:`MULTIGRID_ITERATIONS`
+    times :func:`poisson_iteration_factor`, rounded up, at any length (the V-cycle carries a
+    correction across the body in one application)."""
+    return int(math.ceil(MULTIGRID_ITERATIONS * poisson_iteration_factor(poissons_ratio) - 1e-9))
 
 
 def lowest_mode_estimate(size: tuple[float, float, float], material: ElasticMaterial) -> float:
@@ -283,14 +289,16 @@ def lowest_mode_estimate(size: tuple[float, float, float], material: ElasticMate
     return 3.516 * t / length ** 2 * math.sqrt(material.youngs_modulus / (12.0 * material.density))
 
 
-def _nodes(size: tuple[float, float, float], h: float) -> int:
-    return int(np.prod([math.floor(e / h + 1e-9) + 1 for e in size]))
+def _dims(size: tuple[float, float, float], h: float) -> tuple[int, int, int]:
+    d = [math.floor(e / h + 1e-9) + 1 for e in size]
+    return d[0], d[1], d[2]
 
 
 def _consider_implicit(plan: Plan) -> Plan:
     """The plan with implicit Euler at the frame step when it is cheaper per simulated second on
     the coarsest grid that fits its own error budget (the tolerance less
-    :data:`IMPLICIT_STATIC_ERROR`), and the reason either way."""
+    :data:`IMPLICIT_STATIC_ERROR`), with the cheaper of Jacobi and multigrid CG, every method
+    priced by :mod:`deformgl.plan.cost`; and the reason either way."""
     import dataclasses
 
     c, p = plan.model
@@ -304,35 +312,54 @@ def _consider_implicit(plan: Plan) -> Plan:
             f"within the tolerance {plan.tolerance:.2%}"))
     h = min(plan.size) / cells
     along = math.ceil(max(plan.size) / h - 1e-9) + 1
-    if along > IMPLICIT_MEASURED_ALONG:
-        return dataclasses.replace(plan, why_integrator=(
+    nu = plan.material.poissons_ratio
+    volumetric = nu > 0.25
+    dims_i, dims_e = _dims(plan.size, h), _dims(plan.size, plan.spacing)
+    nodes_i, nodes_e = math.prod(dims_i), math.prod(dims_e)
+    steps = max(1, math.ceil(FRAME_DT / plan.dt - 1e-9))   # explicit steps per frame
+    explicit = explicit_work(nodes_e, plan.integrator, cells=volumetric).times(steps)
+    priced = [f"{plan.integrator}, {steps} steps of {plan.dt:.3g} s on {nodes_e} nodes: {explicit.words()}, "
+              f"{explicit.seconds() * 1e3:.3g} ms"]
+    options = []
+    for pre, its, measured in (("jacobi", implicit_iterations(along, nu, cells + 1), IMPLICIT_MEASURED_ALONG),
+                               ("multigrid", multigrid_iterations(nu), MULTIGRID_MEASURED_ALONG)):
+        if along > measured:
+            priced.append(f"implicit-euler ({pre}): not considered, its grid would have {along} nodes along the "
+                          f"longest side, beyond the {measured} its iterations were measured on")
+            continue
+        if pre == "multigrid" and max(dims_i) <= 2:
+            continue
+        work = implicit_work(nodes_i, its, pre, coarse=coarse_counts(dims_i) if pre == "multigrid" else None,
+                             cells=volumetric)
+        options.append((work.seconds(), pre, its))
+        priced.append(f"implicit-euler ({pre}, {its} CG iterations) on {nodes_i} nodes: {work.words()}, "
+                      f"{work.seconds() * 1e3:.3g} ms")
+    rates = f"(priced at {RATES.renderer}'s measured rates, deformgl.plan.cost)"
+    priced[-1] += f" {rates}"
+    if not options:
+        return dataclasses.replace(plan, priced=tuple(priced), why_integrator=(
             f"implicit-euler not considered: its grid would have {along} nodes along the longest side, beyond "
-            f"the {IMPLICIT_MEASURED_ALONG} that bench trade --stiff measured its CG iterations and residue on"))
-    its = implicit_iterations(along, plan.material.poissons_ratio, cells + 1)
-    nodes_i, nodes_e = _nodes(plan.size, h), _nodes(plan.size, plan.spacing)
-    step = implicit_step_cost(its, nodes_i)         # in explicit steps of its grid
-    source = ("bench trade --stiff" if its in IMPLICIT_STEP_COST else
-              "bench trade --stiff at 10 and 30, linear in the iterations")
-    steps = FRAME_DT / plan.dt                      # explicit steps per frame
-    # explicit cost / implicit cost per simulated second (cost per step ~ nodes)
-    ratio = steps * nodes_e / (step * nodes_i)
+            f"the {MULTIGRID_MEASURED_ALONG} that its iterations and residue were measured on"))
+    implicit_s, pre, its = min(options)
+    ratio = explicit.seconds() / implicit_s
     grid = ("the same grid" if cells + 1 == plan.across else
             f"a grid of {cells + 1} across for its budget ({nodes_i} nodes against {nodes_e})")
     if ratio > 1.0:
-        why = (f"{plan.integrator} would need {steps:.0f} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
-               f"step ({its} CG iterations) costs about {step:.0f} explicit steps ({source}), on "
-               f"{grid}: implicit-euler is {ratio:.3g}x cheaper per simulated second; it damps motion: the "
-               f"lowest mode (w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics "
-               f"use {plan.integrator})")
+        why = (f"{plan.integrator} would need {steps} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
+               f"step ({its} {pre} CG iterations) on {grid} is {ratio:.3g}x cheaper per simulated second "
+               f"(each method priced in passes, fetches and reductions below); it damps motion: the lowest mode "
+               f"(w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics use "
+               f"{plan.integrator})")
         return dataclasses.replace(plan, integrator="implicit-euler", across=cells + 1, spacing=h,
                                    nodes_along_longest=along, fraction=FRAME_DT / plan.critical, dt=FRAME_DT,
                                    discretisation=c * (1.0 / cells) ** p, time_stepping=0.0,
-                                   float32=IMPLICIT_STATIC_ERROR, iterations=its, why_integrator=why, mode_left=left)
-    why = (f"implicit-euler rejected: {plan.integrator} needs {steps:.3g} steps per 1/60 s frame and one implicit "
-           f"step ({its} CG iterations) costs about {step:.0f} explicit steps ({source}), on {grid}: explicit is "
-           f"{1 / ratio:.3g}x cheaper per simulated second (and keeps the motion that implicit Euler damps to "
-           f"{left:.2g} per second)")
-    return dataclasses.replace(plan, why_integrator=why)
+                                   float32=IMPLICIT_STATIC_ERROR, iterations=its, why_integrator=why, mode_left=left,
+                                   preconditioner=pre, priced=tuple(priced))
+    why = (f"implicit-euler rejected: {plan.integrator} needs {steps} steps per 1/60 s frame and the cheaper "
+           f"implicit step ({its} {pre} CG iterations, on {grid}) costs more: explicit is "
+           f"{1 / ratio:.3g}x cheaper per simulated second (each method priced in passes, fetches and reductions "
+           f"below; and it keeps the motion that implicit Euler damps to {left:.2g} per second)")
+    return dataclasses.replace(plan, why_integrator=why, priced=tuple(priced))
 
 
 def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
@@ -405,8 +432,8 @@ def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[
     steps = max(1, math.ceil(simulated / plan.dt - 1e-9))
     physics = dataclasses.replace(scene.physics, integrator=plan.integrator, dt=plan.dt, steps=steps)
     if plan.iterations:
-        physics = dataclasses.replace(physics, implicit=dataclasses.replace(physics.implicit,
-                                                                            iterations=plan.iterations))
+        physics = dataclasses.replace(physics, implicit=dataclasses.replace(
+            physics.implicit, iterations=plan.iterations, preconditioner=plan.preconditioner))
     return dataclasses.replace(scene, grid=GridSpec(plan.nodes_along_longest, None), physics=physics), plan
 
 
