@@ -127,3 +127,22 @@ def test_work_prices_units_and_the_multigrid_step_grows_slower_than_jacobis() ->
     assert explicit_work(729, "verlet", cells=True).passes == 1
     with pytest.raises(ValueError, match="coarse levels"):
         implicit_passes(729, 3, "multigrid")
+
+
+def test_the_rates_fit_recovers_known_rates_and_prints_its_error(ctx) -> None:
+    """``python -m deformgl.bench.plan_rates``'s fit: times made from known rates give those rates
+    back (every unit is determined by the configurations), and the table shows model/measured 1.00;
+    a read is timed apart and costs something."""
+    from deformgl.bench.plan_rates import configs, fit_rates, format_rates, read_seconds
+    from deformgl.plan.cost import Rates
+
+    cases = configs((5, 9, 17))
+    known = Rates(2e-4, (2e-9, 1.5e-9, 1.5e-8), 4e-4, 0.0)
+    seconds = [c.work.seconds(known) for c in cases]
+    fitted = fit_rates(cases, seconds)
+    assert fitted.pass_s == pytest.approx(known.pass_s, rel=1e-6)
+    assert fitted.fetch_s == pytest.approx(known.fetch_s, rel=1e-6)
+    assert fitted.reduction_s == pytest.approx(known.reduction_s, rel=1e-6)
+    text = format_rates(cases, [[t, t] for t in seconds], fitted)
+    assert text.count(" 1.00\n") == len(cases) - 1 and "pass 200 us" in text
+    assert read_seconds(ctx, reads=20) >= 0.0
