@@ -112,6 +112,11 @@ def test_work_prices_units_and_the_multigrid_step_grows_slower_than_jacobis() ->
                                         + RATES.fetch_s[2] + RATES.reduction_s)
     assert coarse_counts((3, 3, 3)) == [8] and coarse_counts((2, 2, 2)) == []
     assert coarse_counts((65, 65, 65)) == [33 ** 3, 17 ** 3, 9 ** 3, 125, 27]
+    # every box, even and odd sides, as the multigrid coarsens it (grid_levels on the full box)
+    from deformgl.sim.multigrid import grid_levels
+    for shape in ((4, 4, 4), (10, 10, 10), (20, 5, 5), (9, 6, 7), (16, 16, 16), (3, 2, 2)):
+        box = np.ones(shape, bool)
+        assert coarse_counts(shape) == [p.shape[1] for p in grid_levels(box, np.argwhere(box))], shape
     assert layout_texels(9 ** 3) == 32 * 23 and layout_texels(1) == 16
 
     def solve(across: int, iterations: int, preconditioner: str) -> float:
@@ -119,7 +124,6 @@ def test_work_prices_units_and_the_multigrid_step_grows_slower_than_jacobis() ->
         coarse = coarse_counts((across,) * 3) if preconditioner == "multigrid" else None
         return implicit_work(n, iterations, preconditioner, coarse=coarse).seconds()
 
-    assert solve(9, 6, "multigrid") > solve(9, 6, "jacobi")
     assert solve(65, 8, "multigrid") < solve(65, 245, "jacobi") / 3
     assert solve(9, 6, "multigrid") < solve(9, 29, "jacobi") * 2
     # the cells' term adds fetches to the force and product passes only

@@ -323,5 +323,5 @@ def test_the_grid_hierarchy_brings_stiff_xpbd_closer_at_fewer_sweeps_but_not_to_
         return float(np.linalg.norm(x - fine.rest_positions - u, axis=1).max()) / sag
 
     plain, layered = error(30, 0), error(10, 20)
-    assert 10 + 20 * 27 / 125 < 30 and layered < plain / 5, (plain, layered)
+    assert layered < plain / 5, (plain, layered)
     assert layered > 1.0, layered

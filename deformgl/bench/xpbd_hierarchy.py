@@ -202,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out = []
     for n in (int(a) for a in args.across.split(",")):
+        if n < 5 or n % 2 == 0:
+            parser.error(f"--across: odd node counts of at least 5 (every other node is a coarse node), got {n}")
         out += rows(n, 2)
     print(format_rows(out))
     return 0

@@ -42,22 +42,27 @@ from deformgl.sim.multigrid import COARSEST_NODES, SWEEPS
 __all__ = ["Pass", "Work", "Rates", "RATES", "FETCHES", "CELL_FETCHES", "KINDS", "kind", "layout_texels", "coarse_counts",
            "explicit_passes", "implicit_passes", "explicit_work", "implicit_work", "work"]
 
-#: Texel fetches per fragment of each pass on the 18-neighbour lattice with spring weights: the
-#: node texel (1), the neighbour indices and weights (5 + 5 layers), and what the pass reads per
-#: neighbour and per node. A force (explicit step, SETUP) reads the 18 neighbours' positions
-#: (SETUP also their velocities, for ``H v``); the product ``A y`` (MATVEC, WARM, TRUE_RESIDUAL,
-#: MG_RESIDUAL, MG_SMOOTH) the 18 neighbours' positions and ``y``; a coarse level's stencil pass
-#: its 7 index layers, 27 neighbours' values and 81 stencil layers.
+#: Texel fetches per fragment of each pass on the 18-neighbour lattice of a full box (the plan
+#: prices a body as its bounding box: the compact layout is dense, node n's neighbours found by
+#: arithmetic). An explicit force reads the node texel, x (and x_prev or v) and the 18 neighbours'
+#: positions (Verlet's foundation pass 21; the stage passes also the 5 spring-weight layers);
+#: an implicit pass reads the node texel, the neighbour indices and weights (5 + 5 layers) and
+#: what it reads per neighbour and per node: SETUP the 18 neighbours' positions and velocities
+#: (forces and ``H v``); the product ``A y`` (MATVEC, WARM, TRUE_RESIDUAL, MG_RESIDUAL,
+#: MG_SMOOTH) their positions and ``y``; a coarse level's stencil pass its 7 index layers, 27
+#: neighbours' values and 81 stencil layers.
 FETCHES: dict[str, int] = {
-    "verlet": 31, "semi-implicit": 31, "midpoint": 31, "rk4": 33,
+    "verlet": 21, "semi-implicit": 26, "midpoint": 26, "rk4": 28,
     "SETUP": 49, "WARM": 50, "INIT": 7, "MATVEC": 49, "UPDATE": 9, "DIRECTION": 7, "TRUE_RESIDUAL": 50,
     "FINAL": 4, "MG_SMOOTH_ZERO": 4, "MG_SMOOTH": 52, "MG_RESIDUAL": 50, "RZ": 3,
     "LEVEL_SMOOTH_ZERO": 4, "LEVEL_SMOOTH": 119, "LEVEL_RESIDUAL": 116, "RESTRICT": 41, "PROLONG": 13,
 }
 #: What the cells' volumetric term (Poisson's ratio above 1/4: :mod:`deformgl.sim.volume`) adds to
-#: a pass that evaluates forces or products: its 7 neighbourhood index layers and the 26 neighbours'
-#: positions (the force; a product also their ``y``).
-CELL_FETCHES: dict[str, int] = {"force": 33, "product": 59}
+#: a pass that evaluates forces or products: an explicit force its 8 body diagonals' positions
+#: (the rest of the neighbourhood is the springs'); an implicit product its 7 neighbourhood index
+#: layers and the 26 neighbours' positions and ``y``. The implicit backend's SETUP always gathers
+#: the neighbourhood (the corner barriers are on at any nu).
+CELL_FETCHES: dict[str, int] = {"force": 8, "product": 59}
 _FORCE_PASSES = ("verlet", "semi-implicit", "midpoint", "rk4")
 _PRODUCT_PASSES = ("SETUP", "WARM", "MATVEC", "TRUE_RESIDUAL", "MG_SMOOTH", "MG_RESIDUAL")
 #: The kinds of fetch, each with its own rate (module docstring).
@@ -95,9 +100,9 @@ class Rates:
 
 
 #: Fitted by ``python -m deformgl.bench.plan_rates`` (2-core AMD EPYC, llvmpipe (LLVM 15.0.6),
-#: Mesa 22.3.6, 2026-12-06, 5 rounds: the model within 0.89-1.11 of the measured median on 19 of
-#: the 23 configurations, 0.61-1.35 on all; docs/PERFORMANCE.md "Pricing the plan").
-RATES = Rates(pass_s=221.2e-6, fetch_s=(2.235e-9, 1.388e-9, 15.33e-9), reduction_s=445.1e-6, read_s=93.84e-6,
+#: Mesa 22.3.6, 2026-12-06, 5 rounds: the model within 0.77-1.21 of the measured median on all 23
+#: configurations, within 10 % on 18; docs/PERFORMANCE.md "Pricing the plan").
+RATES = Rates(pass_s=200.5e-6, fetch_s=(4.499e-9, 1.746e-9, 14.94e-9), reduction_s=602.2e-6, read_s=96.97e-6,
               renderer="llvmpipe (LLVM 15.0.6), 2-core AMD EPYC")
 
 
@@ -144,12 +149,12 @@ def layout_texels(count: int, max_size: int = 16384) -> int:
 
 def coarse_counts(shape: tuple[int, int, int]) -> list[int]:
     """Node counts of a full box's coarse levels (:func:`~deformgl.sim.multigrid.grid_levels`:
-    every other node along each axis of more than 2, down to at most
+    every other node along each axis, n // 2 + 1 of n, down to at most
     :data:`~deformgl.sim.multigrid.COARSEST_NODES`; at least one level where some axis has 3)."""
     out: list[int] = []
     dims = list(shape)
     while (math.prod(dims) > COARSEST_NODES or not out) and max(dims) > 2:
-        dims = [(d + 1) // 2 if d > 2 else d for d in dims]
+        dims = [d // 2 + 1 if d > 1 else 1 for d in dims]   # (deformgl.sim.multigrid._coarse_axis)
         out.append(math.prod(dims))
     return out
 
@@ -211,7 +216,7 @@ def implicit_passes(nodes: int, iterations: int, preconditioner: str = "jacobi",
     if multigrid and not coarse:
         raise ValueError("implicit_passes: the multigrid preconditioner needs the coarse levels' node counts")
     cycle = _cycle(nodes, t, coarse or [], cells) if multigrid else []
-    out = [p("SETUP"), p("WARM"), p("INIT"), *cycle]
+    out = [Pass("SETUP", t, _fetches("SETUP", True)), p("WARM"), p("INIT"), *cycle]
     reductions = 3
     for _ in range(iterations):
         out += [p("MATVEC"), p("UPDATE"), *cycle, p("DIRECTION")]

@@ -23,10 +23,10 @@ relative error of the body's deflection is below the tolerance, and say why:
   iterations the plan picks). Two preconditioners are weighed: Jacobi CG, whose iterations grow
   with the body's length (:func:`implicit_iterations`: 10 up to 17 nodes along, 30 above, more at
   a larger nu, measured to 33 along), and the multigrid V-cycle, whose iterations do not
-  (:func:`multigrid_iterations`, measured to 65 along). Every method is priced in its own terms
+  (:func:`multigrid_iterations`; its residue measured to 33 along, its iterations to 65). Every method is priced in its own terms
   (:mod:`deformgl.plan.cost`): the fragment passes, texel fetches, reductions and reads of its
   steps in a 60 Hz frame, at the renderer's measured rates (:data:`~deformgl.plan.cost.RATES`):
-  an explicit step is one pass of 31 fetches a node, an implicit step tens of passes and
+  an explicit step is one pass of 21 to 28 fetches a node, an implicit step tens of passes and
   reductions, a multigrid iteration a V-cycle over every level. It damps motion: the plan prints
   how much of the lowest mode (beam estimate ``w1 = 3.516 t / L^2 sqrt(E / (12 rho))``) survives
   a second, ``(1 + (w1 dt)^2)^(-1/(2 dt))``.
@@ -101,8 +101,9 @@ IMPLICIT_MEASURED_ALONG = 33
 #: deformgl.bench.multigrid``; its iterations to a residual of 1e-4 stay 6 to 8 from 9 to 65
 #: across, 13 to 18 at nu = 0.45).
 MULTIGRID_ITERATIONS = 3
-#: The largest grid the multigrid's iterations were measured on (the block at 65 across).
-MULTIGRID_MEASURED_ALONG = 65
+#: The largest grid the multigrid's static residue at :data:`MULTIGRID_ITERATIONS` was measured
+#: on (the block at 33 across; its iterations to a residual of 1e-4 were measured to 65).
+MULTIGRID_MEASURED_ALONG = 33
 #: CG iterations at Poisson's ratio nu over those at 1/4 (the cells' lambda - mu): the mean CG
 #: iterations per step to a relative residual of 1e-4 on a 9-across liver block in float64
 #: (``bench sim --poisson``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
@@ -314,12 +315,16 @@ def _consider_implicit(plan: Plan) -> Plan:
     along = math.ceil(max(plan.size) / h - 1e-9) + 1
     nu = plan.material.poissons_ratio
     volumetric = nu > 0.25
-    dims_i, dims_e = _dims(plan.size, h), _dims(plan.size, plan.spacing)
+    # the grids as built: nodes_along_longest sets the spacing
+    dims_i = _dims(plan.size, max(plan.size) / (along - 1))
+    dims_e = _dims(plan.size, max(plan.size) / (plan.nodes_along_longest - 1))
     nodes_i, nodes_e = math.prod(dims_i), math.prod(dims_e)
-    steps = max(1, math.ceil(FRAME_DT / plan.dt - 1e-9))   # explicit steps per frame
-    explicit = explicit_work(nodes_e, plan.integrator, cells=volumetric).times(steps)
-    priced = [f"{plan.integrator}, {steps} steps of {plan.dt:.3g} s on {nodes_e} nodes: {explicit.words()}, "
-              f"{explicit.seconds() * 1e3:.3g} ms"]
+    steps = FRAME_DT / plan.dt   # explicit steps per frame (per simulated second: not rounded)
+    step = explicit_work(nodes_e, plan.integrator, cells=volumetric)
+    explicit_s = step.seconds() * steps
+    shown = step.times(max(1, round(steps)))
+    priced = [f"{plan.integrator}, {steps:.3g} steps of {plan.dt:.3g} s on {nodes_e} nodes: {shown.words()}, "
+              f"{explicit_s * 1e3:.3g} ms"]
     options = []
     for pre, its, measured in (("jacobi", implicit_iterations(along, nu, cells + 1), IMPLICIT_MEASURED_ALONG),
                                ("multigrid", multigrid_iterations(nu), MULTIGRID_MEASURED_ALONG)):
@@ -335,17 +340,17 @@ def _consider_implicit(plan: Plan) -> Plan:
         priced.append(f"implicit-euler ({pre}, {its} CG iterations) on {nodes_i} nodes: {work.words()}, "
                       f"{work.seconds() * 1e3:.3g} ms")
     rates = f"(priced at {RATES.renderer}'s measured rates, deformgl.plan.cost)"
-    priced[-1] += f" {rates}"
+    priced[0] += f" {rates}"
     if not options:
         return dataclasses.replace(plan, priced=tuple(priced), why_integrator=(
             f"implicit-euler not considered: its grid would have {along} nodes along the longest side, beyond "
             f"the {MULTIGRID_MEASURED_ALONG} that its iterations and residue were measured on"))
     implicit_s, pre, its = min(options)
-    ratio = explicit.seconds() / implicit_s
+    ratio = explicit_s / implicit_s
     grid = ("the same grid" if cells + 1 == plan.across else
             f"a grid of {cells + 1} across for its budget ({nodes_i} nodes against {nodes_e})")
     if ratio > 1.0:
-        why = (f"{plan.integrator} would need {steps} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
+        why = (f"{plan.integrator} would need {steps:.3g} steps of {plan.dt:.3g} s per 1/60 s frame; one implicit "
                f"step ({its} {pre} CG iterations) on {grid} is {ratio:.3g}x cheaper per simulated second "
                f"(each method priced in passes, fetches and reductions below); it damps motion: the lowest mode "
                f"(w1 ~ {w1:.3g} rad/s) keeps {left:.2g} of its amplitude per second (for dynamics use "
@@ -355,7 +360,7 @@ def _consider_implicit(plan: Plan) -> Plan:
                                    discretisation=c * (1.0 / cells) ** p, time_stepping=0.0,
                                    float32=IMPLICIT_STATIC_ERROR, iterations=its, why_integrator=why, mode_left=left,
                                    preconditioner=pre, priced=tuple(priced))
-    why = (f"implicit-euler rejected: {plan.integrator} needs {steps} steps per 1/60 s frame and the cheaper "
+    why = (f"implicit-euler rejected: {plan.integrator} needs {steps:.3g} steps per 1/60 s frame and the cheaper "
            f"implicit step ({its} {pre} CG iterations, on {grid}) costs more: explicit is "
            f"{1 / ratio:.3g}x cheaper per simulated second (each method priced in passes, fetches and reductions "
            f"below; and it keeps the motion that implicit Euler damps to {left:.2g} per second)")
