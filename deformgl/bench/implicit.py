@@ -53,7 +53,7 @@ from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["BLOCK", "CASES", "StiffCase", "StiffRow", "stiff_cases", "stiff_study", "stiff_row", "format_stiff", "lowest_frequency",
+__all__ = ["BLOCK", "CASES", "block_material", "block_system", "StiffCase", "StiffRow", "stiff_cases", "stiff_study", "stiff_row", "format_stiff", "lowest_frequency",
            "PreconditionerRow", "preconditioner_bodies", "preconditioner_iterations", "format_preconditioners",
            "fem_sag"]
 
@@ -182,12 +182,22 @@ def _equilibrium(system: SpringSystem, h: float) -> tuple[np.ndarray, float]:
     return x, float(np.max(np.linalg.norm(x - linear, axis=1))) / h
 
 
+def block_material(youngs_modulus: float = 1.0e6, poissons_ratio: float = 0.25) -> ElasticMaterial:
+    """The study's tissue: ``youngs_modulus`` Pa, rho = 1060 kg/m^3, Rayleigh mass damping :data:`ALPHA`."""
+    return ElasticMaterial(youngs_modulus, 1060.0, poissons_ratio=poissons_ratio, mass_damping=ALPHA,
+                           name=f"E = {youngs_modulus:g} Pa")
+
+
+def block_system(across: int, youngs_modulus: float = 1.0e6, poissons_ratio: float = 0.25) -> SpringSystem:
+    """:data:`BLOCK` of :func:`block_material` on the lattice at ``across`` nodes across."""
+    return lattice_case(BLOCK, across, block_material(youngs_modulus, poissons_ratio)).system
+
+
 def stiff_cases(quick: bool = False, cases: tuple[tuple[float, int], ...] | None = None) -> list[StiffCase]:
     """The blocks of the study (module docstring): :data:`CASES` (``quick``: :data:`QUICK_CASES`)."""
     out = []
     for e, across in (cases if cases is not None else QUICK_CASES if quick else CASES):
-        material = ElasticMaterial(e, 1060.0, mass_damping=ALPHA, name=f"E = {e:g} Pa")
-        lattice = lattice_case(BLOCK, across, material)
+        lattice = lattice_case(BLOCK, across, block_material(e))
         system = lattice.system
         h = float(system.spacing)
         x, gap = _equilibrium(system, h)

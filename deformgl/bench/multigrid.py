@@ -33,13 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from deformgl.bench.implicit import ALPHA, BLOCK, REL, stiff_cases, stiff_row
-from deformgl.bench.fem import lattice_case
+from deformgl.bench.implicit import REL, block_system, stiff_cases, stiff_row
 from deformgl.errors import DeformglError
 from deformgl.sim.implicit import PRECONDITIONERS, assemble, multigrid_levels, pcg, preconditioner
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.limits import dt_limit
-from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["IterationRow", "iteration_rows", "format_iterations", "stiff_rows", "format_stiff_rows",
@@ -98,8 +96,7 @@ def iteration_rows(across=(9, 17, 33, 65), nus=(0.25, 0.45), heart=(17, 33, 65))
     rows = []
     for nu in nus:
         for n in across:
-            system = lattice_case(BLOCK, n, ElasticMaterial(1.0e6, 1060.0, mass_damping=ALPHA,
-                                                            poissons_ratio=nu)).system
+            system = block_system(n, poissons_ratio=nu)
             counts, setup = _count(system)
             rows.append(IterationRow(f"block nu={nu:g}, {n} across", system.count, counts, setup))
     for n in heart:

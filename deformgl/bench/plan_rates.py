@@ -68,24 +68,16 @@ def configs(across: tuple[int, ...] = (9, 17, 33)) -> list[Config]:
     return out
 
 
-def _system(across: int, poissons_ratio: float):
-    from deformgl.bench.fem import lattice_case
-    from deformgl.bench.implicit import ALPHA, BLOCK
-    from deformgl.sim.materials import ElasticMaterial
-
-    material = ElasticMaterial(1.0e6, 1060.0, poissons_ratio=poissons_ratio, mass_damping=ALPHA)
-    return lattice_case(BLOCK, across, material).system
-
-
 def measure(ctx, cases: list[Config], rounds: int = 5) -> list[list[float]]:
     """Seconds per step of each configuration in each round (the configurations alternate)."""
+    from deformgl.bench.implicit import block_system
     from deformgl.sim.limits import dt_limit
     from deformgl.sim.simulation import make_simulation
 
     sims = []
     try:
         for c in cases:
-            system = _system(c.across, c.poissons_ratio)
+            system = block_system(c.across, poissons_ratio=c.poissons_ratio)
             dt = 1 / 60 if c.integrator == "implicit-euler" else 0.9 * dt_limit(system, c.integrator).dt
             sim = make_simulation(system, c.integrator, "fragment", dt=dt, ctx=ctx, **c.options)
             sims.append(sim)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from deformgl.bench.implicit import block_system
 from deformgl.sim.multigrid import prolongation
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.xpbd import OMEGA, node_terms
@@ -47,19 +48,11 @@ class Level:
     prolong: sp.csr_matrix | None       # (N_l, N_{l+1}) from the next coarser level
 
 
-def _block(across: int) -> SpringSystem:
-    from deformgl.bench.fem import lattice_case
-    from deformgl.bench.implicit import ALPHA, BLOCK
-    from deformgl.sim.materials import ElasticMaterial
-
-    return lattice_case(BLOCK, across, ElasticMaterial(1.0e6, 1060.0, mass_damping=ALPHA)).system
-
-
 def levels(across: int, depth: int) -> list[Level]:
     """The block at ``across`` (odd) and ``depth`` coarser lattices of it (finest first)."""
     out: list[Level] = []
     n = across
-    system = _block(n)
+    system = block_system(n)
     for level in range(depth + 1):
         coarse_n = (n + 1) // 2
         prolong = None
@@ -75,7 +68,7 @@ def levels(across: int, depth: int) -> list[Level]:
         out.append(Level(system, inject, prolong))
         if level < depth:
             n = coarse_n
-            system = _block(n)
+            system = block_system(n)
     return out
 
 
