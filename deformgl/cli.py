@@ -92,10 +92,15 @@ def _parser() -> argparse.ArgumentParser:
                    help="count non-finite or far-away nodes on the GPU every N steps (default: "
                         "physics.safety.check_every, 100; 0: only at the end); a blow-up stops the run "
                         "with the step and a node, and writes no PNG")
-    r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb",
+    r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb|.pvd|.xdmf|.usd",
                    help="also write the deformed detailed mesh as the mapping vertex shader computed "
-                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, or "
-                        "one .glb animated by morph targets")
+                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, "
+                        "one .glb animated by morph targets, a ParaView time series with displacement and "
+                        "velocity (.pvd of .vtu frames, or .xdmf + .h5; extra 'io'), or a USD point cache "
+                        "(.usd, .usda, .usdc; extra 'usd')")
+    r.add_argument("--export-grid", type=Path, default=None, metavar="OUT.pvd|.xdmf|.vtu",
+                   help="also write the node grid as hexahedra per frame for ParaView: displacement and "
+                        "velocity per node, volume ratio, Green strain and fill per cell (extra 'io')")
     r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
                    help="also write the node texture and vertex attributes for the shader pack's "
                         "example program (examples/mapped_mesh_example.py)")
@@ -195,7 +200,7 @@ def _render(args: argparse.Namespace) -> int:
                       seconds_per_frame=args.seconds_per_frame, turntable=args.turntable)
     record = None if args.json is None else (Path(args.json) if args.json else default_record_path(out))
     job = Job(out, plan, modes=parse_modes(args.compare), views=parse_views(args.views), export=args.export_mesh,
-              pack=args.pack_inputs, record=record)
+              pack=args.pack_inputs, record=record, grid=args.export_grid)
     check_job(scene, job)
     outputs = job.outputs(plan.frames)
     for path in outputs[:1] + outputs[-3:]:
@@ -209,7 +214,7 @@ def _render(args: argparse.Namespace) -> int:
         ctx.release()
     if not args.quiet:
         print(f"deformgl: {summary_line(done)}", file=sys.stderr)
-    extra = [p for p in (args.export_mesh, record) if p is not None]
+    extra = [p for p in (args.export_mesh, args.export_grid, record) if p is not None]
     count = f"{plan.frames} frames " if plan.frames > 1 else ""
     print(f"wrote {count}{out}" + (" and " + " and ".join(map(str, extra)) if extra else ""))
     return 0
@@ -227,7 +232,7 @@ def _render_graph(args: argparse.Namespace, source: Path) -> int:
                "--check-every": args.check_every, "--pack-inputs": args.pack_inputs, "--tolerance": args.tolerance,
                "--set": args.set, "--camera": args.camera, "--views": args.views, "--compare": args.compare,
                "--json": args.json, "--turntable": args.turntable, "--steps-per-frame": args.steps_per_frame,
-               "--seconds-per-frame": args.seconds_per_frame}
+               "--seconds-per-frame": args.seconds_per_frame, "--export-grid": args.export_grid}
     if args.fps is not None and args.frames is None:
         raise InputError("--fps: only with --frames for a scene-graph file")
     if args.fps is not None and not 0 < args.fps <= 1000:

@@ -126,3 +126,19 @@ def _dup(read_fd: int, write_fd: int):
         os.dup2(high_r, 3)
         os.dup2(high_w, 4)
     return child
+
+
+def edge_pixels(image):
+    """(H, W) bool: pixels that differ from one of their 8 neighbours by more than 32/255 (the
+    silhouette and crease pixels two rasterizers place differently)."""
+    import numpy as np
+
+    img = image.astype(int)
+    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = img.shape[:2]
+    out = np.zeros((h, w), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                out |= np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - img).max(axis=2) > 32
+    return out

@@ -15,8 +15,8 @@ process, and EGL finds no driver in its subprocesses, so ``pytest -m "not gl"`` 
 without OpenGL.
 
 A test that needs an optional extra or system tool carries that extra's or tool's marker
-(:data:`EXTRAS`, :data:`TOOLS`: ``plot``, ``fem``, ``video``, ``sweep``, ``peers``, ``glslang``,
-``chromium``); where it is missing, the test is skipped here with a reason that names it and
+(:data:`EXTRAS`, :data:`TOOLS`, :data:`FILES`: ``plot``, ``fem``, ``video``, ``sweep``, ``peers``,
+``io``, ``usd``, ``glslang``, ``chromium``, ``three``); where it is missing, the test is skipped here with a reason that names it and
 how to install it. ``.ci/run`` runs the README's test command without them, installs them, then
 runs the marked tests (and the slow ones) with ``DEFORMGL_REQUIRE_EXTRAS=1``. ``both_ways``
 marks a test whose verdict depends on which extras are installed (mypy's), run in both runs.
@@ -80,11 +80,18 @@ EXTRAS = {
     "video": ("imageio_ffmpeg", "video"),
     "sweep": ("distributed", "sweep"),
     "peers": ("taichi", "peers"),  # (tests/test_peers.py also skips per peer)
+    "io": (("meshio", "h5py", "pygltflib"), "io"),
+    "usd": ("pxr", "usd"),
 }
 #: marker -> (executables, any of which will do; the Debian package that installs them)
 TOOLS = {
     "glslang": (("glslangValidator",), "glslang-tools"),
     "chromium": (("chromium", "chromium-browser"), "chromium"),
+}
+#: marker -> (a file the test needs, the command that installs it)
+FILES = {
+    "three": (TESTS.parent / "examples" / "web" / "three" / "node_modules" / "three" / "build" / "three.module.js",
+              "npm ci --prefix examples/web/three"),
 }
 
 
@@ -100,11 +107,15 @@ def missing_extra(marker: str) -> str | None:
         exes, package = TOOLS[marker]
         if not any(shutil.which(exe) for exe in exes):
             return f"optional extra: {exes[0]} (apt-get install {package}) not installed"
+    elif marker in FILES:
+        path, command = FILES[marker]
+        if not path.is_file():
+            return f"optional extra: three.js is not installed ({command})"
     return None
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    missing = {m: missing_extra(m) for m in (*EXTRAS, *TOOLS)}
+    missing = {m: missing_extra(m) for m in (*EXTRAS, *TOOLS, *FILES)}
     for item in items:
         for marker, reason in missing.items():
             if reason and item.get_closest_marker(marker) is not None:

@@ -26,7 +26,7 @@ RUN_BY = {
 
 
 def documents() -> list[Path]:
-    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "examples").rglob("*.md"))]
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted(p for p in (ROOT / "examples").rglob("*.md") if "node_modules" not in p.parts)]
 
 
 def python_blocks() -> dict[tuple[str, int], str]:

@@ -84,7 +84,8 @@ def text_files(paths: list[Path]) -> list[Path]:
             files.append(path)
         elif path.is_dir():
             files.extend(p for p in sorted(path.rglob("*"))
-                         if p.is_file() and p.suffix in TEXT_SUFFIXES and ".venv" not in p.parts)
+                         if p.is_file() and p.suffix in TEXT_SUFFIXES and ".venv" not in p.parts
+                         and "node_modules" not in p.parts)
     return files
 
 

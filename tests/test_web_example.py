@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from chromium_pipe import Chromium
+from chromium_pipe import Chromium, edge_pixels
 from conftest import TESTS
 from deformgl.pack.export_web import web_scene
 from deformgl.scene.pipeline import render
@@ -137,7 +137,7 @@ def test_the_canvas_is_deformgls_frame(ctx, page):
     delta = np.abs(ours.astype(int) - web).max(axis=2)
     differ = (delta > DEFAULT_CHANNEL_TOL).mean()
     assert differ <= DEFAULT_MAX_FRACTION, differ
-    edges = _edges(ours)
+    edges = edge_pixels(ours)
     interior = delta[~edges]
     assert interior.max() <= DEFAULT_PIXEL_MAX, (interior.max(), np.argwhere((delta > DEFAULT_PIXEL_MAX) & ~edges)[:5])
     assert edges.mean() < 0.2  # the mask leaves most of the frame in the check
@@ -147,19 +147,6 @@ def test_the_canvas_is_deformgls_frame(ctx, page):
     assert not compare_images(start, ours).passed
     print(f"\nbrowser vs deformgl: {differ:.4%} pixels over {DEFAULT_CHANNEL_TOL}/255; largest difference "
           f"{delta.max()}/255, {interior.max()}/255 away from edges ({edges.mean():.1%} of pixels are edges)")
-
-
-def _edges(image: np.ndarray) -> np.ndarray:
-    """(H, W) bool: pixels that differ from one of their 8 neighbours by more than 32/255."""
-    img = image.astype(int)
-    pad = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = img.shape[:2]
-    out = np.zeros((h, w), bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                out |= np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - img).max(axis=2) > 32
-    return out
 
 
 def test_export_web_refuses_what_the_page_cannot_run(tmp_path):

@@ -149,12 +149,18 @@ def compose_grid(panels: Sequence[Sequence[np.ndarray]], labels: Sequence[Sequen
 @dataclass
 class Frames:
     """What :func:`render_frames` produced: the frames (uint8 (H, W, 3) each), on request the
-    deformed mesh of each frame (vertices (V, 3) float64 world, normals, faces), and the run
-    record (:func:`deformgl.scene.record.run_record`)."""
+    deformed mesh of each frame (vertices (V, 3) float64 world, normals, faces) and its node
+    state, and the run record (:func:`deformgl.scene.record.run_record`)."""
 
     images: list[np.ndarray]
     meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None
     record: dict[str, Any] = field(default_factory=dict)
+    #: on request (``nodes=True``), each frame's node state: (time in s, (N, 3) positions and
+    #: velocities, recentred float64, velocities None where the nodes were not simulated; the
+    #: simulation's step in s, 0 without one)
+    nodes: list[tuple[float, np.ndarray, np.ndarray | None, float]] | None = None
+    #: the scene's model (:class:`~deformgl.scene.pipeline.SceneModel`: mesh, grid, centre)
+    model: Any = None
 
 
 class _Drawer:
@@ -211,7 +217,7 @@ def _check_modes(scene: Scene, modes: Sequence[str]) -> None:
 
 def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = None, *,
                   modes: Sequence[str] | None = None, views: Sequence[View3] | None = None, mesh: bool = False,
-                  progress: bool = False, log: Callable[[str], None] | None = None) -> Frames:
+                  nodes: bool = False, progress: bool = False, log: Callable[[str], None] | None = None) -> Frames:
     """Simulate ``scene`` once and draw the frames of ``plan`` (default :func:`frame_plan`).
 
     Args:
@@ -221,6 +227,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
             frame's camera); the turntable's azimuth is added to each.
         mesh: also capture each frame's deformed detailed mesh (from the first mode that draws the
             detailed mesh).
+        nodes: also read back each frame's node positions and velocities (:attr:`Frames.nodes`).
         progress: a progress bar of frames on stderr.
         log: receives the binding report and the run's notes.
     """
@@ -247,6 +254,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
     images: list[np.ndarray | None] = [None] * plan.frames
     meshes: list[Any] = [None] * plan.frames
+    states: list[Any] = [None] * plan.frames
     readbacks = [0]
     upload: list[Any] = []  # the textures and normals pass of a simulation without packed normals
     drawer: _Drawer | None = None
@@ -304,6 +312,9 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                     k = step // plan.steps_per_frame
                     if k < plan.frames:
                         draw_frame(k, texture_of(sim), step * scene.physics.dt)
+                        if nodes:
+                            states[k] = (step * scene.physics.dt, np.asarray(sim.positions(), np.float64),
+                                         np.asarray(sim.velocities(), np.float64), float(sim.dt))
                         bar.update(k + 1)
 
                 run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
@@ -315,6 +326,9 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 last = max(k for k, image in enumerate(images) if image is not None)
                 for k in range(last + 1, plan.frames):  # converged before the end: the state stays
                     images[k], meshes[k] = images[last], meshes[last]
+                    if nodes:  # at rest: the state stays, the clock goes on
+                        t_k = k * plan.steps_per_frame * scene.physics.dt
+                        states[k] = (t_k, states[last][1], np.zeros_like(states[last][1]), states[last][3])
             else:
                 state = NodeState(ctx, scene, built, progress=False)
                 run = state.run
@@ -323,6 +337,8 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 t = run.time if run is not None else 0.0
                 for k in range(plan.frames):
                     draw_frame(k, state.position_texture, t)
+                    if nodes:
+                        states[k] = (t, state.positions(), None, 0.0)
                     bar.update(k + 1)
         finally:
             if drawer is not None:
@@ -340,4 +356,4 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     record["node_readbacks"] = readbacks[0]
     record["panels"] = panels
     return Frames([im for im in images if im is not None], [m for m in meshes if m is not None] if mesh else None,
-                  record)
+                  record, states if nodes else None, built)

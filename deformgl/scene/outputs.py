@@ -22,6 +22,8 @@ from deformgl.render.gltf_morph import write_morph_glb
 from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.animation import FramePlan, View3, frame_plan, render_frames
+from deformgl.scene.fields import grid_series, mesh_series
+from deformgl.scene.interchange import MESH_FORMATS, check_format, is_interchange, series_paths, write_series
 from deformgl.scene.pipeline import render_still
 from deformgl.scene.record import write_record
 from deformgl.scene.spec import Scene
@@ -38,7 +40,10 @@ class Job:
         plan: the frames (None: :func:`~deformgl.scene.animation.frame_plan` of the scene).
         modes, views: the panels of each frame (mapping modes by rows, camera views by columns).
         export: the deformed mesh (.ply/.obj/.glb; for several frames a pattern DIR/%04d.ply, or
-            one .glb animated by morph targets).
+            one .glb animated by morph targets), or a time series for ParaView (.pvd, .xdmf, a
+            one-frame .vtu) or USD (.usd, .usda, .usdc) with its fields
+            (:mod:`deformgl.scene.interchange`, :mod:`deformgl.scene.fields`).
+        grid: the node grid's time series for ParaView (.pvd, .xdmf, .vtu), or None.
         pack: the shader-pack inputs (.npz; a still only).
         record: where the run record goes as JSON (None: not written).
     """
@@ -50,13 +55,19 @@ class Job:
     export: Path | None = None
     pack: Path | None = None
     record: Path | None = None
+    grid: Path | None = None
 
     def outputs(self, frames: int) -> list[Path]:
         """Every file this job writes for ``frames`` frames."""
         paths: list[Path] = []
         paths += frame_paths(self.output, frames) if animation_kind(self.output) == "frames" else [self.output]
-        if self.export is not None:
+        if is_interchange(self.export):
+            assert self.export is not None
+            paths += series_paths(self.export, frames)
+        elif self.export is not None:
             paths += frame_paths(self.export, frames) if _is_pattern(self.export) else [self.export]
+        if self.grid is not None:
+            paths += series_paths(self.grid, frames)
         return paths + [p for p in (self.pack, self.record) if p is not None]
 
 
@@ -83,12 +94,18 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
         raise InputError(f"{job.output}: {plan.frames} frames need an animation output (.mp4, .gif, .webp or "
                          f"frames/%04d.png), not a single .png")
     check_encoder(job.output)
-    if job.export is not None:
+    if is_interchange(job.export):
+        assert job.export is not None
+        check_format(job.export, "--export-mesh", plan.frames)
+    elif job.export is not None:
         if job.export.suffix.lower() not in (".ply", ".obj", ".glb"):
-            raise InputError(f"{job.export}: --export-mesh must end in .ply, .obj or .glb")
+            raise InputError(f"{job.export}: --export-mesh must end in .ply, .obj, .glb, or a time series: "
+                             f"{', '.join(MESH_FORMATS)}")
         if plan.frames > 1 and not _is_pattern(job.export) and job.export.suffix.lower() != ".glb":
             raise InputError(f"{job.export}: --export-mesh of {plan.frames} frames needs a pattern such as "
                              f"meshes/%04d.ply (one mesh per frame) or one animated .glb (morph targets)")
+    if job.grid is not None:
+        check_format(job.grid, "--export-grid", plan.frames, grid=True)
     if job.pack is not None:
         if job.pack.suffix.lower() != ".npz":
             raise InputError(f"{job.pack}: --pack-inputs must end in .npz")
@@ -106,13 +123,14 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
     """Render ``scene`` as ``job`` says and write every file together; returns the run record
     (with ``outputs``: the files written)."""
     plan = check_job(scene, job)
-    still = animation_kind(job.output) is None and not job.modes and not job.views and plan.frames == 1
+    series = is_interchange(job.export) or job.grid is not None  # the time series take the frames' path
+    still = animation_kind(job.output) is None and not job.modes and not job.views and plan.frames == 1 and not series
     if still:  # the one-image path of render_to_png
         return render_still(ctx, scene, job.output, progress=progress, export=job.export, pack=job.pack,
                             record=job.record, log=log).record
     outputs = OutputSet(job.outputs(plan.frames))  # every path checked before any work
     frames = render_frames(ctx, scene, plan, modes=job.modes, views=job.views, mesh=job.export is not None,
-                           progress=progress, log=log)
+                           nodes=series, progress=progress, log=log)
     record, images, meshes = frames.record, frames.images, frames.meshes
     record["outputs"] = [str(p) for p in job.outputs(plan.frames) if p != job.record]
     with outputs:
@@ -122,7 +140,11 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
             with AnimationWriter(job.output, plan.fps) as writer:
                 for image in images:
                     writer.write_frame(image)
-        if job.export is not None:
+        if is_interchange(job.export):
+            assert job.export is not None
+            mode = next(m for m in (job.modes or [scene.mapping.mode]) if m != "one-to-one")
+            write_series(job.export, mesh_series(frames, mode, scene.mapping.cache, plan.fps))
+        elif job.export is not None:
             if not meshes:
                 raise RuntimeError("the render returned no mesh for --export-mesh")  # it always does
             if _is_pattern(job.export):
@@ -132,6 +154,8 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
                 write_morph_glb(job.export, [(v, n) for v, n, _ in meshes], meshes[0][2], plan.fps)
             else:
                 export_mesh(job.export, *meshes[0])
+        if job.grid is not None:
+            write_series(job.grid, grid_series(frames, plan.fps))
         if job.record is not None:
             write_record(job.record, record)
     return record

@@ -259,6 +259,7 @@ class NodeState:
                 raise ValueError(f"{scene.source}: nodes.motion is not set")  # the schema sets it
             motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
             positions = motion.apply(built.grid.rest_positions, m.amount)
+        self._positions = np.asarray(positions, np.float64)
         self.textures = NodeTextures(ctx, built.grid)
         try:
             self.driven = DrivenNodes(ctx, self.textures, built.grid)
@@ -275,6 +276,13 @@ class NodeState:
         if self.driven is None:
             raise RuntimeError("NodeState: no node positions (not built, or released)")
         return self.driven.position_texture
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) float64 node positions (recentred): the simulation's (a read-back) or the
+        driven ones."""
+        if self.sim:
+            return np.asarray(self.sim.positions(), np.float64)
+        return self._positions
 
     @property
     def layout(self):

@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["BARRIER_J", "BARRIER_SCALE", "CORNER_SIGNS", "CellVolumes", "grid_cells", "cell_state",
-           "volume_forces", "volume_energy", "corner_jacobians", "inverted_cells", "describe_inverted",
+           "centre_deformation", "volume_forces", "volume_energy", "corner_jacobians", "inverted_cells", "describe_inverted",
            "rest_product", "rest_stiffness_triplets", "frequency_terms"]
 
 #: J below which a corner's barrier acts (dimensionless; measured in docs/ACCURACY.md section 7).
@@ -124,10 +124,15 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.cross(a, b)
 
 
+def centre_deformation(corners: np.ndarray, spacing: float, x: np.ndarray) -> np.ndarray:
+    """(C, 3, 3) the trilinear map's deformation gradient at each cell's centre,
+    ``F = Σ_c x_c ⊗ G_c`` over the cells' corners ((C, 8) node numbers) of side ``spacing``."""
+    return np.einsum("cai,aj->cij", np.asarray(x)[corners], _centre_gradient(spacing))
+
+
 def cell_state(cells: CellVolumes, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """J at each cell's centre and cof(F) there: ((C,), (C, 3, 3))."""
-    xc = x[cells.corners]                                     # (C, 8, 3)
-    f = np.einsum("cai,aj->cij", xc, _centre_gradient(cells.spacing))
+    f = centre_deformation(cells.corners, cells.spacing, x)
     cols = f[:, :, 0], f[:, :, 1], f[:, :, 2]
     cof = np.stack([_cross(cols[1], cols[2]), _cross(cols[2], cols[0]), _cross(cols[0], cols[1])], axis=2)
     j = np.einsum("ci,ci->c", cols[0], cof[:, :, 0])

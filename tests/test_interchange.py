@@ -1,0 +1,251 @@
+"""Results in the tools users open them in (deformgl.scene.interchange, deformgl.scene.fields):
+ParaView time series (.pvd of .vtu frames, .xdmf + .h5, read back with meshio), the node grid as
+hexahedra with its strain, a USD point cache (read back with usd-core), and the morph-target glb
+read back with pygltflib. The fields are checked against the simulation's arrays and against
+independent facts (the backward difference of the exported frames, det F of the exported
+hexahedra in VTK's own corner order)."""
+
+from __future__ import annotations
+
+import shutil
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deformgl.cli import main
+from deformgl.scene.animation import frame_plan, render_frames
+from deformgl.scene.fields import grid_series, mesh_series
+from deformgl.scene.interchange import write_series
+from deformgl.scene.schema import load_scene
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+#: frames one step apart: the exported velocity is checked against the frames' own difference
+FRAMES, STEPS_PER_FRAME = 12, 1
+
+
+@pytest.fixture(scope="module")
+def jelly(tmp_path_factory):
+    """A copy of the jelly scene (160x120) and its mesh."""
+    folder = tmp_path_factory.mktemp("jelly")
+    (folder / "assets").mkdir()
+    shutil.copy(SCENES / "assets" / "jelly_block.obj", folder / "assets")
+    scene = folder / "jelly.toml"
+    scene.write_text((SCENES / "jelly_springs.toml").read_text().replace("size = [320, 240]", "size = [160, 120]"))
+    return scene
+
+
+@pytest.fixture(scope="module")
+def frames(ctx, jelly):
+    """One run of the jelly falling from rest, drawn through the constant mapping: 12 frames one
+    step apart, with its meshes and node states."""
+    scene = load_scene(jelly, {"mapping.mode": "constant"})
+    plan = frame_plan(scene, frames=FRAMES, steps_per_frame=STEPS_PER_FRAME)
+    return scene, plan, render_frames(ctx, scene, plan, mesh=True, nodes=True)
+
+
+def test_the_node_states_are_the_simulations(frames):
+    scene, plan, done = frames
+    assert [round(t / scene.physics.dt) for t, *_ in done.nodes] == list(range(FRAMES))
+    x = [state[1] for state in done.nodes]
+    v = [state[2] for state in done.nodes]
+    for k in range(1, FRAMES):  # position Verlet: the simulation's velocity is the backward difference
+        assert np.allclose(v[k], (x[k] - x[k - 1]) / scene.physics.dt, atol=1e-3 * np.abs(v[k]).max() + 1e-9)
+    assert np.abs(v[-1]).max() > 0  # it moves
+
+
+@pytest.mark.io
+@pytest.mark.parametrize("suffix", [".pvd", ".xdmf"])
+def test_the_mesh_series_reads_back_with_its_fields(frames, tmp_path, suffix):
+    import meshio
+
+    scene, plan, done = frames
+    series = mesh_series(done, scene.mapping.mode, scene.mapping.cache, plan.fps)
+    path = tmp_path / f"mesh{suffix}"
+    write_series(path, series)
+    rest = done.model.mesh.vertices + done.model.centre
+    read = _read_series(path)
+    assert [t for t, *_ in read] == pytest.approx([t for t, *_ in done.nodes])
+    for k, (t, points, point_data, _) in enumerate(read):
+        vertices = done.meshes[k][0]
+        if suffix == ".pvd":  # the deformed geometry per frame
+            assert np.array_equal(points, vertices)
+        else:  # the rest geometry, deformed by its displacement (ParaView's Warp By Vector)
+            assert np.array_equal(points, rest)
+        assert np.allclose(point_data["displacement"], vertices - rest, rtol=0, atol=1e-12)
+        assert np.array_equal(point_data["velocity"], series.point_data[k]["velocity"])
+    # the velocity is the backward difference of the mesh's own positions over the last step
+    # (frames one step apart; float32 positions: within 1 % of the largest speed)
+    dt = scene.physics.dt
+    for k in range(2, FRAMES):
+        difference = (done.meshes[k][0] - done.meshes[k - 1][0]) / dt
+        velocity = read[k][2]["velocity"]
+        assert np.abs(velocity - difference).max() < 0.01 * np.abs(difference).max(), k
+    assert np.abs(read[-1][2]["velocity"]).max() > 0.02  # m/s: it falls
+
+
+@pytest.mark.io
+def test_the_grid_series_holds_hexahedra_with_their_strain(frames, tmp_path):
+    import meshio
+
+    scene, plan, done = frames
+    grid = done.model.grid
+    write_series(tmp_path / "grid.pvd", grid_series(done, plan.fps))
+    read = _read_series(tmp_path / "grid.pvd")
+    mesh = meshio.read(tmp_path / "grid_0000.vtu")
+    (block,) = mesh.cells
+    assert block.type == "hexahedron" and len(block.data) > 0
+    h = grid.spacing
+    # VTK's own hexahedron: natural corners (-1,-1,-1) (1,-1,-1) (1,1,-1) (-1,1,-1), then z = +1
+    natural = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                        [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+    for k, (t, points, point_data, cell_data) in enumerate(read):
+        x = done.nodes[k][1] + done.model.centre
+        assert np.array_equal(points, x)
+        assert np.allclose(point_data["displacement"], done.nodes[k][1] - grid.rest_positions, rtol=0, atol=1e-12)
+        assert np.array_equal(point_data["velocity"], done.nodes[k][2])
+        f = np.einsum("cai,aj->cij", points[block.data], natural / (4 * h))  # F at the centre, from VTK's order
+        assert np.allclose(cell_data["volume_ratio"], np.linalg.det(f), rtol=1e-9)
+        e = 0.5 * (np.einsum("cki,ckj->cij", f, f) - np.eye(3))
+        assert np.allclose(cell_data["green_strain"].reshape(-1, 3, 3), e, atol=1e-12)
+        assert ((cell_data["fill"] > 0) & (cell_data["fill"] <= 1)).all()
+    assert np.allclose(read[0][3]["volume_ratio"], 1.0, atol=1e-5)  # at rest (float32 positions)
+    assert np.abs(read[-1][3]["green_strain"]).max() > 1e-5  # it strains under its weight
+
+
+@pytest.mark.usd
+@pytest.mark.parametrize("suffix", [".usd", ".usda"])
+def test_a_usd_point_cache_holds_every_frame(frames, tmp_path, suffix):
+    from pxr import Usd, UsdGeom
+
+    scene, plan, done = frames
+    series = mesh_series(done, scene.mapping.mode, scene.mapping.cache, plan.fps)
+    path = tmp_path / f"jelly{suffix}"
+    write_series(path, series)
+    stage = Usd.Stage.Open(str(path))
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == plan.fps
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0 and UsdGeom.GetStageUpAxis(stage) == "Y"
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, FRAMES - 1)
+    mesh = UsdGeom.Mesh(stage.GetDefaultPrim().GetChild("mesh"))
+    faces = np.asarray(done.model.mesh.faces)
+    assert np.array_equal(np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3), faces)
+    assert set(mesh.GetFaceVertexCountsAttr().Get()) == {3}
+    assert mesh.GetPointsAttr().GetTimeSamples() == list(range(FRAMES))
+    displacement = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("displacement")
+    for k in range(FRAMES):
+        points = np.asarray(mesh.GetPointsAttr().Get(k))
+        assert np.array_equal(points, done.meshes[k][0].astype(np.float32))
+        normals = np.asarray(mesh.GetNormalsAttr().Get(k))
+        assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+        assert np.array_equal(np.asarray(mesh.GetVelocitiesAttr().Get(k)),
+                              series.point_data[k]["velocity"].astype(np.float32))
+        assert np.array_equal(np.asarray(displacement.Get(k)), series.point_data[k]["displacement"].astype(np.float32))
+        lo, hi = (np.asarray(v) for v in mesh.GetExtentAttr().Get(k))
+        assert np.allclose(lo, points.min(axis=0)) and np.allclose(hi, points.max(axis=0))
+
+
+@pytest.mark.io
+def test_the_morph_target_glb_reads_back_with_pygltflib(frames, tmp_path):
+    from pygltflib import GLTF2
+
+    from deformgl.render.gltf_morph import write_morph_glb
+
+    scene, plan, done = frames
+    write_morph_glb(tmp_path / "a.glb", [(v, n) for v, n, _ in done.meshes], done.meshes[0][2], plan.fps)
+    gltf = GLTF2.load(str(tmp_path / "a.glb"))
+    blob = gltf.binary_blob()
+
+    def accessor(i):
+        a = gltf.accessors[i]
+        view = gltf.bufferViews[a.bufferView]
+        width = {"SCALAR": 1, "VEC3": 3}[a.type]
+        dtype = np.float32 if a.componentType == 5126 else np.uint32
+        return np.frombuffer(blob, dtype, a.count * width, view.byteOffset + (a.byteOffset or 0)).reshape(a.count, -1)
+
+    primitive = gltf.meshes[0].primitives[0]
+    base = accessor(primitive.attributes.POSITION)
+    for k in range(FRAMES):
+        frame = base + (accessor(primitive.targets[k - 1]["POSITION"]) if k else 0)
+        assert np.abs(frame - done.meshes[k][0]).max() < 1e-5
+    assert np.array_equal(accessor(primitive.indices).reshape(-1, 3), done.meshes[0][2])
+    assert len(gltf.animations[0].channels) == 1 and gltf.animations[0].channels[0].target.path == "weights"
+
+
+@pytest.mark.io
+def test_the_cli_writes_both_series_together(ctx, jelly, tmp_path, capsys):
+    args = ["render", str(jelly), "--frames", "3", "--steps-per-frame", "5", "--mapping", "constant", "--quiet", "-o", str(tmp_path / "a.gif"),
+            "--export-mesh", str(tmp_path / "m.xdmf"), "--export-grid", str(tmp_path / "g.pvd")]
+    assert main(args) == 0, capsys.readouterr().err
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["a.gif", "g.pvd", "g_0000.vtu", "g_0001.vtu", "g_0002.vtu", "m.h5", "m.xdmf"]
+    assert len(_read_series(tmp_path / "m.xdmf")) == len(_read_series(tmp_path / "g.pvd")) == 3
+
+
+def test_a_missing_extra_is_one_line_before_any_work(jelly, tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name in ("meshio", "pxr") else real(name, *a))
+    for flag, name, extra in (("--export-mesh", "m.usd", "usd"), ("--export-mesh", "m.pvd", "io"),
+                              ("--export-grid", "g.xdmf", "io")):
+        code = main(["render", str(jelly), "--frames", "2", "-o", str(tmp_path / "a.gif"), flag, str(tmp_path / name)])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and f"pip install 'deformgl[{extra}]'" in err and flag in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def test_formats_that_cannot_hold_the_request_are_refused(jelly, tmp_path, capsys):
+    for flag, name, words in (("--export-mesh", "m.vtu", "a .vtu holds one frame"),
+                              ("--export-grid", "g.usd", "--export-grid must end in"),
+                              ("--export-mesh", "m.stl", "--export-mesh must end in")):
+        code = main(["render", str(jelly), "--frames", "2", "-o", str(tmp_path / "a.gif"), flag, str(tmp_path / name)])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and words in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def _read_series(path: Path) -> list[tuple[float, np.ndarray, dict, dict]]:
+    """(time, points, point data, cell data of the one block) per frame of a .pvd or .xdmf."""
+    import meshio
+
+    if path.suffix == ".pvd":
+        out = []
+        for entry in ET.parse(path).getroot().iter("DataSet"):
+            mesh = meshio.read(path.parent / entry.get("file"))
+            out.append((float(entry.get("timestep")), mesh.points, mesh.point_data,
+                        {n: v[0] for n, v in mesh.cell_data.items()}))
+        return out
+    with meshio.xdmf.TimeSeriesReader(path) as reader:
+        points, _ = reader.read_points_cells()
+        out = []
+        for k in range(reader.num_steps):
+            t, point_data, cell_data = reader.read_data(k)
+            out.append((float(t), points, point_data, {n: v[0] for n, v in cell_data.items()}))
+        return out
+
+
+@pytest.mark.io
+def test_a_cloth_grid_is_a_sheet_of_quads_with_their_area_ratio(ctx, tmp_path, capsys):
+    import meshio
+
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.scene.fields import sheet_quads
+
+    args = ["render", str(SCENES / "cloth_64.toml"), "--frames", "2", "--steps-per-frame", "40", "--quiet",
+            "-o", str(tmp_path / "a.gif"), "--export-grid", str(tmp_path / "g.pvd")]
+    assert main(args) == 0, capsys.readouterr().err
+    mesh = meshio.read(tmp_path / "g_0001.vtu")
+    (block,) = mesh.cells
+    assert block.type == "quad" and len(block.data) == 63 * 63
+    p = mesh.points[block.data]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1)
+    rest = (mesh.points - mesh.point_data["displacement"])[block.data]
+    rest_area = 0.5 * np.linalg.norm(np.cross(rest[:, 2] - rest[:, 0], rest[:, 3] - rest[:, 1]), axis=1)
+    assert np.allclose(mesh.cell_data["area_ratio"][0], area / rest_area, rtol=1e-6)
+    # each quad turns counter-clockwise about the sheet's thin axis (+y here)
+    sheet = NodeGrid(np.zeros(3), 1.0, np.ones((3, 1, 2), bool))
+    quads = sheet_quads(sheet)
+    x = sheet.rest_positions[quads]
+    assert len(quads) == 2 and (np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 1])[:, 1] > 0).all()
