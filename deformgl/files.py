@@ -18,6 +18,7 @@ import hashlib
 import os
 import re
 import secrets
+import shutil
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -28,7 +29,7 @@ from PIL import Image
 
 from deformgl.errors import InputError
 
-__all__ = ["OutputSet", "STOP", "check_writable", "committing", "read_png", "remove_stale_temporaries", "request_stop",
+__all__ = ["OutputSet", "STOP", "adopt_file", "check_writable", "committing", "read_png", "remove_stale_temporaries", "request_stop",
            "temporary_path", "write_atomic", "write_png_atomic"]
 
 #: ``.NAME.deformgl-PID-HEX.tmp``; the older ``.NAME.HEX.tmp`` (no process id) is recognised too
@@ -91,11 +92,17 @@ def remove_stale_temporaries(folder: str | os.PathLike[str], before: float) -> l
         if m is None and not _OLD_TEMPORARY.match(entry.name):
             continue
         try:
-            if not entry.is_file(follow_symlinks=False) or entry.stat(follow_symlinks=False).st_mtime >= before:
+            # a folder: the scratch folder of a time series (deformgl.scene.interchange), named alike
+            folder_entry = m is not None and entry.is_dir(follow_symlinks=False)
+            if not (entry.is_file(follow_symlinks=False) or folder_entry) \
+                    or entry.stat(follow_symlinks=False).st_mtime >= before:
                 continue
             if m is not None and (int(m.group(1)) == os.getpid() or _alive(int(m.group(1)))):
                 continue
-            os.unlink(entry.path)
+            if folder_entry:
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
             removed.append(Path(entry.path))
         except OSError:
             continue
@@ -302,6 +309,30 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
             write(stream)
             stream.flush()
             os.fsync(stream.fileno())
+        if active is not None and active.holds(target):
+            active.stage(target, temporary)
+            return
+        os.replace(temporary, target)
+    except BaseException:
+        try:
+            os.unlink(temporary)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def adopt_file(path: str | os.PathLike[str], written: str | os.PathLike[str]) -> None:
+    """Make ``written``, a complete file in the folder of ``path`` that a library wrote, the
+    output ``path`` as :func:`write_atomic` makes its temporary file: flushed to disk, then staged
+    (inside an :class:`OutputSet` holding ``path``) or renamed over ``path`` now. On a failure
+    nothing is left at ``path``'s temporary name."""
+    target = Path(path)
+    temporary = temporary_path(target)
+    os.replace(written, temporary)
+    try:
+        with open(temporary, "rb+") as stream:
+            os.fsync(stream.fileno())
+        active = _ACTIVE.get()
         if active is not None and active.holds(target):
             active.stage(target, temporary)
             return

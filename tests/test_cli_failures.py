@@ -126,6 +126,7 @@ def test_numpy_warnings_do_not_print_before_the_error(capsys, monkeypatch):
 
 KILLER = textwrap.dedent("""
     import os, signal, sys
+    import deformgl.scene.node_state as node_state
     import deformgl.scene.pipeline as pipeline
     from deformgl import cli, files
     phase, sig = sys.argv[1], getattr(signal, sys.argv[2])
@@ -133,10 +134,10 @@ KILLER = textwrap.dedent("""
         os.kill(os.getpid(), sig)
         raise AssertionError("the signal did not stop the run")
     if phase == "simulate":          # while the nodes are stepped
-        real = pipeline.run_scene
+        real = node_state.run_scene
         def run_scene(*a, **k):
             kill()
-        pipeline.run_scene = run_scene
+        node_state.run_scene = run_scene
     elif phase == "draw":            # simulated, drawing
         pipeline.make_draw_pass = kill
     elif phase == "write":           # the PNG is written (staged), the mesh is next

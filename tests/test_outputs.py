@@ -97,6 +97,14 @@ def test_stale_temporaries_of_dead_runs_are_removed(tmp_path):
         os.utime(tmp_path / name, (old, old))
     fresh = tmp_path / f".g.png.deformgl-{dead_pid}-0123456789ab.tmp"
     fresh.write_text("x")  # newer than the run that looks: kept
+    # a time series' scratch folder (deformgl.scene.interchange): a killed run's is removed with
+    # what it holds, a living run's is kept
+    folders = {f".m.pvd.deformgl-{dead_pid}-0123456789ab.tmp": True, f".n.pvd.deformgl-1-0123456789ab.tmp": False}
+    for name in folders:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "m_0000.vtu").write_text("x")
+        os.utime(tmp_path / name, (old, old))
+    names.update(folders)
     removed = remove_stale_temporaries(tmp_path, before=time.time() - 30)
     assert sorted(p.name for p in removed) == sorted(n for n, gone in names.items() if gone)
     assert fresh.exists() and all((tmp_path / n).exists() for n, gone in names.items() if not gone)

@@ -313,6 +313,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                     if k < plan.frames:
                         draw_frame(k, texture_of(sim), step * scene.physics.dt)
                         if nodes:
+                            readbacks[0] += 2
                             states[k] = (step * scene.physics.dt, np.asarray(sim.positions(), np.float64),
                                          np.asarray(sim.velocities(), np.float64), float(sim.dt))
                         bar.update(k + 1)
@@ -330,15 +331,15 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                         t_k = k * plan.steps_per_frame * scene.physics.dt
                         states[k] = (t_k, states[last][1], np.zeros_like(states[last][1]), states[last][3])
             else:
-                state = NodeState(ctx, scene, built, progress=False)
+                state = NodeState(ctx, scene, built, progress=False, velocities=nodes)
                 run = state.run
                 notes = state.notes
                 drawer = _Drawer(ctx, scene, built, state.layout, modes, log)
                 t = run.time if run is not None else 0.0
                 for k in range(plan.frames):
                     draw_frame(k, state.position_texture, t)
-                    if nodes:
-                        states[k] = (t, state.positions(), None, 0.0)
+                    if nodes:  # (one state: several frames of it are refused by check_job)
+                        states[k] = (t, state.positions(), *state.velocities())
                     bar.update(k + 1)
         finally:
             if drawer is not None:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deformgl.errors import InputError
 from deformgl.mapping.bases import map_vertices
 from deformgl.sim.normals import unit_sums
 from deformgl.sim.volume import centre_deformation, grid_cells
@@ -143,6 +144,13 @@ class NodeFields:
                          None if v is None else np.asarray(v, np.float64), np.linalg.det(f), green_strain(f))
 
 
+def time_scale(frames, fps: float) -> float:
+    """Simulated seconds per second of the animation: the simulated time between two frames
+    times ``fps`` (1 for a single frame)."""
+    times = [state[0] for state in frames.nodes]
+    return (times[1] - times[0]) * fps if len(times) > 1 and times[1] > times[0] else 1.0
+
+
 def mesh_series(frames, mode: str, use_cache: bool, fps: float):
     """The :class:`~deformgl.scene.interchange.Series` of the detailed mesh of
     :class:`~deformgl.scene.animation.Frames` rendered with ``nodes=True`` and ``mesh=True``
@@ -161,7 +169,7 @@ def mesh_series(frames, mode: str, use_cache: bool, fps: float):
             for f in made]
     return Series("triangle", np.asarray(built.mesh.faces), np.asarray(built.mesh.vertices, np.float64) + built.centre,
                   [f.time_s for f in made], [f.vertices for f in made], data, normals=[f.normals for f in made],
-                  fps=fps)
+                  fps=fps, time_scale=time_scale(frames, fps))
 
 
 def sheet_quads(grid) -> np.ndarray:
@@ -196,7 +204,8 @@ def grid_series(frames, fps: float):
     if not len(fields.cells):
         quads = sheet_quads(built.grid)
         if not len(quads):
-            raise ValueError(f"grid_series: a grid of {built.grid.shape} nodes has neither full cells nor a sheet")
+            raise InputError(f"--export-grid: the node grid of {built.grid.shape} positions has neither a full "
+                             f"cell nor the quads of a sheet to write")
         rest = built.grid.rest_positions
         area = _quad_areas(rest, quads)
         states = [(t, x, v) for t, x, v, _ in frames.nodes]

@@ -12,33 +12,35 @@ Formats (``--export-mesh PATH`` for the detailed mesh, ``--export-grid PATH`` fo
   (``displacement`` among it) and cell data. This is the finite-element convention (FEniCS,
   dolfinx): ParaView's "Warp By Vector" filter on ``displacement`` shows the deformed body.
 * ``.usd``, ``.usda``, ``.usdc`` (``--export-mesh`` only): one ``UsdGeomMesh`` at
-  ``/deformgl/mesh`` with its topology once and time-sampled ``points``, ``normals``,
-  ``velocities`` (m/s) and the primvar ``displacement`` (m) per frame at time code k of frame k;
-  ``timeCodesPerSecond`` = ``framesPerSecond`` = the animation's fps, ``metersPerUnit`` = 1,
-  ``upAxis`` Y. ``.usd`` is the binary crate format.
+  ``/deformgl/mesh`` with its topology once and time-sampled ``points`` (float32, world, m),
+  ``normals``, ``velocities`` and the primvars ``displacement`` (m) and ``velocity`` (m/s) per
+  frame at time code k of frame k; ``timeCodesPerSecond`` = ``framesPerSecond`` = the
+  animation's fps, ``metersPerUnit`` = 1, ``upAxis`` Y. USD's ``velocities`` are per second of
+  time codes: the m/s times the simulated seconds per second of the animation
+  (:attr:`Series.time_scale`), so that motion blur meets the next sample. ``.usd`` is the binary
+  crate format.
 
-Every file is written complete to a temporary folder, then staged with
-:func:`~deformgl.files.write_atomic` (inside the run's :class:`~deformgl.files.OutputSet`: all
-outputs or none). The libraries are optional extras: a format whose extra is missing is refused
+Every file is written complete into a scratch folder beside the outputs (named as deformgl's
+temporary files, so the next run removes one a killed run left), then moved to its temporary
+name and staged with :func:`~deformgl.files.adopt_file` (inside the run's
+:class:`~deformgl.files.OutputSet`: all outputs or none). The libraries are optional extras: a format whose extra is missing is refused
 before any work with one line naming the extra (:func:`check_format`).
 """
 
 from __future__ import annotations
 
-import functools
 import importlib.util
+import os
 import shutil
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
 
 import numpy as np
 
 from deformgl.errors import InputError
-from deformgl.files import write_atomic
+from deformgl.files import adopt_file, temporary_path
 
 __all__ = ["MESH_FORMATS", "GRID_FORMATS", "Series", "check_format", "is_interchange", "series_paths",
            "write_series"]
@@ -64,6 +66,8 @@ class Series:
         cell_data: per frame, name -> (C,), (C, 3) or (C, 9) arrays.
         normals: per frame (P, 3) unit normals (USD), or empty.
         fps: frames per second of the animation (USD's time codes).
+        time_scale: simulated seconds per second of the animation (USD's ``velocities`` are per
+            second of time codes: the m/s of ``velocity`` times this).
     """
 
     cell_type: str
@@ -75,6 +79,7 @@ class Series:
     cell_data: Sequence[dict[str, np.ndarray]] = field(default_factory=list)
     normals: Sequence[np.ndarray] = field(default_factory=list)
     fps: float = 24.0
+    time_scale: float = 1.0
 
 
 def is_interchange(path: Path | None) -> bool:
@@ -90,15 +95,15 @@ def check_format(path: Path, option: str, frames: int, *, grid: bool = False) ->
     formats = GRID_FORMATS if grid else MESH_FORMATS
     if suffix not in formats:
         raise InputError(f"{path}: {option} must end in {', '.join(formats)}")
+    if suffix == ".vtu" and frames > 1:
+        stem = path.with_suffix("")
+        raise InputError(f"{path}: a .vtu holds one frame; {frames} frames need a collection: {stem}.pvd "
+                         f"(one .vtu per frame) or {stem}.xdmf")
     modules, extra = _NEEDS[suffix]
     for module in modules:
         if importlib.util.find_spec(module) is None:
             raise InputError(f"{path}: {option} {suffix} needs the optional extra '{extra}' ({module} is not "
                              f"installed): pip install 'deformgl[{extra}]'")
-    if suffix == ".vtu" and frames > 1:
-        stem = path.with_suffix("")
-        raise InputError(f"{path}: a .vtu holds one frame; {frames} frames need a collection: {stem}.pvd "
-                         f"(one .vtu per frame) or {stem}.xdmf")
 
 
 def series_paths(path: Path, frames: int) -> list[Path]:
@@ -114,8 +119,9 @@ def series_paths(path: Path, frames: int) -> list[Path]:
 def write_series(path: Path, series: Series) -> None:
     """Write ``series`` to ``path`` (and the files beside it, :func:`series_paths`)."""
     suffix = path.suffix.lower()
-    with tempfile.TemporaryDirectory(prefix="deformgl-series-") as folder:
-        scratch = Path(folder)
+    scratch = temporary_path(path)  # a folder beside the outputs, named as deformgl's temporaries
+    os.mkdir(scratch)
+    try:
         if suffix == ".xdmf":
             _write_xdmf(scratch / path.name, series)
         elif suffix == ".pvd":
@@ -127,12 +133,9 @@ def write_series(path: Path, series: Series) -> None:
         else:
             raise InputError(f"{path}: not a format of deformgl.scene.interchange ({', '.join(MESH_FORMATS)})")
         for target in series_paths(path, len(series.times)):
-            write_atomic(target, functools.partial(_copy, scratch / target.name))
-
-
-def _copy(source: Path, stream: BinaryIO) -> None:
-    with open(source, "rb") as handle:
-        shutil.copyfileobj(handle, stream)
+            adopt_file(target, scratch / target.name)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _cell_block(series: Series, data: dict[str, np.ndarray]) -> dict[str, list[np.ndarray]]:
@@ -210,6 +213,7 @@ def _write_usd(path: Path, series: Series) -> None:
     velocities = mesh.CreateVelocitiesAttr()
     primvars = UsdGeom.PrimvarsAPI(mesh.GetPrim())
     displacement = primvars.CreatePrimvar("displacement", Sdf.ValueTypeNames.Vector3fArray, UsdGeom.Tokens.vertex)
+    speed = primvars.CreatePrimvar("velocity", Sdf.ValueTypeNames.Vector3fArray, UsdGeom.Tokens.vertex)
     for k in range(len(series.times)):
         code = Usd.TimeCode(k)
         p = np.ascontiguousarray(series.points[k], np.float32)
@@ -218,8 +222,10 @@ def _write_usd(path: Path, series: Series) -> None:
             normals.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(series.normals[k], np.float32)), code)
         extent.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, p.min(axis=0))), Gf.Vec3f(*map(float, p.max(axis=0)))]), code)
         data = series.point_data[k]
-        if "velocity" in data:
-            velocities.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(data["velocity"], np.float32)), code)
+        if "velocity" in data:  # per second of time codes, so points + velocities * dt meets the next sample
+            v = np.asarray(data["velocity"], np.float64)
+            velocities.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(v * series.time_scale, np.float32)), code)
+            speed.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(v, np.float32)), code)
         if "displacement" in data:
             displacement.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(data["displacement"], np.float32)), code)
     stage.GetRootLayer().Save()

@@ -106,13 +106,25 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
                              f"meshes/%04d.ply (one mesh per frame) or one animated .glb (morph targets)")
     if job.grid is not None:
         check_format(job.grid, "--export-grid", plan.frames, grid=True)
+    series = next((p for p in (job.export, job.grid) if is_interchange(p)), None)
+    if series is not None:
+        if job.pack is not None:
+            raise InputError(f"{job.pack}: --pack-inputs writes the inputs of one still, not with a time series "
+                             f"({series})")
+        if plan.frames > 1 and not (scene.nodes.source == "simulate" and plan.steps_per_frame > 0):
+            raise InputError(f"{series}: the {plan.frames} frames show one node state (no simulation steps "
+                             f"between them): a time series of it is one frame (--frames 1)")
     if job.pack is not None:
         if job.pack.suffix.lower() != ".npz":
             raise InputError(f"{job.pack}: --pack-inputs must end in .npz")
         if kind is not None or job.modes or job.views:
             raise InputError(f"{job.pack}: --pack-inputs writes the inputs of one still, not of an animation "
                              f"or a grid of panels")
+    seen: dict[Path, Path] = {}
     for p in job.outputs(plan.frames):
+        if p.resolve() in seen:
+            raise InputError(f"{p}: named twice among the outputs (as {seen[p.resolve()]} too)")
+        seen[p.resolve()] = p
         if not p.parent.is_dir():
             raise InputError(f"{p}: the output folder {p.parent} does not exist")
     return plan

@@ -22,7 +22,6 @@ from deformgl.render.camera import View, frame_box
 from deformgl.scene.budget import check_scene
 from deformgl.scene.obstacles import draw_obstacles
 from deformgl.errors import InputError, SimulationError
-from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.mapped import MappedMeshPass, closed_front_face
@@ -30,11 +29,11 @@ from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertic
 from deformgl.grid.meshio import load_mesh
 from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import Load, SpringSystem
-from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene.schema import Scene
 from deformgl.scene.spec import ClothSpec, MeshSpec, Vec3
-from deformgl.scene.run import SceneBox, SceneRun, run_scene, scene_constraints, scene_loads, scene_system
+from deformgl.scene.node_state import NodeState
+from deformgl.scene.run import SceneBox, scene_constraints, scene_loads, scene_system
 from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
@@ -220,84 +219,6 @@ def check_texture_limit(scene: Scene, grid: NodeGrid, max_size: int) -> None:
     except ValueError as exc:
         key = "grid.spacing" if scene.grid.spacing is not None else "grid.nodes_along_longest"
         raise InputError(f"{scene.source}: {key}: {exc}; use a coarser grid") from None
-
-
-class NodeState:
-    """Where a scene's node positions come from: the simulation, a file or an analytic motion.
-
-    ``position_texture`` is what the draw passes read; ``release`` frees every GL object.
-    """
-
-    def __init__(self, ctx: moderngl.Context, scene: Scene, built: SceneModel, *, progress: bool) -> None:
-        nodes = scene.nodes
-        self.sim: Any = None  # a simulation drawn from its own state texture (packed normals)
-        self.driven: DrivenNodes | None = None
-        self.run: SceneRun | None = None  # the run, if the scene simulates
-        self.notes: list[str] = []  # what the step plan and restarts changed, for the log
-        self.textures: NodeTextures
-        if nodes.source == "simulate":
-            self.run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
-                                 progress=progress, notes=self.notes, keep=True)
-            if self.run.sim is not None:
-                self.sim = self.run.sim
-                self.textures = self.sim.textures
-                return
-            if self.run.positions is None:
-                raise RuntimeError("run_scene returned neither positions nor a simulation")  # never
-            positions = self.run.positions
-        if nodes.source == "file":
-            if nodes.file is None:
-                raise ValueError(f"{scene.source}: nodes.file is not set")  # the schema sets it
-            frames = load_node_frames(nodes.file, built.grid.count, built.centre)
-            if not -len(frames) <= nodes.frame < len(frames):
-                raise InputError(f"{scene.source}: nodes.frame: {nodes.frame} is outside the "
-                                 f"{len(frames)} frame(s) of {nodes.file}")
-            positions = frames[nodes.frame]
-        elif nodes.source == "motion":
-            m = nodes.motion
-            if m is None:
-                raise ValueError(f"{scene.source}: nodes.motion is not set")  # the schema sets it
-            motion = Motion(m.kind, m.angle, m.axis, m.along, m.towards, m.translate)
-            positions = motion.apply(built.grid.rest_positions, m.amount)
-        self._positions = np.asarray(positions, np.float64)
-        self.textures = NodeTextures(ctx, built.grid)
-        try:
-            self.driven = DrivenNodes(ctx, self.textures, built.grid)
-            self.driven.set_positions(positions)
-        except BaseException:
-            self.release()
-            raise
-
-    @property
-    def position_texture(self) -> moderngl.Texture:
-        """State texture with the node positions and packed normals to draw."""
-        if self.sim:
-            return self.sim.position_texture
-        if self.driven is None:
-            raise RuntimeError("NodeState: no node positions (not built, or released)")
-        return self.driven.position_texture
-
-    def positions(self) -> np.ndarray:
-        """(N, 3) float64 node positions (recentred): the simulation's (a read-back) or the
-        driven ones."""
-        if self.sim:
-            return np.asarray(self.sim.positions(), np.float64)
-        return self._positions
-
-    @property
-    def layout(self):
-        """The layout of the node textures (compact or atlas)."""
-        return self.textures.layout
-
-    def release(self) -> None:
-        """Release every GL object."""
-        if self.sim is not None:
-            self.sim.release()
-            self.sim = None
-        else:
-            if self.driven is not None:
-                self.driven.release()
-            self.textures.release()
 
 
 def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layout, *,

@@ -208,6 +208,10 @@ class SceneRun:
     inverted: str = ""
     #: an implicit integrator's linear solves (:attr:`deformgl.sim.run.RunResult.solver`)
     solver: dict | None = None
+    #: on request (``run_scene(velocities=True)``) and when the simulation is not kept: the final
+    #: velocities (N, 3) float64 in m/s and the simulation's step in s (for exported fields)
+    velocities: np.ndarray | None = None
+    sim_dt: float = 0.0
 
     def summary(self, physics: Physics) -> str:
         """One line for the log."""
@@ -244,7 +248,7 @@ def bad_limit(physics: Physics, box: SceneBox) -> float:
 def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: SpringSystem,
               loads: tuple[Load, ...], box: SceneBox, *, progress: bool, plan: StepPlan | None = None,
               notes: list[str] | None = None, keep: bool = False, frame_every: int = 0,
-              on_frame: Callable[[int, Any], None] | None = None) -> SceneRun:
+              on_frame: Callable[[int, Any], None] | None = None, velocities: bool = False) -> SceneRun:
     """Simulate a scene's nodes with its integrator on its backend through the one guarded run
     (:func:`deformgl.sim.run.run_guarded`: dt check, blow-up census, convergence stop,
     subdivision); positions are read once.
@@ -290,6 +294,8 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         out = SceneRun(positions, result.steps, result.converged, sim.bytes_per_node, result.steps * step_dt,
                        result.substeps, sim if kept else None, result.convergence, result.inverted_cells,
                        result.inverted, result.solver)
+        if velocities and not kept:
+            out.velocities, out.sim_dt = np.asarray(sim.velocities(), np.float64), float(sim.dt)
         if kept:
             made.clear()
         return out

@@ -94,6 +94,8 @@ async function main() {
   renderer.autoClear = false;
   if (!renderer.extensions.has("EXT_color_buffer_float")) fail("EXT_color_buffer_float is missing: cannot render RGBA32F");
   const { width: W, height: H } = info.texture;
+  // the binding's texels (texel1..3.i32) are in the layout the export pins: compact
+  if (!info.texture.compact) fail("scene.json: texture.compact is false: this page reads the compact node layout");
   const camera = new THREE.OrthographicCamera();  // unused by the pack's shaders (they take u_view_projection)
 
   // --- node textures: node data, three rotating RGBA32F render targets, neighbour indices
