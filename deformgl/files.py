@@ -303,12 +303,21 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[BinaryIO], objec
     else:
         raise FileExistsError(f"cannot create a temporary file next to {target}")
 
-    active = _ACTIVE.get()
-    try:
+    def fill() -> None:
         with os.fdopen(fd, "wb") as stream:
             write(stream)
             stream.flush()
             os.fsync(stream.fileno())
+
+    _place(target, temporary, fill)
+
+
+def _place(target: Path, temporary: Path, complete: Callable[[], object]) -> None:
+    """``complete()`` the temporary file, then stage it (inside an :class:`OutputSet` holding
+    ``target``) or rename it over ``target``; on any failure remove it."""
+    active = _ACTIVE.get()
+    try:
+        complete()
         if active is not None and active.holds(target):
             active.stage(target, temporary)
             return
@@ -329,20 +338,12 @@ def adopt_file(path: str | os.PathLike[str], written: str | os.PathLike[str]) ->
     target = Path(path)
     temporary = temporary_path(target)
     os.replace(written, temporary)
-    try:
+
+    def flush() -> None:
         with open(temporary, "rb+") as stream:
             os.fsync(stream.fileno())
-        active = _ACTIVE.get()
-        if active is not None and active.holds(target):
-            active.stage(target, temporary)
-            return
-        os.replace(temporary, target)
-    except BaseException:
-        try:
-            os.unlink(temporary)
-        except FileNotFoundError:
-            pass
-        raise
+
+    _place(target, temporary, flush)
 
 
 def read_png(path: str | os.PathLike[str], max_pixels: int | None = None) -> np.ndarray:

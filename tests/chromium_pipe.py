@@ -142,3 +142,31 @@ def edge_pixels(image):
             if dy or dx:
                 out |= np.abs(pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - img).max(axis=2) > 32
     return out
+
+
+def run_page(root, query: str, timeout: float = 120) -> dict:
+    """Serve the folder ``root`` on localhost, open ``index.html?QUERY`` in headless Chromium
+    and return the JSON the page writes into ``<pre id="result">``, with ``wall_s`` (the open to
+    the result) and ``messages`` (the console and log entries)."""
+    import functools
+    import http.server
+    import threading
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(root)))
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    browser = Chromium()
+    try:
+        start = time.monotonic()
+        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?{query}")
+        result = json.loads(browser.wait_for("document.getElementById('result').textContent", timeout))
+        result["wall_s"] = time.monotonic() - start
+        result["messages"] = list(browser.messages)
+    finally:
+        browser.close()
+        server.shutdown()
+        server.server_close()
+    return result

@@ -230,6 +230,15 @@ def test_formats_that_cannot_hold_the_request_are_refused(jelly, tmp_path, capsy
         err = capsys.readouterr().err
         assert code == 2 and err.count("\n") == 1 and words in err, err
     code = main(["render", str(jelly), "--frames", "2", "-o", str(tmp_path / "a.gif"), "--mapping", "constant",
+                 "--export-mesh", str(tmp_path / "m.glb"), "--json", str(tmp_path / "m.glb")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "named twice among the outputs" in err, err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.io
+def test_what_a_time_series_cannot_hold_is_refused(jelly, tmp_path, capsys):
+    code = main(["render", str(jelly), "--frames", "2", "-o", str(tmp_path / "a.gif"), "--mapping", "constant",
                  "--export-mesh", str(tmp_path / "m.pvd"), "--export-grid", str(tmp_path / "m.pvd")])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "named twice among the outputs" in err, err
@@ -326,3 +335,19 @@ def test_a_failed_series_leaves_nothing(frames, tmp_path, monkeypatch):
             else:
                 write_series(tmp_path / "g.pvd", series)
         assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.io
+def test_a_non_finite_field_is_refused_and_nothing_written(frames, tmp_path):
+    import dataclasses
+
+    from deformgl.errors import SimulationError
+
+    scene, plan, done = frames
+    series = grid_series(done, plan.fps)
+    data = [dict(d) for d in series.point_data]
+    data[2]["velocity"] = data[2]["velocity"].copy()
+    data[2]["velocity"][5, 1] = np.nan
+    with pytest.raises(SimulationError, match=r"frame 2 .*velocity of point or cell 5 is not finite"):
+        write_series(tmp_path / "g.xdmf", dataclasses.replace(series, point_data=data))
+    assert list(tmp_path.iterdir()) == []

@@ -9,19 +9,17 @@ import base64
 import functools
 import http.server
 import io
-import json
 import shutil
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from chromium_pipe import Chromium, edge_pixels
+from chromium_pipe import Chromium, edge_pixels, run_page
 from conftest import TESTS
 from deformgl.pack.export_web import web_scene
 from deformgl.scene.pipeline import render
@@ -54,22 +52,7 @@ def page(tmp_path_factory):
         shutil.copy(ROOT / "examples" / "web" / name, root / name)
     proc = export(root / "data", "--steps", str(STEPS), "--size", f"{SIZE[0]}x{SIZE[1]}", "--mapping", "curvature")
     assert proc.returncode == 0, proc.stderr
-    handler = functools.partial(_QuietHandler, directory=str(root))
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    browser = Chromium()
-    try:
-        start = time.monotonic()
-        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?data=data&steps={STEPS}")
-        result = json.loads(browser.wait_for("document.getElementById('result').textContent", 120))
-        result["wall_s"] = time.monotonic() - start
-        result["messages"] = list(browser.messages)
-    finally:
-        browser.close()
-        server.shutdown()
-        server.server_close()
-    return result
+    return run_page(root, f"data=data&steps={STEPS}")
 
 
 def test_the_page_runs_the_steps_and_logs_no_webgl_error(page):

@@ -8,21 +8,17 @@ examples/web/three``; both installed by .ci/run's extras step)."""
 from __future__ import annotations
 
 import base64
-import functools
-import http.server
 import io
 import json
 import shutil
 import subprocess
 import sys
-import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from chromium_pipe import Chromium, edge_pixels
+from chromium_pipe import edge_pixels, run_page
 from conftest import TESTS
 from deformgl.cli import main
 from deformgl.files import read_png
@@ -34,11 +30,6 @@ SCENE = ROOT / "scenes" / "dragon.toml"
 STEPS, SIZE = 200, (320, 240)
 
 pytestmark = [pytest.mark.chromium, pytest.mark.three]
-
-
-class _QuietHandler(http.server.SimpleHTTPRequestHandler):
-    def log_message(self, *args):
-        pass
 
 
 @pytest.fixture(scope="module")
@@ -55,18 +46,7 @@ def page(tmp_path_factory):
                            str(STEPS), "--size", f"{SIZE[0]}x{SIZE[1]}", "--mapping", "curvature"],
                           capture_output=True, text=True, timeout=300, cwd=root)
     assert proc.returncode == 0, proc.stderr
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_QuietHandler, directory=str(root)))
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    browser = Chromium()
-    try:
-        browser.open(f"http://127.0.0.1:{server.server_port}/index.html?data=data&steps={STEPS}")
-        result = json.loads(browser.wait_for("document.getElementById('result').textContent", 120))
-        result["messages"] = list(browser.messages)
-    finally:
-        browser.close()
-        server.shutdown()
-        server.server_close()
-    return result
+    return run_page(root, f"data=data&steps={STEPS}")
 
 
 def test_the_three_page_runs_the_steps_with_the_pinned_three(page):

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deformgl.errors import InputError
+from deformgl.errors import InputError, SimulationError
 from deformgl.files import adopt_file, temporary_path
 
 __all__ = ["MESH_FORMATS", "GRID_FORMATS", "Series", "check_format", "is_interchange", "series_paths",
@@ -119,6 +119,7 @@ def series_paths(path: Path, frames: int) -> list[Path]:
 def write_series(path: Path, series: Series) -> None:
     """Write ``series`` to ``path`` (and the files beside it, :func:`series_paths`)."""
     suffix = path.suffix.lower()
+    _check_finite(path, series)
     scratch = temporary_path(path)  # a folder beside the outputs, named as deformgl's temporaries
     os.mkdir(scratch)
     try:
@@ -136,6 +137,21 @@ def write_series(path: Path, series: Series) -> None:
             adopt_file(target, scratch / target.name)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _check_finite(path: Path, series: Series) -> None:
+    """Refuse to write a non-finite value (a blown-up run the checks missed): NaN never leaves
+    deformgl silently."""
+    for k in range(len(series.times)):
+        named = [("points", series.points[k]), *series.point_data[k].items(),
+                 *(series.cell_data[k].items() if series.cell_data else ()),
+                 *((("normals", series.normals[k]),) if series.normals else ())]
+        for name, values in named:
+            bad = ~np.isfinite(np.asarray(values, np.float64))
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise SimulationError(f"{path}: frame {k} (t = {series.times[k]:g} s): {name} of point or cell {row} "
+                                      f"is not finite; nothing written")
 
 
 def _cell_block(series: Series, data: dict[str, np.ndarray]) -> dict[str, list[np.ndarray]]:
