@@ -93,6 +93,23 @@ def test_the_mesh_series_reads_back_with_its_fields(frames, tmp_path, suffix):
         velocity = read[k][2]["velocity"]
         assert np.abs(velocity - difference).max() < 0.005 * np.abs(difference).max(), k
     assert np.abs(read[-1][2]["velocity"]).max() > 0.02  # m/s: it falls
+    # the grid's strain at each vertex: that of the full cell it lies in at rest (found by index here)
+    grid = done.model.grid
+    from deformgl.sim.volume import grid_cells
+
+    cells = grid_cells(grid.occupied, grid.index)
+    lower = {tuple(ijk): c for c, ijk in enumerate(grid.ijk[cells[:, 0]])}
+    at = (done.model.mesh.vertices - grid.origin) / grid.spacing
+    inside = np.floor(at).astype(int)
+    clear = (np.abs(at - np.round(at)) > 1e-6).all(axis=1)  # not on a face between two cells
+    hits = [(v, lower[tuple(ijk)]) for v, ijk in enumerate(inside) if clear[v] and tuple(ijk) in lower]
+    assert len(hits) >= 10, len(hits)
+    vertex, cell = np.array(hits).T
+    x = done.nodes[-1][1]
+    f = np.einsum("cai,aj->cij", x[cells[cell]], np.array([[2 * (c & 1) - 1, 2 * (c >> 1 & 1) - 1, 2 * (c >> 2 & 1) - 1]
+                                                         for c in range(8)]) / (4 * grid.spacing))
+    assert np.allclose(read[-1][2]["volume_ratio"][vertex], np.linalg.det(f), rtol=1e-9)
+    assert read[-1][2]["green_strain"].shape == (len(rest), 9)
 
 
 @pytest.mark.io
@@ -199,7 +216,8 @@ def test_the_cli_writes_both_series_together(ctx, jelly, tmp_path, capsys):
              "--export-mesh", str(tmp_path / "s.vtu")]
     assert main(still) == 0, capsys.readouterr().err
     (frame,) = _read_vtu_frames(tmp_path / "s.vtu")
-    assert set(frame.point_data) == {"displacement", "velocity"} and np.abs(frame.point_data["velocity"]).max() > 0
+    assert set(frame.point_data) == {"displacement", "velocity", "volume_ratio", "green_strain"}
+    assert np.abs(frame.point_data["velocity"]).max() > 0
 
 
 def _read_vtu_frames(path: Path):

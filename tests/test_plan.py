@@ -336,8 +336,9 @@ def test_the_plans_multigrid_iterations_follow_the_exact_step_on_a_slender_beam(
     """A rubber beam 25 nodes along and 5 across (w1 dt ~ 0.3: implicit Euler still moves toward
     its equilibrium over seconds): at the plan's multigrid iterations (3 at nu = 1/4) the float64
     run stays on the exactly solved steps' trajectory within the plan's static residue of the sag
-    after 2 s, where Jacobi at the 30 of its rule is still 4 % of the sag away (truncated Jacobi CG
-    carries a correction a few nodes per iteration; the V-cycle across the body at once)."""
+    after 2 s (measured 8e-6 of the sag), where Jacobi at the 30 of its rule is 1.5e-3 away, 2.5
+    times the residue (at 20 iterations 1.6 %, at 10 57 %: truncated Jacobi CG carries a correction
+    a few nodes per iteration; the V-cycle across the body at once)."""
     import numpy as np
 
     from deformgl.bench.fem import Workload, lattice_case
@@ -356,4 +357,4 @@ def test_the_plans_multigrid_iterations_follow_the_exact_step_on_a_slender_beam(
         cg.step(120)
         off[pre] = float(np.linalg.norm(cg.positions() - direct.positions(), axis=1).max()) / sag
     assert multigrid_iterations(0.25) == 3 and off["multigrid"] <= IMPLICIT_STATIC_ERROR, off
-    assert off["jacobi"] > 0.01, off
+    assert off["jacobi"] > 2 * IMPLICIT_STATIC_ERROR and off["jacobi"] > 100 * off["multigrid"], off

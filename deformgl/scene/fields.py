@@ -4,7 +4,9 @@
 All in SI units, world coordinates (the scene's recentring undone):
 
 * **Detailed mesh, per vertex** (:class:`MeshFrame`): the deformed positions as rendered (m), the
-  normals, ``displacement`` (m) from the mesh's rest vertices, and ``velocity`` (m/s): the
+  normals, the grid's ``volume_ratio`` and ``green_strain`` of the cell the vertex lies in at rest
+  (the nearest by centre for a vertex outside every full cell), ``displacement`` (m) from the
+  mesh's rest vertices, and ``velocity`` (m/s): the
   backward difference of the mapped positions over the last step,
   ``(map(x_n) − map(x_n − dt v_n)) / dt``, the mapping (Mosegaard & Sørensen 2005, eq. 9) applied
   in float64 to the node positions read back. For position Verlet ``x_n − dt v_n`` is the
@@ -112,6 +114,16 @@ class NodeFields:
         lower = self.grid.ijk[self.cells[:, 0]]
         return np.asarray(self.grid.fill.fraction, np.float64)[lower[:, 0], lower[:, 1], lower[:, 2]]
 
+    def cell_of(self, points: np.ndarray) -> np.ndarray | None:
+        """(P,) the full cell each rest point (recentred) lies in, or the nearest one by centre
+        where it lies in none; None for a grid without full cells."""
+        if not len(self.cells):
+            return None
+        from scipy.spatial import cKDTree
+
+        centres = self.grid.rest_positions[self.cells].mean(axis=1)
+        return np.asarray(cKDTree(centres).query(np.asarray(points, np.float64))[1], np.int64)
+
     def _map(self, x: np.ndarray) -> np.ndarray:
         m = self.mapped
         sums = unit_sums(self.grid, x)
@@ -167,6 +179,11 @@ def mesh_series(frames, mode: str, use_cache: bool, fps: float):
     made = [fields.mesh_frame(t, v, n, x, u, dt) for (v, n, _), (t, x, u, dt) in zip(frames.meshes, frames.nodes)]
     data = [{"displacement": f.displacement, **({"velocity": f.velocity} if f.velocity is not None else {})}
             for f in made]
+    cell = fields.cell_of(built.mesh.vertices)
+    if cell is not None:  # the node grid's strain, where its cells carry it
+        for f, d in zip(frames.nodes, data):
+            g = fields.grid_frame(f[0], f[1], None)
+            d["volume_ratio"], d["green_strain"] = g.volume_ratio[cell], g.green_strain[cell].reshape(-1, 9)
     return Series("triangle", np.asarray(built.mesh.faces), np.asarray(built.mesh.vertices, np.float64) + built.centre,
                   [f.time_s for f in made], [f.vertices for f in made], data, normals=[f.normals for f in made],
                   fps=fps, time_scale=time_scale(frames, fps))
