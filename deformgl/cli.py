@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import os
 import sys
 import time
 import warnings
@@ -203,9 +204,11 @@ def _render(args: argparse.Namespace) -> int:
               pack=args.pack_inputs, record=record, grid=args.export_grid)
     check_job(scene, job)
     outputs = job.outputs(plan.frames)
-    for path in outputs[:1] + outputs[-3:]:
+    # one output of each folder (frames and series spread over folders), and the first and last
+    some = list({os.path.realpath(p.parent): p for p in outputs}.values()) + outputs[:1] + outputs[-3:]
+    for path in some:
         check_writable(path)  # before any work: render_job checks every one again, as a set
-    _clean_leftovers(outputs[:1] + outputs[-3:])
+    _clean_leftovers(some)
     ctx = create_context(args.device)
     try:
         done = render_job(ctx, scene, job, progress=not args.quiet and sys.stderr.isatty(),

@@ -79,8 +79,8 @@ def _alive(pid: int) -> bool:
 
 def remove_stale_temporaries(folder: str | os.PathLike[str], before: float) -> list[Path]:
     """Remove the temporary files deformgl left in ``folder`` (a killed run): those named as
-    :func:`temporary_path` names them whose process is gone, and older ones without a process
-    id, in both cases last modified before ``before`` (a time.time(): the finding run's start).
+    :func:`temporary_path` names them whose process is gone (files, and the scratch folders of
+    time series, :mod:`deformgl.scene.interchange`), and older files without a process id, in both cases last modified before ``before`` (a time.time(): the finding run's start).
     Returns what was removed; a folder that cannot be listed removes nothing."""
     removed: list[Path] = []
     try:
@@ -331,19 +331,25 @@ def _place(target: Path, temporary: Path, complete: Callable[[], object]) -> Non
 
 
 def adopt_file(path: str | os.PathLike[str], written: str | os.PathLike[str]) -> None:
-    """Make ``written``, a complete file in the folder of ``path`` that a library wrote, the
-    output ``path`` as :func:`write_atomic` makes its temporary file: flushed to disk, then staged
+    """Make ``written``, a complete file that a library wrote in the folder of ``path`` (or in a
+    folder inside it: one file system, so the move is a rename), the output ``path`` as :func:`write_atomic` makes its temporary file: flushed to disk, then staged
     (inside an :class:`OutputSet` holding ``path``) or renamed over ``path`` now. On a failure
     nothing is left at ``path``'s temporary name."""
     target = Path(path)
+    if os.path.realpath(Path(written).parent.parent) != os.path.realpath(target.parent) and \
+            os.path.realpath(Path(written).parent) != os.path.realpath(target.parent):
+        raise ValueError(f"adopt_file: {written} is not in (a folder in) the folder of {target}")
     temporary = temporary_path(target)
-    os.replace(written, temporary)
 
-    def flush() -> None:
-        with open(temporary, "rb+") as stream:
-            os.fsync(stream.fileno())
+    def move_and_flush() -> None:
+        os.replace(written, temporary)
+        fd = os.open(temporary, os.O_RDONLY | getattr(os, "O_BINARY", 0))
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
-    _place(target, temporary, flush)
+    _place(target, temporary, move_and_flush)
 
 
 def read_png(path: str | os.PathLike[str], max_pixels: int | None = None) -> np.ndarray:

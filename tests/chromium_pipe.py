@@ -158,7 +158,12 @@ def run_page(root, query: str, timeout: float = 120) -> dict:
 
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Quiet, directory=str(root)))
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    browser = Chromium()
+    try:
+        browser = Chromium()
+    except BaseException:
+        server.shutdown()
+        server.server_close()
+        raise
     try:
         start = time.monotonic()
         browser.open(f"http://127.0.0.1:{server.server_port}/index.html?{query}")

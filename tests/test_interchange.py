@@ -7,6 +7,7 @@ hexahedra in VTK's own corner order)."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -62,8 +63,6 @@ def test_the_node_states_are_the_simulations(frames):
 @pytest.mark.io
 @pytest.mark.parametrize("suffix", [".pvd", ".xdmf"])
 def test_the_mesh_series_reads_back_with_its_fields(frames, tmp_path, suffix):
-    import meshio
-
     scene, plan, done = frames
     series = mesh_series(done, scene.mapping.mode, scene.mapping.cache, plan.fps)
     path = tmp_path / f"mesh{suffix}"
@@ -210,12 +209,23 @@ def test_the_cli_writes_both_series_together(ctx, jelly, tmp_path, capsys):
     assert main(args) == 0, capsys.readouterr().err
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == ["a.gif", "g.pvd", "g_0000.vtu", "g_0001.vtu", "g_0002.vtu", "m.h5", "m.xdmf"]
+    # a killed run's scratch folder in an output folder is removed by the next run there
+    stale = tmp_path / ".m.xdmf.deformgl-999999999-0123456789ab.tmp"
+    stale.mkdir()
+    (stale / "m.h5").write_bytes(b"x")
+    os.utime(stale, (1, 1))
     assert len(_read_series(tmp_path / "m.xdmf")) == len(_read_series(tmp_path / "g.pvd")) == 3
-    # a still: one .vtu with the velocity of the run's last step
-    still = ["render", str(jelly), "--steps", "20", "--mapping", "constant", "--quiet", "-o", str(tmp_path / "s.png"),
-             "--export-mesh", str(tmp_path / "s.vtu")]
-    assert main(still) == 0, capsys.readouterr().err
+    # a still: one .vtu with the velocity of the run's last step (the still's 20 steps, whatever
+    # steps per frame say), drawn as the .ply export of the same still draws it
+    still = ["render", str(jelly), "--steps", "20", "--steps-per-frame", "7", "--mapping", "constant", "--quiet",
+             "-o", str(tmp_path / "s.png")]
+    assert main([*still, "--export-mesh", str(tmp_path / "s.vtu")]) == 0, capsys.readouterr().err
+    assert main([*still[:-1], str(tmp_path / "p.png"), "--export-mesh", str(tmp_path / "p.ply")]) == 0
+    assert not stale.exists()
     (frame,) = _read_vtu_frames(tmp_path / "s.vtu")
+    import trimesh
+
+    assert np.abs(frame.points - trimesh.load(tmp_path / "p.ply", process=False).vertices).max() < 1e-6
     assert set(frame.point_data) == {"displacement", "velocity", "volume_ratio", "green_strain"}
     assert np.abs(frame.point_data["velocity"]).max() > 0
 
@@ -369,3 +379,17 @@ def test_a_non_finite_field_is_refused_and_nothing_written(frames, tmp_path):
     with pytest.raises(SimulationError, match=r"frame 2 .*velocity of point or cell 5 is not finite"):
         write_series(tmp_path / "g.xdmf", dataclasses.replace(series, point_data=data))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_grid_with_nothing_to_write_is_refused_before_the_run():
+    from types import SimpleNamespace
+
+    from deformgl.errors import InputError
+    from deformgl.grid.nodes import NodeGrid
+    from deformgl.scene.fields import check_grid_export
+
+    scene = SimpleNamespace(source=Path("rod.toml"))
+    with pytest.raises(InputError, match=r"rod.toml: --export-grid: .* neither a full cell nor the quads"):
+        check_grid_export(scene, SimpleNamespace(grid=NodeGrid(np.zeros(3), 1.0, np.ones((1, 1, 5), bool))))
+    for shape in ((2, 2, 2), (3, 1, 3)):  # a cell; a sheet
+        check_grid_export(scene, SimpleNamespace(grid=NodeGrid(np.zeros(3), 1.0, np.ones(shape, bool))))

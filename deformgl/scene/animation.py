@@ -217,7 +217,8 @@ def _check_modes(scene: Scene, modes: Sequence[str]) -> None:
 
 def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = None, *,
                   modes: Sequence[str] | None = None, views: Sequence[View3] | None = None, mesh: bool = False,
-                  nodes: bool = False, progress: bool = False, log: Callable[[str], None] | None = None) -> Frames:
+                  nodes: bool = False, progress: bool = False, log: Callable[[str], None] | None = None,
+                  check_model: Callable[[Scene, SceneModel], None] | None = None) -> Frames:
     """Simulate ``scene`` once and draw the frames of ``plan`` (default :func:`frame_plan`).
 
     Args:
@@ -230,6 +231,8 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
         nodes: also read back each frame's node positions and velocities (:attr:`Frames.nodes`).
         progress: a progress bar of frames on stderr.
         log: receives the binding report and the run's notes.
+        check_model: called with the scene and its model before any simulation (a refusal that
+            needs the built grid).
     """
     started = clock.perf_counter()
     plan = frame_plan(scene) if plan is None else plan
@@ -252,6 +255,8 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     check_scene(ctx, scene)
     built = build_scene_model(scene)
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+    if check_model is not None:
+        check_model(scene, built)
     images: list[np.ndarray | None] = [None] * plan.frames
     meshes: list[Any] = [None] * plan.frames
     states: list[Any] = [None] * plan.frames

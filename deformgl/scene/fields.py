@@ -5,7 +5,8 @@ All in SI units, world coordinates (the scene's recentring undone):
 
 * **Detailed mesh, per vertex** (:class:`MeshFrame`): the deformed positions as rendered (m), the
   normals, the grid's ``volume_ratio`` and ``green_strain`` of the cell the vertex lies in at rest
-  (the nearest by centre for a vertex outside every full cell), ``displacement`` (m) from the
+  (for a vertex outside every full cell, the full cell nearest by centre: an approximation; none
+  for a cloth), ``displacement`` (m) from the
   mesh's rest vertices, and ``velocity`` (m/s): the
   backward difference of the mapped positions over the last step,
   ``(map(x_n) − map(x_n − dt v_n)) / dt``, the mapping (Mosegaard & Sørensen 2005, eq. 9) applied
@@ -37,7 +38,7 @@ from deformgl.mapping.bases import map_vertices
 from deformgl.sim.normals import unit_sums
 from deformgl.sim.volume import centre_deformation, grid_cells
 
-__all__ = ["GridFrame", "MeshFrame", "NodeFields", "grid_series", "mesh_series", "sheet_quads", "VTK_HEXAHEDRON", "green_strain"]
+__all__ = ["GridFrame", "MeshFrame", "NodeFields", "check_grid_export", "grid_series", "mesh_series", "sheet_quads", "VTK_HEXAHEDRON", "green_strain"]
 
 #: corner order of a VTK / XDMF hexahedron in deformgl's corner numbering (c = dx + 2 dy + 4 dz):
 #: VTK walks the bottom face (0,0,0) (1,0,0) (1,1,0) (0,1,0), then the top face the same way.
@@ -207,6 +208,14 @@ def sheet_quads(grid) -> np.ndarray:
 def _quad_areas(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
     p = x[quads]
     return 0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1)
+
+
+def check_grid_export(scene, built) -> None:
+    """Refuse ``--export-grid`` of a grid with neither a full cell nor the quads of a sheet (a
+    rod one node across), before the run."""
+    if not len(grid_cells(built.grid.occupied, built.grid.index)) and not len(sheet_quads(built.grid)):
+        raise InputError(f"{scene.source}: --export-grid: the node grid of {built.grid.shape} positions has "
+                         f"neither a full cell nor the quads of a sheet to write")
 
 
 def grid_series(frames, fps: float):

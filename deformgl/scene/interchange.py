@@ -17,7 +17,8 @@ Formats (``--export-mesh PATH`` for the detailed mesh, ``--export-grid PATH`` fo
   frame at time code k of frame k; ``timeCodesPerSecond`` = ``framesPerSecond`` = the
   animation's fps, ``metersPerUnit`` = 1, ``upAxis`` Y. USD's ``velocities`` are per second of
   time codes: the m/s times the simulated seconds per second of the animation
-  (:attr:`Series.time_scale`), so that motion blur meets the next sample. ``.usd`` is the binary
+  (:attr:`Series.time_scale`), so that motion blur extrapolates at the simulated speed (to first
+  order: the velocity is the backward difference over the last step). ``.usd`` is the binary
   crate format.
 
 Every file is written complete into a scratch folder beside the outputs (named as deformgl's
@@ -133,7 +134,7 @@ def write_series(path: Path, series: Series) -> None:
             _write_usd(scratch / path.name, series)
         else:
             raise InputError(f"{path}: not a format of deformgl.scene.interchange ({', '.join(MESH_FORMATS)})")
-        for target in series_paths(path, len(series.times)):
+        for target in reversed(series_paths(path, len(series.times))):  # the index (.pvd, .xdmf) last
             adopt_file(target, scratch / target.name)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
@@ -238,7 +239,7 @@ def _write_usd(path: Path, series: Series) -> None:
             normals.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(series.normals[k], np.float32)), code)
         extent.Set(Vt.Vec3fArray([Gf.Vec3f(*map(float, p.min(axis=0))), Gf.Vec3f(*map(float, p.max(axis=0)))]), code)
         data = series.point_data[k]
-        if "velocity" in data:  # per second of time codes, so points + velocities * dt meets the next sample
+        if "velocity" in data:  # per second of time codes: motion blur at the simulated speed
             v = np.asarray(data["velocity"], np.float64)
             velocities.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(v * series.time_scale, np.float32)), code)
             speed.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(v, np.float32)), code)

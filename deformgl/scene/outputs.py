@@ -8,6 +8,8 @@ panels takes the same path as :func:`deformgl.scene.pipeline.render_to_png`.
 
 from __future__ import annotations
 
+import dataclasses
+import os
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -22,7 +24,7 @@ from deformgl.render.gltf_morph import write_morph_glb
 from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.animation import FramePlan, View3, frame_plan, render_frames
-from deformgl.scene.fields import grid_series, mesh_series
+from deformgl.scene.fields import check_grid_export, grid_series, mesh_series
 from deformgl.scene.interchange import MESH_FORMATS, check_format, is_interchange, series_paths, write_series
 from deformgl.scene.pipeline import render_still
 from deformgl.scene.record import write_record
@@ -113,18 +115,20 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
                              f"({series})")
         if plan.frames > 1 and not (scene.nodes.source == "simulate" and plan.steps_per_frame > 0):
             raise InputError(f"{series}: the {plan.frames} frames show one node state (no simulation steps "
-                             f"between them): a time series of it is one frame (--frames 1)")
+                             f"between them): a time series of it is one frame (--frames 1), or give the "
+                             f"frames steps (--steps-per-frame N, or physics.steps of at least one per frame)")
     if job.pack is not None:
         if job.pack.suffix.lower() != ".npz":
             raise InputError(f"{job.pack}: --pack-inputs must end in .npz")
         if kind is not None or job.modes or job.views:
             raise InputError(f"{job.pack}: --pack-inputs writes the inputs of one still, not of an animation "
                              f"or a grid of panels")
-    seen: dict[Path, Path] = {}
+    seen: dict[str, Path] = {}
     for p in job.outputs(plan.frames):
-        if p.resolve() in seen:
-            raise InputError(f"{p}: named twice among the outputs (as {seen[p.resolve()]} too)")
-        seen[p.resolve()] = p
+        key = os.path.realpath(p)  # (never raises, unlike Path.resolve on a symlink loop)
+        if key in seen:
+            raise InputError(f"{p}: named twice among the outputs (as {seen[key]} too)")
+        seen[key] = p
         if not p.parent.is_dir():
             raise InputError(f"{p}: the output folder {p.parent} does not exist")
     return plan
@@ -137,12 +141,15 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
     plan = check_job(scene, job)
     series = is_interchange(job.export) or job.grid is not None  # the time series take the frames' path
     still = animation_kind(job.output) is None and not job.modes and not job.views and plan.frames == 1 and not series
+    if series and plan.frames == 1:  # one frame: the still's run (physics.steps), not (frames - 1) x steps per frame
+        plan = dataclasses.replace(plan, steps_per_frame=0)
     if still:  # the one-image path of render_to_png
         return render_still(ctx, scene, job.output, progress=progress, export=job.export, pack=job.pack,
                             record=job.record, log=log).record
     outputs = OutputSet(job.outputs(plan.frames))  # every path checked before any work
     frames = render_frames(ctx, scene, plan, modes=job.modes, views=job.views, mesh=job.export is not None,
-                           nodes=series, progress=progress, log=log)
+                           nodes=series, progress=progress, log=log,
+                           check_model=None if job.grid is None else check_grid_export)
     record, images, meshes = frames.record, frames.images, frames.meshes
     record["outputs"] = [str(p) for p in job.outputs(plan.frames) if p != job.record]
     with outputs:
