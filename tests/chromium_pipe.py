@@ -175,3 +175,37 @@ def run_page(root, query: str, timeout: float = 120) -> dict:
         server.shutdown()
         server.server_close()
     return result
+
+
+def canvas_image(page: dict):
+    """(H, W, 3) uint8: the page's canvas (its ``png`` data URL)."""
+    import base64
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(page["png"].split(",", 1)[1]))).convert("RGB"))
+
+
+def check_canvas(ours, web) -> str:
+    """Assert the browser's frame ``web`` is deformgl's ``ours`` within the golden tolerances: at
+    most 0.5 % of the pixels differ by more than 4/255, and no pixel by more than 64/255 away
+    from edges. Silhouette and crease pixels (:func:`edge_pixels` of deformgl's frame) flip
+    between the two rasterizers (llvmpipe and SwiftShader place sub-pixel edges differently), so
+    the per-pixel limit leaves them out; they still count in the fraction. Returns the figures."""
+    import numpy as np
+
+    from deformgl.testing.imagediff import DEFAULT_CHANNEL_TOL, DEFAULT_MAX_FRACTION, DEFAULT_PIXEL_MAX
+
+    assert web.shape == ours.shape, (web.shape, ours.shape)
+    delta = np.abs(ours.astype(int) - web).max(axis=2)
+    differ = (delta > DEFAULT_CHANNEL_TOL).mean()
+    assert differ <= DEFAULT_MAX_FRACTION, differ
+    edges = edge_pixels(ours)
+    interior = delta[~edges]
+    assert interior.max() <= DEFAULT_PIXEL_MAX, (interior.max(), np.argwhere((delta > DEFAULT_PIXEL_MAX) & ~edges)[:5])
+    assert edges.mean() < 0.2  # the mask leaves most of the frame in the check
+    assert (ours != ours[0, 0]).any(axis=2).mean() > 0.1  # the body fills the frame
+    return (f"{differ:.4%} pixels over {DEFAULT_CHANNEL_TOL}/255; largest difference {delta.max()}/255, "
+            f"{interior.max()}/255 away from edges ({edges.mean():.1%} of pixels are edges)")
