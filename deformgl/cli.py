@@ -10,8 +10,8 @@ stderr, ``deformgl: error: ...``; an unexpected exception adds "rerun with --deb
 from __future__ import annotations
 
 import argparse
-import signal
 import os
+import signal
 import sys
 import time
 import warnings

@@ -29,8 +29,8 @@ from PIL import Image
 
 from deformgl.errors import InputError
 
-__all__ = ["OutputSet", "STOP", "adopt_file", "check_writable", "committing", "read_png", "remove_stale_temporaries", "request_stop",
-           "temporary_path", "write_atomic", "write_png_atomic"]
+__all__ = ["OutputSet", "STOP", "adopt_file", "check_writable", "committing", "read_png", "remove_stale_temporaries",
+           "request_stop", "temporary_path", "write_atomic", "write_png_atomic"]
 
 #: ``.NAME.deformgl-PID-HEX.tmp``; the older ``.NAME.HEX.tmp`` (no process id) is recognised too
 _TEMPORARY = re.compile(r"^\..+\.deformgl-(\d+)-[0-9a-f]{12}\.tmp$")
@@ -80,7 +80,8 @@ def _alive(pid: int) -> bool:
 def remove_stale_temporaries(folder: str | os.PathLike[str], before: float) -> list[Path]:
     """Remove the temporary files deformgl left in ``folder`` (a killed run): those named as
     :func:`temporary_path` names them whose process is gone (files, and the scratch folders of
-    time series, :mod:`deformgl.scene.interchange`), and older files without a process id, in both cases last modified before ``before`` (a time.time(): the finding run's start).
+    time series, :mod:`deformgl.scene.interchange`), and older files without a process id, in
+    both cases last modified before ``before`` (a time.time(): the finding run's start).
     Returns what was removed; a folder that cannot be listed removes nothing."""
     removed: list[Path] = []
     try:
@@ -332,12 +333,13 @@ def _place(target: Path, temporary: Path, complete: Callable[[], object]) -> Non
 
 def adopt_file(path: str | os.PathLike[str], written: str | os.PathLike[str]) -> None:
     """Make ``written``, a complete file that a library wrote in the folder of ``path`` (or in a
-    folder inside it: one file system, so the move is a rename), the output ``path`` as :func:`write_atomic` makes its temporary file: flushed to disk, then staged
-    (inside an :class:`OutputSet` holding ``path``) or renamed over ``path`` now. On a failure
-    nothing is left at ``path``'s temporary name."""
+    folder inside it: one file system, so the move is a rename), the output ``path`` as
+    :func:`write_atomic` makes its temporary file: flushed to disk, then staged (inside an
+    :class:`OutputSet` holding ``path``) or renamed over ``path`` now. On a failure nothing is
+    left at ``path``'s temporary name."""
     target = Path(path)
-    if os.path.realpath(Path(written).parent.parent) != os.path.realpath(target.parent) and \
-            os.path.realpath(Path(written).parent) != os.path.realpath(target.parent):
+    source = Path(written)
+    if os.path.realpath(target.parent) not in (os.path.realpath(source.parent), os.path.realpath(source.parent.parent)):
         raise ValueError(f"adopt_file: {written} is not in (a folder in) the folder of {target}")
     temporary = temporary_path(target)
 

@@ -64,7 +64,7 @@ def test_the_node_states_are_the_simulations(frames):
 @pytest.mark.parametrize("suffix", [".pvd", ".xdmf"])
 def test_the_mesh_series_reads_back_with_its_fields(frames, tmp_path, suffix):
     scene, plan, done = frames
-    series = mesh_series(done, scene.mapping.mode, scene.mapping.cache, plan.fps)
+    series = mesh_series(done, plan.fps)
     path = tmp_path / f"mesh{suffix}"
     write_series(path, series)
     rest = done.model.mesh.vertices + done.model.centre
@@ -146,7 +146,7 @@ def test_a_usd_point_cache_holds_every_frame(frames, tmp_path, suffix):
     from pxr import Usd, UsdGeom
 
     scene, plan, done = frames
-    series = mesh_series(done, scene.mapping.mode, scene.mapping.cache, plan.fps)
+    series = mesh_series(done, plan.fps)
     path = tmp_path / f"jelly{suffix}"
     write_series(path, series)
     stage = Usd.Stage.Open(str(path))

@@ -20,7 +20,7 @@ import dataclasses
 import time as clock
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import moderngl
 import numpy as np
@@ -146,6 +146,15 @@ def compose_grid(panels: Sequence[Sequence[np.ndarray]], labels: Sequence[Sequen
     return out
 
 
+class NodeSample(NamedTuple):
+    """One frame's node state, read back for exported fields."""
+
+    time_s: float            #: simulated time of the frame (s)
+    x: np.ndarray            #: (N, 3) float64 positions, recentred (m)
+    v: np.ndarray | None     #: (N, 3) float64 velocities (m/s); None where the nodes were not simulated
+    dt: float                #: the simulation's step (s); 0 without one
+
+
 @dataclass
 class Frames:
     """What :func:`render_frames` produced: the frames (uint8 (H, W, 3) each), on request the
@@ -155,12 +164,13 @@ class Frames:
     images: list[np.ndarray]
     meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None
     record: dict[str, Any] = field(default_factory=dict)
-    #: on request (``nodes=True``), each frame's node state: (time in s, (N, 3) positions and
-    #: velocities, recentred float64, velocities None where the nodes were not simulated; the
-    #: simulation's step in s, 0 without one)
-    nodes: list[tuple[float, np.ndarray, np.ndarray | None, float]] | None = None
+    #: on request (``nodes=True``), each frame's node state
+    nodes: list[NodeSample] | None = None
     #: the scene's model (:class:`~deformgl.scene.pipeline.SceneModel`: mesh, grid, centre)
     model: Any = None
+    #: with ``mesh=True``: the per-vertex mapping data the meshes were captured with
+    #: (:class:`~deformgl.render.mapped_setup.MappedVertices` of the first detailed-mesh mode)
+    mapped: Any = None
 
 
 class _Drawer:
@@ -263,6 +273,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     readbacks = [0]
     upload: list[Any] = []  # the textures and normals pass of a simulation without packed normals
     drawer: _Drawer | None = None
+    drawer_mapping: Any = None  # the capture mode's per-vertex data (Frames.mapped)
     state: NodeState | None = None
     run: SceneRun | None = None
     notes: list[str] = []
@@ -319,8 +330,8 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                         draw_frame(k, texture_of(sim), step * scene.physics.dt)
                         if nodes:
                             readbacks[0] += 2
-                            states[k] = (step * scene.physics.dt, np.asarray(sim.positions(), np.float64),
-                                         np.asarray(sim.velocities(), np.float64), float(sim.dt))
+                            states[k] = NodeSample(step * scene.physics.dt, np.asarray(sim.positions(), np.float64),
+                                                   np.asarray(sim.velocities(), np.float64), float(sim.dt))
                         bar.update(k + 1)
 
                 run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
@@ -333,8 +344,9 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 for k in range(last + 1, plan.frames):  # converged before the end: the state stays
                     images[k], meshes[k] = images[last], meshes[last]
                     if nodes:  # at rest: the state stays, the clock goes on
-                        t_k = k * plan.steps_per_frame * scene.physics.dt
-                        states[k] = (t_k, states[last][1], np.zeros_like(states[last][1]), states[last][3])
+                        rest = states[last]
+                        states[k] = rest._replace(time_s=k * plan.steps_per_frame * scene.physics.dt,
+                                                  v=np.zeros_like(rest.x))
             else:
                 state = NodeState(ctx, scene, built, progress=False, velocities=nodes)
                 run = state.run
@@ -344,10 +356,12 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                 for k in range(plan.frames):
                     draw_frame(k, state.position_texture, t)
                     if nodes:  # (one state: several frames of it are refused by check_job)
-                        states[k] = (t, state.positions(), *state.velocities())
+                        states[k] = NodeSample(t, state.positions(), *state.velocities())
                     bar.update(k + 1)
         finally:
             if drawer is not None:
+                if mesh:
+                    drawer_mapping = drawer.passes[mapped[0]].data
                 drawer.release()
             if state is not None:
                 state.release()
@@ -362,4 +376,5 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     record["node_readbacks"] = readbacks[0]
     record["panels"] = panels
     return Frames([im for im in images if im is not None], [m for m in meshes if m is not None] if mesh else None,
-                  record, states if nodes else None, built)
+                  record, states if nodes else None, built,
+                  drawer_mapping if mesh else None)

@@ -6,8 +6,7 @@ All in SI units, world coordinates (the scene's recentring undone):
 * **Detailed mesh, per vertex** (:class:`MeshFrame`): the deformed positions as rendered (m), the
   normals, the grid's ``volume_ratio`` and ``green_strain`` of the cell the vertex lies in at rest
   (for a vertex outside every full cell, the full cell nearest by centre: an approximation; none
-  for a cloth), ``displacement`` (m) from the
-  mesh's rest vertices, and ``velocity`` (m/s): the
+  for a cloth), ``displacement`` (m) from the mesh's rest vertices, and ``velocity`` (m/s): the
   backward difference of the mapped positions over the last step,
   ``(map(x_n) − map(x_n − dt v_n)) / dt``, the mapping (Mosegaard & Sørensen 2005, eq. 9) applied
   in float64 to the node positions read back. For position Verlet ``x_n − dt v_n`` is the
@@ -38,7 +37,8 @@ from deformgl.mapping.bases import map_vertices
 from deformgl.sim.normals import unit_sums
 from deformgl.sim.volume import centre_deformation, grid_cells
 
-__all__ = ["GridFrame", "MeshFrame", "NodeFields", "check_grid_export", "grid_series", "mesh_series", "sheet_quads", "VTK_HEXAHEDRON", "green_strain"]
+__all__ = ["GridFrame", "MeshFrame", "NodeFields", "VTK_HEXAHEDRON", "check_grid_export", "green_strain",
+           "grid_series", "mesh_series", "sheet_quads"]
 
 #: corner order of a VTK / XDMF hexahedron in deformgl's corner numbering (c = dx + 2 dy + 4 dz):
 #: VTK walks the bottom face (0,0,0) (1,0,0) (1,1,0) (0,1,0), then the top face the same way.
@@ -81,6 +81,13 @@ class GridFrame:
     velocity: np.ndarray | None
     volume_ratio: np.ndarray
     green_strain: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` scaled to unit length in float64 (zero rows stay zero)."""
+    v = np.asarray(v, np.float64)
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    return v / np.where(length > 0, length, 1.0)
 
 
 def green_strain(f: np.ndarray) -> np.ndarray:
@@ -127,9 +134,7 @@ class NodeFields:
 
     def _map(self, x: np.ndarray) -> np.ndarray:
         m = self.mapped
-        sums = unit_sums(self.grid, x)
-        length = np.linalg.norm(sums, axis=1, keepdims=True)
-        normals = np.where(length > 0, sums / np.where(length > 0, length, 1.0), 0.0)
+        normals = _unit(unit_sums(self.grid, x))  # (zero where the sum is)
         out, _ = map_vertices(x, normals, m.tri_nodes, m.weights, m.offset, m.offset_world, m.use_curvature)
         return out
 
@@ -145,9 +150,8 @@ class NodeFields:
         if x is not None and v is not None and dt > 0:
             x = np.asarray(x, np.float64)
             velocity = (self._map(x) - self._map(x - dt * np.asarray(v, np.float64))) / dt
-        lengths = np.linalg.norm(normals, axis=1, keepdims=True)
-        unit = np.asarray(normals, np.float64) / np.where(lengths > 0, lengths, 1.0)
-        return MeshFrame(float(time_s), vertices, unit, vertices - (self.rest_vertices + self.centre), velocity)
+        return MeshFrame(float(time_s), vertices, _unit(normals), vertices - (self.rest_vertices + self.centre),
+                         velocity)
 
     def grid_frame(self, time_s: float, x: np.ndarray, v: np.ndarray | None) -> GridFrame:
         """The grid's frame from node positions (recentred) and velocities."""
@@ -160,30 +164,25 @@ class NodeFields:
 def time_scale(frames, fps: float) -> float:
     """Simulated seconds per second of the animation: the simulated time between two frames
     times ``fps`` (1 for a single frame)."""
-    times = [state[0] for state in frames.nodes]
+    times = [sample.time_s for sample in frames.nodes]
     return (times[1] - times[0]) * fps if len(times) > 1 and times[1] > times[0] else 1.0
 
 
-def mesh_series(frames, mode: str, use_cache: bool, fps: float):
+def mesh_series(frames, fps: float):
     """The :class:`~deformgl.scene.interchange.Series` of the detailed mesh of
     :class:`~deformgl.scene.animation.Frames` rendered with ``nodes=True`` and ``mesh=True``
-    (``mode``: the mapping the mesh was captured with)."""
-    from deformgl.grid.surface import grid_surface
-    from deformgl.render.mapped_setup import get_binding, mapped_vertices, mesh_uv
+    (mapped as its meshes were captured: :attr:`~deformgl.scene.animation.Frames.mapped`)."""
     from deformgl.scene.interchange import Series
-    from deformgl.sim.normals import rest_normals
 
     built = frames.model
-    binding = get_binding(built.mesh, built.grid, grid_surface(built.grid), use_cache=use_cache, uv=mesh_uv(built.mesh))
-    mapped = mapped_vertices(binding, mode, built.grid.rest_positions, rest_normals(built.grid))
-    fields = NodeFields(built.grid, built.centre, mapped=mapped, rest_vertices=built.mesh.vertices)
-    made = [fields.mesh_frame(t, v, n, x, u, dt) for (v, n, _), (t, x, u, dt) in zip(frames.meshes, frames.nodes)]
+    fields = NodeFields(built.grid, built.centre, mapped=frames.mapped, rest_vertices=built.mesh.vertices)
+    made = [fields.mesh_frame(s.time_s, v, n, s.x, s.v, s.dt) for (v, n, _), s in zip(frames.meshes, frames.nodes)]
     data = [{"displacement": f.displacement, **({"velocity": f.velocity} if f.velocity is not None else {})}
             for f in made]
     cell = fields.cell_of(built.mesh.vertices)
     if cell is not None:  # the node grid's strain, where its cells carry it
-        for f, d in zip(frames.nodes, data):
-            g = fields.grid_frame(f[0], f[1], None)
+        for s, d in zip(frames.nodes, data):
+            g = fields.grid_frame(s.time_s, s.x, None)
             d["volume_ratio"], d["green_strain"] = g.volume_ratio[cell], g.green_strain[cell].reshape(-1, 9)
     return Series("triangle", np.asarray(built.mesh.faces), np.asarray(built.mesh.vertices, np.float64) + built.centre,
                   [f.time_s for f in made], [f.vertices for f in made], data, normals=[f.normals for f in made],
@@ -230,16 +229,16 @@ def grid_series(frames, fps: float):
     if not len(fields.cells):
         quads = sheet_quads(built.grid)
         if not len(quads):
-            raise InputError(f"--export-grid: the node grid of {built.grid.shape} positions has neither a full "
-                             f"cell nor the quads of a sheet to write")
+            raise ValueError(f"grid_series: a grid of {built.grid.shape} positions with nothing to write "
+                             f"(check_grid_export refuses it before the run)")
         rest = built.grid.rest_positions
         area = _quad_areas(rest, quads)
-        states = [(t, x, v) for t, x, v, _ in frames.nodes]
-        return Series("quad", quads, rest + built.centre, [t for t, _, _ in states],
-                      [x + built.centre for _, x, _ in states],
-                      [{"displacement": x - rest, **({"velocity": v} if v is not None else {})} for _, x, v in states],
-                      [{"area_ratio": _quad_areas(x, quads) / area} for _, x, _ in states], fps=fps)
-    made = [fields.grid_frame(t, x, v) for t, x, v, _ in frames.nodes]
+        samples = frames.nodes
+        return Series("quad", quads, rest + built.centre, [s.time_s for s in samples],
+                      [s.x + built.centre for s in samples],
+                      [{"displacement": s.x - rest, **({"velocity": s.v} if s.v is not None else {})} for s in samples],
+                      [{"area_ratio": _quad_areas(s.x, quads) / area} for s in samples], fps=fps)
+    made = [fields.grid_frame(s.time_s, s.x, s.v) for s in frames.nodes]
     fill = fields.fill
     points = [{"displacement": f.displacement, **({"velocity": f.velocity} if f.velocity is not None else {})}
               for f in made]

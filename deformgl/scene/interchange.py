@@ -24,8 +24,9 @@ Formats (``--export-mesh PATH`` for the detailed mesh, ``--export-grid PATH`` fo
 Every file is written complete into a scratch folder beside the outputs (named as deformgl's
 temporary files, so the next run removes one a killed run left), then moved to its temporary
 name and staged with :func:`~deformgl.files.adopt_file` (inside the run's
-:class:`~deformgl.files.OutputSet`: all outputs or none). The libraries are optional extras: a format whose extra is missing is refused
-before any work with one line naming the extra (:func:`check_format`).
+:class:`~deformgl.files.OutputSet`: all outputs or none). The libraries are optional extras: a
+format whose extra is missing is refused before any work with one line naming the extra
+(:func:`check_format`).
 """
 
 from __future__ import annotations
@@ -155,22 +156,27 @@ def _check_finite(path: Path, series: Series) -> None:
                                       f"is not finite; nothing written")
 
 
-def _cell_block(series: Series, data: dict[str, np.ndarray]) -> dict[str, list[np.ndarray]]:
-    return {name: [np.ascontiguousarray(value)] for name, value in data.items()}
+def _cells(series: Series) -> list[tuple[str, np.ndarray]]:
+    return [(series.cell_type, np.asarray(series.cells, np.int64))]
 
 
-def _mesh(series: Series, k: int, points: np.ndarray):
-    import meshio
+def _point_data(series: Series, k: int) -> dict[str, np.ndarray]:
+    return {name: np.ascontiguousarray(value) for name, value in series.point_data[k].items()}
 
-    return meshio.Mesh(points, [(series.cell_type, np.asarray(series.cells, np.int64))],
-                       point_data={n: np.ascontiguousarray(v) for n, v in series.point_data[k].items()},
-                       cell_data=_cell_block(series, series.cell_data[k]) if series.cell_data else None)
+
+def _cell_data(series: Series, k: int) -> dict[str, list[np.ndarray]] | None:
+    """Frame k's cell data as meshio takes it (one list entry per cell block: one block here)."""
+    if not series.cell_data:
+        return None
+    return {name: [np.ascontiguousarray(value)] for name, value in series.cell_data[k].items()}
 
 
 def _write_vtu(path: Path, series: Series, k: int) -> None:
     import meshio
 
-    meshio.write(path, _mesh(series, k, np.asarray(series.points[k], np.float64)), file_format="vtu")
+    mesh = meshio.Mesh(np.asarray(series.points[k], np.float64), _cells(series), point_data=_point_data(series, k),
+                       cell_data=_cell_data(series, k))
+    meshio.write(path, mesh, file_format="vtu")
 
 
 def _write_pvd(path: Path, series: Series) -> None:
@@ -198,11 +204,9 @@ def _write_xdmf(path: Path, series: Series) -> None:
             return self
 
     with Writer(path) as writer:
-        writer.write_points_cells(np.asarray(series.rest, np.float64),
-                                  [(series.cell_type, np.asarray(series.cells, np.int64))])
+        writer.write_points_cells(np.asarray(series.rest, np.float64), _cells(series))
         for k, t in enumerate(series.times):
-            writer.write_data(float(t), point_data={n: np.ascontiguousarray(v) for n, v in series.point_data[k].items()},
-                              cell_data=_cell_block(series, series.cell_data[k]) if series.cell_data else None)
+            writer.write_data(float(t), point_data=_point_data(series, k), cell_data=_cell_data(series, k))
 
 
 def _write_usd(path: Path, series: Series) -> None:

@@ -161,8 +161,7 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
                     writer.write_frame(image)
         if is_interchange(job.export):
             assert job.export is not None
-            mode = next(m for m in (job.modes or [scene.mapping.mode]) if m != "one-to-one")
-            write_series(job.export, mesh_series(frames, mode, scene.mapping.cache, plan.fps))
+            write_series(job.export, mesh_series(frames, plan.fps))
         elif job.export is not None:
             if not meshes:
                 raise RuntimeError("the render returned no mesh for --export-mesh")  # it always does

@@ -41,8 +41,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["BARRIER_J", "BARRIER_SCALE", "CORNER_SIGNS", "CellVolumes", "grid_cells", "cell_state",
-           "centre_deformation", "volume_forces", "volume_energy", "corner_jacobians", "inverted_cells", "describe_inverted",
-           "rest_product", "rest_stiffness_triplets", "frequency_terms"]
+           "centre_deformation", "volume_forces", "volume_energy", "corner_jacobians", "inverted_cells",
+           "describe_inverted", "rest_product", "rest_stiffness_triplets", "frequency_terms"]
 
 #: J below which a corner's barrier acts (dimensionless; measured in docs/ACCURACY.md section 7).
 BARRIER_J = 0.6
