@@ -53,6 +53,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--peers", action="store_true",
                    help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
                         "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
+    b.add_argument("--blocks", action="store_true",
+                   help="sim: instead, the foundation step with several nodes per fragment (every block shape) "
+                        "against the compact layout on 4k to 131k nodes and the heart scene, and the heart frame")
     b.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="trade, mappings, scaling: also write WHAT.csv and WHAT.json into DIR (trade --resolution: "
@@ -222,6 +225,11 @@ def run(args: argparse.Namespace) -> int:
                 from deformgl.bench.bending_cost import bench_bending, format_bending
 
                 print(format_bending(bench_bending(ctx, steps=args.steps), machine_line(ctx)))
+                return 0
+            if args.what == "sim" and args.blocks:
+                from deformgl.bench.blocks import blocks_report
+
+                print(blocks_report(ctx, steps=args.steps))
                 return 0
             if args.what == "sim" and args.poisson:
                 from deformgl.bench.cells_cost import bench_poisson, cg_iterations, format_cg, format_poisson

@@ -385,7 +385,8 @@ def format_integrators(rows: list[IntegratorRow], machine: str) -> str:
 
 def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27), (64, 64, 32)),
                  rounds: int = 7) -> str:
-    """``bench sim --peers``: the foundation's fragment Verlet step against the same step in Taichi
+    """``bench sim --peers``: the foundation's fragment Verlet step, on the compact layout and on the
+    blocked layout it picks by itself (several nodes per fragment), against the same step in Taichi
     (CPU), NVIDIA Warp (CPU) and Numba (``parallel=True``) on the same grids, in the same process. All steppers of a grid
     are built and warmed up first; then ``rounds`` rounds time ``steps`` steps of each in turn,
     so load from other processes hits all alike. Best and median of the rounds; ratios are
@@ -408,16 +409,19 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
     for spec in grids:
         system = block_system(spec)
         dt = stable_dt(system, 0.2)
-        sim = fragment_verlet(ctx, system, dt)
+        sims = {"fragment": fragment_verlet(ctx, system, dt, layout="compact"),
+                "blocked": fragment_verlet(ctx, system, dt)}
         steppers: dict[str, PeerStepper] = {}
         try:
             for peer in versions:
                 steppers[peer] = make_stepper(peer, system, dt)
 
-            def run_fragment() -> None:
-                sim.step(steps)
-                ctx.finish()
-            runs: dict[str, Callable[[], None]] = {"fragment": run_fragment}
+            def run_fragment(sim: FragmentIntegrator) -> Callable[[], None]:
+                def run() -> None:
+                    sim.step(steps)
+                    ctx.finish()
+                return run
+            runs: dict[str, Callable[[], None]] = {name: run_fragment(sim) for name, sim in sims.items()}
             runs.update({peer: peer_run(st) for peer, st in steppers.items()})
             for run in runs.values():  # JIT and warm-up
                 run()
@@ -427,18 +431,25 @@ def peers_report(ctx: moderngl.Context, *, steps: int = 40, grids=((27, 27, 27),
                     t0 = time.perf_counter()
                     runs[name]()
                     times[name].append((time.perf_counter() - t0) / steps * 1e3)
+            block = sims["blocked"].block
         finally:
-            sim.release()
+            for sim in sims.values():
+                sim.release()
             for st in steppers.values():
                 st.release()
         best = {name: min(t) for name, t in times.items()}
         median = {name: statistics.median(t) for name, t in times.items()}
         name = "x".join(map(str, spec))
-        lines.append(f"{name} ({system.count} nodes): fragment {best['fragment']:.3f} / {median['fragment']:.3f} "
-                     f"ms/step ({system.count / median['fragment'] / 1e3:.1f} M nodes/s)")
+        shape = "compact" if block is None else "x".join(map(str, block))
+        lines.append(f"{name} ({system.count} nodes): fragment (compact) {best['fragment']:.3f} / "
+                     f"{median['fragment']:.3f} ms/step ({system.count / median['fragment'] / 1e3:.1f} M nodes/s); "
+                     f"blocked ({shape}, the default) {best['blocked']:.3f} / {median['blocked']:.3f} ms/step "
+                     f"({system.count / median['blocked'] / 1e3:.1f} M nodes/s) -> blocked / compact = "
+                     f"{median['fragment'] / median['blocked']:.2f}x")
         for peer, st in steppers.items():
             layer = f" ({st.threading_layer} layer)" if hasattr(st, "threading_layer") else ""
             lines.append(f"  {peer} {versions[peer]} CPU, {st.threads} thread(s){layer}: {best[peer]:.3f} / "
                          f"{median[peer]:.3f} ms/step ({system.count / median[peer] / 1e3:.1f} M nodes/s) "
-                         f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x")
+                         f"-> fragment / {peer} = {median[peer] / median['fragment']:.2f}x, "
+                         f"blocked / {peer} = {median[peer] / median['blocked']:.2f}x")
     return "\n".join(lines)

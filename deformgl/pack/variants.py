@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
 from deformgl.sim.backends.xpbd_cells_gpu import CELL_TERMS, cell_pass_defines, sweep_defines
@@ -208,6 +209,19 @@ def foundation() -> Iterator[Variant]:
         yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
 
 
+def blocked() -> Iterator[Variant]:
+    """``BlockedVerletPass`` and the compact view's copy (``deformgl.sim.backends.blocked``):
+    every block shape, its blocks by strides or from the table, the foundation's switches."""
+    for shape, dense, branch, pulls, weights, cells in itertools.product(
+            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"), CELL_SWITCHES):
+        block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2]}
+        yield _v("sim/fullscreen.vert", "sim/verlet_block.frag", {
+            **block, "BLOCKED_DENSE": dense, "NEIGHBOUR_BRANCH": branch, "PULLS": pulls,
+            "SPRING_WEIGHTS": weights is not None, "SPRING_WEIGHT_LEVELS": weights == "levels", **cells})
+    for shape in BLOCK_SHAPES:
+        yield _v("sim/fullscreen.vert", "sim/unblock.frag", {"BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2]})
+
+
 def cells() -> Iterator[Variant]:
     """``NodeCellForces`` (``deformgl.sim.backends.cell_pass``): the volumetric term alone, per node."""
     for dense, terms in itertools.product((False, True), CELL_SWITCHES[1:]):
@@ -260,7 +274,7 @@ def profile() -> Iterator[Variant]:
 
 #: The groups of :func:`all_variants`, by the code that builds them.
 GROUPS = {"fragment backend": fragment_backend, "xpbd": xpbd, "feedback backend": feedback_backend,
-          "foundation and normals": foundation, "cells": cells, "census": census, "render": render,
+          "foundation and normals": foundation, "blocked": blocked, "cells": cells, "census": census, "render": render,
           "trilinear": trilinear, "profile": profile}
 
 

@@ -33,6 +33,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
+from deformgl.grid.blocks import parse_block
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.guards import StepPlan
@@ -44,7 +45,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -276,7 +277,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
         extra = physics.implicit.options() if physics.integrator in IMPLICIT_INTEGRATORS else {}
         made.append(make_simulation(system, physics.integrator, physics.backend, dt=dt, ctx=ctx, grid=grid,
                                     constraints=constraints, drags=drags, loads=loads, **extra,
-                                    **xpbd_options(physics)))
+                                    **xpbd_options(physics), **layout_options(physics)))
         return made[-1]
 
     try:
@@ -310,3 +311,12 @@ def xpbd_options(physics) -> dict[str, int]:
         return {}
     x = physics.xpbd
     return {} if x is None else {"iterations": x.iterations, "substeps": x.substeps}
+
+
+def layout_options(physics) -> dict:
+    """``layout`` or ``block`` of ``[physics] layout`` for make_simulation (nothing for "auto")."""
+    if physics.layout == "auto":
+        return {}
+    if physics.layout == "compact":
+        return {"layout": "compact"}
+    return {"block": parse_block(physics.layout)}

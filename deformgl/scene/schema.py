@@ -28,7 +28,7 @@ from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _e
                                    _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
 from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
                                  MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
-                                 UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _MAPPING_MODE,
+                                 UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _LAYOUT, _MAPPING_MODE,
                                  _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
                                  Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
                                  Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3, Xpbd,
@@ -171,6 +171,9 @@ def _build_converge(file: str, key: str, d: dict[str, Any]) -> Converge:
 
 def _build_physics(file: str, key: str, d: dict[str, Any]) -> Physics:
     springs = d.pop("springs")
+    if d["layout"] != "auto" and (d["integrator"], d["backend"]) != ("verlet", "fragment"):
+        _fail(file, _join(key, "layout"), f"is the node layout of the fragment backend's Verlet pass (the integrator is "
+                                          f"{d['integrator']!r} on {d['backend']!r})")
     if d["xpbd"] is not None and d["integrator"] != "xpbd":
         _fail(file, _join(key, "xpbd"), f"only used with integrator = \"xpbd\" (the integrator is {d['integrator']!r})")
     return Physics(**d, **springs)
@@ -189,7 +192,7 @@ _PHYSICS = _table({
     "gravity": (_vec(3, _num(sane=(-1e4, 1e4), unit="m/s^2")), [0.0, -9.81, 0.0]),
     "fixed": (_array(_table(_REGION, _build_region)), []),
     "pull": (_array(_table(_PULL, _build_pull), MAX_PULLS), []),
-    "integrator": (_INTEGRATOR, "verlet"), "backend": (_BACKEND, "fragment"),
+    "integrator": (_INTEGRATOR, "verlet"), "backend": (_BACKEND, "fragment"), "layout": (_LAYOUT, "auto"),
     "springs": (_table({"structural": (_spring_class(False), {}), "shear": (_spring_class(False), {}),
                         "flexion": (_spring_class(True), {})}, lambda file, key, d: d), {}),
     "wind": (_vec(3, _num(sane=(-1e4, 1e4), unit="m/s")), [0.0, 0.0, 0.0]), "wind_drag": (_C, 0.0),

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
 from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
@@ -38,6 +39,11 @@ MAX_KEYFRAMES = 10_000
 _STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
 _CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
 _INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
+#: ``[physics] layout``, the node layout of the fragment backend's Verlet pass: "auto" (several
+#: nodes per fragment where measured faster, :func:`deformgl.sim.backends.blocked.default_block`),
+#: "compact" (one node per fragment), or a block of nodes per fragment "XxYxZ".
+NODE_LAYOUTS = ("auto", "compact") + tuple("x".join(map(str, s)) for s in BLOCK_SHAPES)
+_LAYOUT = _str(NODE_LAYOUTS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,6 +218,8 @@ class Physics:
     pull: tuple[Pull, ...]
     integrator: str = "verlet"
     backend: str = "fragment"
+    #: the Verlet pass's node layout (:data:`NODE_LAYOUTS`; fragment backend, Verlet only)
+    layout: str = "auto"
     structural: SpringClass = SpringClass(None, 0.0)
     shear: SpringClass = SpringClass(None, 0.0)
     flexion: SpringClass = SpringClass(0.0, 0.0)

@@ -24,7 +24,7 @@ __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", 
 
 BACKENDS = ("fragment", "feedback", "numpy")
 #: Options only the fragment backend takes (its Verlet fast path and the pass variants).
-FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout")
+FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout", "block")
 #: Options of the implicit integrators (:mod:`deformgl.sim.implicit`); the NumPy backend also
 #: takes ``solver`` ("cg", "direct") and ``geometric`` ("projected", "full", "none").
 IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every", "cg_preconditioner", "cg_warm_start")
@@ -122,8 +122,9 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; with "xpbd" also
             ``iterations``, ``substeps``, ``omega`` (:mod:`deformgl.sim.xpbd`); on the fragment
             backend also ``path`` ("auto": the foundation pass for Verlet where it models the
-            system, "general", "foundation") and the foundation pass's ``draw``, ``branch`` and
-            ``layout`` (see :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
+            system, "general", "foundation") and the foundation pass's ``draw``, ``branch``,
+            ``layout`` and ``block`` (several nodes per fragment; see
+            :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
             "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
             ``cg_preconditioner`` ("jacobi", "block-jacobi", "multigrid"), ``cg_warm_start`` ("scaled",
             "previous", "zero") (:data:`IMPLICIT_OPTIONS`) and on

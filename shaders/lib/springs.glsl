@@ -41,6 +41,18 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 #define NB_TEXEL(J, DX, DY, DZ) (origin[DZ + 1] + local + ivec2(DX, DY))
 #endif
 
+// The position of neighbour J. BLOCKED layouts (deformgl/grid/blocks.py BlockedLayout: one
+// fragment owns a block of nodes): hood_position(c), defined by the pass, returns the node at
+// block-local grid position c from the state texture of its member; where mask bit J says the
+// neighbour is absent the node's own position p stands in (d = 0, as the compact layouts' self
+// index), so the sums are bit for bit those of the one-node layouts. The block's members call
+// hood_position with the same constant positions, and the compiler fetches each once.
+#ifdef BLOCKED
+#define NB_POSITION(J, DX, DY, DZ) (((mask >> J) & 1u) != 0u ? hood_position(local + ivec3(DX, DY, DZ)) : p)
+#else
+#define NB_POSITION(J, DX, DY, DZ) texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz
+#endif
+
 // SPRING_WEIGHTS (the calibrated lattice of deformgl/sim/materials.py): spring J's stiffness is
 // its class's times wt[J] (u_weights: 5 layers RGBA32F, 4 neighbours per layer in neighbour
 // order, 0 where absent), so S and P are weighted sums; the Mosegaard & Sorensen 2005, eq. 3 normal stays the unweighted
@@ -63,15 +75,23 @@ vec3 cell_hood[27];
 #ifndef SPRING_WEIGHT_LEVELS
 uniform sampler2DArray u_weights;
 #endif
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; CELL_KEEP(DX, DY, DZ, d) float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
 #elif defined(NEIGHBOUR_BRANCH)
-#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; CELL_KEEP(DX, DY, DZ, d) S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
 #else
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - texelFetch(positions, NB_TEXEL(J, DX, DY, DZ), 0).xyz; CELL_KEEP(DX, DY, DZ, d) S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
 #endif
 
+#ifdef BLOCKED
+// (texel: the block's; the weight texture holds member m's 5 layers at layers 5 m .. 5 m + 4)
+#define WEIGHT_LAYER(L) ivec3(texel, 5 * block_member(local) + (L))
+SpringSum spring_sum(ivec2 texel, ivec3 local, vec3 p, uint mask, uint levels) {
+#else
+#define WEIGHT_LAYER(L) ivec3(texel, L)
 SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask, uint levels) {
-#if defined(COMPACT_DENSE)
+#endif
+#if defined(BLOCKED)
+#elif defined(COMPACT_DENSE)
     int self_node = texel_node(texel);
 #elif defined(COMPACT)
     ivec4 n0 = texelFetch(u_neighbours, ivec3(texel, 0), 0);
@@ -99,9 +119,9 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask, uint l
     for (int j = 0; j < 6; ++j) wt[j] = 0.25 * float(((levels >> (2 * j)) & 3u) + 1u) * float((mask >> j) & 1u);
     for (int j = 6; j < 18; ++j) wt[j] = 0.5 * float(((levels >> (6 + j)) & 1u) + 1u) * float((mask >> j) & 1u);
 #else
-    vec4 w0 = texelFetch(u_weights, ivec3(texel, 0), 0), w1 = texelFetch(u_weights, ivec3(texel, 1), 0);
-    vec4 w2 = texelFetch(u_weights, ivec3(texel, 2), 0), w3 = texelFetch(u_weights, ivec3(texel, 3), 0);
-    vec4 w4 = texelFetch(u_weights, ivec3(texel, 4), 0);
+    vec4 w0 = texelFetch(u_weights, WEIGHT_LAYER(0), 0), w1 = texelFetch(u_weights, WEIGHT_LAYER(1), 0);
+    vec4 w2 = texelFetch(u_weights, WEIGHT_LAYER(2), 0), w3 = texelFetch(u_weights, WEIGHT_LAYER(3), 0);
+    vec4 w4 = texelFetch(u_weights, WEIGHT_LAYER(4), 0);
     float wt[18] = float[18](w0.x, w0.y, w0.z, w0.w, w1.x, w1.y, w1.z, w1.w, w2.x, w2.y, w2.z, w2.w,
                              w3.x, w3.y, w3.z, w3.w, w4.x, w4.y);
 #endif

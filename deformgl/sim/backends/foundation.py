@@ -38,6 +38,7 @@ from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
+from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
 from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind, cell_terms, diagonal_table,
                                              term_uniforms)
 from deformgl.sim.backends.compact_textures import layer_texture
@@ -412,9 +413,13 @@ class FoundationVerlet(SimulationBase, GLOwner):
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, terms: VerletTerms,
                  dt: float, state: State, *, loads: tuple[Load, ...] = (), t0: float = 0.0,
                  draw: str = "rects", branch: bool = False, layout: str = "compact",
-                 weight_texture: bool = False) -> None:
+                 weight_texture: bool = False, block: tuple[int, int, int] | None = None) -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
+        if layout == "blocked" and block is None:
+            raise ValueError("FoundationVerlet: the blocked layout takes a block shape")
+        if layout not in ("auto", "blocked") and block is not None:
+            raise ValueError(f"FoundationVerlet: layout {layout!r} takes no block shape")
         GLOwner.__init__(self, ctx)
         self.system, self.grid = system, grid
         self._start_clock(dt, t0)
@@ -423,17 +428,42 @@ class FoundationVerlet(SimulationBase, GLOwner):
         flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
+        targets = int(ctx.info["GL_MAX_DRAW_BUFFERS"])
+        if layout == "auto":
+            block = default_block(grid) if draw == "rects" else None  # (points, quad: one-node variants)
+            if block is not None and blocked_refusal(targets, block) is not None:
+                block = None
+            layout = "compact" if block is None else "blocked"
+        #: the nodes per fragment (x, y, z) of the blocked layout, None on the one-node layouts
+        self.block = block
+        self.textures: NodeTextures | BlockedTextures
         with self.building():
-            self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
-                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                  weight_texture=weight_texture, cells=cell_kind(terms.cells)))
-            self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
+            if block is not None:
+                why = blocked_refusal(targets, block)
+                if why is not None:
+                    raise ValueError(f"FoundationVerlet: {why}")
+                levels = None if terms.weights is None or weight_texture else \
+                    weight_levels(terms.weights, grid.neighbour_mask)
+                node = np.stack([system.mass, flags, grid.neighbour_mask, np.zeros(grid.count) if levels is None
+                                 else levels], axis=1)
+                self.textures = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
+                                                         weights=terms.weights if levels is None else None))
+                self.verlet: VerletPass | BlockedVerletPass = self.own(BlockedVerletPass(
+                    ctx, terms, self.textures, weight_levels=levels is not None, branch=branch))
+            else:
+                self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
+                                                      positions=np.stack([x, x_prev, x]), weights=terms.weights,
+                                                      weight_texture=weight_texture, cells=cell_kind(terms.cells)))
+                self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))
 
     @property
     def position_texture(self) -> moderngl.Texture:
-        """The state texture holding the latest positions and packed normals."""
+        """The state texture holding the latest positions and packed normals (the blocked layout's
+        compact view)."""
+        if isinstance(self.textures, BlockedTextures):
+            return self.textures.view(self.current)
         return self.textures.state[self.current]
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
@@ -465,6 +495,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
         """(N, 4) float32 texel of every node from a state texture (default: current)."""
         if self.released:
             raise RuntimeError("FoundationVerlet: released")
+        if isinstance(self.textures, BlockedTextures):
+            return self.textures.read(self.current if which is None else which)
         tex = self.textures.state[self.current if which is None else which]
         w, h = self.textures.size
         image = np.frombuffer(read_texture(tex), dtype="f4").reshape(h, w, 4)

@@ -113,8 +113,15 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             models the system and options (:func:`~deformgl.sim.backends.foundation.verlet_terms`),
             every other case on the stages of :data:`deformgl.sim.stages.SPECS`; "general": the
             stages always; "foundation": the foundation pass or a ValueError saying why not.
-        draw, branch, layout, weight_texture: variants of the foundation pass
-            (:class:`~deformgl.sim.backends.foundation.VerletPass`,
+        layout: the foundation pass's node layout: "auto" (default): several nodes per fragment
+            (the blocked layout, :mod:`~deformgl.sim.backends.blocked`) where
+            :func:`~deformgl.sim.backends.blocked.default_block` measured it faster and the pass
+            models the system in blocks, else "compact"; "compact", "indexed", "atlas", or
+            "blocked" with ``block``. The general stages always use the compact layout.
+        block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`): the
+            blocked layout in that shape (node positions bit for bit those of "compact").
+        draw, branch, layout other than "auto" and "compact", weight_texture, block: variants of the
+            foundation pass (:class:`~deformgl.sim.backends.foundation.VerletPass`,
             :class:`~deformgl.sim.backends.foundation.NodeTextures`); other values than the
             defaults need ``path="foundation"``.
 
@@ -131,7 +138,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                  integrator: str, dt: float, *, constraints: Constraints | None = None,
                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
                  state: State | None = None, t0: float = 0.0, path: str = "auto", draw: str = "rects",
-                 branch: bool = False, layout: str = "compact", weight_texture: bool = False) -> None:
+                 branch: bool = False, layout: str = "auto", weight_texture: bool = False,
+                 block: tuple[int, int, int] | None = None) -> None:
         grid = system.grid if grid is None else grid
         if grid is None:
             raise ValueError("FragmentIntegrator: the system has no node grid (build it with "
@@ -167,6 +175,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.passes: dict[str, Program] = {}
+        if block is not None and layout == "auto":
+            layout = "blocked"
         terms = self._fast_path(path, draw, branch, layout, weight_texture)
         if terms is not None:
             GLOwner.__init__(self, ctx)
@@ -175,7 +185,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             with self.building():
                 self.fast = self.own(FoundationVerlet(ctx, system, grid, terms, self.dt, start, loads=self.loads,
                                                       t0=self.t, draw=draw, branch=branch, layout=layout,
-                                                      weight_texture=weight_texture))
+                                                      weight_texture=weight_texture, block=block))
             return
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         #: every node of the box exists: neighbours by node-number offsets, no index texture
@@ -191,7 +201,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
     def _fast_path(self, path: str, draw: str, branch: bool, layout: str,
                    weight_texture: bool) -> VerletTerms | None:
         """The foundation pass's terms when it runs this simulation, None for the stages."""
-        variant = (draw, branch, layout, weight_texture) != ("rects", False, "compact", False)
+        variant = (draw, branch, weight_texture) != ("rects", False, False) or layout not in ("auto", "compact")
         verlet = self.spec is FoundationVerlet.spec  # the one integrator the pass implements
         if path == "general" or (path == "auto" and not verlet):
             if variant:
@@ -215,6 +225,12 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         if self.fast is None:
             raise RuntimeError("FragmentIntegrator: this simulation runs the general stages, not the foundation pass")
         return self.fast
+
+    @property
+    def block(self) -> tuple[int, int, int] | None:
+        """The nodes per fragment (x, y, z) of the foundation pass's blocked layout, None on a
+        one-node layout or the general stages."""
+        return None if self.fast is None else self.fast.block
 
     @property
     def packed_normals(self) -> bool:

@@ -10,14 +10,16 @@
 // cell q = qx + 2 qy + 4 qz only. Its node number: on dense grids (COMPACT_DENSE: u_strides of
 // lib/springs.glsl; DENSE: u_offsets of sim/integrators/forces.glsl, +x +y +z at 0, 2, 4) from
 // the node-number strides, clamped into the texture (outside the box the cell is not full and
-// the value is unused); else from u_cell_diagonals (the node itself where absent).
+// the value is unused); else from u_cell_diagonals (the node itself where absent). BLOCKED layouts
+// (sim/verlet_block.frag) read the diagonals from the block's neighbourhood, hood_position at
+// g_local, the member's block-local position, + (±1, ±1, ±1).
 // The including pass defines CELL_POSITION(T): the position (xyz) of the node at texel T at
 // which forces are evaluated; it has declared u_node and cell_hood and filled cell_hood with its
 // springs.
 
 #include "lib/cell_forces.glsl"
 
-#if defined(CELL_CENTRE) && !defined(COMPACT_DENSE) && !defined(DENSE)
+#if defined(CELL_CENTRE) && !defined(COMPACT_DENSE) && !defined(DENSE) && !defined(BLOCKED)
 uniform isampler2DArray u_cell_diagonals;  // 2 layers RGBA32I: the node at the diagonal of cell q in channel q % 4 of layer q / 4
 #endif
 
@@ -31,7 +33,12 @@ uniform isampler2DArray u_cell_diagonals;  // 2 layers RGBA32I: the node at the 
 
 // The force in N of the node's full incident cells (bit q of `cells`); p: the node's position.
 vec3 hood_cell_force(ivec2 texel, vec3 p, uint cells) {
-#ifdef CELL_CENTRE
+#if defined(CELL_CENTRE) && defined(BLOCKED)
+    for (int q = 0; q < 8; ++q) {
+        ivec3 c = ivec3(2 * (q & 1) - 1, 2 * ((q >> 1) & 1) - 1, 2 * ((q >> 2) & 1) - 1);
+        cell_hood[2 * (q & 1) + 6 * ((q >> 1) & 1) + 18 * ((q >> 2) & 1)] = hood_position(g_local + c) - p;
+    }
+#elif defined(CELL_CENTRE)
 #if defined(COMPACT_DENSE) || defined(DENSE)
     int n = texel_node(texel);
 #ifdef COMPACT_DENSE

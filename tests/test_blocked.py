@@ -1,0 +1,208 @@
+"""Several nodes per fragment (issue 30): the blocked node layout (deformgl.grid.blocks) and the
+foundation's Verlet pass on it (deformgl.sim.backends.blocked). Node positions, packed normals and
+velocities are bit for bit those of the compact layout under every block shape, on dense boxes
+(neighbour blocks by strides) and shapes with holes (the block-neighbour table), with fixed nodes,
+pulls, damping, the calibrated lattice's levels codes and the volumetric term; the compact view
+the draw passes and the census read is a bit-exact copy."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from deformgl.bench.studies import bench_occupancy
+from deformgl.grid.blocks import BLOCK_SHAPES, CORNER_OFFSETS, BlockedLayout, parse_block
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
+from deformgl.sim.backends.blocked import BLOCK_TABLE, default_block
+from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.integrators import initial_state
+from deformgl.sim.materials import ElasticMaterial, lattice_system
+from deformgl.sim.springs import Load, from_grid
+
+H = 0.01
+SHAPES = [s for s in BLOCK_SHAPES if s != (1, 1, 1)]
+
+
+def ids(shape):
+    return "x".join(map(str, shape))
+
+
+def holed(shape=(7, 6, 8), seed=3):
+    """A box with a tenth of its nodes missing and a 4x4x4 corner cut off (so that in every block
+    shape a block is missing: the block-neighbour table)."""
+    occupied = np.random.default_rng(seed).random(shape) > 0.1
+    occupied[:4, :4, :4] = False
+    return NodeGrid(np.array([0.2, -0.1, 0.05]), H, occupied)
+
+
+def box(shape=(5, 6, 7)):
+    return NodeGrid(np.array([0.2, -0.1, 0.05]), H, np.ones(shape, bool))
+
+
+# -- the layout (CPU) -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("shape", BLOCK_SHAPES, ids=ids)
+@pytest.mark.parametrize("kind", ["box", "holed", "ball"])
+def test_layout_places_every_node_once(shape, kind):
+    """Every node has one (member, texel); values go in and come out by node; the block-neighbour
+    table names the block holding each node's neighbour at every offset."""
+    grid = {"box": box, "holed": holed, "ball": lambda: NodeGrid(np.zeros(3), H, bench_occupancy("ball9"))}[kind]()
+    layout = BlockedLayout.for_grid(grid, shape, 4096)
+    member, texel = layout.place(grid.ijk)
+    keys = (member * layout.size[1] + texel[:, 1]) * layout.size[0] + texel[:, 0]
+    assert len(np.unique(keys)) == grid.count and member.max() < layout.members
+    assert layout.dense == (kind == "box")
+    values = np.random.default_rng(0).random((grid.count, 4))
+    np.testing.assert_array_equal(layout.gather(grid.ijk, layout.scatter(grid.ijk, values)),
+                                  values.astype(np.float32))
+    table = layout.neighbour_layers().reshape(7, -1, 4).transpose(1, 0, 2).reshape(-1, 28)
+    offsets = np.concatenate([NEIGHBOUR_OFFSETS, CORNER_OFFSETS])
+    block_of = layout.block_index[tuple((grid.ijk // np.array(shape)).T)]
+    for off in offsets:  # (the corners: the cell term's body diagonals)
+        q = grid.ijk + off
+        inside = np.all((q >= 0) & (q < np.array(grid.shape)), axis=1)
+        has = inside.copy()
+        has[inside] = grid.index[tuple(q[inside].T)] >= 0
+        moved = (q[has] // np.array(shape)) - grid.ijk[has] // np.array(shape)
+        slot = [next(i for i, o in enumerate(offsets) if np.array_equal(o, m)) if np.any(m) else -1
+                for m in moved]
+        want = layout.block_index[tuple((q[has] // np.array(shape)).T)]
+        got = np.where(np.array(slot) >= 0, table[block_of[has], np.maximum(slot, 0)], block_of[has])
+        np.testing.assert_array_equal(got, want)
+
+
+def test_block_names():
+    assert parse_block("1x2x2") == (1, 2, 2) and parse_block("2X2X2") == (2, 2, 2)
+    for bad in ("3x1x1", "2x2", "a", "1x1x8"):
+        with pytest.raises(ValueError, match="is not one of 1x1x1, 1x1x2"):
+            parse_block(bad)
+    with pytest.raises(ValueError, match="is not one of"):
+        BlockedLayout.for_grid(box(), (3, 1, 1), 4096)
+
+
+def test_the_table_picks_by_size():
+    small, large = box((8, 8, 8)), box((32, 32, 16))
+    assert default_block(small) is None and default_block(large) == BLOCK_TABLE[0][1]
+    assert BLOCK_TABLE[-1][0] == 0  # every grid gets a row
+
+
+# -- the pass (GPU) -------------------------------------------------------------------------------
+
+def perturbed(system, grid, seed=1, amount=0.2):
+    x = grid.rest_positions + np.random.default_rng(seed).uniform(-amount, amount, (grid.count, 3)) * H
+    x[system.fixed] = grid.rest_positions[system.fixed]
+    return initial_state(system, 1e-4, x=x)
+
+
+def springs_system(grid):
+    top = grid.ijk[:, 1] == grid.ijk[:, 1].max()
+    system = from_grid(grid, k_structural=40.0, k_shear=25.0, mass=1e-3, fixed=top, velocity_damping=2e-3)
+    return dataclasses.replace(system, mass_damping=3.0)
+
+
+def pulls(grid):
+    left, low = grid.ijk[:, 0] == 0, grid.ijk[:, 2] == 0
+    return (Load(left, lambda t: (-0.02 * (1 + 100 * t), 0.01, 0.0)), Load(low, lambda t: (0.0, 0.0, 0.015)))
+
+
+def run(ctx, system, grid, steps, state, **kwargs):
+    sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
+    try:
+        sim.step(steps)
+        view = np.frombuffer(sim.position_texture.read(), "f4").reshape(-1, 4)[: grid.count]
+        return sim.positions(), sim.foundation.normals(), sim.velocities(), view, sim.block
+    finally:
+        sim.release()
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("kind", ["box", "holed"])
+def test_springs_bit_identical_in_every_block(ctx, kind):
+    """Springs of two stiffnesses, fixed nodes, two time-varying pulls, velocity and mass damping:
+    25 steps from a perturbed start give the compact layout's float32 positions, packed normals
+    and velocities bit for bit in every block shape; the compact view holds the same texels."""
+    grid = box() if kind == "box" else holed()
+    system = springs_system(grid)
+    loads = pulls(grid)
+    state = perturbed(system, grid)
+    x, n, v, view, block = run(ctx, system, grid, 25, state, loads=loads, layout="compact")
+    assert block is None and np.abs(x - state.x).max() > 0.05 * H  # it moved
+    for shape in SHAPES:
+        bx, bn, bv, bview, block = run(ctx, system, grid, 25, state, loads=loads, block=shape)
+        assert block == shape
+        np.testing.assert_array_equal(bx, x, err_msg=f"block {shape}")
+        np.testing.assert_array_equal(bn, n)
+        np.testing.assert_array_equal(bv, v)
+        np.testing.assert_array_equal(bview, view)
+
+
+@pytest.mark.gl
+def test_branch_variant_bit_identical(ctx):
+    grid = holed()
+    system = springs_system(grid)
+    state = perturbed(system, grid)
+    x = run(ctx, system, grid, 20, state, layout="compact", branch=True)[0]
+    for shape in ((1, 2, 2), (2, 2, 2)):
+        np.testing.assert_array_equal(run(ctx, system, grid, 20, state, branch=True, block=shape)[0], x)
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("nu", [0.25, 0.45])
+@pytest.mark.parametrize("kind", ["box", "holed"])
+def test_lattice_with_cells_bit_identical(ctx, nu, kind):
+    """The calibrated lattice (per-spring levels codes, the volumetric term: the barrier alone at
+    nu = 1/4, with the centre term at 0.45), squashed so that the barrier acts: 30 steps bit for
+    bit as the compact layout in blocks of 2, 4 and 8."""
+    grid = box((5, 6, 6)) if kind == "box" else holed((6, 6, 6), seed=5)
+    system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, poissons_ratio=nu),
+                               fixed=grid.ijk[:, 1] == grid.shape[1] - 1)
+    assert system.cells is not None
+    x0 = grid.rest_positions.copy()
+    x0[:, 1] = grid.origin[1] + 0.4 * (x0[:, 1] - grid.origin[1])
+    x0 += np.random.default_rng(2).uniform(-0.2, 0.2, x0.shape) * H
+    x0[system.fixed] = grid.rest_positions[system.fixed]
+    state = initial_state(system, 1e-4, x=x0)
+    x = run(ctx, system, grid, 30, state, layout="compact")[0]
+    assert np.abs(x - x0).max() > 0.1 * H
+    for shape in ((1, 1, 2), (1, 2, 2), (2, 2, 1), (1, 1, 4), (2, 2, 2)):
+        np.testing.assert_array_equal(run(ctx, system, grid, 30, state, block=shape)[0], x, err_msg=f"{shape}")
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("weight_texture", [False, True], ids=["weights", "levels-as-texture"])
+def test_spring_weights_bit_identical(ctx, weight_texture):
+    """Per-spring weights (springs of one class differing) from the weight texture, and the
+    lattice's levels codes stored as a texture instead: bit for bit as the compact layout."""
+    grid = holed((6, 6, 6), seed=9)
+    if weight_texture:
+        system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0), fixed=grid.ijk[:, 1] == 5)
+    else:
+        system = springs_system(grid)
+        stiffness = system.stiffness.copy()
+        stiffness[::7] *= 1.3  # weights that are no lattice's cell shares
+        system = dataclasses.replace(system, stiffness=stiffness)
+    state = perturbed(system, grid)
+    x = run(ctx, system, grid, 20, state, layout="compact", weight_texture=weight_texture)[0]
+    for shape in ((1, 2, 2), (2, 2, 2)):
+        bx = run(ctx, system, grid, 20, state, block=shape, weight_texture=weight_texture)[0]
+        np.testing.assert_array_equal(bx, x)
+
+
+@pytest.mark.gl
+def test_auto_layout_and_refusals(ctx):
+    """"auto" takes the table's block (one-node draw variants: the compact layout); a general-path
+    simulation refuses a block."""
+    grid = box((32, 32, 9))
+    system = springs_system(grid)
+    with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4) as sim:
+        assert sim.block == default_block(grid) is not None and sim.packed_normals
+    with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, layout="compact") as sim:
+        assert sim.block is None
+    with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="foundation", draw="points") as sim:
+        assert sim.block is None
+    with FragmentIntegrator(ctx, system, grid, "semi-implicit", 1e-4) as sim:
+        assert sim.block is None
+    with pytest.raises(ValueError, match="variants of the foundation pass"):
+        FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="general", block=(1, 2, 2))
