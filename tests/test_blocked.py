@@ -206,3 +206,41 @@ def test_auto_layout_and_refusals(ctx):
         assert sim.block is None
     with pytest.raises(ValueError, match="variants of the foundation pass"):
         FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="general", block=(1, 2, 2))
+
+
+# -- scenes ---------------------------------------------------------------------------------------
+
+@pytest.mark.gl
+def test_scene_layouts_draw_the_same_image(ctx):
+    """[physics] layout forces the node layout; the jelly (pulls, fixed nodes) drawn from the
+    blocked pass's compact view is the compact layout's image, pixel for pixel."""
+    import deformgl as dg
+    from deformgl.scene.node_state import NodeState
+    from deformgl.scene.pipeline import build_scene_model
+
+    from deformgl.data import packaged_scene
+
+    scene = dg.load_scene(packaged_scene("jelly_springs")).with_overrides(steps=40)
+    images = {}
+    for layout in ("compact", "1x2x2", "2x2x2"):
+        forced = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, layout=layout))
+        state = NodeState(ctx, forced, build_scene_model(forced), progress=False)
+        try:
+            assert state.sim.block == (None if layout == "compact" else parse_block(layout))
+        finally:
+            state.release()
+        images[layout] = dg.render_scene(forced, ctx=ctx)
+    assert images["compact"].std() > 0
+    for layout in ("1x2x2", "2x2x2"):
+        np.testing.assert_array_equal(images[layout], images["compact"])
+
+
+def test_scene_layout_key_is_checked(tmp_path):
+    import deformgl as dg
+
+    scene = tmp_path / "s.toml"
+    for physics, message in (('layout = "3x1x1"', r"physics\.layout.*one of"),
+                             ('layout = "1x2x2"\nintegrator = "rk4"', r"physics\.layout.*Verlet pass.*'rk4'")):
+        scene.write_text(f'[cloth]\nnodes = [6, 6]\n\n[physics]\n{physics}\n')
+        with pytest.raises(dg.SceneError, match=message):
+            dg.load_scene(scene)

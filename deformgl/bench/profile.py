@@ -62,7 +62,10 @@ def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), p
                 full = ProfileRow(name, system.count, lookup, "full step",
                                   _median_ms(ctx, sim.step, passes, repeats))
                 # the stages overwrite the state with what they compute: measured after the step
-                rows.extend(_stages(ctx, sim.foundation.textures, name, system.count, lookup, passes, repeats))
+                textures = sim.foundation.textures
+                if not isinstance(textures, NodeTextures):
+                    raise TypeError(f"profile: layout {layout!r} gave {type(textures).__name__}")
+                rows.extend(_stages(ctx, textures, name, system.count, lookup, passes, repeats))
                 rows.append(full)
             finally:
                 sim.release()

@@ -237,6 +237,7 @@ def _fit_text(f: PowerFit | None) -> str:
 
 def _make(ctx: moderngl.Context, backend: str, system, integrator: str, dt: float):
     """Construct a backend's simulation; returns (sim, GPU bytes it allocated)."""
+    from deformgl.sim.backends.blocked import BlockedTextures
     from deformgl.sim.backends.feedback import FeedbackSimulation
     from deformgl.sim.backends.fragment import FragmentIntegrator
 
@@ -244,7 +245,11 @@ def _make(ctx: moderngl.Context, backend: str, system, integrator: str, dt: floa
         base = fragment_verlet(ctx, system, dt)
         fast = base.foundation
         t = fast.textures
-        return base, sum(gl_bytes(o) for o in [t.node, t.neighbours, *t.state, fast.verlet.vbo])
+        if isinstance(t, BlockedTextures):  # (several nodes per fragment: the default from 2,000 nodes)
+            objects = [t.node, t.neighbours, t.weights, *(x for s in t.state for x in s), t.view_texture, t.place]
+        else:
+            objects = [t.node, t.neighbours, t.weights, *t.state, getattr(fast.verlet, "vbo", None)]
+        return base, sum(gl_bytes(o) for o in objects)
     sim: FragmentIntegrator | FeedbackSimulation = (
         FragmentIntegrator(ctx, system, system.grid, integrator, dt, path="general") if backend == "fragment"
         else FeedbackSimulation(ctx, system, integrator, dt))

@@ -48,7 +48,7 @@ def parse_block(text: str) -> tuple[int, int, int]:
     if shape not in BLOCK_SHAPES:
         names = ", ".join("x".join(map(str, s)) for s in BLOCK_SHAPES)
         raise ValueError(f"block {text!r} is not one of {names}")
-    return shape  # type: ignore[return-value]
+    return shape
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,7 +89,7 @@ class BlockedLayout:
         if -(-n // width) > max_size:
             raise ValueError(f"{n} blocks of {'x'.join(map(str, block))} nodes need more than "
                              f"{max_size}x{max_size} texels (the GL texture limit)")
-        return cls(grid.index, block, width, arithmetic)  # type: ignore[arg-type]
+        return cls(grid.index, block, width, arithmetic)
 
     @staticmethod
     def _block_shape(shape: tuple[int, ...], block: tuple[int, ...]) -> tuple[int, int, int]:

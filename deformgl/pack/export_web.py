@@ -140,8 +140,10 @@ def _export(scene: Scene, out: Path) -> list[Path]:
         if scene_constraints(scene.physics, box) is not None or scene_drags(built.grid, scene.physics, box):
             raise InputError(f"{scene.source}: physics: export-web supports no ground, spheres or drags")
         plan = plan_steps(built.system, scene.physics, scene.source)
+        # the web clients read node n at texel (n % w, n / w): the compact layout, pinned (not the
+        # blocked layout "auto" takes on large grids; docs/INTERCHANGE.md, shaders/README.md)
         sim = make_simulation(built.system, "verlet", "fragment", dt=plan.dt / plan.substeps, ctx=ctx, grid=built.grid,
-                              loads=built.loads)
+                              loads=built.loads, layout="compact")
         try:
             if getattr(sim, "fast", None) is None:
                 raise InputError(f"{scene.source}: physics: this system does not run on the foundation pass "

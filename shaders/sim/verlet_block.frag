@@ -10,6 +10,9 @@
 // and/or CELL_BARRIER (as sim/verlet.frag; the body diagonals come from the block's neighbourhood);
 // BLOCKED_DENSE: every block of the box exists, neighbour blocks by block strides, else from the
 // block-neighbour table.
+#ifndef BLOCKED
+#define BLOCKED  // (the pass is always blocked; BLOCKED selects the libraries' block paths)
+#endif
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"
 #include "lib/node_texel.glsl"

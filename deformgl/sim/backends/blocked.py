@@ -45,7 +45,7 @@ __all__ = ["BlockedTextures", "BlockedVerletPass", "blocked_refusal", "default_b
 #: The block the foundation pass takes by itself (``layout="auto"``), by grid size: the first row
 #: whose node count the grid reaches; None: the compact layout. Measured with ``deformgl bench sim
 #: --blocks`` on llvmpipe (docs/PERFORMANCE.md, "Several nodes per fragment").
-BLOCK_TABLE: tuple[tuple[int, tuple[int, int, int] | None], ...] = ((8192, (1, 2, 2)), (0, None))
+BLOCK_TABLE: tuple[tuple[int, tuple[int, int, int] | None], ...] = ((2000, (1, 2, 2)), (0, None))
 
 
 def default_block(grid: NodeGrid) -> tuple[int, int, int] | None:

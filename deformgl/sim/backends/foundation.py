@@ -29,6 +29,7 @@ Texels outside the grid (padding, empty nodes) hold position 0 and are never cha
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import moderngl
 import numpy as np
@@ -437,6 +438,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         #: the nodes per fragment (x, y, z) of the blocked layout, None on the one-node layouts
         self.block = block
         self.textures: NodeTextures | BlockedTextures
+        self.verlet: VerletPass | BlockedVerletPass
         with self.building():
             if block is not None:
                 why = blocked_refusal(targets, block)
@@ -446,15 +448,20 @@ class FoundationVerlet(SimulationBase, GLOwner):
                     weight_levels(terms.weights, grid.neighbour_mask)
                 node = np.stack([system.mass, flags, grid.neighbour_mask, np.zeros(grid.count) if levels is None
                                  else levels], axis=1)
-                self.textures = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
-                                                         weights=terms.weights if levels is None else None))
-                self.verlet: VerletPass | BlockedVerletPass = self.own(BlockedVerletPass(
-                    ctx, terms, self.textures, weight_levels=levels is not None, branch=branch))
+                blocked = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
+                                                   weights=terms.weights if levels is None else None))
+                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels is not None,
+                                                        branch=branch))
+                self.textures, self.verlet = blocked, block_pass
+                #: one step: (current, previous, target, dt, pull forces)
+                self._draw_step = partial(block_pass.run, blocked)
             else:
-                self.textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
-                                                      positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                      weight_texture=weight_texture, cells=cell_kind(terms.cells)))
-                self.verlet = self.own(VerletPass(ctx, terms, grid, self.textures, draw=draw, branch=branch))
+                textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
+                                                 positions=np.stack([x, x_prev, x]), weights=terms.weights,
+                                                 weight_texture=weight_texture, cells=cell_kind(terms.cells)))
+                one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
+                self.textures, self.verlet = textures, one_pass
+                self._draw_step = partial(one_pass.run, textures)
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))
 
@@ -485,7 +492,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
                     t = self.t
                     for g, load in enumerate(self.loads):
                         self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
-                self.verlet.run(self.textures, self.current, self.previous, self.spare, self.dt, self._pull)
+                self._draw_step(self.current, self.previous, self.spare, self.dt, self._pull)
                 self.current, self.previous, self.spare = self.spare, self.current, self.previous
                 self._tick()
         finally:

@@ -64,6 +64,7 @@ from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, i
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+from deformgl.sim.backends.blocked import BlockedTextures
 from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, bending_coefficients, compact_layout,
                                                 grid_neighbours, grid_springs, spring_weights)
@@ -244,7 +245,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         return self.position_slot()[0]
 
     @property
-    def textures(self) -> NodeTextures:
+    def textures(self) -> NodeTextures | BlockedTextures:
         """The foundation pass's node textures (its layout, static data and state)."""
         if self.fast is None:
             raise AttributeError("FragmentIntegrator.textures: only the foundation pass has node textures")
