@@ -45,8 +45,8 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 // fragment owns a block of nodes): hood_position(c), defined by the pass, returns the node at
 // block-local grid position c from the state texture of its member; where mask bit J says the
 // neighbour is absent the node's own position p stands in (d = 0, as the compact layouts' self
-// index), so the sums are bit for bit those of the one-node layouts. The block's members call
-// hood_position with the same constant positions, and the compiler fetches each once.
+// index), so the sums are bit for bit those of the one-node layouts. The pass fetched the block's
+// neighbourhood once, before the members' sums (sim/verlet_block.frag fill_hood).
 #ifdef BLOCKED
 #define NB_POSITION(J, DX, DY, DZ) (((mask >> J) & 1u) != 0u ? hood_position(local + ivec3(DX, DY, DZ)) : p)
 #else
