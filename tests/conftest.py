@@ -66,6 +66,17 @@ SLOW = (
     "tests/test_tissue.py::test_the_dt_check_predicts_the_limit_at_high_nu",  # ~8 s
     "tests/test_implicit.py::test_scaled_warm_start_keeps_truncated_cg_on_the_equilibrium",  # ~7 s
     "tests/test_bending.py::test_flap_scene_settles_at_the_static_equilibrium",  # ~7 s
+    # several nodes per fragment: every block shape is a program of its own (~0.4-1 s each to
+    # compile on llvmpipe without Mesa's shader cache); the README's run keeps one case of each kind
+    "tests/test_blocked.py::test_springs_bit_identical_in_every_block[box]",  # ~4 s
+    "tests/test_blocked.py::test_thin_grids_bit_identical[1x5x3]",  # ~4 s each
+    "tests/test_blocked.py::test_thin_grids_bit_identical[3x1x1]",
+    "tests/test_blocked.py::test_thin_grids_bit_identical[1x1x1]",
+    "tests/test_blocked.py::test_lattice_with_cells_bit_identical[box-0.25-",  # ~2-12 s each
+    "tests/test_blocked.py::test_lattice_with_cells_bit_identical[box-0.45-all]",
+    "tests/test_blocked.py::test_lattice_with_cells_bit_identical[holed-0.25-",
+    "tests/test_blocked.py::test_lattice_with_cells_bit_identical[holed-0.45-all]",
+    "tests/test_blocked.py::test_spring_weights_bit_identical[levels-as-texture]",  # ~3 s
 )
 #: (test file, fixture): the tests of that file using that fixture are slow (its setup is).
 SLOW_FIXTURES = (

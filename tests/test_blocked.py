@@ -15,11 +15,12 @@ import pytest
 from deformgl.bench.studies import bench_occupancy
 from deformgl.grid.blocks import BLOCK_SHAPES, CORNER_OFFSETS, BlockedLayout, parse_block
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
-from deformgl.sim.backends.blocked import BLOCK_TABLE, default_block
+from deformgl.sim.backends.blocked import BLOCK_TABLE, blocked_refusal, default_block
 from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import Load, from_grid
+from deformgl.sim.volume import corner_jacobians
 
 H = 0.01
 SHAPES = [s for s in BLOCK_SHAPES if s != (1, 1, 1)]
@@ -82,10 +83,22 @@ def test_block_names():
         BlockedLayout.for_grid(box(), (3, 1, 1), 4096)
 
 
-def test_the_table_picks_by_size():
+def test_the_table_picks_by_size_and_turns_to_the_thin_axis():
     small, large = box((8, 8, 8)), box((32, 32, 16))
-    assert default_block(small) is None and default_block(large) == BLOCK_TABLE[0][1]
+    assert default_block(small) is None and sorted(default_block(large)) == sorted(BLOCK_TABLE[0][1])
     assert BLOCK_TABLE[-1][0] == 0  # every grid gets a row
+    # the block's side of one node along the thinnest axis; a sheet: 2 nodes along its first axis
+    assert default_block(box((64, 1, 64))) == (2, 1, 1)
+    assert default_block(box((1, 50, 50))) == (1, 2, 1) and default_block(box((50, 50, 1))) == (2, 1, 1)
+    assert default_block(box((64, 64, 32))) == (2, 2, 1) and default_block(box((27, 27, 27))) == (1, 2, 2)
+
+
+def test_refusal_names_what_the_renderer_lacks():
+    webgl2 = {"GL_MAX_DRAW_BUFFERS": 4, "GL_MAX_COLOR_ATTACHMENTS": 4, "GL_MAX_TEXTURE_IMAGE_UNITS": 16}
+    assert blocked_refusal(webgl2, (1, 2, 2)) is None  # 4 targets, 11 units
+    assert "needs 8 render targets, the renderer has 4" in blocked_refusal(webgl2, (2, 2, 2))
+    assert "samples up to 19 textures, the renderer has 16 units" in blocked_refusal(
+        dict(webgl2, GL_MAX_DRAW_BUFFERS=8, GL_MAX_COLOR_ATTACHMENTS=8), (2, 2, 2))
 
 
 # -- the pass (GPU) -------------------------------------------------------------------------------
@@ -139,6 +152,47 @@ def test_springs_bit_identical_in_every_block(ctx, kind):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("shape", [(9, 1, 7), (1, 5, 3), (3, 1, 1), (1, 1, 1)], ids=ids)
+def test_thin_grids_bit_identical(ctx, shape):
+    """Sheets, a rod and a single node (boxes thinner than a block along some axis): every block
+    shape as the compact layout."""
+    grid = box(shape)
+    system = from_grid(grid, k_structural=40.0, k_shear=25.0, mass=1e-3, fixed=grid.ijk[:, 0] == 0,
+                       velocity_damping=2e-3)
+    state = perturbed(system, grid)
+    loads = (Load(grid.ijk[:, 0] == grid.shape[0] - 1, lambda t: (0.0, -0.01, 0.004)),)
+    x = run(ctx, system, grid, 15, state, loads=loads, layout="compact")
+    for block in SHAPES:
+        bx = run(ctx, system, grid, 15, state, loads=loads, block=block)
+        for a, b in zip(bx[:4], x[:4]):
+            np.testing.assert_array_equal(a, b, err_msg=f"{shape} in blocks of {block}")
+
+
+@pytest.mark.gl
+def test_the_view_follows_the_steps_and_pads_with_zeros(ctx):
+    """The compact view is refreshed after every step (and only then: a second read draws no
+    copy), and its padding texels hold 0 as the compact layout's do."""
+    grid = holed()
+    system = springs_system(grid)
+    state = perturbed(system, grid)
+    compact = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, layout="compact")
+    blocked = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, block=(1, 2, 2))
+    try:
+        for _ in range(3):
+            compact.step(2)
+            blocked.step(2)
+            whole = np.frombuffer(compact.position_texture.read(), "f4")
+            view = blocked.position_texture
+            assert blocked.position_texture is view
+            np.testing.assert_array_equal(np.frombuffer(view.read(), "f4"), whole)
+        w, h = blocked.textures.size
+        assert w * h > grid.count and not np.any(whole.reshape(-1, 4)[grid.count:])  # padding there, all 0
+    finally:
+        compact.release()
+        blocked.release()
+
+
+@pytest.mark.gl
 def test_branch_variant_bit_identical(ctx):
     grid = holed()
     system = springs_system(grid)
@@ -149,12 +203,14 @@ def test_branch_variant_bit_identical(ctx):
 
 
 @pytest.mark.gl
+@pytest.mark.parametrize("shapes", ["default", "all"])
 @pytest.mark.parametrize("nu", [0.25, 0.45])
 @pytest.mark.parametrize("kind", ["box", "holed"])
-def test_lattice_with_cells_bit_identical(ctx, nu, kind):
+def test_lattice_with_cells_bit_identical(ctx, nu, kind, shapes):
     """The calibrated lattice (per-spring levels codes, the volumetric term: the barrier alone at
     nu = 1/4, with the centre term at 0.45), squashed so that the barrier acts: 30 steps bit for
-    bit as the compact layout in blocks of 2, 4 and 8."""
+    bit as the compact layout, in the default block and 2x2x2 (every shape: the slow variant;
+    each shape is a program of its own, ~1 s to compile on llvmpipe)."""
     grid = box((5, 6, 6)) if kind == "box" else holed((6, 6, 6), seed=5)
     system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, poissons_ratio=nu),
                                fixed=grid.ijk[:, 1] == grid.shape[1] - 1)
@@ -164,9 +220,11 @@ def test_lattice_with_cells_bit_identical(ctx, nu, kind):
     x0 += np.random.default_rng(2).uniform(-0.2, 0.2, x0.shape) * H
     x0[system.fixed] = grid.rest_positions[system.fixed]
     state = initial_state(system, 1e-4, x=x0)
+    det, _ = corner_jacobians(system.cells, x0)
+    assert np.sum(det < system.cells.barrier_j) > 20  # the barrier acts
     x = run(ctx, system, grid, 30, state, layout="compact")[0]
     assert np.abs(x - x0).max() > 0.1 * H
-    for shape in ((1, 1, 2), (1, 2, 2), (2, 2, 1), (1, 1, 4), (2, 2, 2)):
+    for shape in (SHAPES if shapes == "all" else [default_block(box((30, 30, 30))), (2, 2, 2)]):
         np.testing.assert_array_equal(run(ctx, system, grid, 30, state, block=shape)[0], x, err_msg=f"{shape}")
 
 
@@ -244,3 +302,18 @@ def test_scene_layout_key_is_checked(tmp_path):
         scene.write_text(f'[cloth]\nnodes = [6, 6]\n\n[physics]\n{physics}\n')
         with pytest.raises(dg.SceneError, match=message):
             dg.load_scene(scene)
+
+
+@pytest.mark.gl
+def test_a_forced_block_on_a_scene_the_pass_does_not_model(ctx, tmp_path):
+    """The foundation pass does not model obstacles: a forced block is refused naming the key and
+    why, before the run (the default layout runs the scene on the general stages)."""
+    import deformgl as dg
+
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text('[cloth]\nnodes = [6, 6]\n\n[physics]\nsteps = 3\nlayout = "2x1x2"\n\n'
+                          '[physics.ground]\nat = 0.1\n\n[render]\nsize = [32, 24]\n')
+    with pytest.raises(dg.SceneError, match=r"s\.toml: physics\.layout: '2x1x2' .* does not model obstacles; use"):
+        dg.render_scene(dg.load_scene(scene_file), ctx=ctx)
+    scene_file.write_text(scene_file.read_text().replace('layout = "2x1x2"', 'layout = "auto"'))
+    assert dg.render_scene(dg.load_scene(scene_file), ctx=ctx).shape == (24, 32, 3)

@@ -3,8 +3,9 @@
 in the same process.
 
 1. **The step** (:func:`block_rows`): every block shape of :data:`~deformgl.grid.blocks.BLOCK_SHAPES`
-   that fits the renderer's render targets, and the compact layout, on the benchmark volumes (4k,
-   20k, 131k nodes in full blocks, the 20k-node ball) and the heart scene's body (the calibrated
+   that fits the renderer's render targets, and the compact layout, on the benchmark volumes (2k,
+   4k, 20k, 131k nodes in full blocks, a sheet one node thick, the 20k-node ball) and the heart
+   scene's body (the calibrated
    lattice with the volumetric term at nu = 0.45, per-spring levels codes, on a voxelized shape).
    All steppers of a grid are built and warmed up first, then ``rounds`` rounds time ``steps``
    steps of each in turn, the order reversed every other round, so load from other processes hits
@@ -29,9 +30,9 @@ from deformgl.sim.backends.blocked import default_block
 
 __all__ = ["BLOCK_GRIDS", "block_rows", "heart_frame", "blocks_report"]
 
-#: The grids of :func:`block_rows`: full blocks of about 4k, 20k and 131k nodes, the 20k-node ball
-#: and "heart" (the heart scene's body).
-BLOCK_GRIDS = ((16, 16, 16), (27, 27, 27), (64, 64, 32), "ball34", "heart")
+#: The grids of :func:`block_rows`: full blocks of about 2k, 4k, 20k and 131k nodes, a 16k-node
+#: sheet one node thick, the 20k-node ball and "heart" (the heart scene's body).
+BLOCK_GRIDS = ((13, 13, 13), (16, 16, 16), (27, 27, 27), (64, 64, 32), (128, 128, 1), "ball34", "heart")
 
 
 def _system(spec):

@@ -160,7 +160,7 @@ def lattice_weights(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32))
         grid = NodeGrid(np.zeros(3), 0.002, np.ones(spec, bool))
         system, _ = lattice_system(grid, PRESETS["gelatin"], fixed=grid.ijk[:, 1] == grid.ijk[:, 1].max())
         dt = 0.5 * critical_dt(PRESETS["gelatin"], grid.spacing)
-        sims = {t: FragmentIntegrator(ctx, system, grid, "verlet", dt, path="foundation", weight_texture=t)
+        sims = {t: FragmentIntegrator(ctx, system, grid, "verlet", dt, path="foundation", weight_texture=t, layout="compact")
                 for t in (True, False)}
         times: dict[bool, list[float]] = {t: [] for t in sims}
         try:

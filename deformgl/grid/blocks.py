@@ -137,10 +137,12 @@ class BlockedLayout:
         return node_strides(self.block_grid)
 
     def shader_defines(self) -> dict[str, object]:
-        """Defines of ``shaders/lib/node_texel.glsl``'s BLOCKED variant: the block shape, and
-        BLOCKED_DENSE where neighbour blocks are computed."""
+        """Defines of ``shaders/lib/node_texel.glsl``'s BLOCKED variant: the block shape,
+        BLOCKED_DENSE where neighbour blocks are computed, BLOCK_FLAT_X/Y/Z along an axis the grid
+        is one node thick (``shaders/sim/verlet_block.frag``)."""
         bx, by, bz = self.block
-        return {"BLOCKED": True, "BLOCK_X": bx, "BLOCK_Y": by, "BLOCK_Z": bz, "BLOCKED_DENSE": self.dense}
+        flat = {f"BLOCK_FLAT_{a}": n == 1 for a, n in zip("XYZ", self.index.shape)}
+        return {"BLOCKED": True, "BLOCK_X": bx, "BLOCK_Y": by, "BLOCK_Z": bz, "BLOCKED_DENSE": self.dense, **flat}
 
     def shader_uniforms(self) -> dict[str, object]:
         """Uniforms of the BLOCKED variant (the block-neighbour table bound to unit 3 where not

@@ -212,9 +212,11 @@ def foundation() -> Iterator[Variant]:
 def blocked() -> Iterator[Variant]:
     """``BlockedVerletPass`` and the compact view's copy (``deformgl.sim.backends.blocked``):
     every block shape, its blocks by strides or from the table, the foundation's switches."""
-    for shape, dense, branch, pulls, weights, cells in itertools.product(
-            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"), CELL_SWITCHES):
-        block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2]}
+    for shape, dense, branch, pulls, weights, cells, flat in itertools.product(
+            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"), CELL_SWITCHES,
+            itertools.product((False, True), repeat=3)):  # (the axes a grid is one node thick along)
+        block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2],
+                 **{f"BLOCK_FLAT_{a}": f for a, f in zip("XYZ", flat)}}
         yield _v("sim/fullscreen.vert", "sim/verlet_block.frag", {
             **block, "BLOCKED_DENSE": dense, "NEIGHBOUR_BRANCH": branch, "PULLS": pulls,
             "SPRING_WEIGHTS": weights is not None, "SPRING_WEIGHT_LEVELS": weights == "levels", **cells})

@@ -252,9 +252,10 @@ def estimate(scene: Any) -> Budget:
         if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
             layers, weights = 2 * (6 if flexion else 5), 0
         # Verlet's blocked layout (several nodes per fragment, deformgl.sim.backends.blocked) adds
-        # its compact view and place texture, 2 texels per node (its block-neighbour table, 7 layers a
-        # block, stays under the 5 index layers a node counted here; members without a node are not
-        # counted)
+        # its compact view and place texture, 2 texels per node; its block-neighbour table (7 layers
+        # a block of 4, the default) stays under the 5 index layers a node counted here. Members
+        # without a node (a shape's boundary blocks) are not counted: the default block never
+        # spans the thin axis of a sheet, so a sheet fills its blocks
         blocked = 2 if physics.integrator == "verlet" and physics.layout != "compact" else 0
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights
                         + VEC4_BYTES * (len(GPU_BUFFERS[physics.integrator]) + blocked) + (CELL_TABLE if solid else 0))

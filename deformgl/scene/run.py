@@ -45,7 +45,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "check_layout", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -269,6 +269,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
     physics = scene.physics
     drags = scene_drags(grid, physics, box)
     constraints = scene_constraints(physics, box)
+    check_layout(ctx, scene, system, grid, loads, drags, constraints)
     made: list = []
 
     def make(dt: float):
@@ -311,6 +312,26 @@ def xpbd_options(physics) -> dict[str, int]:
         return {}
     x = physics.xpbd
     return {} if x is None else {"iterations": x.iterations, "substeps": x.substeps}
+
+
+def check_layout(ctx, scene: Scene, system: SpringSystem, grid: NodeGrid, loads, drags, constraints) -> None:
+    """A block forced by ``[physics] layout`` runs on the foundation's Verlet pass, on this
+    renderer: a SceneError naming the key and what the pass does not model, or what the renderer
+    lacks, before anything runs."""
+    if scene.physics.layout in ("auto", "compact"):
+        return
+    from deformgl.sim.backends.blocked import blocked_refusal
+    from deformgl.sim.backends.foundation import verlet_terms
+
+    if ctx is not None:
+        lacks = blocked_refusal(ctx.info, parse_block(scene.physics.layout))
+        if lacks is not None:
+            raise SceneError(f"{scene.source}: physics.layout: {scene.physics.layout!r}: {lacks}; use \"auto\"")
+
+    terms = verlet_terms(system, grid, loads=loads, drags=drags, constraints=constraints)
+    if isinstance(terms, str):
+        raise SceneError(f"{scene.source}: physics.layout: {scene.physics.layout!r} (several nodes per fragment) runs "
+                         f"on the foundation's Verlet pass, which does not model {terms}; use \"auto\" or \"compact\"")
 
 
 def layout_options(physics) -> dict:

@@ -9,7 +9,8 @@
 // 5 m + 4) or with SPRING_WEIGHT_LEVELS, PULLS, CELLS with CELL_CENTRE
 // and/or CELL_BARRIER (as sim/verlet.frag; the body diagonals come from the block's neighbourhood);
 // BLOCKED_DENSE: every block of the box exists, neighbour blocks by block strides, else from the
-// block-neighbour table.
+// block-neighbour table. BLOCK_FLAT_X/Y/Z: the grid is one node thick along that axis (a sheet):
+// the neighbourhood off its plane is not fetched (every mask bit there is 0, p stands in).
 #ifndef BLOCKED
 #define BLOCKED  // (the pass is always blocked; BLOCKED selects the libraries' block paths)
 #endif
@@ -109,6 +110,17 @@ int hood_slot(ivec3 c) {
 }
 
 void hood_fill(ivec3 c) {
+    // (a grid one node thick along an axis: no neighbour off its plane exists; the slot gets 0,
+    // defined, and the mask selects p there)
+#ifdef BLOCK_FLAT_X
+    if (c.x != 0) { g_hood[hood_slot(c)] = vec3(0.0); return; }
+#endif
+#ifdef BLOCK_FLAT_Y
+    if (c.y != 0) { g_hood[hood_slot(c)] = vec3(0.0); return; }
+#endif
+#ifdef BLOCK_FLAT_Z
+    if (c.z != 0) { g_hood[hood_slot(c)] = vec3(0.0); return; }
+#endif
     ivec4 q = block_place(c);
 #ifdef CELL_CENTRE
     if (true) {  // (the corners are body diagonals of the corner members)

@@ -2,8 +2,9 @@
 // x' = 2x - x_prev + dt^2 a, a = (g + m*gravity + pull - (c + alpha m) v)/m, v = (x - x_prev)/dt,
 // with the packed normal at x (Mosegaard & Sorensen 2005, eq. 3) in w. Shared by sim/verlet.frag
 // (one node per fragment) and sim/verlet_block.frag (a block of nodes per fragment), so both
-// compute every node bit for bit alike. PULLS = number of scripted pull groups; CELLS: the
-// volumetric term (sim/cells/node_hood.glsl, one-node layouts only).
+// compute every node bit for bit alike (where the driver contracts a * b + c alike in both: GLSL
+// 3.30 has no `precise`; tested on llvmpipe). PULLS = number of scripted pull groups; CELLS: the
+// volumetric term (sim/cells/node_hood.glsl: hood_cell_force, which both passes provide).
 #ifndef PULLS
 #define PULLS 0
 #endif

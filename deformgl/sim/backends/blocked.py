@@ -40,30 +40,57 @@ from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture
 from deformgl.sim.normals import pack_normals, unit_sums
 
-__all__ = ["BlockedTextures", "BlockedVerletPass", "blocked_refusal", "default_block", "BLOCK_TABLE"]
+__all__ = ["BlockedTextures", "BlockedVerletPass", "blocked_refusal", "default_block", "texture_units", "BLOCK_TABLE",
+           "SHEET_BLOCK"]
 
-#: The block the foundation pass takes by itself (``layout="auto"``), by grid size: the first row
-#: whose node count the grid reaches; None: the compact layout. Measured with ``deformgl bench sim
-#: --blocks`` on llvmpipe (docs/PERFORMANCE.md, "Several nodes per fragment").
+#: The block the foundation pass takes by itself (``layout="auto"``) on a volume, by grid size: the
+#: first row whose node count the grid reaches; None: the compact layout. The block is turned so
+#: that its side of one node lies along the grid's thinnest axis. A sheet (a grid one node thick
+#: along an axis) takes :data:`SHEET_BLOCK` nodes along its first other axis instead. Measured with
+#: ``deformgl bench sim --blocks`` on llvmpipe (docs/PERFORMANCE.md, "Several nodes per fragment:
+#: the blocked layout").
 BLOCK_TABLE: tuple[tuple[int, tuple[int, int, int] | None], ...] = ((2000, (1, 2, 2)), (0, None))
+#: Nodes per block on a sheet: 2 (128 x 128 x 1: 1.9-2.0x the compact pass, blocks of 4 1.2-1.3x).
+SHEET_BLOCK = 2
 
 
 def default_block(grid: NodeGrid) -> tuple[int, int, int] | None:
-    """The block :data:`BLOCK_TABLE` gives ``grid`` (None: the compact layout)."""
+    """The block :data:`BLOCK_TABLE` gives ``grid`` (None: the compact layout), its shortest side
+    along the grid's thinnest axis (the first of equals: x); on a sheet :data:`SHEET_BLOCK` nodes
+    along the sheet's first axis."""
     for count, block in BLOCK_TABLE:
         if grid.count >= count:
-            return block
+            if block is None:
+                return None
+            shape = [1, 1, 1]
+            if 1 in grid.shape:
+                shape[next(a for a in range(3) if grid.shape[a] > 1)] = SHEET_BLOCK
+                return shape[0], shape[1], shape[2]
+            thin = int(np.argmin(grid.shape))
+            order = sorted(range(3), key=lambda a: (a != thin, a))  # the thinnest axis first
+            for axis, side in zip(order, sorted(block)):
+                shape[axis] = side
+            return shape[0], shape[1], shape[2]
     return None
 
-#: Texture units of the blocked pass: current members 0-7, previous 8-15, node data, neighbours, weights.
-PREVIOUS_UNIT, NODE_UNIT, BLOCK_NEIGHBOUR_UNIT, BLOCK_WEIGHT_UNIT = 8, 16, 17, 18
+
+def texture_units(members: int) -> dict[str, int]:
+    """The blocked pass's texture units: current members 0 .. m - 1, previous m .. 2m - 1, then the
+    node data, the block-neighbour table and the spring weights (2m + 3 units: 19 for 8 members)."""
+    return {"previous": members, "node": 2 * members, "neighbours": 2 * members + 1, "weights": 2 * members + 2}
 
 
-def blocked_refusal(max_draw_buffers: int, block: tuple[int, int, int]) -> str | None:
-    """Why the blocked pass cannot run in ``block`` on this renderer, or None."""
+def blocked_refusal(info, block: tuple[int, int, int]) -> str | None:
+    """Why the blocked pass cannot run in ``block`` on the renderer of ``info`` (a context's
+    ``ctx.info``: its render targets and fragment texture units), or None."""
     members = block[0] * block[1] * block[2]
-    if members > max_draw_buffers:
-        return f"a block of {members} nodes needs {members} render targets, the renderer has {max_draw_buffers}"
+    targets = min(int(info["GL_MAX_DRAW_BUFFERS"]), int(info.get("GL_MAX_COLOR_ATTACHMENTS", 8)))
+    if members > targets:
+        return f"a block of {members} nodes needs {members} render targets, the renderer has {targets}"
+    units = int(info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16))
+    if texture_units(members)["weights"] + 1 > units:
+        return (f"a block of {members} nodes samples up to {texture_units(members)['weights'] + 1} textures, "
+                f"the renderer has {units} units")
     return None
 
 
@@ -124,7 +151,7 @@ class BlockedTextures(GLOwner):
                 self.state.append(textures)
                 self.framebuffers.append(self.own(ctx.framebuffer(color_attachments=textures)))
             member, texel = self.blocks.place(grid.ijk)
-            place = np.zeros((self.layout.size[1] * self.layout.size[0], 4), np.int32)
+            place = np.full((self.layout.size[1] * self.layout.size[0], 4), -1, np.int32)  # padding: member -1, 0
             place[: grid.count] = np.stack([texel[:, 0], texel[:, 1], member, np.zeros_like(member)], axis=1)
             self.place = self.own(ctx.texture(self.size, 4, place.tobytes(), dtype="i4"))
             self.place.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -133,7 +160,8 @@ class BlockedTextures(GLOwner):
             bx, by, bz = block
             self.unblock = self.own(Program(ctx, "sim/fullscreen.vert", "sim/unblock.frag",
                                             defines={"BLOCK_X": bx, "BLOCK_Y": by, "BLOCK_Z": bz}))
-            self.unblock.set(u_place=PREVIOUS_UNIT, **{f"u_position{m}": m for m in range(self.members)})
+            self.units = texture_units(self.members)
+            self.unblock.set(u_place=self.units["previous"], **{f"u_position{m}": m for m in range(self.members)})
             self.unblock_vao = self.own(ctx.vertex_array(self.unblock.gl, []))
 
     def bind(self, current: int, previous: int | None = None) -> None:
@@ -142,12 +170,12 @@ class BlockedTextures(GLOwner):
             tex.use(m)
         if previous is not None:
             for m, tex in enumerate(self.state[previous]):
-                tex.use(PREVIOUS_UNIT + m)
-            self.node.use(NODE_UNIT)
+                tex.use(self.units["previous"] + m)
+            self.node.use(self.units["node"])
             if self.neighbours is not None:
-                self.neighbours.use(BLOCK_NEIGHBOUR_UNIT)
+                self.neighbours.use(self.units["neighbours"])
             if self.weights is not None:
-                self.weights.use(BLOCK_WEIGHT_UNIT)
+                self.weights.use(self.units["weights"])
 
     def changed(self) -> None:
         """The state sets were written: the view is stale."""
@@ -159,7 +187,7 @@ class BlockedTextures(GLOwner):
             previous = self.ctx.fbo
             try:
                 self.bind(current)
-                self.place.use(PREVIOUS_UNIT)
+                self.place.use(self.units["previous"])
                 self.view_framebuffer.use()
                 self.unblock_vao.render(moderngl.TRIANGLES, vertices=3)
             finally:
@@ -219,13 +247,14 @@ class BlockedVerletPass(GLOwner):
             if cells is not None:
                 self.program.set(**term_uniforms(cells))
             units = {f"u_position{m}": m for m in range(layout.members)}
-            units.update({f"u_previous{m}": PREVIOUS_UNIT + m for m in range(layout.members)})
-            uniforms = layout.shader_uniforms()
+            units.update({f"u_previous{m}": textures.units["previous"] + m for m in range(layout.members)})
+            # (the layout's uniforms are unused where no neighbour block is read: a single node)
+            uniforms = {k: v for k, v in layout.shader_uniforms().items() if k in self.program.members}
             if not layout.dense:
-                uniforms["u_block_neighbours"] = BLOCK_NEIGHBOUR_UNIT
+                uniforms["u_block_neighbours"] = textures.units["neighbours"]
             if textures.weights is not None:
-                uniforms["u_weights"] = BLOCK_WEIGHT_UNIT
-            self.program.set(**uniforms, **units, u_node=NODE_UNIT, u_spacing=terms.spacing,
+                uniforms["u_weights"] = textures.units["weights"]
+            self.program.set(**uniforms, **units, u_node=textures.units["node"], u_spacing=terms.spacing,
                              u_k_structural=terms.k_structural, u_k_shear=terms.k_shear, u_damping=terms.damping,
                              u_mass_damping=terms.mass_damping, u_gravity=terms.gravity)
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))

@@ -400,10 +400,17 @@ class FoundationVerlet(SimulationBase, GLOwner):
         state: the start state (x and x_prev are uploaded; fixed nodes get x_prev = x).
         loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
         t0: time of the start state.
-        draw, branch: pass variants, see :class:`VerletPass`; layout, weight_texture: see :class:`NodeTextures`.
+        draw, branch: pass variants, see :class:`VerletPass`; weight_texture: see :class:`NodeTextures`.
+        layout: "compact", "indexed", "atlas" (:class:`NodeTextures`), "blocked" (``block`` nodes per
+            fragment, :mod:`~deformgl.sim.backends.blocked`) or "auto" (``block`` if given, else
+            :func:`~deformgl.sim.backends.blocked.default_block`, where the renderer can run it;
+            else "compact").
+        block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`).
 
     Raises:
-        ValueError: dt <= 0; the atlas layout with cells.
+        ValueError: dt <= 0; the atlas layout with cells; "blocked" without a block, a block with
+            another layout or a draw other than "rects", a block the renderer cannot run
+            (:func:`~deformgl.sim.backends.blocked.blocked_refusal`).
     """
 
     backend = "fragment"
@@ -421,6 +428,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
             raise ValueError("FoundationVerlet: the blocked layout takes a block shape")
         if layout not in ("auto", "blocked") and block is not None:
             raise ValueError(f"FoundationVerlet: layout {layout!r} takes no block shape")
+        if block is not None and draw != "rects":
+            raise ValueError(f"FoundationVerlet: draw {draw!r} is a variant of the one-node pass, not of a block")
         GLOwner.__init__(self, ctx)
         self.system, self.grid = system, grid
         self._start_clock(dt, t0)
@@ -429,10 +438,10 @@ class FoundationVerlet(SimulationBase, GLOwner):
         flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
-        targets = int(ctx.info["GL_MAX_DRAW_BUFFERS"])
         if layout == "auto":
-            block = default_block(grid) if draw == "rects" else None  # (points, quad: one-node variants)
-            if block is not None and blocked_refusal(targets, block) is not None:
+            if block is None and draw == "rects":  # (points, quad: one-node variants)
+                block = default_block(grid)
+            if block is not None and blocked_refusal(ctx.info, block) is not None:
                 block = None
             layout = "compact" if block is None else "blocked"
         #: the nodes per fragment (x, y, z) of the blocked layout, None on the one-node layouts
@@ -441,7 +450,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         self.verlet: VerletPass | BlockedVerletPass
         with self.building():
             if block is not None:
-                why = blocked_refusal(targets, block)
+                why = blocked_refusal(ctx.info, block)
                 if why is not None:
                     raise ValueError(f"FoundationVerlet: {why}")
                 levels = None if terms.weights is None or weight_texture else \
