@@ -421,7 +421,7 @@ def test_the_weight_levels_code_holds_the_lattices_cell_shares_and_nothing_else(
     """weight_levels: 24 bits (exact in a float32) that decode, as SPRING_WEIGHT_LEVELS does, to
     the very weights of the lattice; weights that are not cell shares (a third, a zero on an
     existing neighbour, a weight where there is none) get no code, so the texture keeps them."""
-    from deformgl.sim.backends.foundation import weight_levels
+    from deformgl.sim.backends.grid_springs import weight_levels
     from deformgl.sim.backends.grid_springs import spring_weights
     occ = np.ones((5, 4, 3), bool)
     occ[4, 3, 2] = occ[0, 0, 0] = False
@@ -451,7 +451,7 @@ def test_the_levels_code_takes_shares_that_float64_rounds_off_a_quarter():
     """An L-shaped body has edges in 3 cells; 3 k / 4 over k is 0.7500000000000001 in float64 for
     some k (here E = 10 kPa, h = 1/11 m), exactly 0.75 in the float32 a texture holds: the code
     still holds the lattice (and so decodes to what the texture path computes with)."""
-    from deformgl.sim.backends.foundation import weight_levels
+    from deformgl.sim.backends.grid_springs import weight_levels
     from deformgl.sim.backends.grid_springs import spring_weights
     occ = np.ones((4, 4, 3), bool)
     occ[2:, 2:, :] = False

@@ -2,16 +2,7 @@
 // every block is texture u_position<m> (RGBA32F, xyz position, w packed normal), one render
 // target per member. GLSL 3.30 and ES 3.00 index sampler arrays by constant expressions only, so
 // the members are named; state_at folds to one fetch where m is a constant (the block passes).
-// (block shape defaults: 1x1x1, one member)
-#ifndef BLOCK_X
-#define BLOCK_X 1
-#endif
-#ifndef BLOCK_Y
-#define BLOCK_Y 1
-#endif
-#ifndef BLOCK_Z
-#define BLOCK_Z 1
-#endif
+#include "lib/block_shape.glsl"
 #define MEMBERS (BLOCK_X * BLOCK_Y * BLOCK_Z)
 
 uniform sampler2D u_position0;

@@ -18,15 +18,7 @@ int texel_node(ivec2 texel) {
 }
 
 #ifdef BLOCKED
-#ifndef BLOCK_X
-#define BLOCK_X 1
-#endif
-#ifndef BLOCK_Y
-#define BLOCK_Y 1
-#endif
-#ifndef BLOCK_Z
-#define BLOCK_Z 1
-#endif
+#include "lib/block_shape.glsl"
 const ivec3 BLOCK = ivec3(BLOCK_X, BLOCK_Y, BLOCK_Z);
 const int BLOCK_MEMBERS = BLOCK_X * BLOCK_Y * BLOCK_Z;
 

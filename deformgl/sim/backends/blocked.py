@@ -38,6 +38,7 @@ from deformgl.grid.blocks import BlockedLayout
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture
+from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.normals import pack_normals, unit_sums
 
 __all__ = ["BlockedTextures", "BlockedVerletPass", "blocked_refusal", "default_block", "texture_units", "BLOCK_TABLE",
@@ -266,11 +267,7 @@ class BlockedVerletPass(GLOwner):
         if dt != self._dt:
             self.program.set(u_dt=dt)
             self._dt = dt
-        if self.n_pulls:
-            if pull is None:
-                raise TypeError(f"BlockedVerletPass.run: {self.n_pulls} pull group(s) need pull forces")
-            forces = [tuple(map(float, f)) for f in pull[: self.n_pulls]]
-            self.program.set(u_pull_force=forces if self.n_pulls > 1 else forces[0])
+        self.program.set(**pull_uniforms(pull, self.n_pulls, "BlockedVerletPass.run"))
         textures.bind(current, previous)
         textures.framebuffers[target].use()
         self.vao.render(moderngl.TRIANGLES, vertices=3)

@@ -12,7 +12,7 @@ Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
 * node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g,
   full incident cell q 64<<q), B neighbour mask (18 bits), A the spring-weight levels code
-  (:func:`weight_levels`) or 0.
+  (:func:`~deformgl.sim.backends.grid_springs.weight_levels`) or 0.
 * state, three rotating RGBA32F (H, W, 4): xyz position, w packed Mosegaard & Sørensen 2005, eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
 * with the volumetric term (``system.cells``, :mod:`deformgl.sim.volume`) on a grid that is not
@@ -43,7 +43,8 @@ from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, bl
 from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind, cell_terms, diagonal_table,
                                              term_uniforms)
 from deformgl.sim.backends.compact_textures import layer_texture
-from deformgl.sim.backends.grid_springs import spring_weights
+from deformgl.sim.backends.uniforms import pull_uniforms
+from deformgl.sim.backends.grid_springs import spring_weights, weight_levels
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
@@ -52,7 +53,7 @@ from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Lo
 from deformgl.sim.volume import CellVolumes
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
-           "VerletTerms", "verlet_terms", "node_flags", "weight_levels", "NodeTextures", "VerletPass",
+           "VerletTerms", "verlet_terms", "node_flags", "NodeTextures", "VerletPass",
            "FoundationVerlet", "tile_rectangles"]
 
 DRAW_MODES = ("rects", "points", "quad")
@@ -140,29 +141,6 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
                        weights=weights, cells=active_cells(system.cells))
-
-
-def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
-    """(N,) int64 levels code of ``weights`` (N, 18) when every spring's weight is a cell share of
-    the calibrated lattice (:func:`deformgl.sim.materials.lattice_system`): an edge (columns 0-5)
-    1, 2, 3 or 4 quarters, a face diagonal (6-17) 1 or 2 halves, and 0 exactly where ``mask``
-    (the grid's neighbour bits) has no neighbour; else None. Edge j's quarters - 1 go to bits
-    2j..2j+1, diagonal j's halves - 1 to bit 6 + j: 24 bits, exact in the float32 alpha of the node
-    texture, decoded by SPRING_WEIGHT_LEVELS (shaders/lib/springs.glsl) in place of five fetches of
-    a weight texture per node."""
-    # (in float32, as the weight texture would hold them: a share of 3 k / 4 over k can be an ulp
-    # off 0.75 in float64)
-    w = np.asarray(weights, np.float64).astype(np.float32).astype(np.float64)
-    present = ((np.asarray(mask, np.int64)[:, None] >> np.arange(18)) & 1).astype(bool)
-    units = np.where(np.arange(18) < 6, 4.0, 2.0)
-    shares = w * units
-    steps = np.rint(shares)
-    if np.any(w[~present] != 0.0) or np.any(steps != shares) or \
-            np.any(present & ((steps < 1) | (steps > units))):
-        return None
-    code = np.where(present, steps - 1, 0).astype(np.int64)
-    shift = np.where(np.arange(18) < 6, 2 * np.arange(18), 6 + np.arange(18))
-    return np.bitwise_or.reduce(code << shift, axis=1)
 
 
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
@@ -375,12 +353,7 @@ class VerletPass(GLOwner):
         if dt != self._dt:
             self.program.set(u_dt=dt)
             self._dt = dt
-        if self.n_pulls:
-            if pull is None:
-                raise TypeError(f"VerletPass.run: {self.n_pulls} pull group(s) need pull forces")
-            forces = [tuple(map(float, f)) for f in pull[: self.n_pulls]]
-            # moderngl takes a length-1 uniform array as a plain value
-            self.program.set(u_pull_force=forces if self.n_pulls > 1 else forces[0])
+        self.program.set(**pull_uniforms(pull, self.n_pulls, "VerletPass.run"))
         textures.state[current].use(0)
         textures.state[previous].use(1)
         textures.bind_static(2)

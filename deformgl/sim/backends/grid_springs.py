@@ -13,7 +13,7 @@ from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
 __all__ = ["FLEXION_OFFSETS", "bending_coefficients", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
-           "spring_weights"]
+           "spring_weights", "weight_levels"]
 
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
 FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
@@ -135,3 +135,26 @@ def compact_layout(grid: NodeGrid, max_texture_size: int) -> CompactLayout:
         return CompactLayout.for_grid(grid, max_texture_size)
     except ValueError as exc:
         raise GLError(f"{exc}; use a coarser grid") from None
+
+
+def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
+    """(N,) int64 levels code of ``weights`` (N, 18) when every spring's weight is a cell share of
+    the calibrated lattice (:func:`deformgl.sim.materials.lattice_system`): an edge (columns 0-5)
+    1, 2, 3 or 4 quarters, a face diagonal (6-17) 1 or 2 halves, and 0 exactly where ``mask``
+    (the grid's neighbour bits) has no neighbour; else None. Edge j's quarters - 1 go to bits
+    2j..2j+1, diagonal j's halves - 1 to bit 6 + j: 24 bits, exact in the float32 alpha of the node
+    texture, decoded by SPRING_WEIGHT_LEVELS (shaders/lib/springs.glsl) in place of five fetches of
+    a weight texture per node."""
+    # (in float32, as the weight texture would hold them: a share of 3 k / 4 over k can be an ulp
+    # off 0.75 in float64)
+    w = np.asarray(weights, np.float64).astype(np.float32).astype(np.float64)
+    present = ((np.asarray(mask, np.int64)[:, None] >> np.arange(18)) & 1).astype(bool)
+    units = np.where(np.arange(18) < 6, 4.0, 2.0)
+    shares = w * units
+    steps = np.rint(shares)
+    if np.any(w[~present] != 0.0) or np.any(steps != shares) or \
+            np.any(present & ((steps < 1) | (steps > units))):
+        return None
+    code = np.where(present, steps - 1, 0).astype(np.int64)
+    shift = np.where(np.arange(18) < 6, 2 * np.arange(18), 6 + np.arange(18))
+    return np.bitwise_or.reduce(code << shift, axis=1)

@@ -5,12 +5,26 @@ from __future__ import annotations
 
 from deformgl.sim.integrators import Constraints
 
-__all__ = ["uniform_array", "sphere_uniforms"]
+__all__ = ["uniform_array", "sphere_uniforms", "pull_uniforms"]
 
 
 def uniform_array(values: list) -> object:
     """A uniform array value for moderngl: an array of length 1 is set as its element."""
     return values[0] if len(values) == 1 else values
+
+
+def pull_uniforms(pull, n_pulls: int, who: str) -> dict[str, object]:
+    """``u_pull_force`` of the foundation's Verlet passes (one-node and blocked): the first
+    ``n_pulls`` rows of ``pull`` (N per node, this step); empty without pulls.
+
+    Raises:
+        TypeError: pull groups but no forces (``who`` names the pass).
+    """
+    if not n_pulls:
+        return {}
+    if pull is None:
+        raise TypeError(f"{who}: {n_pulls} pull group(s) need pull forces")
+    return {"u_pull_force": uniform_array([tuple(map(float, f)) for f in pull[:n_pulls]])}
 
 
 def sphere_uniforms(constraints: Constraints | None, t: float, dt: float) -> dict[str, object]:
