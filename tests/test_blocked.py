@@ -130,9 +130,14 @@ def run(ctx, system, grid, steps, state, **kwargs):
         sim.release()
 
 
+#: The README run's shapes (each shape is a program of its own, 0.4-1 s to compile on llvmpipe
+#: without Mesa's shader cache): the default, a block of 2, the block of 8; every shape in the slow run.
+QUICK_SHAPES = [(1, 2, 2), (1, 1, 2), (2, 2, 2)]
+
+
 @pytest.mark.gl
-@pytest.mark.parametrize("kind", ["box", "holed"])
-def test_springs_bit_identical_in_every_block(ctx, kind):
+@pytest.mark.parametrize("kind, shapes", [("box", "quick"), ("holed", "quick"), ("holed", "all")])
+def test_springs_bit_identical_in_every_block(ctx, kind, shapes):
     """Springs of two stiffnesses, fixed nodes, two time-varying pulls, velocity and mass damping:
     25 steps from a perturbed start give the compact layout's float32 positions, packed normals
     and velocities bit for bit in every block shape; the compact view holds the same texels."""
@@ -142,7 +147,7 @@ def test_springs_bit_identical_in_every_block(ctx, kind):
     state = perturbed(system, grid)
     x, n, v, view, block = run(ctx, system, grid, 25, state, loads=loads, layout="compact")
     assert block is None and np.abs(x - state.x).max() > 0.05 * H  # it moved
-    for shape in SHAPES:
+    for shape in (SHAPES if shapes == "all" else QUICK_SHAPES):
         bx, bn, bv, bview, block = run(ctx, system, grid, 25, state, loads=loads, block=shape)
         assert block == shape
         np.testing.assert_array_equal(bx, x, err_msg=f"block {shape}")
@@ -152,17 +157,18 @@ def test_springs_bit_identical_in_every_block(ctx, kind):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("shape", [(9, 1, 7), (1, 5, 3), (3, 1, 1), (1, 1, 1)], ids=ids)
+@pytest.mark.parametrize("shape", [(9, 1, 7), (3, 1, 1), (1, 1, 1)], ids=ids)
 def test_thin_grids_bit_identical(ctx, shape):
     """Sheets, a rod and a single node (boxes thinner than a block along some axis): every block
-    shape as the compact layout."""
+    shape as the compact layout (the sheet in the README run: the sheet's default block and two
+    that span its thin axis)."""
     grid = box(shape)
     system = from_grid(grid, k_structural=40.0, k_shear=25.0, mass=1e-3, fixed=grid.ijk[:, 0] == 0,
                        velocity_damping=2e-3)
     state = perturbed(system, grid)
     loads = (Load(grid.ijk[:, 0] == grid.shape[0] - 1, lambda t: (0.0, -0.01, 0.004)),)
     x = run(ctx, system, grid, 15, state, loads=loads, layout="compact")
-    for block in SHAPES:
+    for block in (SHAPES if shape != (9, 1, 7) else [default_block(box((90, 1, 70))), (1, 2, 2), (2, 2, 2)]):
         bx = run(ctx, system, grid, 15, state, loads=loads, block=block)
         for a, b in zip(bx[:4], x[:4]):
             np.testing.assert_array_equal(a, b, err_msg=f"{shape} in blocks of {block}")
@@ -203,9 +209,8 @@ def test_branch_variant_bit_identical(ctx):
 
 
 @pytest.mark.gl
-@pytest.mark.parametrize("shapes", ["default", "all"])
-@pytest.mark.parametrize("nu", [0.25, 0.45])
-@pytest.mark.parametrize("kind", ["box", "holed"])
+@pytest.mark.parametrize("kind, nu, shapes", [("holed", 0.45, "default"), ("box", 0.45, "default"),
+                                              ("box", 0.25, "default"), ("holed", 0.25, "all"), ("box", 0.45, "all")])
 def test_lattice_with_cells_bit_identical(ctx, nu, kind, shapes):
     """The calibrated lattice (per-spring levels codes, the volumetric term: the barrier alone at
     nu = 1/4, with the centre term at 0.45), squashed so that the barrier acts: 30 steps bit for

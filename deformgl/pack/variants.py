@@ -215,6 +215,8 @@ def blocked() -> Iterator[Variant]:
     for shape, dense, branch, pulls, weights, cells, flat in itertools.product(
             BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"), CELL_SWITCHES,
             itertools.product((False, True), repeat=3)):  # (the axes a grid is one node thick along)
+        if cells and any(flat):
+            continue  # a grid one node thick has no full cell: no cell term
         block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2],
                  **{f"BLOCK_FLAT_{a}": f for a, f in zip("XYZ", flat)}}
         yield _v("sim/fullscreen.vert", "sim/verlet_block.frag", {
