@@ -42,7 +42,7 @@ def _system(spec):
         from deformgl.scene.schema import load_scene
 
         scene = load_scene(_scene_path())
-        built = build_scene_model(scene)
+        built = build_scene_model(scene)  # (the body alone: no binding, unlike heart_frame_setup)
         return built.system, float(scene.physics.dt), built.loads
     system = block_system(spec)
     return system, stable_dt(system, 0.2), ()
@@ -94,44 +94,35 @@ def block_rows(ctx: moderngl.Context, grids=BLOCK_GRIDS, *, steps: int = 40, rou
 def heart_frame(ctx: moderngl.Context, *, rounds: int = 7, frame_steps: int = 15, size: int = 512) -> dict:
     """``{"compact": ms per frame per round, "default": ms per frame per round, "block": the block}``
     of the heart frame (module docstring)."""
-    from deformgl.bench.multigrid import _scene_path
-    from deformgl.grid.surface import grid_surface
-    from deformgl.render.mapped import MappedMeshPass, closed_front_face
-    from deformgl.render.mapped_setup import get_binding, mapped_vertices
+    from deformgl.bench.multigrid import heart_frame_setup
     from deformgl.render.passes import RenderTarget
-    from deformgl.scene.pipeline import RENDER_MAPPING_PASS, build_scene_model, scene_lighting, scene_view
-    from deformgl.scene.schema import load_scene
     from deformgl.sim.backends.fragment import FragmentIntegrator
-    from deformgl.sim.normals import rest_normals
 
-    scene = load_scene(_scene_path())
-    built = build_scene_model(scene)
-    binding = get_binding(built.mesh, built.grid, grid_surface(built.grid), use_cache=True, uv=None)
-    data = mapped_vertices(binding, "curvature", built.grid.rest_positions, rest_normals(built.grid))
-    front = closed_front_face(built.mesh.vertices, built.mesh.faces)
-    view, lighting = scene_view(scene, built.bbox), scene_lighting(scene)
-    sims = {layout: FragmentIntegrator(ctx, built.system, built.grid, "verlet", scene.physics.dt, loads=built.loads,
-                                       layout=layout) for layout in ("compact", "auto")}
+    setup = heart_frame_setup()
+    built = setup.built
+    sims: dict[str, FragmentIntegrator] = {}
     target = RenderTarget(ctx, (size, size), 0)
-    passes = {}
+    draw = None
     try:
-        for name, sim in sims.items():
-            passes[name] = MappedMeshPass(ctx, built.grid, sim.textures.layout, built.mesh.faces, data, front_face=front,
-                                          mapping_pass=RENDER_MAPPING_PASS)
+        for layout in ("compact", "auto"):
+            sims[layout] = FragmentIntegrator(ctx, built.system, built.grid, "verlet", setup.scene.physics.dt,
+                                              loads=built.loads, layout=layout)
+        # one draw pass: both read the compact layout (the blocked one through its compact view)
+        draw = setup.mapped_pass(ctx, sims["compact"].textures.layout)
 
         def frame(name: str) -> Callable[[], None]:
             def go() -> None:
                 sims[name].step(frame_steps)
                 target.begin((1.0, 1.0, 1.0))
-                passes[name].draw(sims[name].position_texture, view, lighting)
+                draw.draw(sims[name].position_texture, setup.view, setup.lighting)
                 ctx.finish()
             return go
         times = _rounds({name: frame(name) for name in sims}, rounds)
         block = sims["auto"].block
     finally:
         target.release()
-        for p in passes.values():
-            p.release()
+        if draw is not None:
+            draw.release()
         for sim in sims.values():
             sim.release()
     return {"compact": [t * 1e3 for t in times["compact"]], "default": [t * 1e3 for t in times["auto"]],

@@ -25,11 +25,11 @@ Three measurements, each printed with the machine line:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -40,8 +40,15 @@ from deformgl.sim.integrators import initial_state
 from deformgl.sim.limits import dt_limit
 from deformgl.sim.springs import SpringSystem
 
+if TYPE_CHECKING:
+    from deformgl.render.camera import View
+    from deformgl.render.mapped_setup import MappedVertices
+    from deformgl.render.passes import Lighting
+    from deformgl.scene.pipeline import SceneModel
+    from deformgl.scene.spec import Scene
+
 __all__ = ["IterationRow", "iteration_rows", "format_iterations", "stiff_rows", "format_stiff_rows",
-           "heart_frames", "format_frames", "heart_body"]
+           "heart_frames", "format_frames", "heart_body", "HeartFrame", "heart_frame_setup"]
 
 FRAME_DT = 1.0 / 60.0
 TOLERANCE = 1e-4
@@ -157,34 +164,57 @@ def format_stiff_rows(rows: list[tuple[str, object]]) -> str:
     return "\n".join(lines)
 
 
-def heart_frames(ctx, rounds: int = 7, kinds=PRECONDITIONERS) -> dict[str, tuple[list[float], float]]:
-    """{preconditioner: (frames per second of each round, mean CG iterations per step)} of the
-    heart frame (module docstring)."""
-    from deformgl.render.mapped import MappedMeshPass, closed_front_face
-    from deformgl.render.mapped_setup import get_binding, mapped_vertices
-    from deformgl.render.passes import RenderTarget
+@dataclass(frozen=True)
+class HeartFrame:
+    """What a heart frame draws, built once (CPU): the scene and its model, the curvature-corrected
+    mapping's vertex data, the front faces to cull, the view and the lights."""
+
+    scene: Scene
+    built: SceneModel
+    data: MappedVertices
+    front: str | None
+    view: View
+    lighting: Lighting
+
+    def mapped_pass(self, ctx, layout):
+        """The mesh's draw pass (the mapping pass ``deformgl render`` uses) over node ``layout``."""
+        from deformgl.render.mapped import MappedMeshPass
+        from deformgl.scene.pipeline import RENDER_MAPPING_PASS
+
+        return MappedMeshPass(ctx, self.built.grid, layout, self.built.mesh.faces, self.data, front_face=self.front,
+                              mapping_pass=RENDER_MAPPING_PASS)
+
+
+def heart_frame_setup() -> HeartFrame:
+    """The heart scene's :class:`HeartFrame` (its binding from the cache)."""
     from deformgl.grid.surface import grid_surface
-    from deformgl.scene.pipeline import RENDER_MAPPING_PASS, scene_lighting, scene_view
+    from deformgl.render.mapped import closed_front_face
+    from deformgl.render.mapped_setup import get_binding, mapped_vertices
+    from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
     from deformgl.scene.schema import load_scene
     from deformgl.sim.normals import rest_normals
-    from deformgl.scene.pipeline import build_scene_model
-    from deformgl.sim.backends.implicit_gpu import ImplicitFragment
 
     scene = load_scene(_scene_path())
     built = build_scene_model(scene)
-    system = built.system
-    surface = grid_surface(built.grid)
-    binding = get_binding(built.mesh, built.grid, surface, use_cache=True, uv=None)
+    binding = get_binding(built.mesh, built.grid, grid_surface(built.grid), use_cache=True, uv=None)
     data = mapped_vertices(binding, "curvature", built.grid.rest_positions, rest_normals(built.grid))
-    front = closed_front_face(built.mesh.vertices, built.mesh.faces)
-    view = scene_view(scene, built.bbox)
-    lighting = scene_lighting(scene)
-    sims = {k: ImplicitFragment(ctx, system, None, FRAME_DT, loads=built.loads, cg_preconditioner=k,
+    return HeartFrame(scene, built, data, closed_front_face(built.mesh.vertices, built.mesh.faces),
+                      scene_view(scene, built.bbox), scene_lighting(scene))
+
+
+def heart_frames(ctx, rounds: int = 7, kinds=PRECONDITIONERS) -> dict[str, tuple[list[float], float]]:
+    """{preconditioner: (frames per second of each round, mean CG iterations per step)} of the
+    heart frame (module docstring)."""
+    from deformgl.render.passes import RenderTarget
+    from deformgl.sim.backends.implicit_gpu import ImplicitFragment
+
+    frame = heart_frame_setup()
+    built, view, lighting = frame.built, frame.view, frame.lighting
+    sims = {k: ImplicitFragment(ctx, built.system, None, FRAME_DT, loads=built.loads, cg_preconditioner=k,
                                 cg_tolerance=FRAME_TOLERANCE, cg_iterations=200, cg_check_every=1) for k in kinds}
-    width, height = scene.render.size
+    width, height = frame.scene.render.size
     target = RenderTarget(ctx, (int(width), int(height)), 0, fxaa=True)
-    passes = {k: MappedMeshPass(ctx, built.grid, sims[k].layout, built.mesh.faces,
-                                data, front_face=front, mapping_pass=RENDER_MAPPING_PASS) for k in kinds}
+    passes = {k: frame.mapped_pass(ctx, sims[k].layout) for k in kinds}
     fps: dict[str, list[float]] = {k: [] for k in kinds}
     try:
         for k in kinds:  # compile and warm up

@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NEIGHBOUR_UNIT, NodeGrid, node_strides
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, node_strides, texture_width
 
 __all__ = ["BLOCK_SHAPES", "CORNER_OFFSETS", "BlockedLayout", "parse_block"]
 
@@ -49,6 +49,20 @@ def parse_block(text: str) -> tuple[int, int, int]:
         names = ", ".join("x".join(map(str, s)) for s in BLOCK_SHAPES)
         raise ValueError(f"block {text!r} is not one of {names}")
     return shape
+
+
+def _block_shape(shape: tuple[int, ...], block: tuple[int, ...]) -> tuple[int, int, int]:
+    """Blocks along x, y, z of a box of ``shape`` nodes."""
+    return tuple(-(-int(n) // b) for n, b in zip(shape, block))  # type: ignore[return-value]
+
+
+def _block_numbers(index: np.ndarray, block: tuple[int, ...]) -> np.ndarray:
+    """(Bx, By, Bz) int64 number of each block holding a node of ``index`` (C order), else -1."""
+    occupied = np.zeros(_block_shape(index.shape, block), bool)
+    occupied[tuple((np.argwhere(index >= 0) // np.array(block)).T)] = True
+    out = np.full(occupied.shape, -1, np.int64)
+    out[occupied] = np.arange(int(occupied.sum()))
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,21 +93,9 @@ class BlockedLayout:
         block = tuple(int(b) for b in block)  # type: ignore[assignment]
         if block not in BLOCK_SHAPES:
             raise ValueError(f"BlockedLayout: block {block} is not one of {BLOCK_SHAPES}")
-        shape = cls._block_shape(grid.shape, block)
-        occupied = np.zeros(shape, bool)
-        ijk = grid.ijk.astype(np.int64)
-        occupied[tuple((ijk // np.array(block)).T)] = True
-        n = max(int(occupied.sum()), 1)
-        width = 1 << max(4, int(np.ceil(np.log2(np.sqrt(n)))))
-        width = min(width, 1 << int(np.floor(np.log2(max_size))))
-        if -(-n // width) > max_size:
-            raise ValueError(f"{n} blocks of {'x'.join(map(str, block))} nodes need more than "
-                             f"{max_size}x{max_size} texels (the GL texture limit)")
-        return cls(grid.index, block, width, arithmetic)
-
-    @staticmethod
-    def _block_shape(shape: tuple[int, ...], block: tuple[int, ...]) -> tuple[int, int, int]:
-        return tuple(-(-int(n) // b) for n, b in zip(shape, block))  # type: ignore[return-value]
+        n = int((_block_numbers(grid.index, block) >= 0).sum())
+        return cls(grid.index, block, texture_width(n, max_size, f"{n} blocks of {'x'.join(map(str, block))} nodes"),
+                   arithmetic)
 
     @property
     def members(self) -> int:
@@ -104,17 +106,12 @@ class BlockedLayout:
     @property
     def block_grid(self) -> tuple[int, int, int]:
         """Blocks along x, y, z of the grid's box."""
-        return self._block_shape(self.index.shape, self.block)
+        return _block_shape(self.index.shape, self.block)
 
     @cached_property
     def block_index(self) -> np.ndarray:
         """(Bx, By, Bz) int64 block number, -1 where a block holds no node."""
-        occupied = np.zeros(self.block_grid, bool)
-        ijk = np.argwhere(self.index >= 0)
-        occupied[tuple((ijk // np.array(self.block)).T)] = True
-        out = np.full(self.block_grid, -1, np.int64)
-        out[occupied] = np.arange(int(occupied.sum()))
-        return out
+        return _block_numbers(self.index, self.block)
 
     @property
     def count(self) -> int:
@@ -145,11 +142,12 @@ class BlockedLayout:
         return {"BLOCKED": True, "BLOCK_X": bx, "BLOCK_Y": by, "BLOCK_Z": bz, "BLOCKED_DENSE": self.dense, **flat}
 
     def shader_uniforms(self) -> dict[str, object]:
-        """Uniforms of the BLOCKED variant (the block-neighbour table bound to unit 3 where not
-        dense)."""
+        """Uniforms of the BLOCKED variant: the texture width, and on :attr:`dense` layouts the
+        block strides (else the pass binds the block-neighbour table, ``u_block_neighbours``)."""
+        uniforms: dict[str, object] = {"u_width_log2": int(self.width).bit_length() - 1}
         if self.dense:
-            return {"u_width_log2": int(self.width).bit_length() - 1, "u_block_strides": self.strides}
-        return {"u_width_log2": int(self.width).bit_length() - 1, "u_block_neighbours": NEIGHBOUR_UNIT}
+            uniforms["u_block_strides"] = self.strides
+        return uniforms
 
     def place(self, ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(member (N,), texel (N, 2)) int64 of the nodes at grid indices ``ijk`` (N, 3)."""

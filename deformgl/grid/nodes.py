@@ -232,6 +232,22 @@ class AtlasLayout(TexelImages):
 
 
 
+def texture_width(count: int, max_size: int, what: str) -> int:
+    """A near-square texture's width for ``count`` texels, a power of two (at least 16, at most
+    ``max_size``).
+
+    Raises:
+        ValueError: ``count`` texels (``what``, e.g. "1000 nodes") need more than a ``max_size`` x
+            ``max_size`` texture.
+    """
+    n = max(count, 1)
+    width = 1 << max(4, int(np.ceil(np.log2(np.sqrt(n)))))
+    width = min(width, 1 << int(np.floor(np.log2(max_size))))
+    if -(-n // width) > max_size:
+        raise ValueError(f"{what} need more than {max_size}x{max_size} texels (the GL texture limit)")
+    return width
+
+
 @dataclass(frozen=True, eq=False)
 class CompactLayout(TexelImages):
     """Existing nodes packed densely in node order: node n is texel (n % width, n // width).
@@ -255,13 +271,7 @@ class CompactLayout(TexelImages):
         Raises:
             ValueError: more nodes than a ``max_size`` x ``max_size`` texture holds.
         """
-        n = max(grid.count, 1)
-        width = 1 << max(4, int(np.ceil(np.log2(np.sqrt(n)))))
-        width = min(width, 1 << int(np.floor(np.log2(max_size))))
-        if -(-n // width) > max_size:
-            raise ValueError(f"{grid.count} nodes need more than {max_size}x{max_size} texels "
-                             f"(the GL texture limit)")
-        return cls(grid.index, grid.count, width, arithmetic)
+        return cls(grid.index, grid.count, texture_width(grid.count, max_size, f"{grid.count} nodes"), arithmetic)
 
     @property
     def size(self) -> tuple[int, int]:

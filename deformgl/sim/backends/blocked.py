@@ -38,6 +38,7 @@ from deformgl.grid.blocks import BlockedLayout
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture
+from deformgl.sim.backends.grid_springs import weight_layers
 from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.normals import pack_normals, unit_sums
 
@@ -140,9 +141,7 @@ class BlockedTextures(GLOwner):
                 self.neighbours = self.own(ctx.texture_array((bw, bh, len(layers)), 4, layers.tobytes(), dtype="i4"))
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
             if weights is not None:
-                padded = np.zeros((grid.count, 20))
-                padded[:, :18] = weights
-                layers = np.stack([self.blocks.scatter(grid.ijk, padded[:, 4 * i: 4 * i + 4]) for i in range(5)], axis=1)
+                layers = np.stack([self.blocks.scatter(grid.ijk, layer) for layer in weight_layers(weights)], axis=1)
                 self.weights = self.own(ctx.texture_array((bw, bh, 5 * self.members), 4,
                                                           np.ascontiguousarray(layers, "f4").tobytes(), dtype="f4"))
                 self.weights.filter = (moderngl.NEAREST, moderngl.NEAREST)

@@ -44,7 +44,7 @@ from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind
                                              term_uniforms)
 from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.uniforms import pull_uniforms
-from deformgl.sim.backends.grid_springs import spring_weights, weight_levels
+from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
 from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
@@ -53,7 +53,7 @@ from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Lo
 from deformgl.sim.volume import CellVolumes
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
-           "VerletTerms", "verlet_terms", "node_flags", "NodeTextures", "VerletPass",
+           "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures", "VerletPass",
            "FoundationVerlet", "tile_rectangles"]
 
 DRAW_MODES = ("rects", "points", "quad")
@@ -143,6 +143,16 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
                        weights=weights, cells=active_cells(system.cells))
 
 
+def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.ndarray | None,
+              weight_texture: bool = False) -> tuple[np.ndarray, bool]:
+    """(N, 4) float64 static node texel of every node (mass, flags, neighbour mask, the spring
+    weights' levels code or 0) and whether the levels code holds the weights (else any weights
+    need a weight texture; ``weight_texture``: always)."""
+    levels = None if weights is None or weight_texture else weight_levels(weights, grid.neighbour_mask)
+    node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(grid.count) if levels is None else levels], axis=1)
+    return node, levels is not None
+
+
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
     """(N,) int64 flag bits of the static node texture: exists, fixed, load groups."""
     bits = FLAG_EXISTS + FLAG_FIXED * np.asarray(fixed, np.int64)
@@ -204,6 +214,7 @@ class NodeTextures(GLOwner):
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
         n = grid.count
+        self.grid = grid
         mass = np.ones(n) if mass is None else np.asarray(mass, np.float64)
         flags = node_flags(np.zeros(n, bool)) if flags is None else np.asarray(flags)
         starts = (np.broadcast_to(grid.rest_positions, (n_state, n, 3)) if positions is None
@@ -218,9 +229,9 @@ class NodeTextures(GLOwner):
         if cells != "none" and not isinstance(self.layout, CompactLayout):
             raise ValueError("NodeTextures: the atlas layout has no cell term (a system with cells runs on the compact "
                              "layout)")
-        levels = None if weights is None or weight_texture else weight_levels(weights, grid.neighbour_mask)
+        node, levels = node_data(grid, mass, flags, weights, weight_texture)
         #: the spring weights are the levels code in the node texture's alpha (SPRING_WEIGHT_LEVELS)
-        self.weight_levels = levels is not None
+        self.weight_levels = levels
         self.state: list[moderngl.Texture] = []
         self.framebuffers: list[moderngl.Framebuffer] = []
         with self.building():
@@ -231,16 +242,13 @@ class NodeTextures(GLOwner):
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 if cells == "centre":
                     self.cell_diagonals = layer_texture(self, ctx, self.layout.size, diagonal_table(grid), "i4", 2)
-            if weights is not None and levels is None:
-                padded = np.zeros((n, 20))
-                padded[:, :18] = weights
+            if weights is not None and not levels:
                 w, h = self.layout.size
-                images = np.stack([self.layout.scatter(grid.ijk, padded[:, 4 * i: 4 * i + 4]) for i in range(5)])
+                images = np.stack([self.layout.scatter(grid.ijk, layer) for layer in weight_layers(weights)])
                 self.weights = self.own(ctx.texture_array((w, h, 5), 4,
                                                           np.ascontiguousarray(images, dtype="f4").tobytes(),
                                                           dtype="f4"))
                 self.weights.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            node = np.stack([mass, flags, grid.neighbour_mask, np.zeros(n) if levels is None else levels], axis=1)
             self.node = self._texture(self.layout.scatter(grid.ijk, node))
             for x in starts:
                 image = np.concatenate([x, pack_normals(unit_sums(grid, x))[:, None]], axis=1)
@@ -263,6 +271,16 @@ class NodeTextures(GLOwner):
         static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16) + \
             (0 if self.weights is None else w * h * 5 * 16) + (0 if self.cell_diagonals is None else w * h * 2 * 16)
         return static + len(self.state) * w * h * 16
+
+    def view(self, current: int) -> moderngl.Texture:
+        """State texture ``current`` (what the draw passes read; as :meth:`BlockedTextures.view`)."""
+        return self.state[current]
+
+    def read(self, which: int) -> np.ndarray:
+        """(N, 4) float32 state texel of every node of state texture ``which`` (one read-back)."""
+        w, h = self.size
+        image = np.frombuffer(read_texture(self.state[which]), dtype="f4").reshape(h, w, 4)
+        return self.layout.gather(self.grid.ijk, image)
 
     def bind_static(self, node_unit: int) -> None:
         """Bind the node-data texture (and the neighbour-index texture of compact layouts)."""
@@ -411,11 +429,14 @@ class FoundationVerlet(SimulationBase, GLOwner):
         flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
+        if layout == "auto" and block is None and draw == "rects":  # (points, quad: one-node variants)
+            block = default_block(grid)
+        why = None if block is None else blocked_refusal(ctx.info, block)
+        if why is not None and layout == "blocked":
+            raise ValueError(f"FoundationVerlet: {why}")
+        if why is not None:  # ("auto": the one-node layout where the renderer cannot run the block)
+            block = None
         if layout == "auto":
-            if block is None and draw == "rects":  # (points, quad: one-node variants)
-                block = default_block(grid)
-            if block is not None and blocked_refusal(ctx.info, block) is not None:
-                block = None
             layout = "compact" if block is None else "blocked"
         #: the nodes per fragment (x, y, z) of the blocked layout, None on the one-node layouts
         self.block = block
@@ -423,17 +444,10 @@ class FoundationVerlet(SimulationBase, GLOwner):
         self.verlet: VerletPass | BlockedVerletPass
         with self.building():
             if block is not None:
-                why = blocked_refusal(ctx.info, block)
-                if why is not None:
-                    raise ValueError(f"FoundationVerlet: {why}")
-                levels = None if terms.weights is None or weight_texture else \
-                    weight_levels(terms.weights, grid.neighbour_mask)
-                node = np.stack([system.mass, flags, grid.neighbour_mask, np.zeros(grid.count) if levels is None
-                                 else levels], axis=1)
+                node, levels = node_data(grid, system.mass, flags, terms.weights, weight_texture)
                 blocked = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
-                                                   weights=terms.weights if levels is None else None))
-                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels is not None,
-                                                        branch=branch))
+                                                   weights=None if levels else terms.weights))
+                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels, branch=branch))
                 self.textures, self.verlet = blocked, block_pass
                 #: one step: (current, previous, target, dt, pull forces)
                 self._draw_step = partial(block_pass.run, blocked)
@@ -451,9 +465,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
     def position_texture(self) -> moderngl.Texture:
         """The state texture holding the latest positions and packed normals (the blocked layout's
         compact view)."""
-        if isinstance(self.textures, BlockedTextures):
-            return self.textures.view(self.current)
-        return self.textures.state[self.current]
+        return self.textures.view(self.current)
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
         """(texture, nodes per row, texels per node, slot) of the latest positions, for
@@ -484,12 +496,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         """(N, 4) float32 texel of every node from a state texture (default: current)."""
         if self.released:
             raise RuntimeError("FoundationVerlet: released")
-        if isinstance(self.textures, BlockedTextures):
-            return self.textures.read(self.current if which is None else which)
-        tex = self.textures.state[self.current if which is None else which]
-        w, h = self.textures.size
-        image = np.frombuffer(read_texture(tex), dtype="f4").reshape(h, w, 4)
-        return self.textures.layout.gather(self.grid.ijk, image)
+        return self.textures.read(self.current if which is None else which)
 
     def positions(self) -> np.ndarray:
         """(N, 3) float32 current node positions (one read-back)."""

@@ -13,7 +13,7 @@ from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
 __all__ = ["FLEXION_OFFSETS", "bending_coefficients", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
-           "spring_weights", "weight_levels"]
+           "spring_weights", "weight_layers", "weight_levels"]
 
 #: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
 FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
@@ -158,3 +158,11 @@ def weight_levels(weights: np.ndarray, mask: np.ndarray) -> np.ndarray | None:
     code = np.where(present, steps - 1, 0).astype(np.int64)
     shift = np.where(np.arange(18) < 6, 2 * np.arange(18), 6 + np.arange(18))
     return np.bitwise_or.reduce(code << shift, axis=1)
+
+
+def weight_layers(weights: np.ndarray) -> list[np.ndarray]:
+    """The 5 layers of a weight texture: (N, 4) each, the weights (N, 18) of neighbours 4l .. 4l + 3
+    (neighbours 18, 19 of the last layer 0)."""
+    padded = np.zeros((len(weights), 20))
+    padded[:, :18] = weights
+    return [padded[:, 4 * i: 4 * i + 4] for i in range(5)]
