@@ -123,6 +123,7 @@ _EXPORTS: dict[str, str] = {
     # errors
     "DeformglError": "deformgl.errors",
     "InputError": "deformgl.errors",
+    "ArgumentError": "deformgl.errors",
     "SceneError": "deformgl.errors",
     "GLError": "deformgl.errors",
     "ShaderError": "deformgl.errors",
@@ -134,7 +135,7 @@ _EXPORTS: dict[str, str] = {
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ imports lazily
-    from deformgl.errors import DeformglError, GLError, InputError, SceneError, ShaderError, SimulationError
+    from deformgl.errors import ArgumentError, DeformglError, GLError, InputError, SceneError, ShaderError, SimulationError
     from deformgl.gl.context import create_context
     from deformgl.gl.resources import GLOwner
     from deformgl.grid.meshio import load_mesh

@@ -9,12 +9,14 @@ up among the packaged ones by file name (``deformgl render dragon.toml``).
 
 from __future__ import annotations
 
+import os
 from importlib import resources
 from pathlib import Path
 
 from deformgl.errors import DeformglError
 
-__all__ = ["asset", "find_scene", "is_packaged", "packaged_scene", "scene_names", "scenes_dir"]
+__all__ = ["asset", "default_output", "find_mesh", "find_scene", "is_packaged", "packaged_scene", "scene_file",
+           "scene_names", "scenes_dir"]
 
 
 def scenes_dir() -> Path:
@@ -82,6 +84,30 @@ def find_scene(path: str | Path) -> Path:
         except DeformglError:
             pass
     return path
+
+
+def find_mesh(path: str | os.PathLike[str]) -> Path:
+    """A mesh file as given if it exists, else the shipped mesh of that file name
+    (``scenes/assets/<name>``: ``dragon_vrip_res3.ply.gz``, ``scenes/assets/dragon_vrip_res3.ply.gz``).
+    A path that is neither is returned unchanged, so that loading it reports the missing file by
+    the name the user gave."""
+    path = Path(path)
+    if path.exists():
+        return path
+    parts = path.parts
+    if len(parts) == 1 or (len(parts) == 3 and parts[:2] == ("scenes", "assets")) or (
+            len(parts) == 2 and parts[0] == "assets"):
+        try:
+            return asset(path.name)
+        except DeformglError:
+            pass
+    return path
+
+
+def default_output(source: Path, output: Path) -> Path:
+    """Where a scene's image goes by default: its ``output.path``, but for a shipped scene its
+    file name in the working directory (never into the installed package)."""
+    return Path(output.name) if is_packaged(source) else output
 
 
 def scene_file(path: str | Path, flag: str = "") -> Path:

@@ -15,6 +15,13 @@ class InputError(DeformglError):
     """Bad input: a mesh, scene or node file that cannot be used as given."""
 
 
+class ArgumentError(InputError, ValueError):
+    """A bad argument to a public API function (``ElasticMaterial``, ``Body.from_arrays``,
+    ``make_simulation``, ...): the message has the form ``"<function>: <argument>: <what is
+    wrong>"``, naming the argument as the caller passed it (a scene file names its key instead).
+    Also a :class:`ValueError`, as Python's own argument checks are."""
+
+
 class SceneError(InputError):
     """A scene file key that is unknown, of the wrong type, or has an impossible value.
 

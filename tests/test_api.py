@@ -282,3 +282,108 @@ def test_the_api_example_script(ctx, tmp_path, capsys):
     assert api_cantilever.main([str(out), "--resolution", "5", "--dt", "0.05"]) == 1
     err = capsys.readouterr().err
     assert "<arrays>: dt 0.05 s is above" in err and 'unstable="subdivide"' in err
+
+
+# -- issue 42: the API as forgiving as the CLI ----------------------------------------------
+
+
+def test_shipped_scenes_are_found_from_any_folder(ctx, tmp_path, monkeypatch):
+    """docs/API.md's own ``dg.load_scene("jelly.toml")`` / ``dg.render_to_png("jelly.toml")``
+    outside ``scenes/``: the CLI's lookup (deformgl.data.find_scene); the image goes into the
+    working folder, never into the package."""
+    monkeypatch.chdir(tmp_path)
+    scene = dg.load_scene("jelly.toml", {"physics.steps": 2, "render.size": [32, 24], "grid.nodes_along_longest": 4})
+    assert scene.source.name == "jelly.toml" and scene.source.is_file()
+    assert dg.load_scene("scenes/jelly.toml").source == scene.source
+    image = dg.render_to_png(scene, ctx=ctx)
+    assert image.shape == (24, 32, 3) and (tmp_path / scene.output.path.name).is_file()
+    with pytest.raises(dg.SceneError, match="nope.toml: cannot read scene file: file not found"):
+        dg.load_scene("nope.toml")
+
+
+def test_shipped_meshes_are_found_from_any_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    from deformgl.data import asset, find_mesh
+
+    from deformgl.data import scenes_dir
+
+    mesh = sorted(p.name for p in (scenes_dir() / "assets").iterdir() if p.name.endswith((".ply", ".obj", ".stl", ".gz")))[0]
+    assert find_mesh(mesh) == asset(mesh) and find_mesh(f"scenes/assets/{mesh}") == asset(mesh)
+    assert find_mesh("nope.ply") == Path("nope.ply")
+    with pytest.raises(dg.InputError, match="nope.ply: file not found"):
+        dg.Body.from_mesh("nope.ply")
+    body = dg.Body.from_mesh(mesh, resolution=4)
+    assert body.grid.count > 0 and body.source == mesh
+
+
+# (call, exception type, the message's start): every user-caused error names the argument
+BAD_CALLS = [
+    (lambda: dg.ElasticMaterial(-1.0, 1000.0), "ElasticMaterial: youngs_modulus must be a finite number > 0 Pa, got -1.0"),
+    (lambda: dg.ElasticMaterial(1e3, float("nan")), "ElasticMaterial: density must be a finite number > 0"),
+    (lambda: dg.ElasticMaterial("soft", 1000.0), "ElasticMaterial: youngs_modulus must be a real number"),
+    (lambda: dg.ElasticMaterial(1e3, 1e3, mass_damping=-1), "ElasticMaterial: mass_damping must be a finite number >= 0"),
+    (lambda: dg.ElasticMaterial(1e3, 1e3, poissons_ratio=0.1), "ElasticMaterial: poissons_ratio must be in"),
+    (lambda: dg.SheetMaterial(-1.0, 1.0), "SheetMaterial: stretch_modulus must be a finite number > 0"),
+    (lambda: dg.SheetMaterial(1.0, 1.0, flexion_ratio=0.7), "SheetMaterial: flexion_ratio must be at most 0.5"),
+    (lambda: dg.below("w", 0.1), "below: axis must be one of x, y, z"),
+    (lambda: dg.above(0, float("nan")), "above: at must be a finite number"),
+    (lambda: dg.inside((0, 0), (1, 1, 1)), "inside: lo must be 3 numbers, got 2"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, fixed=dg.below("x", -0.5)),
+     "Body.from_arrays: fixed[0]: the region catches no node"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, fixed=[dg.below("x", 0.1), dg.above("x", 1.5)]),
+     "Body.from_arrays: fixed[1]: the region catches no node"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, fixed=3), "Body.from_arrays: fixed must be a region"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=1), "Body.from_arrays: resolution must be an integer of at least 2"),
+    (lambda: dg.Body.from_arrays(V, F, resolution="8"), "Body.from_arrays: resolution must be an integer"),
+    (lambda: dg.Body.from_arrays(V, F, spacing=float("nan")), "Body.from_arrays: spacing must be a finite number > 0"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, gravity=(0, float("nan"), 0)),
+     "Body.from_arrays: gravity[1] must be a finite number"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, gravity=(0, -9.81)), "Body.from_arrays: gravity must be 3 numbers"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, stiffness=-5.0), "Body.from_arrays: stiffness must be a finite number > 0"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, mass=0.0), "Body.from_arrays: mass must be a finite number > 0"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, damping=float("nan")), "Body.from_arrays: damping must be a finite"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, scale="2"), "Body.from_arrays: scale must be a real number"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, material=3), "Body.from_arrays: material must be an ElasticMaterial"),
+    (lambda: dg.Body.from_arrays(V, F, resolution=4, material=dg.SheetMaterial(1.0, 1.0)),
+     "Body.from_arrays: material: a SheetMaterial needs a grid one node thick"),
+    (lambda: dg.Body.from_arrays([["a", "b", "c"]], F), "Body.from_arrays: vertices must be numbers"),
+    (lambda: dg.Body.from_arrays(np.where(V == 1.0, np.nan, V), F), "Body.from_arrays: vertices[4] is non-finite"),
+    (lambda: dg.Body.from_arrays(V, F - 1), "Body.from_arrays: faces[0] [0, 2, -1] has a vertex index outside 0..7"),
+    (lambda: dg.Body.from_arrays(V * 1e300, F, resolution=4), "Body.from_arrays: the mesh's bounding box"),
+    (lambda: dg.Body.from_mesh(3), "Body.from_mesh: mesh must be a file path or a trimesh.Trimesh"),
+    (lambda: dg.load_scene(3), "load_scene: path must be a file path"),
+    (lambda: dg.write_png("x.png", np.zeros((2, 2))), "write_png: image must be a (height, width, 3 or 4) uint8 array"),
+    (lambda: dg.write_png("/proc/x.png", np.zeros((2, 2, 3), np.uint8)), "/proc/x.png: cannot write the png into /proc"),
+]
+
+
+@pytest.mark.parametrize("call, message", BAD_CALLS, ids=[m.split(" must")[0][:48] for _, m in BAD_CALLS])
+def test_bad_api_calls_are_deformgl_errors_naming_the_argument(call, message, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(dg.DeformglError) as info:
+        call()
+    text = str(info.value)
+    assert text.startswith(message), text
+    assert "\n" not in text and "physics." not in text and "material." not in text
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_bad_render_arguments_name_them(ctx):
+    with dg.Body.from_arrays(V, F, resolution=4, ctx=ctx) as body:
+        for kwargs, message in (({"size": (0, 10)}, "Body.render: size[0] must be an integer of 1 to 8192"),
+                                ({"size": 64}, "Body.render: size must be (width, height)"),
+                                ({"msaa": 3}, "Body.render: msaa must be 0, 1, 2, 4 or 8"),
+                                ({"mapping": "x"}, "Body: mapping must be one of")):
+            with pytest.raises(dg.ArgumentError, match=re.escape(message)):
+                body.render(**kwargs)
+
+
+def test_the_scene_file_keeps_naming_its_keys(tmp_path):
+    """The same checks reached from a scene file name the scene's keys, not the API's arguments."""
+    scene = tmp_path / "s.toml"
+    scene.write_text('[cloth]\nnodes = [6, 6]\n\n[[physics.fixed]]\nregion = "below"\naxis = "z"\nat = -0.5\n'
+                     '\n[render]\nsize = [32, 24]\n')
+    from deformgl.scene.pipeline import build_scene_model
+
+    with pytest.raises(dg.SceneError, match=r"s.toml: physics.fixed\[0\]: the region"):
+        build_scene_model(dg.load_scene(scene))

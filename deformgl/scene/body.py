@@ -18,6 +18,7 @@ is owned by one :class:`~deformgl.gl.resources.GLOwner` and freed by :meth:`Body
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,7 +28,9 @@ import moderngl
 import numpy as np
 import trimesh
 
-from deformgl.errors import InputError
+from deformgl.data import default_output, find_mesh
+from deformgl.errors import ArgumentError, InputError
+from deformgl.files import check_writable
 from deformgl.files import write_png_atomic
 from deformgl.gl.context import create_context
 from deformgl.gl.resources import GLOwner
@@ -41,7 +44,7 @@ from deformgl.render.mapped_setup import get_binding, mapped_vertices
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene import pipeline
 from deformgl.scene.pipeline import mesh_grid, recentred
-from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport
+from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport, SheetMaterial
 from deformgl.scene.run import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, Physics, Region, Scene
@@ -56,48 +59,90 @@ __all__ = ["Body", "above", "below", "inside", "render_scene", "render_to_png", 
 MAPPINGS = ("one-to-one", "constant", "curvature", "auto")
 
 
-def _axis(axis: int | str) -> int:
-    if isinstance(axis, str):
-        if axis not in AXES:
-            raise ValueError(f"axis must be one of {AXES} or 0..2, got {axis!r}")
+def _real(caller: str, name: str, value: Any, *, above: float | None = None, at_least: float | None = None) -> float:
+    """``value`` as a finite float (> ``above``, >= ``at_least`` when given), else
+    :class:`ArgumentError` naming ``caller`` and the argument ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ArgumentError(f"{caller}: {name} must be a real number, got {value!r}")
+    x = float(value)
+    bound = "" if above is None else f" > {above:g}"
+    bound += "" if at_least is None else f" >= {at_least:g}"
+    if not math.isfinite(x) or (above is not None and not x > above) or (at_least is not None and not x >= at_least):
+        raise ArgumentError(f"{caller}: {name} must be a finite number{bound}, got {value!r}")
+    return x
+
+
+def _vec3(caller: str, name: str, value: Any) -> tuple[float, float, float]:
+    """Three finite numbers (``gravity``, a box corner), else :class:`ArgumentError`."""
+    try:
+        items = list(value)
+    except TypeError:
+        raise ArgumentError(f"{caller}: {name} must be 3 numbers, got {value!r}") from None
+    if len(items) != 3:
+        raise ArgumentError(f"{caller}: {name} must be 3 numbers, got {len(items)}")
+    x, y, z = (_real(caller, f"{name}[{i}]", v) for i, v in enumerate(items))
+    return x, y, z
+
+
+def _size(caller: str, size: Any) -> tuple[int, int]:
+    """(width, height) in pixels, each 1..8192, else :class:`ArgumentError`."""
+    try:
+        w, h = size
+    except (TypeError, ValueError):
+        raise ArgumentError(f"{caller}: size must be (width, height) in pixels, got {size!r}") from None
+    for name, v in (("size[0]", w), ("size[1]", h)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 8192:
+            raise ArgumentError(f"{caller}: {name} must be an integer of 1 to 8192 pixels, got {v!r}")
+    return int(w), int(h)
+
+
+def _axis(caller: str, axis: int | str) -> int:
+    if isinstance(axis, str) and axis in AXES:
         return AXES.index(axis)
-    if axis not in (0, 1, 2):
-        raise ValueError(f"axis must be one of {AXES} or 0..2, got {axis!r}")
-    return int(axis)
+    if not isinstance(axis, (str, bool)) and isinstance(axis, (int, np.integer)) and axis in (0, 1, 2):
+        return int(axis)
+    raise ArgumentError(f"{caller}: axis must be one of {', '.join(AXES)} or 0..2, got {axis!r}")
 
 
 def below(axis: int | str, at: float) -> Region:
     """The region at or below bounding-box fraction ``at`` along ``axis`` ("x", "y", "z" or 0..2),
     as a scene's ``[[physics.fixed]] below = ...``."""
-    return Region("below", _axis(axis), float(at), None, None)
+    return Region("below", _axis("below", axis), _real("below", "at", at), None, None)
 
 
 def above(axis: int | str, at: float) -> Region:
     """The region at or above bounding-box fraction ``at`` along ``axis``."""
-    return Region("above", _axis(axis), float(at), None, None)
+    return Region("above", _axis("above", axis), _real("above", "at", at), None, None)
 
 
 def inside(lo: Sequence[float], hi: Sequence[float]) -> Region:
     """The box of bounding-box fractions from ``lo`` to ``hi`` (3 each, inclusive)."""
-    lo3 = tuple(float(v) for v in lo)
-    hi3 = tuple(float(v) for v in hi)
-    if len(lo3) != 3 or len(hi3) != 3:  # checked before the tuples are built
-        raise ValueError("inside: lo and hi must have 3 components each")
-    return Region("box", None, None, (lo3[0], lo3[1], lo3[2]), (hi3[0], hi3[1], hi3[2]))
+    return Region("box", None, None, _vec3("inside", "lo", lo), _vec3("inside", "hi", hi))
 
 
 def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
     """Write a (height, width, 3 or 4) uint8 image as a PNG, atomically (temporary file, then
-    rename)."""
-    write_png_atomic(Path(path), np.asarray(image))
+    rename).
+
+    Raises:
+        ArgumentError: ``image`` is not such an array; InputError: ``path`` cannot be written.
+    """
+    array = np.asarray(image)
+    if array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] not in (3, 4) or 0 in array.shape:
+        raise ArgumentError(f"write_png: image must be a (height, width, 3 or 4) uint8 array, got "
+                            f"{array.dtype} {array.shape}")
+    check_writable(path, "png")
+    write_png_atomic(Path(path), array)
 
 
-def _regions(fixed: Region | Sequence[Region] | None) -> tuple[Region, ...]:
+def _regions(caller: str, fixed: Region | Sequence[Region] | None) -> tuple[Region, ...]:
     if fixed is None:
         return ()
-    if isinstance(fixed, Region):
-        return (fixed,)
-    return tuple(fixed)
+    regions = (fixed,) if isinstance(fixed, Region) else tuple(fixed) if isinstance(fixed, (list, tuple)) else None
+    if regions is None or not all(isinstance(r, Region) for r in regions):
+        raise ArgumentError(f"{caller}: fixed must be a region (below, above, inside) or a list of them, "
+                            f"got {fixed!r}")
+    return regions
 
 
 class Body:
@@ -120,33 +165,45 @@ class Body:
     (``"liver"``, ``"gelatin"``, ...): the calibrated lattice of
     :mod:`deformgl.sim.materials`, the same body at any resolution; without one, the per-spring
     form: ``stiffness`` N/m per spring, ``mass`` kg per node, ``damping`` N*s/m. ``scale``: metres
-    per mesh unit. ``gravity`` m/s^2, ``fixed`` regions.
+    per mesh unit. ``gravity`` m/s^2, ``fixed`` regions. ``caller``: the name argument errors
+    start with (``Body.from_arrays``, ...): they name the argument as passed (``fixed[0]``),
+    where a scene names its key (``physics.fixed[0]``).
     """
 
     def __init__(self, mesh: trimesh.Trimesh, *, resolution: int | None = 8, spacing: float | None = None,
                  stiffness: float | None = None, damping: float | None = None, mass: float | None = None,
                  gravity: Sequence[float] = (0.0, -9.81, 0.0), fixed: Region | Sequence[Region] | None = None,
-                 material: ElasticMaterial | str | None = None, scale: float = 1.0,
-                 ctx: moderngl.Context | None = None, source: str = "<arrays>") -> None:
+                 material: ElasticMaterial | SheetMaterial | str | None = None, scale: float = 1.0,
+                 ctx: moderngl.Context | None = None, source: str = "<arrays>", caller: str = "Body") -> None:
         if spacing is not None:
             resolution = None
-        elif resolution is None or int(resolution) < 2:
-            raise InputError(f"{source}: resolution must be at least 2 nodes along the longest side, got {resolution}")
+            spacing = _real(caller, "spacing", spacing, above=0.0)
+        elif isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
+            raise ArgumentError(f"{caller}: resolution must be an integer of at least 2 nodes along the longest side, "
+                                f"got {resolution!r}")
         given = [name for name, value in (("stiffness", stiffness), ("damping", damping), ("mass", mass))
                  if value is not None]
         if material is not None and given:
-            raise InputError(f"{source}: {given[0]}: not used with material= (the springs, masses and damping "
-                             f"come from its Young's modulus, density and Rayleigh damping)")
-        stiffness = 500.0 if stiffness is None else stiffness
-        damping = 0.5 if damping is None else damping
-        mass = 0.01 if mass is None else mass
+            raise ArgumentError(f"{caller}: {given[0]}: not used with material= (the springs, masses and damping "
+                                f"come from its Young's modulus, density and Rayleigh damping)")
+        stiffness = 500.0 if stiffness is None else _real(caller, "stiffness", stiffness, above=0.0)
+        damping = 0.5 if damping is None else _real(caller, "damping", damping, at_least=0.0)
+        mass = 0.01 if mass is None else _real(caller, "mass", mass, above=0.0)
         if isinstance(material, str):
             if material not in PRESETS:
-                raise InputError(f"{source}: material must be an ElasticMaterial or one of {', '.join(PRESETS)}, "
-                                 f"got {material!r}")
+                raise ArgumentError(f"{caller}: material must be an ElasticMaterial or one of {', '.join(PRESETS)}, "
+                                    f"got {material!r}")
             material = PRESETS[material]
-        if not (np.isfinite(scale) and scale > 0):
-            raise InputError(f"{source}: scale must be > 0 (metres per mesh unit), got {scale}")
+        elif material is not None and not isinstance(material, (ElasticMaterial, SheetMaterial)):
+            raise ArgumentError(f"{caller}: material must be an ElasticMaterial, a SheetMaterial or one of "
+                                f"{', '.join(PRESETS)}, got {material!r}")
+        scale = _real(caller, "scale", scale, above=0.0)
+        g = _vec3(caller, "gravity", gravity)
+        regions = _regions(caller, fixed)
+        extent = np.ptp(np.asarray(mesh.vertices, np.float64), axis=0) * scale if len(mesh.vertices) else np.zeros(3)
+        if not (np.isfinite(extent).all() and 0.0 < extent.max() < 1e30):  # (a larger box overflows the springs)
+            raise ArgumentError(f"{caller}: the mesh's bounding box {extent.tolist()} (times scale) must be finite, "
+                                f"not a point and under 1e30")
         if scale != 1.0:
             mesh = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64) * scale, mesh.faces, process=False)
             spacing = None if spacing is None else spacing * scale
@@ -156,13 +213,15 @@ class Body:
         self.source = source
         self.grid = mesh_grid(self.mesh, nodes_along_longest=resolution, spacing=spacing, source=source,
                               finer="a larger resolution or a smaller spacing", solid=material is not None)
+        if isinstance(material, SheetMaterial) and 1 not in self.grid.shape:
+            raise ArgumentError(f"{caller}: material: a SheetMaterial needs a grid one node thick (a cloth), this "
+                                f"one is {'x'.join(map(str, self.grid.shape))} nodes; use an ElasticMaterial")
         self.bbox = np.array(self.mesh.bounds, dtype=np.float64)
-        g = tuple(float(v) for v in gravity)
-        self.physics = Physics(dt=1e-3, steps=0, stiffness=float(stiffness), damping=0.0 if material else float(damping),
-                               mass=float(mass), gravity=(g[0], g[1], g[2]), fixed=_regions(fixed), pull=(),
-                               material=material)
+        self.physics = Physics(dt=1e-3, steps=0, stiffness=stiffness, damping=0.0 if material else damping,
+                               mass=mass, gravity=g, fixed=regions, pull=(), material=material)
         reports: list[LatticeReport] = []
-        self.system: SpringSystem = scene_system(self.grid, self.physics, self.bbox, source=source, report=reports)
+        self.system: SpringSystem = scene_system(self.grid, self.physics, self.bbox, source=caller, keys="",
+                                                 report=reports)
         #: what the cell assembly found (a material body), else None
         self.lattice: LatticeReport | None = reports[0] if reports else None
         self._ctx = ctx
@@ -177,10 +236,13 @@ class Body:
         as stored) or a ``trimesh.Trimesh``; ``options`` as :class:`Body` (``resolution``,
         ``spacing``, ``stiffness``, ``damping``, ``mass``, ``gravity``, ``fixed``, ``material``,
         ``scale``, ``ctx``)."""
+        options.setdefault("caller", "Body.from_mesh")
         if isinstance(mesh, trimesh.Trimesh):
             return cls(mesh, **options)
+        if not isinstance(mesh, (str, os.PathLike)):
+            raise ArgumentError(f"Body.from_mesh: mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
         options.setdefault("source", os.fspath(mesh))
-        return cls(load_mesh(mesh), **options)
+        return cls(load_mesh(find_mesh(mesh)), **options)
 
     @classmethod
     def from_arrays(cls, vertices: Any, faces: Any, **options: Any) -> Body:
@@ -190,17 +252,22 @@ class Body:
         Raises:
             InputError: the arrays are not of those shapes or have a non-finite vertex.
         """
-        source = options.setdefault("source", "<arrays>")
-        v = np.asarray(vertices, dtype=np.float64)
+        caller = options.setdefault("caller", "Body.from_arrays")
+        options.setdefault("source", "<arrays>")
+        try:
+            v = np.asarray(vertices, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ArgumentError(f"{caller}: vertices must be numbers of shape (V, 3)") from None
         f = np.asarray(faces)
         if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
-            raise InputError(f"{source}: vertices must have shape (V, 3), got {v.shape}")
+            raise ArgumentError(f"{caller}: vertices must have shape (V, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or not np.issubdtype(f.dtype, np.integer):
-            raise InputError(f"{source}: faces must be integers of shape (F, 3), got {f.dtype} {f.shape}")
+            raise ArgumentError(f"{caller}: faces must be integers of shape (F, 3), got {f.dtype} {f.shape}")
         if not np.isfinite(v).all():
-            raise InputError(f"{source}: vertex {int(np.argmax(~np.isfinite(v).all(axis=1)))} is non-finite")
+            raise ArgumentError(f"{caller}: vertices[{int(np.argmax(~np.isfinite(v).all(axis=1)))}] is non-finite")
         if f.min() < 0 or f.max() >= len(v):
-            raise InputError(f"{source}: a face index is outside 0..{len(v) - 1}")
+            bad = int(np.argmax(((f < 0) | (f >= len(v))).any(axis=1)))
+            raise ArgumentError(f"{caller}: faces[{bad}] {f[bad].tolist()} has a vertex index outside 0..{len(v) - 1}")
         return cls(trimesh.Trimesh(v, f.astype(np.int64), process=False), **options)
 
     # -- GL ownership ----------------------------------------------------------------------
@@ -302,7 +369,7 @@ class Body:
 
     def _pass(self, mapping: str) -> Any:
         if mapping not in MAPPINGS:
-            raise InputError(f"{self.source}: mapping must be one of {', '.join(MAPPINGS)}, got {mapping!r}")
+            raise ArgumentError(f"Body: mapping must be one of {', '.join(MAPPINGS)}, got {mapping!r}")
         if mapping not in self._passes:
             owner = self._gl()
             if self._nodes is None:
@@ -354,9 +421,11 @@ class Body:
         Returns:
             (height, width, 3) uint8, top row first.
         """
+        key = (_size("Body.render", size), int(_real("Body.render", "msaa", msaa, at_least=0)))
+        if key[1] not in (0, 1, 2, 4, 8):
+            raise ArgumentError(f"Body.render: msaa must be 0, 1, 2, 4 or 8 samples, got {msaa!r}")
         draw = self._pass(mapping)
         positions = self._upload(sim)
-        key = ((int(size[0]), int(size[1])), int(msaa))
         if key not in self._targets:
             self._targets[key] = self.own(RenderTarget(self.ctx, key[0], key[1]))
         target = self._targets[key]
@@ -374,7 +443,7 @@ def render_scene(scene: Scene | str | os.PathLike[str], *, ctx: moderngl.Context
         scene: a :class:`~deformgl.scene.spec.Scene` or the path of a scene file.
         ctx: the GL context (default: one created for the call and released after it).
     """
-    loaded = scene if isinstance(scene, Scene) else load_scene(Path(scene))
+    loaded = scene if isinstance(scene, Scene) else load_scene(scene)
     if ctx is not None:
         return pipeline.render_scene(ctx, loaded, progress=progress)
     own = create_context()
@@ -388,8 +457,9 @@ def render_to_png(scene: Scene | str | os.PathLike[str], out: str | os.PathLike[
                   ctx: moderngl.Context | None = None, progress: bool = False) -> np.ndarray:
     """Render a scene and write the PNG (default: the scene's ``output.path``) atomically; returns
     the image."""
-    loaded = scene if isinstance(scene, Scene) else load_scene(Path(scene))
-    path = Path(out) if out is not None else loaded.output.path
+    loaded = scene if isinstance(scene, Scene) else load_scene(scene)
+    path = Path(out) if out is not None else default_output(loaded.source, loaded.output.path)
+    check_writable(path)
     if ctx is not None:
         return pipeline.render_to_png(ctx, loaded, path, progress=progress)
     own = create_context()

@@ -112,21 +112,23 @@ def _caught(region: Region, grid: NodeGrid, bbox: np.ndarray, source: str, key: 
     return nodes
 
 
-def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene",
+def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene", keys: str = "physics.",
                  report: list[LatticeReport] | None = None) -> SpringSystem:
     """The scene's spring system: with ``physics.material`` the calibrated lattice of
     :mod:`deformgl.sim.materials` (springs, masses and Rayleigh damping from the material);
     otherwise the grid's springs by class (a class of stiffness 0 is not built) and the mass
     per node. Either way the nodes of the ``[[physics.fixed]]`` regions (fractions of ``bbox``,
     (2, 3)) are fixed, and gravity and wind apply. ``report``, if given, receives the lattice's
-    :class:`~deformgl.sim.materials.LatticeReport`.
+    :class:`~deformgl.sim.materials.LatticeReport`. ``keys``: what the messages put before a
+    key (a scene's table, ``"physics."``; the Python API's ``""``: its arguments are named as
+    passed, ``fixed[0]``).
 
     Raises:
         SceneError: a fixed region that catches no node (``source: physics.fixed[i]: ...``).
     """
     fixed = np.zeros(grid.count, bool)
     for i, region in enumerate(physics.fixed):
-        fixed |= _caught(region, grid, bbox, source, f"physics.fixed[{i}]")
+        fixed |= _caught(region, grid, bbox, source, f"{keys}fixed[{i}]")
     material = physics.material
     if material is not None:
         build = lattice_system if isinstance(material, ElasticMaterial) else sheet_system

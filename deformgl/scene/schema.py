@@ -18,11 +18,13 @@ import math
 import re
 import tomllib
 from collections.abc import Iterator
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from deformgl.data import find_scene
 from deformgl.errors import SceneError
 from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _existing, _fail, _int, _join,  # noqa: F401
                                    _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
@@ -387,9 +389,15 @@ def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Sce
         overrides: dotted scene keys to set before validation (:func:`apply_overrides`), e.g.
             ``{"physics.integrator": "rk4", "grid.nodes_along_longest": 12}``.
 
+    A path that does not exist is looked up among the shipped scenes by file name, as the CLI
+    does (:func:`deformgl.data.find_scene`): ``load_scene("jelly.toml")`` in any folder.
+
     Raises:
         SceneError: For an unreadable file, invalid TOML, or any invalid, missing or unknown key.
     """
+    if not isinstance(path, (str, PathLike)):
+        raise SceneError(f"load_scene: path must be a file path (str or os.PathLike), got {type(path).__name__}")
+    path = find_scene(path)
     file, source = str(path), Path(path).resolve()
     try:
         with open(path, "rb") as fh:

@@ -60,6 +60,7 @@ from itertools import product
 import numpy as np
 from numpy.typing import ArrayLike
 
+from deformgl.errors import ArgumentError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.bending import sheet_bending
 from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
@@ -72,6 +73,20 @@ MAX_POISSON = 0.499
 __all__ = ["MIN_POISSON", "MAX_POISSON", "ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
            "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts", "cell_weights", "fill_shares",
            "EVEN_SHARE"]
+
+
+def _check_numbers(material: object, name: str, bounds: dict[str, str]) -> None:
+    """Each field in ``bounds`` a finite real number within its bound ("> 0 Pa": positive, ">= 0":
+    not negative, "": any); else :class:`ArgumentError` naming the class and the argument (a
+    scene's ``[material]`` is checked key by key before it reaches here)."""
+    for key, bound in bounds.items():
+        value = getattr(material, key)
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ArgumentError(f"{name}: {key} must be a real number, got {value!r}")
+        ok = math.isfinite(value) and (value > 0 if bound.startswith(">") and not bound.startswith(">=")
+                                       else value >= 0 if bound.startswith(">=") else True)
+        if not ok:
+            raise ArgumentError(f"{name}: {key} must be a finite number{' ' + bound if bound else ''}, got {value}")
 
 
 @dataclass(frozen=True)
@@ -100,19 +115,14 @@ class ElasticMaterial:
     poissons_ratio: float = 0.25
 
     def __post_init__(self) -> None:
-        for key in ("youngs_modulus", "density"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"material.{key} must be a finite number > 0, got {value}")
-        for key in ("mass_damping", "stiffness_damping"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+        _check_numbers(self, "ElasticMaterial", {"youngs_modulus": "> 0 Pa", "density": "> 0 kg/m^3",
+                                                  "mass_damping": ">= 0 1/s", "stiffness_damping": ">= 0 s",
+                                                  "poissons_ratio": ""})
         nu = self.poissons_ratio
-        if not (math.isfinite(nu) and MIN_POISSON <= nu <= MAX_POISSON):
-            raise ValueError(f"material.poissons_ratio must be in [{MIN_POISSON}, {MAX_POISSON}], got {nu} "
-                             f"(below 1/4 the spring lattice would need lambda < mu, which central "
-                             f"springs cannot give)")
+        if not MIN_POISSON <= nu <= MAX_POISSON:
+            raise ArgumentError(f"ElasticMaterial: poissons_ratio must be in [{MIN_POISSON}, {MAX_POISSON}], got {nu} "
+                                f"(below 1/4 the spring lattice would need lambda < mu, which central "
+                                f"springs cannot give)")
 
     @property
     def shear_modulus(self) -> float:
@@ -169,20 +179,15 @@ class SheetMaterial:
     bending_stiffness: float = 0.0
 
     def __post_init__(self) -> None:
-        for key in ("stretch_modulus", "areal_density"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"material.{key} must be a finite number > 0, got {value}")
-        for key in ("mass_damping", "stiffness_damping", "flexion_ratio", "bending_stiffness"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"material.{key} must be a finite number >= 0, got {value}")
+        _check_numbers(self, "SheetMaterial", {"stretch_modulus": "> 0 N/m", "areal_density": "> 0 kg/m^2",
+                                                "mass_damping": ">= 0 1/s", "stiffness_damping": ">= 0 s",
+                                                "flexion_ratio": ">= 0", "bending_stiffness": ">= 0 N*m"})
         if self.flexion_ratio > 0.5:
-            raise ValueError(f"material.flexion_ratio must be at most 0.5 (the edges keep (2 - 4 r) k_d), "
-                             f"got {self.flexion_ratio}")
+            raise ArgumentError(f"SheetMaterial: flexion_ratio must be at most 0.5 (the edges keep (2 - 4 r) k_d), "
+                                f"got {self.flexion_ratio}")
         if self.flexion_ratio > 0 and self.bending_stiffness > 0:
-            raise ValueError("material.bending_stiffness and material.flexion_ratio: give one (the plate's D in "
-                             "N·m is the calibrated bending; flexion springs would add to it)")
+            raise ArgumentError("SheetMaterial: bending_stiffness and flexion_ratio: give one (the plate's D in "
+                                "N·m is the calibrated bending; flexion springs would add to it)")
 
 
 #: Named materials (E in Pa, rho in kg/m^3, Poisson's ratio) with the source of the values. Soft
