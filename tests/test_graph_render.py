@@ -163,7 +163,7 @@ def test_a_bad_lattice_file_is_named_with_its_key(tmp_path):
                               "b": NodeSpec(mesh="b")})
     from deformgl.errors import SceneError
 
-    with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid: grid points must have shape"):
+    with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid\.file: 'flat\.npy': a lattice must have shape"):
         compose_graph(graph, tmp_path, file="g.toml")
     graph.nodes["g"].transform.file = "none.npy"
     with pytest.raises(SceneError, match=r"g\.toml: nodes\.g\.grid\.file: cannot read .*none\.npy"):

@@ -298,3 +298,125 @@ def test_an_array_over_an_empty_group_within_the_limit_builds(tmp_path):
     (root,) = build_graph(load_graph(save_graph(g, tmp_path / "empty.toml")))
     assert sum(1 for _ in root.walk()) == 1 + 4 * (1 + 2)
     assert compose_scene(root).batches == []
+
+
+# ---- lattice files (issue 42, defect 5) --------------------------------------------------------------
+LATTICE_GRAPH = """[graph]
+roots = ["r"]
+[view]
+size = [64, 48]
+samples = 0
+[meshes.s]
+shape = "sphere"
+radius = 0.8
+segments = 12
+rings = 8
+[nodes.r]
+grid = { file = "lat.npy", box = { lo = [-1, -1, -1], hi = [1, 1, 1] } }
+children = ["m"]
+[nodes.m]
+mesh = "s"
+"""
+
+
+def identity_lattice() -> np.ndarray:
+    """The 3 x 3 x 3 identity lattice over the box [-1, 1]^3 of :data:`LATTICE_GRAPH`."""
+    return np.stack(np.meshgrid(*[np.linspace(-1.0, 1.0, 3)] * 3, indexing="ij"), -1)
+
+
+def _changed(value, dtype=np.float64, at=(2, 2, 2, 0)) -> np.ndarray:
+    a = identity_lattice().astype(dtype)
+    a[at] = value
+    return a
+
+
+def _npz_as_npy(path: Path) -> None:
+    with open(path, "wb") as f:
+        np.savez(f, a=identity_lattice())
+
+
+def _bytes(data: bytes):
+    return lambda path: path.write_bytes(data)
+
+
+def _saved(array, **kw):
+    return lambda path: np.save(path, array, **kw)
+
+
+def _good_bytes() -> bytes:
+    import io
+    buf = io.BytesIO()
+    np.save(buf, identity_lattice())
+    return buf.getvalue()
+
+
+BAD_LATTICES = {
+    # the issue's cases: beyond float32 (rendered blank), 1e300 and complex (rendered as no grid),
+    # an .npz under a .npy name (an internal error), an object array (the prefix said twice)
+    "beyond-float32": (_saved(_changed(1e39)), r"lattice point \[2, 2, 2\] has x = 1e\+39, beyond float32"),
+    "1e300": (_saved(_changed(1e300)), r"lattice point \[2, 2, 2\] has x = 1e\+300, beyond float32"),
+    "complex": (_saved(_changed(1 + 1j, complex)), r"must hold real numbers .*got dtype complex128"),
+    "npz-as-npy": (_npz_as_npy, r"must be a \.npy array, got a \.npz archive"),
+    "object": (_saved(identity_lattice().astype(object), allow_pickle=True), r"got dtype object"),
+    "too-far": (_saved(_changed(3e6)), r"lattice point \[2, 2, 2\] has x = 3e\+06, more than 1e\+06 box sizes"),
+    "nan": (_saved(_changed(np.nan, at=(0, 1, 2, 1))), r"lattice point \[0, 1, 2\] has a non-finite y \(nan\)"),
+    "inf-float16": (_saved(_changed(np.inf, np.float16)), r"lattice point \[2, 2, 2\] has a non-finite x \(inf\)"),
+    "bool": (_saved(identity_lattice() > 0), r"got dtype bool"),
+    "strings": (_saved(identity_lattice().astype(str)), r"got dtype <U32"),
+    "records": (_saved(np.zeros((3, 3, 3, 3), dtype=[("a", "f8")])), r"must hold real numbers"),
+    "flat": (_saved(identity_lattice()[:, :, :1]), r"shape \(nx\+1, ny\+1, nz\+1, 3\) .*got \(3, 3, 1, 3\)"),
+    "2d": (_saved(np.zeros((4, 3))), r"got \(4, 3\)"),
+    "xy-only": (_saved(identity_lattice()[..., :2]), r"got \(3, 3, 3, 2\)"),
+    "empty": (_bytes(b""), r"must be a \.npy array, got an empty file"),
+    "text": (_bytes(b"1 2 3\n4 5 6\n"), r"must be a \.npy array, got something else"),
+    "truncated": (_bytes(_good_bytes()[:-5]), r"truncated: its header declares \(3, 3, 3, 3\) float64 \(648 bytes\), the file holds 643"),
+    "header-only": (_bytes(_good_bytes()[:20]), r"not a valid \.npy file"),
+    "two-arrays": (_bytes(_good_bytes() * 2), r"bytes after its \(3, 3, 3, 3\) float64 array"),
+}
+
+
+@pytest.mark.parametrize("name", BAD_LATTICES)
+def test_a_bad_lattice_file_is_one_line_naming_the_file_key_and_lattice(tmp_path, name):
+    """Refused when the graph is built (before any GL work), one line, the prefix said once."""
+    write, message = BAD_LATTICES[name]
+    write(tmp_path / "lat.npy")
+    path = _write(tmp_path, LATTICE_GRAPH)
+    with pytest.raises(SceneError, match=rf"^{re.escape(str(path))}: nodes\.r\.grid\.file: 'lat\.npy': .*{message}") as e:
+        build_graph(load_graph(path), tmp_path, file=str(path))
+    text = str(e.value)
+    assert "\n" not in text and text.count(str(path)) == 1, text
+
+
+@pytest.mark.parametrize("where, message", [("lat.npy/", "a directory"), ("none.npy", "file not found")])
+def test_a_lattice_that_is_not_a_file_is_named(tmp_path, where, message):
+    (tmp_path / "lat.npy").mkdir()
+    path = _write(tmp_path, LATTICE_GRAPH.replace('"lat.npy"', f'"{where}"'))
+    with pytest.raises(SceneError, match=rf"nodes\.r\.grid\.file: cannot read '{re.escape(where)}': {message}"):
+        build_graph(load_graph(path), tmp_path, file=str(path))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, np.float16, np.int32, np.uint8, ">f8"])
+def test_a_lattice_of_any_real_dtype_is_its_float64_values(tmp_path, dtype):
+    lattice = identity_lattice() + 1.0  # (>= 0, for uint8)
+    lattice[2, 2, 2, 0] = 5.0
+    np.save(tmp_path / "lat.npy", lattice.astype(dtype))
+    path = _write(tmp_path, LATTICE_GRAPH)
+    (root,) = build_graph(load_graph(path), tmp_path, file=str(path))
+    assert np.array_equal(root.transform.points, lattice)
+
+
+def test_a_far_lattice_point_is_not_judged_linear_away():
+    """1e300 overflowed the linearity test's norms to inf (inf <= inf: 'linear'), so the grid was
+    drawn as the affine map of three edges, without the changed corner: now refused as beyond
+    float32, as every value that would be infinite on the GPU."""
+    from deformgl.errors import InputError
+    from deformgl.trilinear.cuboid import Box
+
+    box = Box(-np.ones(3), np.ones(3))
+    with pytest.raises(InputError, match=r"within float32 .*got 1e\+300"):
+        Trilinear(box, _changed(1e300))
+    grid = Trilinear(box, _changed(1e30))  # within float32: the changed corner keeps the grid trilinear
+    assert not grid.is_linear()
+    (scene_batch,) = compose_scene(TransformNode(grid, [GeometryNode(
+        __import__("deformgl.trilinear.shapes", fromlist=["uv_sphere"]).uv_sphere(0.8, 12, 8, "s"))])).batches
+    assert scene_batch.path == "grid"

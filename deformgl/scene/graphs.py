@@ -66,7 +66,7 @@ def render_graph_file(ctx: moderngl.Context, path: str | Path, *, size: tuple[in
     base = Path(path).resolve().parent
     if graph.body is None:
         scenes = compose_graph(graph, base, time=time, file=file)
-        image = draw_composed(ctx, graph, scenes, size)
+        image = draw_composed(ctx, graph, scenes, size, file=file)
         return GraphRender(image, scenes), graph_mesh(ctx, scenes) if mesh else None
     if len(graph.roots) != 1:
         raise InputError(f"{file}: graph.roots: a graph on a [body] has one root, got {len(graph.roots)}")

@@ -26,6 +26,7 @@ from deformgl.trilinear.cuboid import CORNERS, Box, apply_coefficients
 from deformgl.trilinear.deformations import tangent_affine
 from deformgl.trilinear.graphspec import NodeSpec, SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
+from deformgl.trilinear.latticefile import read_lattice
 from deformgl.trilinear.nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.renderer import TrilinearRenderer
 from deformgl.trilinear.scenegraph import compose_scene
@@ -128,12 +129,12 @@ class _Builder:
                 corners = t.corners if t.kind == "cuboid" else apply_coefficients(np.asarray(t.coefficients), CORNERS)
                 made = Trilinear.from_corners(self.box(name, t), np.asarray(corners))
             elif t.kind == "grid" and t.file is not None:
-                path = self.base / t.file
-                try:
-                    points = np.load(path, allow_pickle=False)
-                except (OSError, ValueError) as e:
-                    raise self.fail(f"{key}.file", f"cannot read {path}: {e}") from None
-                made = Trilinear(self.box(name, t), points)
+                box = self.box(name, t)
+                try:  # checked whole before any GL work (latticefile: dtype, shape, finite, extent)
+                    points = read_lattice(self.base / t.file, box, repr(t.file))
+                except InputError as e:
+                    raise self.fail(f"{key}.file", str(e)) from None
+                made = Trilinear(box, points)
             elif t.kind == "grid":
                 assert t.deformation is not None
                 f = self.g.deformations[t.deformation].function()
@@ -144,6 +145,8 @@ class _Builder:
                 made = self.attach(name, t)
             else:
                 raise self.fail(key, f"not a single transform: {t.kind}")
+        except SceneError:
+            raise  # (already "file: key: what"; wrapping it again would repeat the prefix)
         except InputError as e:
             raise self.fail(key, str(e)) from None
         self.transforms[name] = made
@@ -261,21 +264,49 @@ def _check_size(size: tuple[int, int]) -> tuple[int, int]:
     return w, h
 
 
+#: A root whose image has fewer pixels than this differing from the background (by more than
+#: :data:`DRAWN_LEVEL` of 255 on a channel) drew nothing visible: refused, not written blank.
+MIN_DRAWN_PIXELS = 8
+DRAWN_LEVEL = 8
+
+
+def check_drawn(image: np.ndarray, background: tuple[float, float, float], file: str, key: str) -> np.ndarray:
+    """``image`` (H, W, 3) uint8, or a SceneError when it is blank: fewer than
+    :data:`MIN_DRAWN_PIXELS` pixels differ from ``background`` (a scene whose content is
+    smaller than a pixel in the frame, collapsed by its transforms or dwarfed by a far lattice
+    point, or drawn in the background's colour). A blank image is never written silently."""
+    bg = np.round(np.asarray(background) * 255.0)
+    drawn = int((np.abs(image[..., :3].astype(np.float64) - bg).max(-1) > DRAWN_LEVEL).sum())
+    if drawn < MIN_DRAWN_PIXELS:
+        raise SceneError(f"{file}: {key}: the image is blank ({drawn} of {image.shape[0] * image.shape[1]} pixels "
+                         f"differ from the background): its content covers less than a pixel, collapsed or "
+                         f"outstretched by its transforms (a lattice point far away?), or is the background's "
+                         f"colour; check the transforms, or render larger (--size)")
+    return image
+
+
 def draw_composed(ctx: moderngl.Context, graph: SceneGraph, scenes: list[ComposedScene],
-                  size: tuple[int, int] | None = None) -> np.ndarray:
+                  size: tuple[int, int] | None = None, *, file: str = "<graph>") -> np.ndarray:
     """One image of composed roots with the graph's view: one root fills it, two are drawn side
-    by side (left, right) with one camera."""
+    by side (left, right) with one camera. ``file`` names the graph in errors.
+
+    Raises:
+        SceneError: a root's image is blank (:func:`check_drawn`).
+    """
     v = graph.view
     w, h = _check_size(size or v.size)
     if len(scenes) == 2:
         half = (w // 2, h)
         view = scene_view(scenes, half, azimuth=v.azimuth, elevation=v.elevation, distance=v.distance)
         left, right = render_composed(ctx, scenes, half, samples=v.samples, view=view, background=v.background)
+        for i, image in enumerate((left, right)):
+            check_drawn(image, v.background, file, f"graph.roots[{i}] ({graph.roots[i]!r})")
         if w % 2:
             right = np.concatenate([right, right[:, -1:]], axis=1)
         return np.concatenate([left, right], axis=1)
     view = scene_view(scenes[0], (w, h), azimuth=v.azimuth, elevation=v.elevation, distance=v.distance)
-    return render_composed(ctx, scenes, (w, h), samples=v.samples, view=view, background=v.background)[0]
+    image = render_composed(ctx, scenes, (w, h), samples=v.samples, view=view, background=v.background)[0]
+    return check_drawn(image, v.background, file, f"graph.roots[0] ({graph.roots[0]!r})")
 
 
 def render_graph(ctx: moderngl.Context, graph: SceneGraph, base: str | Path = ".", *,
@@ -285,7 +316,7 @@ def render_graph(ctx: moderngl.Context, graph: SceneGraph, base: str | Path = ".
     graph's view size; ``normals`` the roots' normal mode)."""
     _check_size(size or graph.view.size)
     scenes = compose_graph(graph, base, time=time, file=file, normals=normals)
-    return draw_composed(ctx, graph, scenes, size)
+    return draw_composed(ctx, graph, scenes, size, file=file)
 
 
 def render_graph_frames(ctx: moderngl.Context, graph: SceneGraph, times: Sequence[float], base: str | Path = ".", *,

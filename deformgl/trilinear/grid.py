@@ -18,6 +18,9 @@ from deformgl.trilinear.cuboid import (
 )
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 def _check_function_output(name: str, out: np.ndarray, n: int) -> np.ndarray:
     out = np.asarray(out, dtype=np.float64)
     if out.shape != (n, 3):
@@ -38,7 +41,8 @@ class Trilinear:
         error: stated largest distance to the function the grid approximates (0 = exact).
 
     Raises:
-        InputError: a shape with fewer than 2 points on an axis, or non-finite points.
+        InputError: a shape with fewer than 2 points on an axis, or non-finite points or points
+            beyond float32 (drawn in float32, they would be infinite).
     """
 
     __slots__ = ("box", "points", "error")
@@ -49,6 +53,8 @@ class Trilinear:
             raise InputError(f"grid points must have shape (nx+1, ny+1, nz+1, 3) with n >= 1, got {p.shape}")
         if not np.all(np.isfinite(p)):
             raise InputError("grid points must be finite")
+        if np.abs(p).max() > _FLOAT32_MAX:  # infinite on the GPU (and the linearity test's norms overflow)
+            raise InputError(f"grid points must be within float32 (|v| <= {_FLOAT32_MAX:.6g}), got {np.abs(p).max():.6g}")
         self.box = box
         self.points = p
         self.error = float(error)
