@@ -16,9 +16,12 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from deformgl.errors import DeformglError, DeformglWarning, InputError
+
+#: What ``render -o`` writes, by extension (deformgl.render.video and the scene's output.path).
+OUTPUT_FORMATS = "PNG (.png), GIF (.gif), WebP (.webp), MP4 (.mp4) or PNG frames (DIR/%%04d.png)"
 
 #: The exit codes (see the module docstring and the README).
 EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
@@ -31,12 +34,11 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"deformgl: error: {_one_line(message)} (see {self.prog} --help)\n")
 
 
-def _parser() -> argparse.ArgumentParser:
-    from deformgl.sim.guards import MAX_SUBSTEPS
-
-    p = _Parser(
+def _top_parser(cls: type[_Parser] = _Parser) -> tuple[argparse.ArgumentParser, Any]:
+    """The ``deformgl`` parser with its global options, and its subcommands' action."""
+    p = cls(
         prog="deformgl",
-        description="GPU mass-spring soft bodies on a coarse grid, rendered headless to PNG "
+        description="GPU mass-spring soft bodies on a coarse grid, rendered headless to images "
                     "through OpenGL on EGL (Mesa llvmpipe without a GPU).")
     p.add_argument("--device", type=int, default=None,
                    help="EGL device index (default: $DEFORMGL_DEVICE, else EGL's default)")
@@ -45,7 +47,13 @@ def _parser() -> argparse.ArgumentParser:
     from deformgl import __version__
 
     p.add_argument("--version", action="version", version=f"deformgl {__version__}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    return p, p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+
+def _parser() -> argparse.ArgumentParser:
+    from deformgl.sim.guards import MAX_SUBSTEPS
+
+    p, sub = _top_parser()
     from deformgl.testing import diff_cli
 
     diff_cli.add_parser(sub)
@@ -53,71 +61,7 @@ def _parser() -> argparse.ArgumentParser:
 
     export_shaders.add_parser(sub)
     export_web.add_parser(sub)
-
-    r = sub.add_parser("render", help="simulate a scene and write a PNG",
-                       description="Simulate a scene file (TOML) on the GPU and render it to PNG, or render a scene-graph "
-                                   "file (one with a [graph] table, docs/SCENEGRAPH.md). "
-                                   "The PNG is written to a temporary file and renamed, so a failed "
-                                   "run never leaves a partial image.")
-    r.add_argument("scene", type=Path,
-                   help="scene file (.toml), e.g. scenes/dragon.toml; a file not in the working directory "
-                        "is looked up among the scenes shipped with deformgl by name (dragon.toml)")
-    r.add_argument("-o", "--output", type=Path, default=None,
-                   help="output PNG (default: the scene's output.path; for a shipped scene, its file "
-                        "name in the working directory)")
-    r.add_argument("--steps", type=int, default=None, help="override physics.steps")
-    r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
-    r.add_argument("--mesh", type=Path, default=None,
-                   help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
-    r.add_argument("--mapping", choices=["one-to-one", "constant", "curvature", "auto"], default=None,
-                   help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
-                        "curvature draw the detailed mesh through the triangle basis (Mosegaard & Sørensen 2005, eq. 6) or the "
-                        "curvature-corrected basis (Mosegaard & Sørensen 2005, eq. 8); auto picks per vertex")
-    r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet", "implicit-euler", "xpbd"],
-                   default=None,
-                   help="override physics.integrator (Movania & Feng 2012): explicit Euler, semi-implicit "
-                        "Euler, midpoint (RK2), classical RK4, position Verlet; implicit (backward) Euler with "
-                        "conjugate gradients (no dt limit; [physics.implicit] iterations, tolerance); or xpbd "
-                        "(Macklin, Müller & Chentanez 2016: no explicit dt limit; [physics.xpbd] iterations, substeps)")
-    r.add_argument("--backend", choices=["fragment", "feedback", "numpy"], default=None,
-                   help="override physics.backend: fragment passes on the node grid, transform feedback over "
-                        "explicit neighbour lists, or the float64 NumPy reference")
-    unstable = r.add_mutually_exclusive_group()
-    unstable.add_argument("--allow-unstable", dest="unstable", action="store_const", const="run", default=None,
-                          help="run a dt above the integrator's stability limit anyway (the default refuses it, "
-                               "naming the bound and the node and spring that set it)")
-    unstable.add_argument("--subdivide", dest="unstable", action="store_const", const="subdivide",
-                          help="split each step into enough substeps to be below the stability limit, and "
-                               f"restart a run that blows up with half the step (up to {MAX_SUBSTEPS} substeps)")
-    r.add_argument("--check-every", type=int, default=None, metavar="N",
-                   help="count non-finite or far-away nodes on the GPU every N steps (default: "
-                        "physics.safety.check_every, 100; 0: only at the end); a blow-up stops the run "
-                        "with the step and a node, and writes no PNG")
-    r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb|.pvd|.xdmf|.usd",
-                   help="also write the deformed detailed mesh as the mapping vertex shader computed "
-                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, "
-                        "one .glb animated by morph targets, a ParaView time series with displacement and "
-                        "velocity (.pvd of .vtu frames, or .xdmf + .h5; extra 'io'), or a USD point cache "
-                        "(.usd, .usda, .usdc; extra 'usd')")
-    r.add_argument("--export-grid", type=Path, default=None, metavar="OUT.pvd|.xdmf|.vtu",
-                   help="also write the node grid as hexahedra per frame for ParaView: displacement and "
-                        "velocity per node, volume ratio, Green strain and fill per cell (extra 'io')")
-    r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
-                   help="also write the node texture and vertex attributes for the shader pack's "
-                        "example program (examples/mapped_mesh_example.py)")
-    r.add_argument("--time", type=float, default=None, metavar="T",
-                   help="scene-graph files: the still at time T seconds of the keyframed deformations "
-                        "(default 0)")
-    r.add_argument("--tolerance", type=float, default=None, metavar="X",
-                   help="model only what the scene requires: run it on the coarsest grid, integrator and "
-                        "largest dt whose predicted relative deflection error is below X (deformgl plan; "
-                        "needs a [material]); the simulated time is kept")
-    r.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
-                   help="with --tolerance: which measured workload's error model applies (default bending)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
-    from deformgl.scene.overrides import add_render_flags
-
-    add_render_flags(r)  # --frames, --fps, --camera, --views, --compare, --set, --json
+    _add_render_parser(sub, MAX_SUBSTEPS)
 
     from deformgl.sweep import cli as sweep_cli
 
@@ -149,6 +93,117 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+
+def _add_render_parser(sub: Any, max_substeps: int) -> None:
+    """``deformgl render`` and its options (light to build: :func:`_syntax_first` parses with
+    them before the heavy imports)."""
+    r = sub.add_parser("render", help=f"simulate a scene and write an image ({OUTPUT_FORMATS})",
+                       description="Simulate a scene file (TOML) on the GPU and render it to a PNG still or an "
+                                   "animation (GIF, WebP, MP4 or numbered PNG frames), or render a scene-graph "
+                                   "file (one with a [graph] table, docs/SCENEGRAPH.md). "
+                                   "Every output is written to a temporary file and renamed, so a failed "
+                                   "run never leaves a partial image.")
+    r.add_argument("scene", type=Path,
+                   help="scene file (.toml), e.g. scenes/dragon.toml; a file not in the working directory "
+                        "is looked up among the scenes shipped with deformgl by name (dragon.toml)")
+    r.add_argument("-o", "--output", type=Path, default=None,
+                   help=f"output file, by its extension: {OUTPUT_FORMATS} (default: the scene's output.path; "
+                        "for a shipped scene, its file name in the working directory)")
+    r.add_argument("--steps", type=int, default=None, help="override physics.steps")
+    r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
+    r.add_argument("--mesh", type=Path, default=None,
+                   help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
+    r.add_argument("--mapping", choices=["one-to-one", "constant", "curvature", "auto"], default=None,
+                   help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
+                        "curvature draw the detailed mesh through the triangle basis (Mosegaard & Sørensen 2005, eq. 6) or the "
+                        "curvature-corrected basis (Mosegaard & Sørensen 2005, eq. 8); auto picks per vertex")
+    r.add_argument("--integrator", choices=["euler", "semi-implicit", "midpoint", "rk4", "verlet", "implicit-euler", "xpbd"],
+                   default=None,
+                   help="override physics.integrator (Movania & Feng 2012): explicit Euler, semi-implicit "
+                        "Euler, midpoint (RK2), classical RK4, position Verlet; implicit (backward) Euler with "
+                        "conjugate gradients (no dt limit; [physics.implicit] iterations, tolerance); or xpbd "
+                        "(Macklin, Müller & Chentanez 2016: no explicit dt limit; [physics.xpbd] iterations, substeps)")
+    r.add_argument("--backend", choices=["fragment", "feedback", "numpy"], default=None,
+                   help="override physics.backend: fragment passes on the node grid, transform feedback over "
+                        "explicit neighbour lists, or the float64 NumPy reference")
+    unstable = r.add_mutually_exclusive_group()
+    unstable.add_argument("--allow-unstable", dest="unstable", action="store_const", const="run", default=None,
+                          help="run a dt above the integrator's stability limit anyway (the default refuses it, "
+                               "naming the bound and the node and spring that set it)")
+    unstable.add_argument("--subdivide", dest="unstable", action="store_const", const="subdivide",
+                          help="split each step into enough substeps to be below the stability limit, and "
+                               f"restart a run that blows up with half the step (up to {max_substeps} substeps)")
+    r.add_argument("--check-every", type=int, default=None, metavar="N",
+                   help="count non-finite or far-away nodes on the GPU every N steps (default: "
+                        "physics.safety.check_every, 100; 0: only at the end); a blow-up stops the run "
+                        "with the step and a node, and writes no PNG")
+    r.add_argument("--export-mesh", type=Path, default=None, metavar="OUT.ply|.obj|.glb|.pvd|.xdmf|.usd",
+                   help="also write the deformed detailed mesh as the mapping vertex shader computed "
+                        "it (captured with transform feedback); of an animation: a pattern DIR/%%04d.ply, "
+                        "one .glb animated by morph targets, a ParaView time series with displacement and "
+                        "velocity (.pvd of .vtu frames, or .xdmf + .h5; extra 'io'), or a USD point cache "
+                        "(.usd, .usda, .usdc; extra 'usd')")
+    r.add_argument("--export-grid", type=Path, default=None, metavar="OUT.pvd|.xdmf|.vtu",
+                   help="also write the node grid as hexahedra per frame for ParaView: displacement and "
+                        "velocity per node, volume ratio, Green strain and fill per cell (extra 'io')")
+    r.add_argument("--pack-inputs", type=Path, default=None, metavar="OUT.npz",
+                   help="also write the node texture and vertex attributes for the shader pack's "
+                        "example program (examples/mapped_mesh_example.py)")
+    r.add_argument("--time", type=float, default=None, metavar="T",
+                   help="scene-graph files: the still at time T seconds of the keyframed deformations "
+                        "(default 0)")
+    r.add_argument("--tolerance", type=float, default=None, metavar="X",
+                   help="model only what the scene requires: run it on the coarsest grid, integrator and "
+                        "largest dt whose predicted relative deflection error is below X (deformgl plan; "
+                        "needs a [material]); the simulated time is kept")
+    r.add_argument("--load", choices=["bending", "compression", "torsion"], default="bending",
+                   help="with --tolerance: which measured workload's error model applies (default bending)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    from deformgl.scene.overrides import add_render_flags
+
+    add_render_flags(r)  # --frames, --fps, --camera, --views, --compare, --set, --json
+
+
+
+class _Quiet(_Parser):
+    """A parser whose usage errors are left to the full parser (raised, not printed)."""
+
+    def error(self, message: str) -> NoReturn:
+        raise ValueError(message)
+
+
+def _syntax_first(argv: list[str]) -> int | None:
+    """``deformgl render SCENE``: the scene file's TOML read and parsed (size, encoding, nesting,
+    syntax) before NumPy, moderngl and trimesh are imported, so that a syntax error is reported
+    at once, with the message :func:`deformgl.scene.schema.load_scene` gives; None to go on (the
+    full parser and the run report everything else)."""
+    if any(a in ("-h", "--help", "--version") for a in argv):
+        return None
+    i = 0
+    while i < len(argv) and argv[i].startswith("-"):
+        i += 2 if argv[i] == "--device" else 1
+    if i >= len(argv) or argv[i] != "render":
+        return None
+    p, sub = _top_parser(_Quiet)
+    _add_render_parser(sub, 0)
+    try:
+        args, _ = p.parse_known_args(argv)
+    except (ValueError, SystemExit):
+        return None
+    from deformgl.data import find_scene
+    from deformgl.scene.tomltext import read_toml
+
+    source = find_scene(args.scene)
+    if not source.is_file():
+        return None
+    try:
+        read_toml(source, str(source))
+    except InputError as exc:
+        _error(exc)
+        return EXIT_INPUT
+    return None
+
+
 def _scene_file(path: Path, flag: str = "") -> Path:
     """A scene file as given, else the shipped scene of that name (:func:`deformgl.data.scene_file`)."""
     from deformgl.data import scene_file
@@ -162,7 +217,9 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.gl.context import create_context
     from deformgl.scene.animation import frame_plan
     from deformgl.scene.outputs import Job, check_job, default_record_path, render_job
-    from deformgl.scene.overrides import camera_overrides, parse_modes, parse_set, parse_view, parse_views
+    from deformgl.errors import SceneError
+    from deformgl.scene.overrides import (blame_flag, camera_overrides, flag_keys, parse_modes, parse_set, parse_view,
+                                          parse_views)
     from deformgl.scene.record import summary_line
     from deformgl.scene.schema import load_scene, parse_size
 
@@ -174,7 +231,10 @@ def _render(args: argparse.Namespace) -> int:
     if args.time is not None:
         raise InputError(f"{source}: --time applies to scene-graph files (docs/SCENEGRAPH.md)")
     overrides = parse_set(args.set) | camera_overrides(parse_view(args.camera) if args.camera else None)
-    scene = load_scene(source, overrides or None)
+    try:
+        scene = load_scene(source, overrides or None)
+    except SceneError as exc:  # a key a flag set: the flag is at fault, not the scene file
+        raise blame_flag(exc, flag_keys(args.set, args.camera)) or exc from None
     size = None
     if args.size is not None:
         try:
@@ -351,6 +411,9 @@ def _error(text: object) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code (:data:`EXIT_INPUT` and the
     others)."""
+    code = _syntax_first(sys.argv[1:] if argv is None else list(argv))
+    if code is not None:
+        return code
     from deformgl.files import STOP
 
     STOP.clear()  # (a stop recorded by an earlier call in this process)

@@ -51,7 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "shipped dragon_motion.toml)")
     b.add_argument("--steps", type=int, default=40, help="sim: steps per timing (default 40)")
     b.add_argument("--peers", action="store_true",
-                   help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU) and NVIDIA Warp (CPU) "
+                   help="sim: also run the same 18-neighbour Verlet step in Taichi (CPU), NVIDIA Warp (CPU) and Numba (CPU) "
                         "on the 20k and 131k grids (needs the 'peers' extra: pip install 'deformgl[peers]')")
     b.add_argument("--blocks", action="store_true",
                    help="sim: instead, the foundation step with several nodes per fragment (every block shape) "

@@ -25,8 +25,15 @@ class ArgumentError(InputError, ValueError):
 class SceneError(InputError):
     """A scene file key that is unknown, of the wrong type, or has an impossible value.
 
-    The message has the form ``"<file>: <key.path>: <what is wrong>"``.
+    The message has the form ``"<file>: <key.path>: <what is wrong>"``; ``key`` and ``reason``
+    hold its two last parts where the schema found it (None otherwise), so that a caller that set
+    the key itself (the CLI's ``--set``) can blame its own flag.
     """
+
+    def __init__(self, message: str, *, key: str | None = None, reason: str | None = None) -> None:
+        super().__init__(message)
+        self.key = key
+        self.reason = reason
 
 
 class GLError(DeformglError):

@@ -110,6 +110,25 @@ def remove_stale_temporaries(folder: str | os.PathLike[str], before: float) -> l
     return removed
 
 
+def check_folder(path: str | os.PathLike[str], what: str = "output") -> None:
+    """Whether the folder of ``path`` exists (and is a folder, not a file).
+
+    Raises:
+        InputError: one line naming the path and what is wrong.
+    """
+    target = Path(path)
+    directory = target.parent if str(target.parent) else Path(".")
+    try:
+        if directory.is_dir():
+            return
+        blocking = next((d for d in (directory, *directory.parents) if d.exists()), None)
+        if blocking is not None and not blocking.is_dir():
+            raise InputError(f"{target}: {blocking} is a file, not a folder: the {what} cannot be written inside it")
+    except OSError as exc:  # (ENAMETOOLONG, ELOOP, EACCES on a parent)
+        raise InputError(f"{target}: cannot use this {what} path: {exc.strerror or exc}") from None
+    raise InputError(f"{target}: the {what} folder {directory} does not exist")
+
+
 def check_writable(path: str | os.PathLike[str], what: str = "output") -> None:
     """Whether a file can be written at ``path`` (before any work): its folder exists and takes a
     new file (probed with a temporary file, so read-only mounts and /proc are found), and the path
@@ -123,8 +142,7 @@ def check_writable(path: str | os.PathLike[str], what: str = "output") -> None:
     try:
         if target.is_dir():
             raise InputError(f"{target}: the {what} is a folder, not a file")
-        if not directory.is_dir():
-            raise InputError(f"{target}: the {what} folder {directory} does not exist")
+        check_folder(target, what)
         if target.exists() and not target.is_file():
             raise InputError(f"{target}: the {what} exists and is not a regular file")
     except OSError as exc:  # (ENAMETOOLONG, ELOOP, EACCES on a parent)
@@ -133,7 +151,8 @@ def check_writable(path: str | os.PathLike[str], what: str = "output") -> None:
     try:
         fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     except OSError as exc:
-        raise InputError(f"{target}: cannot write the {what} into {directory}: {exc.strerror or exc}") from None
+        raise InputError(f"{target}: cannot write the {what} into {directory}: no file can be created there "
+                         f"({exc.strerror or exc}); choose a folder you can write to") from None
     os.close(fd)
     os.unlink(probe)
 

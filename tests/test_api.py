@@ -353,7 +353,7 @@ BAD_CALLS = [
     (lambda: dg.Body.from_mesh(3), "Body.from_mesh: mesh must be a file path or a trimesh.Trimesh"),
     (lambda: dg.load_scene(3), "load_scene: path must be a file path"),
     (lambda: dg.write_png("x.png", np.zeros((2, 2))), "write_png: image must be a (height, width, 3 or 4) uint8 array"),
-    (lambda: dg.write_png("/proc/x.png", np.zeros((2, 2, 3), np.uint8)), "/proc/x.png: cannot write the png into /proc"),
+    (lambda: dg.write_png("/proc/x.png", np.zeros((2, 2, 3), np.uint8)), "/proc/x.png: cannot write the png into /proc: no file can be created there"),
 ]
 
 

@@ -236,3 +236,86 @@ def test_shipped_scenes_and_assets_are_the_repository_ones():
     assert data.is_packaged(data.packaged_scene("heart")) and not data.is_packaged(Path("elsewhere.toml"))
     with pytest.raises(data.DeformglError, match=r"no packaged scene .*there are: .*dragon.toml"):
         data.packaged_scene("nope")
+
+
+# -- issue 42, defect 7: messages that point the right way -----------------------------------
+
+
+@pytest.mark.parametrize("out, message", [
+    ("afile/out.png", "afile/out.png: afile is a file, not a folder: the output cannot be written inside it"),
+    ("afile/sub/out.png", "afile/sub/out.png: afile is a file, not a folder: the output cannot be written inside it"),
+    ("nodir/out.png", "nodir/out.png: the output folder nodir does not exist"),
+])
+def test_an_output_inside_a_regular_file_says_so(jelly, tmp_path, monkeypatch, capsys, out, message):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder")
+    code, _, err = run_cli(capsys, "render", jelly, "-o", out, "--quiet")
+    assert code == 2 and err.strip() == f"deformgl: error: {message}", err
+
+
+def test_an_output_in_a_system_folder_says_no_file_can_be_created_there(jelly, capsys):
+    code, _, err = run_cli(capsys, "render", jelly, "-o", "/proc/out.png", "--quiet")
+    assert code == 2 and err.count("\n") == 1
+    assert "/proc/out.png: cannot write the output into /proc: no file can be created there (" in err, err
+
+
+@pytest.mark.parametrize("flag, message", [
+    ("physics.dtt=1e-3", "--set physics.dtt=1e-3: unknown key 'dtt' (did you mean 'dt'?)"),
+    ("physics.dt=-1", "--set physics.dt=-1: must be > 0, got -1"),
+    ("render.size=[0,1]", "--set render.size=[0,1]: render.size[0]: must be in [1, 16384], got 0"),
+    ("physics=3", "--set physics=3: must be a table, got integer 3"),
+    ("physics.fixed.7.at=1", "--set physics.fixed.7.at=1: physics.fixed.7: no entry 7 (the array has 1)"),
+])
+def test_a_bad_set_key_blames_the_set_flag_not_the_scene_file(jelly, capsys, flag, message):
+    code, _, err = run_cli(capsys, "render", jelly, "--set", flag, "--quiet")
+    assert code == 2 and err.strip() == f"deformgl: error: {message}", err
+
+
+def test_a_bad_scene_key_still_blames_the_scene_file(jelly, capsys):
+    jelly.write_text(jelly.read_text().replace("[physics]", "[physics]\ndtt = 1e-3", 1))
+    code, _, err = run_cli(capsys, "render", jelly, "--set", "physics.steps=3", "--quiet")
+    assert code == 2 and err.strip() == f"deformgl: error: {jelly}: physics.dtt: unknown key (did you mean 'dt'?)"
+
+
+def test_help_names_every_output_format_and_every_peer():
+    from deformgl.bench.peers import PEERS
+    from deformgl.cli import _parser
+
+    parser = _parser()
+    top = parser.format_help()
+    render = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "render")[1]
+    text = " ".join(render.format_help().split())
+    summary = " ".join(top.split())
+    for fmt in ("PNG", "GIF", "WebP", "MP4", "PNG frames"):
+        assert fmt in summary.split("render", 1)[1].split("sweep")[0], f"render's summary leaves out {fmt}"
+        assert fmt in text.split("-o OUTPUT, --output OUTPUT", 1)[1].split("--steps")[0], f"-o leaves out {fmt}"
+    bench = parser._subparsers._group_actions[0].choices["bench"]
+    peers = " ".join(bench.format_help().split()).split("--peers", 2)[2].split("--blocks")[0].lower()
+    for peer in PEERS:
+        assert peer in peers, f"bench --peers leaves out {peer}"
+
+
+def test_the_readme_first_command_output_is_ignored_by_git():
+    root = SCENES.parent
+    first = next(line for line in (root / "README.md").read_text().splitlines() if "deformgl render" in line
+                 and line.lstrip().startswith("python3 -m venv"))
+    written = first.split(" -o ", 1)[1].split()[0]
+    ignored = (root / ".gitignore").read_text().splitlines()
+    assert f"/{written}" in ignored or written in ignored, f"{written} (the README's first command) is not in .gitignore"
+
+
+def test_a_toml_syntax_error_is_reported_before_the_heavy_imports(tmp_path):
+    """The scene's TOML is parsed before NumPy, moderngl and trimesh are imported (about 0.1 s
+    instead of 1 s), with load_scene's message."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[physics\ndt = 1\n")
+    code = ("import sys\nfrom deformgl.cli import main\nrc = main(['render', sys.argv[1], '--quiet'])\n"
+            "print(rc, sorted(m for m in ('numpy', 'moderngl', 'trimesh') if m in sys.modules))")
+    done = subprocess.run([sys.executable, "-c", code, str(bad)], capture_output=True, text=True, timeout=120)
+    assert done.stdout.split("\n")[0] == "2 []", done.stdout + done.stderr
+    from deformgl.errors import SceneError
+    from deformgl.scene.schema import load_scene
+
+    with pytest.raises(SceneError) as info:
+        load_scene(bad)
+    assert done.stderr.strip() == f"deformgl: error: {info.value}"

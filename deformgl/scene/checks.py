@@ -23,7 +23,7 @@ REQUIRED: Any = object()  # schema default: the key must be given
 
 
 def _fail(file: str, key: str, msg: str) -> NoReturn:
-    raise SceneError(_one_line(f"{file}: {key}: {msg}"))
+    raise SceneError(_one_line(f"{file}: {key}: {msg}"), key=key, reason=_one_line(msg))
 
 
 def _one_line(text: str) -> str:

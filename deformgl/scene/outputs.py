@@ -19,7 +19,7 @@ from typing import Any
 import moderngl
 
 from deformgl.errors import InputError
-from deformgl.files import OutputSet, write_png_atomic
+from deformgl.files import OutputSet, check_folder, write_png_atomic
 from deformgl.render.gltf_morph import write_morph_glb
 from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
@@ -129,8 +129,7 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
         if key in seen:
             raise InputError(f"{p}: named twice among the outputs (as {seen[key]} too)")
         seen[key] = p
-        if not p.parent.is_dir():
-            raise InputError(f"{p}: the output folder {p.parent} does not exist")
+        check_folder(p)
     return plan
 
 

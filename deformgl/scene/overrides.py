@@ -12,10 +12,10 @@ import argparse
 import tomllib
 from typing import Any
 
-from deformgl.errors import InputError
-from deformgl.scene.spec import MAPPING_MODES
+from deformgl.errors import InputError, SceneError
 
-__all__ = ["add_render_flags", "camera_overrides", "parse_modes", "parse_set", "parse_view", "parse_views"]
+__all__ = ["add_render_flags", "blame_flag", "camera_overrides", "flag_keys", "parse_modes", "parse_set", "parse_view",
+           "parse_views"]
 
 
 def parse_value(text: str) -> Any:
@@ -35,6 +35,38 @@ def parse_set(items: list[str] | None) -> dict[str, Any]:
             raise InputError(f"--set {item}: expected KEY=VALUE, e.g. physics.dt=1e-3")
         out[key.strip()] = parse_value(value.strip())
     return out
+
+
+def flag_keys(items: list[str] | None, camera: str | None = None) -> dict[str, str]:
+    """The scene key each ``--set`` item (and ``--camera``) sets -> the flag as given
+    (``{"physics.dtt": "--set physics.dtt=1e-3"}``), for :func:`blame_flag`."""
+    flags = {item.partition("=")[0].strip(): f"--set {item}" for item in items or []}
+    if camera is not None:
+        flags |= {key: f"--camera {camera}" for key in camera_overrides((0.0, 0.0, 0.0))}
+    return flags
+
+
+def _key_parts(key: str) -> list[str]:
+    """``physics.pull[0].force`` and ``physics.pull.0.force`` -> ``["physics", "pull", "0", "force"]``."""
+    return key.replace("[", ".").replace("]", "").split(".")
+
+
+def blame_flag(exc: SceneError, flags: dict[str, str]) -> InputError | None:
+    """The scene's error as the flag's own when the key at fault (or a table above it) is one a
+    flag set: ``--set physics.dtt=1e-3: unknown key 'dtt' (did you mean 'dt'?)``, not the scene
+    file's; None when no flag set it."""
+    if exc.key is None or exc.reason is None:
+        return None
+    bad = _key_parts(exc.key)
+    for key, flag in flags.items():
+        parts = _key_parts(key)
+        if bad[:len(parts)] == parts:
+            reason = exc.reason
+            if reason.startswith("unknown key"):
+                reason = f"unknown key {bad[-1]!r}{reason[len('unknown key'):]}"
+            where = "" if bad == parts else f"{exc.key}: "
+            return InputError(f"{flag}: {where}{reason}")
+    return None
 
 
 def parse_view(text: str, flag: str = "--camera") -> tuple[float, float, float]:
@@ -60,6 +92,8 @@ def parse_views(text: str | None) -> list[tuple[float, float, float]] | None:
 
 def parse_modes(text: str | None) -> list[str] | None:
     """``"one-to-one,constant,curvature"`` -> the mapping modes of ``--compare``, or None."""
+    from deformgl.scene.spec import MAPPING_MODES  # (not at import: the CLI's parser stays light)
+
     if text is None:
         return None
     modes = [m.strip() for m in text.split(",") if m.strip()]

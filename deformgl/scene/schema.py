@@ -15,9 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
-import tomllib
-from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -26,6 +23,7 @@ import numpy as np
 
 from deformgl.data import find_scene
 from deformgl.errors import SceneError
+from deformgl.scene.tomltext import MAX_DEPTH, MAX_SCENE_BYTES, check_depth, read_toml  # noqa: F401
 from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _existing, _fail, _int, _join,  # noqa: F401
                                    _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
 from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
@@ -299,47 +297,6 @@ def _build_motion(file: str, key: str, d: dict[str, Any]) -> MotionSpec:
                       AXES.index(d["towards"]), d["translate"], d["amount"])
 
 
-#: How deep a scene file's tables and arrays may nest, and how large the file may be.
-MAX_DEPTH = 32
-MAX_SCENE_BYTES = 1 << 20
-_TOKENS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}\n]', re.S)
-
-
-def _check_text_depth(file: str, text: str) -> None:
-    """Refuses brackets and braces nested beyond :data:`MAX_DEPTH` outside strings and comments,
-    before the (recursive) TOML parser sees them."""
-    depth, line = 0, 1
-    for m in _TOKENS.finditer(text):
-        tok = m[0]
-        if tok in "[{":
-            depth += 1
-            if depth > MAX_DEPTH:
-                raise SceneError(f"{file}: line {line}: nested more than {MAX_DEPTH} levels deep (arrays and tables)")
-        elif tok in "]}":
-            depth = max(0, depth - 1)
-        line += tok.count("\n")
-
-
-def _check_depth(file: str, data: dict[str, Any]) -> None:
-    """Refuses parsed tables and arrays nested beyond :data:`MAX_DEPTH` (dotted keys and table
-    headers nest without brackets), walking iteratively."""
-    stack: list[tuple[Any, int, tuple[str, ...]]] = [(data, 0, ())]
-    while stack:
-        value, depth, where = stack.pop()
-        if depth > MAX_DEPTH:
-            shown = "".join(k if k.startswith("[") or not i else "." + k for i, k in enumerate(where[:4]))
-            shown += "..." if len(where) > 4 else ""
-            _fail(file, shown, f"nested more than {MAX_DEPTH} levels deep (arrays and tables)")
-        items: Iterator[tuple[str, Any]] = iter(())
-        if isinstance(value, dict):
-            items = iter(value.items())
-        elif isinstance(value, list):
-            items = ((f"[{i}]", x) for i, x in enumerate(value))
-        for k, x in items:
-            if isinstance(x, (dict, list)):
-                stack.append((x, depth + 1, where + (k if len(k) <= 40 else k[:40] + "...",)))
-
-
 def apply_overrides(file: str, data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """``data`` (a parsed scene file) with dotted keys set: ``{"physics.dt": 1e-3,
     "render.camera.azimuth": 90, "physics.pull.0.force": [0, 1, 0]}`` (a number indexes an array
@@ -353,30 +310,33 @@ def apply_overrides(file: str, data: dict[str, Any], overrides: dict[str, Any]) 
 
     out = copy.deepcopy(data)
     for dotted, value in overrides.items():
+
+        def _bad(reason: str, dotted: str = str(dotted)) -> SceneError:  # key, reason: the CLI blames its flag
+            return SceneError(_one_line(f"{file}: --set {dotted}: {reason}"), key=dotted, reason=_one_line(reason))
+
         parts = str(dotted).split(".")
         if not all(parts):
-            raise SceneError(_one_line(f"{file}: --set {dotted}: not a dotted scene key (e.g. physics.dt)"))
+            raise _bad("not a dotted scene key (e.g. physics.dt)")
         node: Any = out
         for i, part in enumerate(parts[:-1]):
             where = ".".join(parts[: i + 1])
             if isinstance(node, list):
                 if not part.isdigit() or int(part) >= len(node):
-                    raise SceneError(_one_line(f"{file}: --set {dotted}: {where}: no entry {part} "
-                                               f"(the array has {len(node)})"))
+                    raise _bad(f"{where}: no entry {part} (the array has {len(node)})")
                 node = node[int(part)]
             elif isinstance(node, dict):
                 node = node.setdefault(part, {})
             else:
-                raise SceneError(_one_line(f"{file}: --set {dotted}: {'.'.join(parts[:i])} is a value, not a table"))
+                raise _bad(f"{'.'.join(parts[:i])} is a value, not a table")
         last = parts[-1]
         if isinstance(node, list):
             if not last.isdigit() or int(last) >= len(node):
-                raise SceneError(_one_line(f"{file}: --set {dotted}: no entry {last} (the array has {len(node)})"))
+                raise _bad(f"no entry {last} (the array has {len(node)})")
             node[int(last)] = value
         elif isinstance(node, dict):
             node[last] = value
         else:
-            raise SceneError(_one_line(f"{file}: --set {dotted}: {'.'.join(parts[:-1])} is a value, not a table"))
+            raise _bad(f"{'.'.join(parts[:-1])} is a value, not a table")
     return out
 
 
@@ -399,33 +359,10 @@ def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Sce
         raise SceneError(f"load_scene: path must be a file path (str or os.PathLike), got {type(path).__name__}")
     path = find_scene(path)
     file, source = str(path), Path(path).resolve()
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_SCENE_BYTES + 1)
-        if len(raw) > MAX_SCENE_BYTES:
-            raise SceneError(f"{file}: cannot read scene file: larger than {MAX_SCENE_BYTES // 1024} KiB")
-        text = raw.decode()
-        _check_text_depth(file, text)
-        data = tomllib.loads(text)
-    except FileNotFoundError:
-        raise SceneError(f"{file}: cannot read scene file: file not found") from None
-    except OSError as e:
-        raise SceneError(f"{file}: cannot read scene file: {e.strerror or e}") from None
-    except UnicodeDecodeError as e:
-        raise SceneError(f"{file}: invalid TOML: not UTF-8 ({e.reason} at byte {e.start})") from None
-    except tomllib.TOMLDecodeError as e:
-        m = re.fullmatch(r"(.*) \(at (line (\d+), column (\d+)|end of document)\)", str(e))
-        where = f"{m[2]}: invalid TOML: {m[1]}" if m else f"invalid TOML: {e}"
-        raise SceneError(_one_line(f"{file}: {where}")) from None
-    except ValueError as e:  # e.g. an integer of more than 4300 digits
-        raise SceneError(_one_line(f"{file}: invalid TOML: {str(e).split(';')[0]}")) from None
-    except RecursionError:
-        raise SceneError(f"{file}: invalid TOML: nested too deeply to parse "
-                         f"(more than {MAX_DEPTH} levels are refused)") from None
-    _check_depth(file, data)
+    data = read_toml(path, file)
     if overrides:
         data = apply_overrides(file, data, overrides)
-        _check_depth(file, data)
+        check_depth(file, data)
 
     def given_file(key: str, rel: str, suffixes: tuple[str, ...] | None = None) -> Path:
         if not rel:
