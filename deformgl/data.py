@@ -68,6 +68,15 @@ def is_packaged(path: Path) -> bool:
     return True
 
 
+def _exists(path: Path) -> bool:
+    """``path.exists()``, False for a path the system cannot take (a NUL byte, a name too long):
+    opening it then reports it by the name given."""
+    try:
+        return path.exists()
+    except (OSError, ValueError):
+        return False
+
+
 def find_scene(path: str | Path) -> Path:
     """A scene file as given if it exists, else the packaged scene of that file name.
 
@@ -76,7 +85,7 @@ def find_scene(path: str | Path) -> Path:
     file by the name the user gave.
     """
     path = Path(path)
-    if path.exists():
+    if _exists(path):
         return path
     if len(path.parts) == 1 or (len(path.parts) == 2 and path.parts[0] == "scenes"):
         try:
@@ -92,7 +101,7 @@ def find_mesh(path: str | os.PathLike[str]) -> Path:
     A path that is neither is returned unchanged, so that loading it reports the missing file by
     the name the user gave."""
     path = Path(path)
-    if path.exists():
+    if _exists(path):
         return path
     parts = path.parts
     if len(parts) == 1 or (len(parts) == 3 and parts[:2] == ("scenes", "assets")) or (

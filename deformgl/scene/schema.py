@@ -358,8 +358,9 @@ def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Sce
     if not isinstance(path, (str, PathLike)):
         raise SceneError(f"load_scene: path must be a file path (str or os.PathLike), got {type(path).__name__}")
     path = find_scene(path)
-    file, source = str(path), Path(path).resolve()
-    data = read_toml(path, file)
+    file = str(path)
+    data = read_toml(path, file)  # (first: it refuses a name the system cannot take)
+    source = Path(path).resolve()
     if overrides:
         data = apply_overrides(file, data, overrides)
         check_depth(file, data)

@@ -65,8 +65,11 @@ def read_toml(path: str | os.PathLike[str], file: str | None = None) -> dict[str
     """
     file = os.fspath(path) if file is None else file
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_SCENE_BYTES + 1)
+        try:
+            with open(path, "rb") as fh:
+                raw = fh.read(MAX_SCENE_BYTES + 1)
+        except ValueError as e:  # a NUL byte in the name
+            raise SceneError(_one_line(f"{file}: cannot read scene file: {e}")) from None
         if len(raw) > MAX_SCENE_BYTES:
             raise SceneError(f"{file}: cannot read scene file: larger than {MAX_SCENE_BYTES // 1024} KiB")
         text = raw.decode()
