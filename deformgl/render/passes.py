@@ -13,6 +13,7 @@ from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.render.fxaa import FxaaPass
+from deformgl.render.sheet_normals import sheet_neighbours
 from deformgl.grid.surface import grid_surface
 
 
@@ -168,21 +169,29 @@ class GridSurfacePass(GLOwner):
                  overlay: bool = False) -> None:
         super().__init__(ctx)
         self.surface = grid_surface(grid)
-        texels = layout.texel(grid.ijk[self.surface.nodes]).astype("i4")
+        # per vertex: its node's texel, then its sheet neighbours' (u+, u-, v+, v-; itself off sheets)
+        nodes = np.concatenate([self.surface.nodes[:, None], sheet_neighbours(grid, self.surface)], axis=1)
+        texels = layout.texel(grid.ijk[nodes.ravel()]).astype("i4").reshape(len(nodes), 10)
         self._capture: FeedbackCapture | None = None
         self.overlay: Program | None = None
         with self.building():
             self.program = self.own(Program(ctx, "render/grid_surface.vert", "render/lit_surface.frag"))
             self.vbo = self.own(ctx.buffer(texels.tobytes()))
             self.ibo = self.own(ctx.buffer(self.surface.triangles.astype("i4").tobytes()))
-            self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")],
+            self.vao = self.own(ctx.vertex_array(self.program.gl, self._content(),
                                                  index_buffer=self.ibo, index_element_size=4))
             if overlay:
                 self.overlay = self.own(Program(ctx, "render/grid_lines.vert", "render/flat_colour.frag"))
                 self.line_ibo = self.own(ctx.buffer(self.surface.edges().astype("i4").tobytes()))
-                self.line_vao = self.own(ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")],
+                plain = [(self.vbo, "2i 32x", "in_texel")]  # (the overlay reads the node's texel only)
+                self.line_vao = self.own(ctx.vertex_array(self.overlay.gl, plain,
                                                           index_buffer=self.line_ibo, index_element_size=4))
-                self.point_vao = self.own(ctx.vertex_array(self.overlay.gl, [(self.vbo, "2i", "in_texel")]))
+                self.point_vao = self.own(ctx.vertex_array(self.overlay.gl, plain))
+
+    def _content(self) -> list:
+        """The vertex array content of the surface's programs: the node's texel, then its sheet
+        neighbours' (:func:`~deformgl.render.sheet_normals.sheet_neighbours`)."""
+        return [(self.vbo, "2i 4i 4i", "in_texel", "in_across_u", "in_across_v")]
 
     def draw(self, positions: moderngl.Texture, view: View, lighting: Lighting) -> None:
         """Draw with node positions from ``positions`` (texture unit 0)."""
@@ -202,6 +211,6 @@ class GridSurfacePass(GLOwner):
         computes them, by transform feedback; one read-back."""
         if self._capture is None:
             self._capture = self.own(FeedbackCapture(self.ctx, "render/grid_surface.vert", {},
-                                                     ("v_world", "v_normal"), [(self.vbo, "2i", "in_texel")]))
+                                                     ("v_world", "v_normal"), self._content()))
         data = self._capture.run(positions, len(self.surface.nodes))
         return data[:, :3], data[:, 3:]
