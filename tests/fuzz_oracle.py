@@ -27,12 +27,15 @@ makes its own context; the fixture marks the test, tests/conftest.py).
 from __future__ import annotations
 
 import contextlib
+import ctypes.util
+import functools
 import io
 import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 
@@ -64,6 +67,9 @@ class Outcome:
         return f"exit {self.code}\n--- stdout\n{self.stdout}--- stderr\n{self.stderr}--- new files {sorted(self.new_files)}"
 
 
+_find_library = functools.lru_cache(maxsize=None)(ctypes.util.find_library)
+
+
 def _files(folder: Path | None) -> set[str]:
     if folder is None or not folder.exists():
         return set()
@@ -77,7 +83,10 @@ def run_cli(argv: Sequence[str | os.PathLike], watch: Path | None = None) -> Out
 
     before = _files(watch)
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    # glcontext looks its libraries up anew for every context, forking ldconfig twice (tens of
+    # ms, the most of a small render's time): remembered for the fuzzers' thousands of runs
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+            mock.patch.object(ctypes.util, "find_library", _find_library):
         try:
             code = main([str(a) for a in argv])
         except SystemExit as exc:

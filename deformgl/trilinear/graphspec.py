@@ -289,6 +289,17 @@ class SceneGraph:
     #: Nodes on the longest path from a root to a leaf, set by :meth:`check`.
     depth: int = field(default=0, init=False, repr=False, compare=False)
 
+    def view_check(self) -> None:
+        """The camera's ranges, those of a simulation scene's ``render.camera``: beyond them the
+        framing is degenerate (near = far in float64 at a distance of 1e20 diagonals, a view
+        straight down the up axis at 90 degrees) or the content smaller than a pixel."""
+        v = self.view
+        for key, value, lo, hi, unit in (("azimuth", v.azimuth, -360.0, 360.0, " degrees"),
+                                         ("elevation", v.elevation, -89.0, 89.0, " degrees"),
+                                         ("distance", v.distance, 1e-3, 1e3, " box diagonals")):
+            if not (isinstance(value, (int, float)) and lo <= value <= hi):
+                raise InputError(f"view.{key}: must be in [{lo:g}, {hi:g}]{unit}, got {value!r}")
+
     def check(self) -> SceneGraph:
         """Refuse dangling names, a leaf with children, cycles and graphs too large to build
         (:data:`MAX_LEAVES`, :data:`MAX_EXPANDED`, :data:`MAX_GRAPH_DEPTH`, :data:`MAX_LATTICE_POINTS`),
@@ -299,6 +310,7 @@ class SceneGraph:
         """
         if not 1 <= len(self.roots) <= 2:
             raise InputError(f"graph.roots: one or two roots, got {len(self.roots)}")
+        self.view_check()
         for name in self.roots:
             if name not in self.nodes:
                 raise InputError(f"graph.roots: no node named {name!r}")
