@@ -316,7 +316,11 @@ def test_shipped_meshes_are_found_from_any_folder(tmp_path, monkeypatch):
     assert body.grid.count > 0 and body.source == mesh
 
 
-# (call, exception type, the message's start): every user-caused error names the argument
+def _numpy_sim():
+    return dg.Body.from_arrays(V, F, resolution=4).simulate("verlet", "numpy", dt=1e-4)
+
+
+# (call, the message's start): every user-caused error names the argument
 BAD_CALLS = [
     (lambda: dg.ElasticMaterial(-1.0, 1000.0), "ElasticMaterial: youngs_modulus must be a finite number > 0 Pa, got -1.0"),
     (lambda: dg.ElasticMaterial(1e3, float("nan")), "ElasticMaterial: density must be a finite number > 0"),
@@ -352,6 +356,10 @@ BAD_CALLS = [
     (lambda: dg.Body.from_arrays(V * 1e300, F, resolution=4), "Body.from_arrays: the mesh's bounding box"),
     (lambda: dg.Body.from_mesh(3), "Body.from_mesh: mesh must be a file path or a trimesh.Trimesh"),
     (lambda: dg.load_scene(3), "load_scene: path must be a file path"),
+    (lambda: dg.load_scene("\x00"), r"\x00: cannot read scene file: embedded null byte"),
+    (lambda: dg.run(_numpy_sim(), -1), "run: steps must be an integer >= 0, got -1"),
+    (lambda: dg.run(_numpy_sim(), 2, check_every=-3), "run: check_every must be an integer >= 0, got -3"),
+    (lambda: dg.run(_numpy_sim(), 2, bad_distance=float("nan")), "run: bad_distance must be a finite number > 0"),
     (lambda: dg.write_png("x.png", np.zeros((2, 2))), "write_png: image must be a (height, width, 3 or 4) uint8 array"),
     (lambda: dg.write_png("/proc/x.png", np.zeros((2, 2, 3), np.uint8)), "/proc/x.png: cannot write the png into /proc: no file can be created there"),
 ]

@@ -173,7 +173,7 @@ KNOWN_KEYS = sorted({".".join(str(p) for p in path) for base in BASES.values() f
 def _value_text(draw: Any) -> str:
     value = draw(VALUES)
     try:
-        return tomli_w.dumps({"v": value})[len("v = "):].strip()
+        return " ".join(tomli_w.dumps({"v": value})[len("v = "):].split("\n")).strip()  # (one line, as typed)
     except (TypeError, ValueError):
         return draw(st.text(max_size=10))
 

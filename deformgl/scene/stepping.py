@@ -12,13 +12,14 @@ subdivide; the blow-up census every ``check_every`` steps and at the end; with
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import moderngl
 import numpy as np
 
-from deformgl.errors import InputError
+from deformgl.errors import ArgumentError, InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.scene.spec import BACKENDS, UNSTABLE_POLICIES, Safety
 from deformgl.sim.equilibrium import ConvergeRule
@@ -201,6 +202,11 @@ def run(sim: GuardedSimulation, steps: int, *, unstable: str = "refuse", check_e
     """
     if unstable not in UNSTABLE_POLICIES:
         raise InputError(f"unstable must be one of {', '.join(UNSTABLE_POLICIES)}, got {unstable!r}")
+    for name, value in (("steps", steps), ("check_every", check_every)):  # (-1 steps would run none, silently)
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ArgumentError(f"run: {name} must be an integer >= 0, got {value!r}")
+    if not (isinstance(bad_distance, (int, float, np.number)) and math.isfinite(bad_distance) and bad_distance > 0):
+        raise ArgumentError(f"run: bad_distance must be a finite number > 0 (rest-box lengths), got {bad_distance!r}")
     source = sim.source if source is None else source
     settings = _Settings(sim.base_dt, int(steps), sim.integrator, Safety(unstable, check_every, bad_distance))
     rest = sim.system.rest_positions
