@@ -90,7 +90,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     b.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="trade: run its workloads on an existing Dask cluster")
     b.add_argument("--scene", type=Path, default=None,
-                   help="render: the scene to draw (default: the shipped heart.toml); mappings: the scene whose "
+                   help="render: the scene to draw (default: the shipped dragon_heart_scale.toml); mappings: the scene whose "
                         "mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
 
 
@@ -132,7 +132,7 @@ def _study(args: argparse.Namespace, ctx, note) -> None:
         if not args.quick:  # the heart-scale scene in real time (--scene: another one)
             from deformgl.bench.implicit import format_realtime, realtime
 
-            heart = str(args.scene) if args.scene else "heart.toml"
+            heart = str(args.scene) if args.scene else "dragon_heart_scale.toml"
             timing, gap, nodes = realtime(ctx, heart, progress=note)
             print()
             print(format_realtime(timing, gap, nodes, heart, machine_line(ctx)))
@@ -274,7 +274,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             from deformgl.data import packaged_scene
 
-            scene = _scene_file(args.scene, "--scene") if args.scene else packaged_scene("heart")
+            scene = _scene_file(args.scene, "--scene") if args.scene else packaged_scene("dragon_heart_scale")
             rows, frame_ms, info = bench_render(ctx, scene)
             print(format_render(rows, frame_ms, info, machine_line(ctx)))
     finally:

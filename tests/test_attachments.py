@@ -88,7 +88,7 @@ def test_attach_needs_a_detailed_mapping(tmp_path):
 
 
 def test_mapping_override_to_one_to_one_is_refused_with_attachments():
-    scene = load_scene(SCENES / "heart.toml")
+    scene = load_scene(SCENES / "dragon_heart_scale.toml")
     with pytest.raises(SceneError, match="--mapping: one-to-one draws no detailed mesh"):
         scene.with_overrides(mapping="one-to-one")
 

@@ -81,7 +81,7 @@ def test_probe_refuses_the_incomplete_msaa_target_before_any_simulation(ctx):
 
 
 def test_check_scene_passes_the_shipped_scenes(ctx):
-    for name in ("jelly", "cloth_256", "heart"):
+    for name in ("jelly", "cloth_256", "dragon_heart_scale"):
         b = check_scene(ctx, load_scene(SCENES / f"{name}.toml"))
         assert b.host_bytes > 0 and b.gpu_bytes > 0
 

@@ -231,9 +231,9 @@ def test_shipped_scenes_and_assets_are_the_repository_ones():
     assert set(data.scene_names()) == {p.name for p in SCENES.glob("*.toml")}
     assert {p.name for p in (data.scenes_dir() / "assets").iterdir()} >= {p.name for p in (SCENES / "assets").iterdir()}
     assert data.asset("dragon_vrip_res3.ply.gz").is_file()
-    found = data.find_scene("scenes/heart.toml")
-    assert found.name == "heart.toml" and found.is_file()
-    assert data.is_packaged(data.packaged_scene("heart")) and not data.is_packaged(Path("elsewhere.toml"))
+    found = data.find_scene("scenes/dragon_heart_scale.toml")
+    assert found.name == "dragon_heart_scale.toml" and found.is_file()
+    assert data.is_packaged(data.packaged_scene("dragon_heart_scale")) and not data.is_packaged(Path("elsewhere.toml"))
     with pytest.raises(data.DeformglError, match=r"no packaged scene .*there are: .*dragon.toml"):
         data.packaged_scene("nope")
 

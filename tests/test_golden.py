@@ -34,7 +34,7 @@ def private_cache(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("name", ["jelly", "dragon", "dragon_grid", "dragon_bend_constant", "dragon_bend_curvature",
-                                  "dragon_bend_auto", "fin", "heart"])
+                                  "dragon_bend_auto", "fin", "dragon_heart_scale"])
 def test_scene_matches_golden(ctx, golden, name):
     image = render_scene(ctx, load_scene(SCENES / f"{name}.toml"))
     golden(image, name)

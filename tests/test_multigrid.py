@@ -126,7 +126,7 @@ def _mesh_system():
     from deformgl.scene.pipeline import build_scene_model
     from deformgl.scene.schema import load_scene
 
-    scene = load_scene(Path(__file__).parent.parent / "scenes" / "heart.toml", {"grid.nodes_along_longest": 17})
+    scene = load_scene(Path(__file__).parent.parent / "scenes" / "dragon_heart_scale.toml", {"grid.nodes_along_longest": 17})
     system = build_scene_model(scene).system
     y = system.rest_positions[:, 1]
     return replace(system, fixed=y < y.min() + 1.5 * system.spacing)
@@ -248,7 +248,7 @@ def test_run_record_reports_the_solver(ctx, tmp_path, capsys) -> None:
     sets = ["grid.nodes_along_longest=9", 'physics.integrator="implicit-euler"', "physics.dt=0.0166667",
             "physics.steps=4", 'physics.implicit.preconditioner="multigrid"', "physics.implicit.tolerance=1e-3",
             "physics.implicit.iterations=40", "render.size=[64,48]"]
-    scene = Path(__file__).parent.parent / "scenes" / "heart.toml"
+    scene = Path(__file__).parent.parent / "scenes" / "dragon_heart_scale.toml"
     code = main(["render", str(scene), "-o", str(tmp_path / "a.png"), "--json", str(tmp_path / "a.json"), "--quiet",
                  *(f"--set={x}" for x in sets)])
     assert code == 0, capsys.readouterr().err

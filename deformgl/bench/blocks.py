@@ -31,7 +31,7 @@ from deformgl.sim.backends.blocked import default_block
 __all__ = ["BLOCK_GRIDS", "block_rows", "heart_frame", "blocks_report"]
 
 #: The grids of :func:`block_rows`: full blocks of about 2k, 4k, 20k and 131k nodes, a 16k-node
-#: sheet one node thick, the 20k-node ball and "heart" (the heart scene's body).
+#: sheet one node thick, the 20k-node ball and "heart" (the heart scene's body: scenes/dragon_heart_scale.toml).
 BLOCK_GRIDS = ((13, 13, 13), (16, 16, 16), (27, 27, 27), (64, 64, 32), (128, 128, 1), "ball34", "heart")
 
 

@@ -427,7 +427,7 @@ class RealtimeRow:
     residual: float | None   # implicit: the last step's relative CG residual
 
 
-def realtime(ctx, scene: str = "heart.toml", *, frames: int = 10,
+def realtime(ctx, scene: str = "dragon_heart_scale.toml", *, frames: int = 10,
              iterations: tuple[int, ...] = (10, 20), progress: Callable[[str], None] | None = None
              ) -> tuple[list[RealtimeRow], float, int]:
     """Implicit Euler at dt = 1/60 s (one step per 60 Hz frame) against the scene's explicit

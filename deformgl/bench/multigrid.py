@@ -6,9 +6,9 @@ Three measurements, each printed with the machine line:
 1. **Iterations** (:func:`iteration_rows`): CG iterations to a true relative residual of 1e-4 on
    the first step (dt = 1/60 s, from rest) of the stiff block (:data:`~deformgl.bench.implicit.BLOCK`
    at E = 1 MPa) at 9, 17, 33 and 65 nodes across, at nu = 1/4 and 0.45, and of the heart scene's
-   body (the res3 dragon filled with the heart preset, fixed at its base) at 17, 33 and 65 along,
-   per preconditioner (float64, :mod:`deformgl.sim.implicit`). The multigrid's set-up (its
-   Galerkin levels) is timed apart.
+   body (scenes/dragon_heart_scale.toml: the res3 dragon filled with the heart preset, fixed at its
+   base) at 17, 33 and 65 along, per preconditioner (float64, :mod:`deformgl.sim.implicit`). The
+   multigrid's set-up (its Galerkin levels) is timed apart.
 2. **The stiff block against explicit** (:func:`stiff_rows`): the block at 33 across (and 17),
    wall time per simulated second on the fragment backend until every node stays within 5 % of
    the equilibrium's largest sag (:func:`deformgl.bench.implicit.stiff_row`): Verlet and
@@ -66,7 +66,7 @@ class IterationRow:
 def _scene_path() -> Path:
     from deformgl.data import find_scene
 
-    return Path(find_scene("heart.toml"))
+    return Path(find_scene("dragon_heart_scale.toml"))
 
 
 def heart_body(along: int) -> SpringSystem:
