@@ -77,7 +77,7 @@ def _exists(path: Path) -> bool:
         return False
 
 
-def find_scene(path: str | Path) -> Path:
+def find_scene(path: str | os.PathLike[str]) -> Path:
     """A scene file as given if it exists, else the packaged scene of that file name.
 
     ``scenes/dragon.toml`` outside the checkout and plain ``dragon.toml`` both find the packaged

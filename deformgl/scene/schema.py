@@ -340,7 +340,7 @@ def apply_overrides(file: str, data: dict[str, Any], overrides: dict[str, Any]) 
     return out
 
 
-def load_scene(path: str | Path, overrides: dict[str, Any] | None = None) -> Scene:
+def load_scene(path: str | PathLike[str], overrides: dict[str, Any] | None = None) -> Scene:
     """Reads and validates a scene file (named as given in ``path`` in error messages).
 
     Relative paths in it are relative to its directory; the returned scene's paths are absolute.
