@@ -11,8 +11,9 @@ limits of 0.1 % and 0.05: shininess x 1.1: jelly 0.65 %, 0.028; dragon_bend_curv
 trilinear_tile 4.8 %, 0.17. Specular x 1.05: jelly 0.15 %, 0.012; dragon_bend_curvature 1.4 %,
 0.064; trilinear_tile 2.2 %, 0.097. Light tilted by 1 degree: jelly 7.6 %, 0.27;
 dragon_bend_curvature 13 %, 0.37; trilinear_tile 13 %, 0.43 (the tile's figures since its reframing
-at 1.15 diagonals). The largest difference of any of them is 5/255 and at most 0.2 % of pixels differ by more than 4/255: the big-difference tests
-alone (0.5 % over 4/255, nothing over 64/255) let all three through.
+at 1.15 diagonals). The largest difference of any of them is 5/255 and at most 0.2 % of pixels
+differ by more than 4/255: the big-difference tests alone (0.5 % over 4/255, nothing over
+64/255) let all three through.
 """
 
 from __future__ import annotations
