@@ -90,7 +90,8 @@ def _sheet(ctx, positions_of):
 
 def test_a_flat_sheet_is_drawn_with_its_plane_normal_at_every_node(ctx):
     """At rest the Mosegaard & Sørensen 2005, eq. 3 normal of every inner node of a sheet is zero
-    (its neighbours cancel): before, they came out of the vertex shader as (0, 0, 0) and the pixels took flat normals."""
+    (its neighbours cancel): before, they came out of the vertex shader as (0, 0, 0) and the pixels
+    took flat normals."""
     positions, vertices, normals = _sheet(ctx, lambda rest: rest)
     assert np.allclose(vertices, positions, atol=1e-6)
     assert np.allclose(np.abs(normals[:, 1]), 1.0, atol=1e-6)  # +-y at all 36 nodes, borders included
