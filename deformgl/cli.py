@@ -112,7 +112,8 @@ def _add_render_parser(sub: Any, max_substeps: int) -> None:
     r.add_argument("--steps", type=int, default=None, help="override physics.steps")
     r.add_argument("--size", default=None, metavar="WxH", help="override render.size, e.g. 800x600")
     r.add_argument("--mesh", type=Path, default=None,
-                   help="replace the scene's mesh (any trimesh-readable file) keeping its settings")
+                   help="replace the scene's mesh (any trimesh-readable file) keeping its settings; a file not "
+                        "in the working directory is looked up among the shipped meshes by name")
     r.add_argument("--mapping", choices=["one-to-one", "constant", "curvature", "auto"], default=None,
                    help="override mapping.mode: one-to-one draws the node-grid surface; constant and "
                         "curvature draw the detailed mesh through the triangle basis (Mosegaard & Sørensen 2005, eq. 6) or the "
@@ -241,7 +242,9 @@ def _render(args: argparse.Namespace) -> int:
             size = parse_size(args.size)
         except ValueError as exc:
             raise InputError(f"--size: {exc}") from None
-    scene = scene.with_overrides(mesh=args.mesh, steps=args.steps, size=size, mapping=args.mapping,
+    from deformgl.data import find_mesh
+
+    scene = scene.with_overrides(mesh=None if args.mesh is None else find_mesh(args.mesh), steps=args.steps, size=size, mapping=args.mapping,
                                  integrator=args.integrator, backend=args.backend, unstable=args.unstable,
                                  check_every=args.check_every)
     if args.tolerance is not None:

@@ -319,3 +319,14 @@ def test_a_toml_syntax_error_is_reported_before_the_heavy_imports(tmp_path):
     with pytest.raises(SceneError) as info:
         load_scene(bad)
     assert done.stderr.strip() == f"deformgl: error: {info.value}"
+
+
+def test_a_mesh_not_in_the_working_folder_is_the_shipped_one(ctx, tmp_path, monkeypatch, capsys):
+    """--mesh takes a shipped mesh by name, as the API's Body.from_mesh does (deformgl.data.find_mesh)."""
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run_cli(capsys, "render", "jelly_springs.toml", "--mesh", "jelly_block.obj", "-o", "bar.png",
+                           "--steps", "2", "--size", "64x48", "--quiet")
+    assert code == 0, err
+    code, _, err = run_cli(capsys, "render", "jelly_springs.toml", "--mesh", "no_such_mesh.obj", "-o", "x.png",
+                           "--quiet")
+    assert code == 2 and "no_such_mesh.obj" in err and not (tmp_path / "x.png").exists()
