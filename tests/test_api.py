@@ -351,6 +351,8 @@ BAD_CALLS = [
     (lambda: dg.Body.from_arrays(V, F, resolution=4, material=dg.SheetMaterial(1.0, 1.0)),
      "Body.from_arrays: material: a SheetMaterial needs a grid one node thick"),
     (lambda: dg.Body.from_arrays([["a", "b", "c"]], F), "Body.from_arrays: vertices must be numbers"),
+    (lambda: dg.Body.from_arrays(V + 1j, F), "Body.from_arrays: vertices must be numbers"),  # not the real parts
+    (lambda: dg.load_scene("a\nb.toml"), r"a\nb.toml: cannot read scene file: file not found"),
     (lambda: dg.Body.from_arrays(np.where(V == 1.0, np.nan, V), F), "Body.from_arrays: vertices[4] is non-finite"),
     (lambda: dg.Body.from_arrays(V, F - 1), "Body.from_arrays: faces[0] [0, 2, -1] has a vertex index outside 0..7"),
     (lambda: dg.Body.from_arrays(V * 1e300, F, resolution=4), "Body.from_arrays: the mesh's bounding box"),

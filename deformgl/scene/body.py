@@ -255,6 +255,8 @@ class Body:
         caller = options.setdefault("caller", "Body.from_arrays")
         options.setdefault("source", "<arrays>")
         try:
+            if np.iscomplexobj(vertices):  # (the cast would drop the imaginary parts, silently)
+                raise TypeError("complex")
             v = np.asarray(vertices, dtype=np.float64)
         except (TypeError, ValueError):
             raise ArgumentError(f"{caller}: vertices must be numbers of shape (V, 3)") from None

@@ -63,7 +63,7 @@ def read_toml(path: str | os.PathLike[str], file: str | None = None) -> dict[str
     Raises:
         SceneError: an unreadable or too large file, not UTF-8, invalid TOML, nested too deeply.
     """
-    file = os.fspath(path) if file is None else file
+    file = _one_line(os.fspath(path) if file is None else file)  # (a name may hold a line break)
     try:
         try:
             with open(path, "rb") as fh:
