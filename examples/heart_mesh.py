@@ -67,7 +67,7 @@ def heart_mesh() -> trimesh.Trimesh:
 
 
 def write(path: Path) -> Path:
-    """Write the mesh as gzipped binary PLY (byte-identical run to run: no time stamp)."""
+    """Write the mesh as gzipped binary PLY (no time stamp: the same bytes run to run)."""
     mesh = heart_mesh()
     data = trimesh.exchange.ply.export_ply(mesh, encoding="binary")
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -24,9 +24,11 @@ def _generator():
     return module
 
 
-def test_the_generator_writes_the_shipped_mesh_byte_for_byte(tmp_path):
-    out = _generator().write(tmp_path / "heart.ply.gz")
-    assert out.read_bytes() == ASSET.read_bytes()
+def test_the_generator_writes_the_shipped_mesh(tmp_path):
+    """(compared as meshes, not bytes: zlib and trimesh versions may write other bytes)"""
+    made, shipped = load_mesh(_generator().write(tmp_path / "heart.ply.gz")), load_mesh(ASSET)
+    np.testing.assert_array_equal(made.faces, shipped.faces)
+    np.testing.assert_allclose(made.vertices, shipped.vertices, rtol=0.0, atol=1e-7)  # m
 
 
 def test_the_mesh_is_a_closed_outward_heart_12_cm_tall_apex_down():
