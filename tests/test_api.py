@@ -397,3 +397,11 @@ def test_the_scene_file_keeps_naming_its_keys(tmp_path):
 
     with pytest.raises(dg.SceneError, match=r"s.toml: physics.fixed\[0\]: the region"):
         build_scene_model(dg.load_scene(scene))
+
+
+def test_sweep_scene_finds_a_shipped_scene_by_name(ctx, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    small = {"physics.steps": 1, "render.size": [32, 24], "render.msaa": 0, "grid.nodes_along_longest": 7}
+    result = dg.sweep_scene("jelly_springs.toml", tmp_path / "sweep", variants=[small], workers=0, ctx=ctx,
+                            outputs=("png",), table=False)
+    assert len(result.records) == 1 and list((tmp_path / "sweep").rglob("*.png"))

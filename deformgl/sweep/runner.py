@@ -185,7 +185,10 @@ def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, p
     if not found:
         raise InputError("sweep: no variants (give product values or variants)")
     width = max(2, len(str(len(found) - 1)))
-    spec = SweepSpec(Path(scene).resolve(), Path(scene).resolve(),
+    from deformgl.data import find_scene  # (the CLI's lookup: a shipped scene by name)
+
+    found_scene = find_scene(scene).resolve()
+    spec = SweepSpec(found_scene, found_scene,
                      tuple(Variant(name or f"v{i:0{width}d}", _label(own), {**(common or {}), **own})
                            for i, (name, own) in enumerate(found)), tuple(outputs))
     result = run_sweep(spec, out, workers=workers, scheduler=scheduler, client=client, devices=devices, ctx=ctx,
