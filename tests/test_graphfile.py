@@ -420,3 +420,13 @@ def test_a_far_lattice_point_is_not_judged_linear_away():
     (scene_batch,) = compose_scene(TransformNode(grid, [GeometryNode(
         __import__("deformgl.trilinear.shapes", fromlist=["uv_sphere"]).uv_sphere(0.8, 12, 8, "s"))])).batches
     assert scene_batch.path == "grid"
+
+
+def test_a_grid_over_its_content_with_no_children_is_named(tmp_path):
+    """Found by tests/test_fuzz_graph.py (a mutation deleted a grid node's children): the box
+    "content" spanned nothing, an internal ValueError; now one line naming the node."""
+    text = LATTICE_GRAPH.replace('grid = { file = "lat.npy", box = { lo = [-1, -1, -1], hi = [1, 1, 1] } }\nchildren = ["m"]',
+                                 'grid = { deformation = "d", cells = [2, 2, 2] }')
+    path = _write(tmp_path, text + '[deformations.d]\nkind = "twist"\nrate = 1.0\n')
+    with pytest.raises(SceneError, match=rf"^{re.escape(str(path))}: nodes\.r: has no content \(no mesh below it\)"):
+        build_graph(load_graph(path), tmp_path, file=str(path))

@@ -93,7 +93,10 @@ class _Builder:
         return self.bounds_cache[name]
 
     def content(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        los, his = zip(*(self.bounds(c) for c in self.g.nodes[name].children))
+        children = self.g.nodes[name].children
+        if not children:  # (a transform over box = "content" with nothing under it)
+            raise self.fail(f"nodes.{name}", "has no content (no mesh below it) for its box to span")
+        los, his = zip(*(self.bounds(c) for c in children))
         return np.min(los, axis=0), np.max(his, axis=0)
 
     def image_bounds(self, name: str, t: GraphTransform | None, inner: tuple[np.ndarray, np.ndarray]):
@@ -274,14 +277,24 @@ def check_drawn(image: np.ndarray, background: tuple[float, float, float], file:
     """``image`` (H, W, 3) uint8, or a SceneError when it is blank: fewer than
     :data:`MIN_DRAWN_PIXELS` pixels differ from ``background`` (a scene whose content is
     smaller than a pixel in the frame, collapsed by its transforms or dwarfed by a far lattice
-    point, or drawn in the background's colour). A blank image is never written silently."""
+    point, or drawn in the background's colour), or from the colour of most of its corners (one
+    colour: the camera inside the content; the framing is the grids' lattices, and a mesh
+    reaching far beyond its grid's box is not in them). A blank image is never written silently."""
+    rgb = image[..., :3].astype(np.float64)
     bg = np.round(np.asarray(background) * 255.0)
-    drawn = int((np.abs(image[..., :3].astype(np.float64) - bg).max(-1) > DRAWN_LEVEL).sum())
+    drawn = int((np.abs(rgb - bg).max(-1) > DRAWN_LEVEL).sum())
     if drawn < MIN_DRAWN_PIXELS:
         raise SceneError(f"{file}: {key}: the image is blank ({drawn} of {image.shape[0] * image.shape[1]} pixels "
                          f"differ from the background): its content covers less than a pixel, collapsed or "
                          f"outstretched by its transforms (a lattice point far away?), or is the background's "
                          f"colour; check the transforms, or render larger (--size)")
+    corners = [tuple(rgb[y, x]) for y in (0, -1) for x in (0, -1)]
+    common = np.array(max(set(corners), key=corners.count))
+    varied = int((np.abs(rgb - common).max(-1) > DRAWN_LEVEL).sum())
+    if varied < MIN_DRAWN_PIXELS:
+        raise SceneError(f"{file}: {key}: the image is one colour ({varied} pixels differ from its corners): the "
+                         f"camera is inside the content, which reaches beyond the frame (a mesh far outside a "
+                         f"grid's box?); check the transforms and boxes")
     return image
 
 
