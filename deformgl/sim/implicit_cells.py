@@ -61,7 +61,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from deformgl.sim.volume import CORNER_SIGNS, CellVolumes
+from deformgl.sim.volume import CORNER_SIGNS, CellVolumes, corner_tets
 
 __all__ = ["CELL_HESSIANS", "CELL_HESSIAN", "DeterminantTerms", "centre_terms", "barrier_terms",
            "term_blocks", "cell_matrix", "cell_product"]
@@ -76,7 +76,7 @@ _EPS = np.zeros((3, 3, 3))
 for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
     _EPS[_i, _j, _k], _EPS[_i, _k, _j] = 1.0, -1.0
 #: (8, 4) the tet of corner c: c, c ^ 1, c ^ 2, c ^ 4.
-TET_CORNERS = np.array([[c, c ^ 1, c ^ 2, c ^ 4] for c in range(8)], dtype=np.int64)
+TET_CORNERS = corner_tets(1.0)[0]
 
 
 class DeterminantTerms:
@@ -128,13 +128,8 @@ def centre_terms(cells: CellVolumes, x: np.ndarray) -> DeterminantTerms:
 def barrier_terms(cells: CellVolumes, x: np.ndarray) -> tuple[DeterminantTerms, np.ndarray]:
     """The barriers of the corners inside the barrier (``J_c < J_b``), T = 4 (the corner's tet),
     and the (A,) ``8 cell + corner`` of each."""
-    h = cells.spacing
-    weights = np.zeros((8, 4, 3))
-    for c in range(8):
-        weights[c, 0] = CORNER_SIGNS[c] / h
-        for k in range(3):
-            weights[c, 1 + k, k] = -CORNER_SIGNS[c, k] / h
-    nodes = cells.corners[:, TET_CORNERS].reshape(-1, 4)               # (C * 8, 4)
+    tets, weights = corner_tets(cells.spacing)
+    nodes = cells.corners[:, tets].reshape(-1, 4)                      # (C * 8, 4)
     terms = DeterminantTerms(nodes, np.broadcast_to(weights, (cells.count, 8, 4, 3)).reshape(-1, 4, 3), x,
                              cells.volume / 8.0 * cells.barrier_modulus, cells.barrier_j)
     active = np.flatnonzero(terms.det < cells.barrier_j) if cells.barrier_modulus > 0 else np.zeros(0, np.int64)

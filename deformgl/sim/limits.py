@@ -15,6 +15,7 @@ from deformgl.sim.spectrum import (
     _describe, _mass_normalised, exact_frequency, modal_damping)
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 from deformgl.sim.stages import spec
+from deformgl.sim.volume import frequency_terms
 
 
 
@@ -133,30 +134,32 @@ def analytic_limit(integrator: str, omegas: np.ndarray | float,
                          _formula(integrator, damping, best[0]), damping.proportional)
 
 
-def gershgorin_limit(system: SpringSystem, integrator: str) -> AnalyticLimit:
+def gershgorin_limit(system: SpringSystem, integrator: str, *, barrier: bool = False) -> AnalyticLimit:
     """Limit from the Gershgorin bound ``w_max^2 <= max_i 2 sum_j k_ij / m_i``.
 
     Every mode lies in [0, w_G], so the limit is minimised over 257 frequencies evenly spaced on
     that interval (with damping the smallest limit need not be at the top frequency): under the
-    modal damping model it is never above the exact limit.
+    modal damping model it is never above the exact limit. ``barrier``: with the cells' barrier
+    envelope (:func:`~deformgl.sim.springs.max_angular_frequency`).
     """
-    wg = max_angular_frequency(system).omega
-    return analytic_limit(integrator, np.linspace(0.0, wg, 257), modal_damping(system))
+    wg = max_angular_frequency(system, barrier=barrier).omega
+    return analytic_limit(integrator, np.linspace(0.0, wg, 257), modal_damping(system, barrier=barrier))
 
 
-def exact_limit(system: SpringSystem, integrator: str, *,
-                method: str = "auto", tol: float = 1e-10) -> tuple[AnalyticLimit, ExactFrequency]:
+def exact_limit(system: SpringSystem, integrator: str, *, method: str = "auto", tol: float = 1e-10,
+                barrier: bool = False) -> tuple[AnalyticLimit, ExactFrequency]:
     """Limit from the exact spectrum: every mode when dense (one ``eigh``), the band
     [0, w_max] when Lanczos (relative residual ``tol``) and damped (conservative as
-    :func:`gershgorin_limit`)."""
-    damping = modal_damping(system)
+    :func:`gershgorin_limit`); ``barrier``: of K with the cells' barrier envelope
+    (:func:`~deformgl.sim.spectrum.stiffness_product`)."""
+    damping = modal_damping(system, barrier=barrier)
     free = int((~system.fixed).sum())
     if free and (method == "dense" or (method == "auto" and free <= DENSE_MAX_NODES)):
-        lam, vec = np.linalg.eigh(_mass_normalised(system))
+        lam, vec = np.linalg.eigh(_mass_normalised(system, barrier))
         top = _describe(system, float(lam[-1]), vec[:, -1], "dense", 1e-12)
         omegas = np.unique(np.round(np.sqrt(np.clip(lam, 0.0, None)), 9))
     else:
-        top = exact_frequency(system, method=method, tol=tol)
+        top = exact_frequency(system, method=method, tol=tol, barrier=barrier)
         omegas = np.linspace(0.0, top.omega, 257)
     if damping.undamped:
         omegas = np.array([top.omega])  # every limit is c/w: the top mode sets it
@@ -184,6 +187,10 @@ class DtLimit:
             energy in the mode); -1 if none.
         stiffness: k of that spring, N/m.
         mass: m of that node, kg.
+        bending: a sheet's bending stiffness D in N*m where it is the larger part of the
+            node's stiffness, else 0.
+        barrier: the cells' barrier modulus kappa_b in Pa where its envelope is the larger
+            part of the node's stiffness, else 0.
     """
 
     integrator: str
@@ -196,6 +203,7 @@ class DtLimit:
     stiffness: float
     mass: float
     bending: float = 0.0
+    barrier: float = 0.0
 
     def message(self, dt: float) -> str:
         """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s = 2/w,
@@ -203,6 +211,8 @@ class DtLimit:
         bending is the larger part of the node's stiffness names it instead of the spring."""
         if self.bending:
             what = f"a sheet's bending, D = {self.bending:.4g} N*m"
+        elif self.barrier:
+            what = f"the cells' inversion barrier at full strength, kappa_b = {self.barrier:.4g} Pa"
         else:
             what = f"spring {self.spring}, k = {self.stiffness:.4g} N/m"
         where = f"w = {self.omega:.4g} rad/s set by node {self.node} ({what}, m = {self.mass:.4g} kg; {self.bound} bound)"
@@ -231,34 +241,48 @@ LANCZOS_MARGIN = 1e-3
 
 
 def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
+    """The limit on ``bound``'s frequency of the stiffness the run can meet: the rest stiffness
+    and, on a body with cells, their inversion barrier at full strength (``barrier=True``: a
+    body pressed towards inversion meets it; docs/ACCURACY.md section 7)."""
     if bound == "gershgorin":
-        lim = gershgorin_limit(system, integrator)
-        fb = max_angular_frequency(system)
+        lim = gershgorin_limit(system, integrator, barrier=True)
+        fb = max_angular_frequency(system, barrier=True)
         omega, node, spring = fb.omega, fb.node, fb.spring
     else:
         if bound == "lanczos":
-            lim, top = exact_limit(system, integrator, method="lanczos", tol=LANCZOS_TOL)
+            lim, top = exact_limit(system, integrator, method="lanczos", tol=LANCZOS_TOL, barrier=True)
             if not top.tolerance <= LANCZOS_TOL:  # did not converge: its w may be too low
                 return _dt_limit(system, integrator, "gershgorin")
             lim = dataclasses.replace(lim, dt=lim.dt * (1.0 - LANCZOS_MARGIN),
                                       formula=f"{lim.formula} less {LANCZOS_MARGIN:.1%} (w estimated)")
         else:
-            lim, top = exact_limit(system, integrator)
+            lim, top = exact_limit(system, integrator, barrier=True)
         omega, node, spring = top.omega, top.node, top.spring
     k = float(system.stiffness[spring]) if spring >= 0 else 0.0
     m = float(system.mass[node]) if node >= 0 else 0.0
-    bending = 0.0
-    if system.bending is not None and node >= 0:  # the node's Gershgorin terms: bending's against the springs'
+    bending = barrier = 0.0
+    if node >= 0:  # the node's Gershgorin terms: bending's or the barrier's against the springs'
         springs = 2.0 * float(system.stiffness[(system.i == node) | (system.j == node)].sum())
-        if system.bending.frequency_terms()[node] > springs:
+        if system.bending is not None and system.bending.frequency_terms()[node] > springs:
             bending = system.bending.bending_stiffness
-    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, bending)
+        cells = system.cells
+        if cells is not None and cells.barrier_modulus > 0:
+            envelope = (frequency_terms(cells, system.count, barrier=True)
+                        - frequency_terms(cells, system.count))[node]
+            if envelope > springs:
+                barrier = cells.barrier_modulus
+    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, bending, barrier)
 
 
 def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None,
-             exact_up_to: int = 300) -> DtLimit:
-    """The dt limit with the exact spectrum (``exact`` True, or None and at most ``exact_up_to``
-    free nodes) or the Gershgorin bound.
+             exact_up_to: int = 300, lanczos_up_to: int = 30000) -> DtLimit:
+    """The dt limit that :func:`check_dt` enforces: of the stiffness the run can meet (the rest
+    stiffness and the cells' barrier at full strength, :func:`_dt_limit`), on the exact spectrum
+    (``exact`` True, or None and at most ``exact_up_to`` free nodes), its Lanczos estimate (None
+    and at most ``lanczos_up_to``; less :data:`LANCZOS_MARGIN`) or the Gershgorin bound (``exact``
+    False, or more free nodes). A run at any dt below it with the guard's ``unstable="refuse"``
+    does not blow up (tests/test_stability_extremes.py: the hanging cantilevers driven to the
+    barrier, at 0.9 of it).
 
     Raises:
         ValueError: an integrator without an explicit dt limit (implicit Euler, XPBD: their
@@ -267,9 +291,11 @@ def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None
     if integrator in IMPLICIT_INTEGRATORS or integrator in STABLE_INTEGRATORS:
         raise ValueError(f"{integrator} has no explicit dt limit (only the explicit integrators have one: "
                          f"{', '.join(EXPLICIT_INTEGRATORS)}); check_dt accepts every dt for it")
-    if exact is None:
-        exact = int((~system.fixed).sum()) <= exact_up_to
-    return _dt_limit(system, integrator, "exact" if exact else "gershgorin")
+    if exact is not None:
+        return _dt_limit(system, integrator, "exact" if exact else "gershgorin")
+    free = int((~system.fixed).sum())
+    return _dt_limit(system, integrator, "exact" if free <= exact_up_to else
+                     "lanczos" if free <= lanczos_up_to else "gershgorin")
 
 
 def check_dt(system: SpringSystem, integrator: str, dt: float, *,

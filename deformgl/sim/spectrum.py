@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.volume import rest_product, rest_stiffness_triplets
+from deformgl.sim.volume import barrier_envelope_product, barrier_envelope_triplets, rest_product, rest_stiffness_triplets
 from deformgl.sim.stages import SPECS
 
 
@@ -44,12 +44,15 @@ def _rest_directions(system: SpringSystem) -> np.ndarray:
     return d / np.where(length > 0, length, 1.0)[:, None]
 
 
-def stiffness_product(system: SpringSystem, dx: np.ndarray) -> np.ndarray:
+def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = False) -> np.ndarray:
     """``K dx`` for displacements dx (N, 3): per spring ``k u (u . (dx_i - dx_j))`` on i, minus on j.
 
     K is the stiffness matrix at the rest state, where the geometric term ``k (1 - L/|d|)``
     vanishes, so each spring contributes the block ``k u u^T`` (the linearisation of Movania &
-    Feng 2012 eq. 2, ``F = k (L - |d|) d/|d|``). Returns (N, 3); fixed nodes are not masked.
+    Feng 2012 eq. 2, ``F = k (L - |d|) d/|d|``). With ``barrier``, K also holds the cells'
+    inversion barrier where it is strongest (:func:`deformgl.sim.volume.barrier_envelope_product`;
+    inactive at rest): the stiffness the explicit dt bound must cover. Returns (N, 3); fixed
+    nodes are not masked.
     """
     u = _rest_directions(system)
     p = system.stiffness * np.einsum("sk,sk->s", dx[system.i] - dx[system.j], u)
@@ -60,14 +63,17 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray) -> np.ndarray:
     out = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)], axis=1)
     if system.cells is not None:  # the cells' centre term (its barrier is inactive at rest)
         out += rest_product(system.cells, dx)
+        if barrier:
+            out += barrier_envelope_product(system.cells, dx)
     if system.bending is not None:  # a sheet's bending, linear: the same B at any state
         out += system.bending.matrix @ dx
     return out
 
 
-def stiffness_matrix(system: SpringSystem) -> np.ndarray:
+def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarray:
     """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``, and the cells' centre
-    term, :func:`deformgl.sim.volume.rest_stiffness_triplets`), fixed nodes included."""
+    term, :func:`deformgl.sim.volume.rest_stiffness_triplets`; with ``barrier`` the barrier's
+    envelope as :func:`stiffness_product`), fixed nodes included."""
     n = system.count
     u = _rest_directions(system)
     blocks = system.stiffness[:, None, None] * u[:, :, None] * u[:, None, :]   # (S, 3, 3)
@@ -78,8 +84,9 @@ def stiffness_matrix(system: SpringSystem) -> np.ndarray:
     np.add.at(k4, (system.j, system.i), -blocks)
     k = k4.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
     if system.cells is not None:
-        rows, cols, values = rest_stiffness_triplets(system.cells)
-        np.add.at(k, (rows, cols), values)
+        for rows, cols, values in [rest_stiffness_triplets(system.cells)] + (
+                [barrier_envelope_triplets(system.cells)] if barrier else []):
+            np.add.at(k, (rows, cols), values)
     if system.bending is not None:  # B on each coordinate: the blocks B_ij I
         k += np.kron(system.bending.matrix.toarray(), np.eye(3))
     return k
@@ -114,11 +121,11 @@ class ExactFrequency:
     tolerance: float
 
 
-def _mass_normalised(system: SpringSystem) -> np.ndarray:
-    """Dense ``M^-1/2 K M^-1/2`` over the free degrees of freedom."""
+def _mass_normalised(system: SpringSystem, barrier: bool = False) -> np.ndarray:
+    """Dense ``M^-1/2 K M^-1/2`` over the free degrees of freedom (``barrier``: :func:`stiffness_product`)."""
     free, s = _free_scaling(system)
     dof = (3 * free[:, None] + np.arange(3)).ravel()
-    k = stiffness_matrix(system)[np.ix_(dof, dof)]
+    k = stiffness_matrix(system, barrier=barrier)[np.ix_(dof, dof)]
     return s[:, None] * k * s[None, :]
 
 
@@ -189,7 +196,7 @@ def _lanczos_top(matvec, n: int, tol: float, rng: np.random.Generator, *,
 
 
 def exact_frequency(system: SpringSystem, *, method: str = "auto", tol: float = 1e-10,
-                    seed: int = 0) -> ExactFrequency:
+                    seed: int = 0, barrier: bool = False) -> ExactFrequency:
     """Largest eigenvalue of ``M^-1 K`` at rest over the free nodes, as an angular frequency.
 
     Args:
@@ -199,6 +206,7 @@ def exact_frequency(system: SpringSystem, *, method: str = "auto", tol: float = 
         tol: Lanczos relative residual; ``omega**2`` is then within ``tol`` (relative) of an
             eigenvalue and never above the largest (so omega within tol/2).
         seed: Lanczos start vector.
+        barrier: K with the cells' barrier envelope (:func:`stiffness_product`).
     """
     free, s = _free_scaling(system)
     if len(free) == 0:
@@ -206,7 +214,7 @@ def exact_frequency(system: SpringSystem, *, method: str = "auto", tol: float = 
     if method == "auto":
         method = "dense" if len(free) <= DENSE_MAX_NODES else "lanczos"
     if method == "dense":
-        lam, vec = np.linalg.eigh(_mass_normalised(system))
+        lam, vec = np.linalg.eigh(_mass_normalised(system, barrier))
         return _describe(system, float(lam[-1]), vec[:, -1], "dense", 1e-12)
     if method != "lanczos":
         raise ValueError(f"exact_frequency: method {method!r}; expected auto, dense or lanczos")
@@ -214,7 +222,7 @@ def exact_frequency(system: SpringSystem, *, method: str = "auto", tol: float = 
     def matvec(q: np.ndarray) -> np.ndarray:
         dx = np.zeros((system.count, 3))
         dx[free] = (s * q).reshape(-1, 3)
-        return s * stiffness_product(system, dx)[free].ravel()
+        return s * stiffness_product(system, dx, barrier=barrier)[free].ravel()
 
     theta, q, rel = _lanczos_top(matvec, 3 * len(free), tol, np.random.default_rng(seed))
     return _describe(system, theta, q, "lanczos", rel)
@@ -252,15 +260,17 @@ class ModalDamping:
         return sorted({(a, b) for a in self.alpha for b in self.beta})
 
 
-def modal_damping(system: SpringSystem) -> ModalDamping:
-    """The (alpha, beta) ranges of ``system`` (see :class:`ModalDamping`)."""
+def modal_damping(system: SpringSystem, *, barrier: bool = False) -> ModalDamping:
+    """The (alpha, beta) ranges of ``system`` (see :class:`ModalDamping`); ``barrier``: of the
+    stiffness with the cells' barrier envelope (:func:`stiffness_product`), undamped as the centre term."""
     free = ~system.fixed
     a = ((system.velocity_damping + system.wind_drag) / system.mass[free] + system.mass_damping
          if free.any() else np.zeros(1))
     k = system.stiffness > 0
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
-    if system.cells is not None and system.cells.volume_modulus > 0:
-        b = np.append(b, 0.0)  # the cells' centre term is stiffness that Rayleigh beta does not damp
+    cells = system.cells
+    if cells is not None and (cells.volume_modulus > 0 or (barrier and cells.barrier_modulus > 0)):
+        b = np.append(b, 0.0)  # the cells' terms are stiffness that Rayleigh beta does not damp
     if system.bending is not None:
         b = np.append(b, 0.0)  # nor a sheet's bending
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

@@ -436,7 +436,7 @@ class FrequencyBound:
     spring: int
 
 
-def max_angular_frequency(system: SpringSystem) -> FrequencyBound:
+def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> FrequencyBound:
     """``w_max^2 <= max_i 2 sum_j k_ij / m_i`` over the free nodes (STYLE.md; Gershgorin).
 
     Proof sketch: ``x^T K x = sum_s k_s ((x_i - x_j) . u_s)^2 <= sum_s 2 k_s (|x_i|^2 + |x_j|^2)``
@@ -445,13 +445,14 @@ def max_angular_frequency(system: SpringSystem) -> FrequencyBound:
     geometric stiffness ``k (1 - L/|d|)`` across the spring is below k. Drags are not included
     (a drag of stiffness k_d adds ``2 k_d / m`` at its node). The cells' centre term adds
     :func:`deformgl.sim.volume.frequency_terms` (``1.5 kappa h`` per cell at the node); their
-    inversion barrier, inactive at rest, is not included. A sheet's bending adds its row sum
+    inversion barrier, inactive at rest, only with ``barrier`` (its envelope, the explicit
+    integrators' dt bound: :func:`deformgl.sim.volume.barrier_envelope_product`). A sheet's bending adds its row sum
     ``sum_j |B_ij|`` (:meth:`deformgl.sim.bending.SheetBending.frequency_terms`).
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
             + np.bincount(system.j, weights=system.stiffness, minlength=n))
-    cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n)
+    cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n, barrier=barrier)
     if system.bending is not None:
         cell_terms = cell_terms + system.bending.frequency_terms()
     bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)

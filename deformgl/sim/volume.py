@@ -42,10 +42,11 @@ from numpy.typing import ArrayLike
 
 __all__ = ["BARRIER_J", "BARRIER_SCALE", "CORNER_SIGNS", "CellVolumes", "grid_cells", "cell_state",
            "centre_deformation", "volume_forces", "volume_energy", "corner_jacobians", "inverted_cells",
-           "describe_inverted", "rest_product", "rest_stiffness_triplets", "frequency_terms"]
+           "describe_inverted", "rest_product", "rest_stiffness_triplets", "frequency_terms",
+           "corner_tets", "barrier_envelope_product", "barrier_envelope_triplets"]
 
 #: J below which a corner's barrier acts (dimensionless; measured in docs/ACCURACY.md section 7).
-BARRIER_J = 0.6
+BARRIER_J = 0.7
 #: the barrier's modulus over the material's shear modulus μ (measured in docs/ACCURACY.md
 #: section 7: the smallest multiple that leaves no cell of the hanging cantilevers inverted).
 BARRIER_SCALE = 12.0
@@ -55,6 +56,8 @@ CORNER_SIGNS = np.array([[2 * dx - 1, 2 * dy - 1, 2 * dz - 1]
                          for dz, dy, dx in product((0, 1), repeat=3)], dtype=np.float64)
 #: (8, 3) corner c's neighbour along axis k inside the cell: c with bit k flipped.
 _CORNER_NEIGHBOURS = np.array([[c ^ (1 << k) for k in range(3)] for c in range(8)], dtype=np.int64)
+#: (8, 4) the tet of corner c: c, then its neighbours along x, y, z.
+_CORNER_TETS = np.concatenate([np.arange(8)[:, None], _CORNER_NEIGHBOURS], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -249,11 +252,74 @@ def rest_stiffness_triplets(cells: CellVolumes) -> tuple[np.ndarray, np.ndarray,
     return rows, cols, values
 
 
-def frequency_terms(cells: CellVolumes, count: int) -> np.ndarray:
-    """(N,) per node, the centre term's share of a Gershgorin-type bound of ``x^T K x``:
-    ``1.5 kappa h`` per full cell at the node (``V kappa (g . x)^2 <= V kappa |g|^2 |x|^2`` with
-    ``|g|^2 = 3 / (2 h^2)``); add it to ``2 sum_j k_ij`` before dividing by the mass."""
+def frequency_terms(cells: CellVolumes, count: int, *, barrier: bool = False) -> np.ndarray:
+    """(N,) per node, the cells' share of a Gershgorin-type bound of ``x^T K x``; add it to
+    ``2 sum_j k_ij`` before dividing by the mass.
+
+    The centre term: ``1.5 kappa h`` per full cell at the node (``V kappa (g . x)^2 <= V kappa
+    |g|^2 |x|^2`` with ``|g|^2 = 3 / (2 h^2)``). With ``barrier``, also the barrier's envelope
+    (:func:`barrier_envelope_product`): a corner term ``w (sum_t g_t . x_t)^2`` is at most
+    ``w (sum_u |g_u|) sum_t |g_t| |x_t|^2`` (Cauchy-Schwarz weighted by ``|g_t|``), ``|g_t| <=
+    |D_t|`` at principal stretches <= 1, and each node of a cell is once the corner
+    (``|D| = sqrt(3)/h``) and three times a neighbour (``1/h``) of its 8 terms:
+    ``(sqrt(3) + 3)^2 / 8 kappa_b h`` per full cell at the node."""
     terms = np.zeros(count)
-    if cells.count and cells.volume_modulus > 0:
-        terms += 1.5 * cells.volume_modulus * cells.spacing * np.bincount(cells.corners.reshape(-1), minlength=count)
+    if not cells.count:
+        return terms
+    per_cell = 1.5 * cells.volume_modulus * cells.spacing
+    if barrier:
+        per_cell += (np.sqrt(3.0) + 3.0) ** 2 / 8.0 * cells.barrier_modulus * cells.spacing
+    if per_cell > 0:
+        terms += per_cell * np.bincount(cells.corners.reshape(-1), minlength=count)
     return terms
+
+
+def corner_tets(spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The corners' barrier terms as maps of four nodes: (8, 4) the tet of corner c (c, then its
+    neighbours c ^ 1, c ^ 2, c ^ 4 along x, y, z) and (8, 4, 3) the weights D_t in 1/m with
+    ``F_c = sum_t x_t (x) D_t`` (``s_c / h`` on c, ``-s_c[k] / h e_k`` on the neighbour along k):
+    ``dJ_c/dx_t = cof(F_c) D_t``, D_t itself at the rest geometry."""
+    tets = _CORNER_TETS
+    grads = np.zeros((8, 4, 3))
+    grads[:, 0] = CORNER_SIGNS / spacing
+    for k in range(3):
+        grads[:, 1 + k, k] = -CORNER_SIGNS[:, k] / spacing
+    return tets, grads
+
+
+def barrier_envelope_product(cells: CellVolumes, dx: np.ndarray) -> np.ndarray:
+    """K_b dx: the barrier's stiffness where it is strongest in compression, (N, 3).
+
+    Every corner's barrier active (``J_c < J_b``, as when the body is crushed around a node)
+    with the rest geometry's gradients (cof F_c = I: at principal stretches <= 1 no entry of
+    ``dJ_c/dx`` is larger), the Gauss-Newton part ``V/8 kappa_b g g^T`` per corner. The
+    explicit integrators' dt bound adds it to the rest stiffness (:mod:`deformgl.sim.limits`):
+    a body driven towards inversion meets it, and a dt set by the rest stiffness alone blows
+    up there (docs/ACCURACY.md section 7)."""
+    out = np.zeros((len(dx), 3))
+    if cells.count == 0 or cells.barrier_modulus == 0:
+        return out
+    tets, grads = corner_tets(cells.spacing)
+    nodes = cells.corners[:, tets]                                     # (C, 8, 4)
+    dj = np.einsum("ctk,tk->ct", np.asarray(dx, np.float64)[nodes].reshape(cells.count, 8, 12),
+                   grads.reshape(8, 12))                               # g . dx per corner
+    per_node = (cells.volume / 8.0 * cells.barrier_modulus * dj)[:, :, None, None] * grads[None]
+    for c in range(3):
+        out[:, c] += np.bincount(nodes.reshape(-1), weights=per_node[..., c].reshape(-1), minlength=len(out))
+    return out
+
+
+def barrier_envelope_triplets(cells: CellVolumes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols, values) of :func:`barrier_envelope_product`'s (3N, 3N) matrix, for a
+    scipy.sparse or dense matrix (duplicates summed)."""
+    if cells.count == 0 or cells.barrier_modulus == 0:
+        empty = np.zeros(0, np.int64)
+        return empty, empty, np.zeros(0)
+    tets, grads = corner_tets(cells.spacing)
+    g = grads.reshape(8, 12)
+    block = cells.volume / 8.0 * cells.barrier_modulus * g[:, :, None] * g[:, None, :]   # (8, 12, 12)
+    dof = (3 * cells.corners[:, tets][..., None] + np.arange(3)).reshape(cells.count, 8, 12)
+    shape = (cells.count, 8, 12, 12)
+    rows = np.broadcast_to(dof[:, :, :, None], shape).reshape(-1)
+    cols = np.broadcast_to(dof[:, :, None, :], shape).reshape(-1)
+    return rows, cols, np.broadcast_to(block, shape).reshape(-1)
