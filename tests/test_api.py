@@ -380,7 +380,7 @@ def test_bad_api_calls_are_deformgl_errors_naming_the_argument(call, message, tm
 
 def test_bad_render_arguments_name_them(ctx):
     with dg.Body.from_arrays(V, F, resolution=4, ctx=ctx) as body:
-        for kwargs, message in (({"size": (0, 10)}, "Body.render: size[0] must be an integer of 1 to 8192"),
+        for kwargs, message in (({"size": (0, 10)}, "Body.render: size[0] must be an integer of 16 to 16384"),
                                 ({"size": 64}, "Body.render: size must be (width, height)"),
                                 ({"msaa": 3}, "Body.render: msaa must be 0, 1, 2, 4 or 8"),
                                 ({"mapping": "x"}, "Body: mapping must be one of")):

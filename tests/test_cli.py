@@ -262,7 +262,7 @@ def test_an_output_in_a_system_folder_says_no_file_can_be_created_there(jelly, c
 @pytest.mark.parametrize("flag, message", [
     ("physics.dtt=1e-3", "--set physics.dtt=1e-3: unknown key 'dtt' (did you mean 'dt'?)"),
     ("physics.dt=-1", "--set physics.dt=-1: must be > 0, got -1"),
-    ("render.size=[0,1]", "--set render.size=[0,1]: render.size[0]: must be in [1, 16384], got 0"),
+    ("render.size=[0,1]", "--set render.size=[0,1]: render.size[0]: must be in [16, 16384], got 0"),
     ("physics=3", "--set physics=3: must be a table, got integer 3"),
     ("physics.fixed.7.at=1", "--set physics.fixed.7.at=1: physics.fixed.7: no entry 7 (the array has 1)"),
 ])

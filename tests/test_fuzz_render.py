@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 import tomli_w
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import deformgl as dg
@@ -145,7 +145,7 @@ def test_fuzz_scene_files_through_render(ctx, tmp_path, data):
     folder = _folder(tmp_path)
     scene, out = folder / "scene.toml", folder / "out.png"
     scene.write_text(text)
-    check_outcome(run_cli(["render", scene, "-o", out, "--quiet"], watch=folder), [out])
+    event(check_outcome(run_cli(["render", scene, "-o", out, "--quiet"], watch=folder), [out]))
 
 
 def test_the_base_scenes_render_and_use_their_inputs(ctx, tmp_path):
@@ -171,8 +171,35 @@ KNOWN_KEYS = sorted({".".join(str(p) for p in path) for base in BASES.values() f
                        "material.preset", "material.youngs_modulus", "physics.ground", "animation.frames"})
 
 
-def _value_text(draw: Any) -> str:
-    value = draw(VALUES)
+def _nearby(value: Any, draw: Any) -> Any:
+    """A value of the same shape as ``value``: numbers scaled, strings and booleans kept."""
+    if isinstance(value, bool) or isinstance(value, str):
+        return value
+    if isinstance(value, (int, float)):
+        scaled = value * draw(st.sampled_from([0.5, 0.9, 1.0, 1.1, 2.0, -1.0, 0.0]))
+        return int(scaled) if isinstance(value, int) else scaled
+    if isinstance(value, list):
+        return [_nearby(v, draw) for v in value]
+    if isinstance(value, dict):
+        return {k: _nearby(v, draw) for k, v in value.items()}
+    return value
+
+
+def _base_value(key: str) -> Any:
+    for base in BASES.values():
+        node: Any = base
+        try:
+            for part in key.split("."):
+                node = node[int(part)] if isinstance(node, list) else node[part]
+            return node
+        except (KeyError, IndexError, ValueError, TypeError):
+            continue
+    return None
+
+
+def _value_text(draw: Any, key: str = "") -> str:
+    base = _base_value(key)
+    value = _nearby(base, draw) if base is not None and draw(st.booleans()) else draw(VALUES)
     try:
         return " ".join(tomli_w.dumps({"v": value})[len("v = "):].split("\n")).strip()  # (one line, as typed)
     except (TypeError, ValueError):
@@ -197,10 +224,11 @@ def test_fuzz_set_overrides_through_render(ctx, tmp_path, data):
             invented.append(key)
         else:
             key = data.draw(st.text("abcxyz._0123[]= ", min_size=0, max_size=12))
-        items.append(f"{key}={_value_text(data.draw)}")
+        items.append(f"{key}={_value_text(data.draw, key)}")
     argv = ["render", scene, "-o", out, "--quiet"] + [a for item in items for a in ("--set", item)]
     outcome = run_cli(argv, watch=folder)
     verdict = check_outcome(outcome, [out])
+    event(verdict)
     if invented and len(items) == 1:  # the error blames the flag, not the scene file
         assert verdict == "error" and outcome.stderr.startswith(f"deformgl: error: --set {_one_line(items[0])}: "), \
             outcome.describe()
@@ -275,7 +303,7 @@ def test_fuzz_mesh_files_through_render(ctx, tmp_path, mesh):
     path.write_bytes(content)
     scene = folder / "scene.toml"
     scene.write_text(tomli_w.dumps(BASES["jelly_springs"]))
-    check_outcome(run_cli(["render", scene, "-o", out, "--quiet", "--mesh", path], watch=folder), [out])
+    event(check_outcome(run_cli(["render", scene, "-o", out, "--quiet", "--mesh", path], watch=folder), [out]))
 
 
 # -- the API's arguments -------------------------------------------------------------------------
@@ -294,7 +322,8 @@ def test_fuzz_material_arguments(cls, data):
     kwargs = {f: data.draw(ARGS if data.draw(st.booleans()) else st.floats(0.26, 0.45), label=f)
               for f in fields[:2] + tuple(f for f in fields[2:] if data.draw(st.booleans()))}
     outcome = _call(getattr(dg, cls), **kwargs)
-    if check_api(outcome) == "error":
+    event(check_api(outcome))
+    if outcome.error is not None:
         message = str(outcome.error)
         assert isinstance(outcome.error, dg.ArgumentError) and message.startswith(f"{cls}: "), message
         assert any(f in message for f in kwargs), message
@@ -368,7 +397,8 @@ def test_fuzz_body_from_arrays_and_render(ctx, vf, data):
             return
         options["fixed"] = [o.result for o in made]
     outcome = _call(dg.Body.from_arrays, *vf, ctx=ctx, **options)
-    if check_api(outcome) == "error":
+    event(check_api(outcome))
+    if outcome.error is not None:
         message = str(outcome.error)
         assert message.startswith("Body.from_arrays: ") or message.startswith("<arrays>: "), message
         return
@@ -401,3 +431,16 @@ def test_fuzz_scene_and_mesh_path_arguments(tmp_path, path):
     finally:
         os.chdir(cwd)
     assert not list(tmp_path.iterdir())
+
+
+def test_regression_a_render_too_small_to_show_the_body_is_refused(ctx, tmp_path):
+    """Found by the scene fuzzer: ``render.size = [64, 1]`` wrote a blank image as a success; a
+    side below 16 pixels is now refused before any work."""
+    folder = _folder(tmp_path)
+    scene, out = folder / "scene.toml", folder / "out.png"
+    data = tomllib.loads(tomli_w.dumps(BASES["cloth_64"]))
+    data["render"]["size"] = [64, 1]
+    scene.write_text(tomli_w.dumps(data))
+    outcome = run_cli(["render", scene, "-o", out, "--quiet"], watch=folder)
+    assert check_outcome(outcome, [out], expect="error") == "error"
+    assert "render.size[1]: must be in [16, 16384], got 1" in outcome.stderr

@@ -206,8 +206,8 @@ def test_relative_paths_are_relative_to_the_scene_file(scene_dir: Path, monkeypa
     ("[render.camera]\nelevation = 90\n", "render.camera.elevation: must be in [-89, 89], got 90"),
     ("[render.camera]\nfov = 179\n", "render.camera.fov: must be in (0, 179), got 179"),
     ("[render]\nbackground = [1, 2, 0]\n", "render.background[1]: must be in [0, 1], got 2"),
-    ("[render]\nsize = [0, 600]\n", "render.size[0]: must be in [1, 16384], got 0"),
-    ("[render]\nsize = [800, 16385]\n", "render.size[1]: must be in [1, 16384], got 16385"),
+    ("[render]\nsize = [0, 600]\n", "render.size[0]: must be in [16, 16384], got 0"),
+    ("[render]\nsize = [800, 16385]\n", "render.size[1]: must be in [16, 16384], got 16385"),
     ("[render]\nmsaa = 3\n", "render.msaa: must be one of 0, 1, 2, 4, 8, 16, got 3"),
     ("[render.material]\nshininess = 0\n", "render.material.shininess: must be > 0, got 0"),
     ("[render.light]\nambient = 1.5\n", "render.light.ambient: must be in [0, 1], got 1.5"),
@@ -344,7 +344,7 @@ def test_with_overrides(scene_dir: Path) -> None:
     ({"steps": -1}, "--steps: must be >= 0, got -1"),
     ({"steps": True}, "--steps: must be an integer, got boolean true"),
     ({"steps": 2.0}, "--steps: must be an integer, got float 2.0"),
-    ({"size": (0, 600)}, "--size[0]: must be in [1, 16384], got 0"),
+    ({"size": (0, 600)}, "--size[0]: must be in [16, 16384], got 0"),
     ({"size": (800,)}, "--size: must have 2 elements, got 1"),
 ])
 def test_with_overrides_errors(scene_dir: Path, kwargs: dict[str, object], message: str) -> None:
@@ -363,12 +363,12 @@ def test_with_overrides_missing_mesh(scene_dir: Path) -> None:
 
 def test_parse_size() -> None:
     assert parse_size("800x600") == (800, 600)
-    assert parse_size(" 1X16384 ") == (1, 16384)
+    assert parse_size(" 16X16384 ") == (16, 16384)
     for bad in ["800", "800x", "x600", "800x600x2", "abc", "-1x5", "8.5x6", ""]:
         with pytest.raises(ValueError, match="expected WIDTHxHEIGHT"):
             parse_size(bad)
-    for bad in ["0x600", "800x16385"]:
-        with pytest.raises(ValueError, match="must each be in 1..16384"):
+    for bad in ["0x600", "15x600", "800x16385"]:
+        with pytest.raises(ValueError, match="must each be in 16..16384"):
             parse_size(bad)
 
 

@@ -43,11 +43,12 @@ from deformgl.render.mapped import MappedMeshPass
 from deformgl.render.mapped_setup import get_binding, mapped_vertices
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene import pipeline
+from deformgl.scene.checks import _one_line
 from deformgl.scene.pipeline import mesh_grid, recentred
 from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport, SheetMaterial
 from deformgl.scene.run import scene_system
 from deformgl.scene.schema import load_scene
-from deformgl.scene.spec import AXES, Physics, Region, Scene
+from deformgl.scene.spec import AXES, MAX_SIZE, MIN_SIZE, Physics, Region, Scene
 from deformgl.scene.stepping import GuardedSimulation, make_simulation
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.sim.normals import rest_normals
@@ -84,15 +85,23 @@ def _vec3(caller: str, name: str, value: Any) -> tuple[float, float, float]:
     return x, y, z
 
 
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):  # (a NUL byte, a name too long)
+        return False
+
+
 def _size(caller: str, size: Any) -> tuple[int, int]:
-    """(width, height) in pixels, each 1..8192, else :class:`ArgumentError`."""
+    """(width, height) in pixels, each :data:`MIN_SIZE` to :data:`MAX_SIZE` as a scene's
+    ``render.size``, else :class:`ArgumentError`."""
     try:
         w, h = size
     except (TypeError, ValueError):
         raise ArgumentError(f"{caller}: size must be (width, height) in pixels, got {size!r}") from None
     for name, v in (("size[0]", w), ("size[1]", h)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 8192:
-            raise ArgumentError(f"{caller}: {name} must be an integer of 1 to 8192 pixels, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not MIN_SIZE <= v <= MAX_SIZE:
+            raise ArgumentError(f"{caller}: {name} must be an integer of {MIN_SIZE} to {MAX_SIZE} pixels, got {v!r}")
     return int(w), int(h)
 
 
@@ -241,8 +250,12 @@ class Body:
             return cls(mesh, **options)
         if not isinstance(mesh, (str, os.PathLike)):
             raise ArgumentError(f"Body.from_mesh: mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
-        options.setdefault("source", os.fspath(mesh))
-        return cls(load_mesh(find_mesh(mesh)), **options)
+        name = _one_line(os.fspath(mesh))  # (how messages show it: a name may hold a line break)
+        options.setdefault("source", name)
+        path = find_mesh(mesh)
+        if not _is_file(path):
+            raise InputError(f"{name}: file not found (Body.from_mesh: mesh, in {Path.cwd()} nor among the shipped meshes)")
+        return cls(load_mesh(path), **options)
 
     @classmethod
     def from_arrays(cls, vertices: Any, faces: Any, **options: Any) -> Body:

@@ -22,6 +22,9 @@ from deformgl.sim.xpbd import BENDING_REFUSAL
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384
+#: The smallest image side (pixels): below it a render can miss the body altogether, a blank image
+#: written as a success (found by tests/test_fuzz_render.py: a 64x1 render.size).
+MIN_SIZE = 16
 MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
 AXES = ("x", "y", "z")
 #: Where a scene's simulation runs: fragment passes, transform feedback, or the float64 NumPy reference.
@@ -36,7 +39,7 @@ MAX_STEPS = 100_000_000
 MAX_GRID_NODES = 1024
 MAX_KEYFRAMES = 10_000
 # the checkers the command-line overrides share with the scene file's tables
-_STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=1, hi=MAX_SIZE))
+_STEPS, _SIZE = _int(lo=0, sane=(0, MAX_STEPS)), _vec(2, _int(lo=MIN_SIZE, hi=MAX_SIZE))
 _CHECK_EVERY = _int(lo=0, sane=(0, MAX_STEPS))
 _INTEGRATOR, _BACKEND, _MAPPING_MODE = _str(INTEGRATORS), _str(BACKENDS), _str(MAPPING_MODES)
 #: ``[physics] layout``, the node layout of the fragment backend's Verlet pass: "auto" (several
@@ -467,12 +470,12 @@ def parse_size(text: str) -> tuple[int, int]:
     """Parses ``"WIDTHxHEIGHT"``, e.g. ``"800x600"`` -> ``(800, 600)``.
 
     Raises:
-        ValueError: If the text is not of that form or a side is outside 1..16384.
+        ValueError: If the text is not of that form or a side is outside 16..16384.
     """
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
     if m is None:
         raise ValueError(f"invalid size {text!r}: expected WIDTHxHEIGHT, e.g. 800x600")
     w, h = int(m[1]), int(m[2])
-    if not (1 <= w <= MAX_SIZE and 1 <= h <= MAX_SIZE):
-        raise ValueError(f"invalid size {text!r}: width and height must each be in 1..{MAX_SIZE}")
+    if not (MIN_SIZE <= w <= MAX_SIZE and MIN_SIZE <= h <= MAX_SIZE):
+        raise ValueError(f"invalid size {text!r}: width and height must each be in {MIN_SIZE}..{MAX_SIZE}")
     return w, h
