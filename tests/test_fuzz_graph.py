@@ -398,3 +398,19 @@ def test_mutated_graph_files_render_or_fail_in_one_line(ctx, graph_sources, data
         verdict = check_outcome(outcome, [out])
         TALLY[f"mutated:{verdict}"] += 1
         TALLY[f"mutated:{verdict}:{_reason(outcome.stderr)}"] += 1
+
+
+@pytest.mark.parametrize("value", [1e39, 1e300])
+def test_a_scene_node_file_beyond_float32_is_refused(ctx, tmp_path, value):
+    """The simulation scenes' node-position arrays (nodes.file) likewise: a node at 1e39 was
+    infinite in the float32 state texture and its triangles silently dropped (exit 0)."""
+    text = (SCENES / "dragon_bend_constant.toml").read_text(encoding="utf-8")
+    text = text[:text.index("[nodes]")] + '[nodes]\nsource = "file"\nfile = "n.npy"\n\n' + text[text.index("[mapping]"):]
+    (tmp_path / "d.toml").write_text(text.replace('path = "assets/', f'path = "{SCENES}/assets/'), encoding="utf-8")
+    nodes = np.zeros((21, 3))  # (the scene's grid has 21 nodes)
+    nodes[20, 1] = value
+    np.save(tmp_path / "n.npy", nodes)
+    out = tmp_path / "d.png"
+    outcome = run_cli(["render", tmp_path / "d.toml", "-o", out, "--size", SIZE, "--quiet"], watch=tmp_path)
+    check_outcome(outcome, [out], expect="error", codes=(2,))
+    assert f"n.npy: frame 0, node 20 has a coordinate beyond float32 (0, {value:.6g}, 0)" in outcome.stderr

@@ -38,7 +38,7 @@ def load_node_frames(path: Path | str, count: int, offset: np.ndarray) -> np.nda
     Raises:
         InputError: no file name, a directory, a missing or unreadable file, not a ``.npy`` file
             (an ``.npz`` archive included), too large, wrong shape or dtype, or a non-finite
-            coordinate (named by frame and node). One line, starting with the file.
+            coordinate or one beyond float32 (named by frame and node). One line, starting with the file.
     """
     name = os.fspath(path)
     if not name.strip():
@@ -83,6 +83,12 @@ def load_node_frames(path: Path | str, count: int, offset: np.ndarray) -> np.nda
         coords = ", ".join(f"{c:.6g}" for c in data[f, n])
         raise InputError(f"{name}: frame {f}, node {n} has a non-finite coordinate ({coords}); "
                          f"{int(bad.sum())} node positions are bad")
+    big = (np.abs(data) > np.finfo(np.float32).max).any(axis=2)  # infinite in the float32 state texture
+    if big.any():
+        f, n = np.argwhere(big)[0]
+        coords = ", ".join(f"{c:.6g}" for c in data[f, n])
+        raise InputError(f"{name}: frame {f}, node {n} has a coordinate beyond float32 ({coords}); "
+                         f"{int(big.sum())} node positions are bad")
     return data - offset
 
 
