@@ -16,7 +16,7 @@ detailed mesh (constant, curvature or auto). OUT_DIR receives, written as one
   that is not dense), ``spring_weights.f32`` (5, H, W, 4) (only for a material scene whose
   per-spring weights of ``SPRING_WEIGHTS`` are not the lattice's cell shares; those travel as the
   levels code in ``node.f32``'s alpha, ``SPRING_WEIGHT_LEVELS``), ``pulls.f32`` (steps, PULLS, 3) the pull force of each group at each step
-  (N per node), ``texel1..3.i32`` (V, 2), ``weights``/``offset``/``offset_world``/``normal``/
+  (N per node; N/kg on nodes with the flag FLAG_PULLS_PER_KG, a material scene's), ``texel1..3.i32`` (V, 2), ``weights``/``offset``/``offset_world``/``normal``/
   ``normal_world.f32`` (V, 3), ``curvature.f32`` (V,), ``faces.u32`` (F, 3).
 
 docs of the layouts: docs/ARCHITECTURE.md ("Textures: channel layouts"); of the shaders:

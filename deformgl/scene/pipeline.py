@@ -72,7 +72,7 @@ class SceneModel:
         report: list[LatticeReport] = []
         system = scene_system(grid, scene.physics, bbox, source=source, report=report)
         return cls(mesh=mesh, centre=centre, grid=grid, system=system,
-                   loads=scene_loads(grid, scene.physics, bbox, source=source), bbox=bbox,
+                   loads=scene_loads(grid, scene.physics, bbox, source=source, mass=system.mass), bbox=bbox,
                    lattice=report[0] if report else None)
 
 

@@ -145,27 +145,32 @@ def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: 
                      wind_drag=physics.wind_drag)
 
 
-def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene") -> tuple[Load, ...]:
+def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene",
+                mass: np.ndarray | None = None) -> tuple[Load, ...]:
     """One load per ``[[physics.pull]]`` on the nodes of its region: its force per node, or with
-    a material its total force in N split equally over the region's nodes (the same pull at
-    every grid resolution).
+    a material its total force in N spread over the region's material, each node's share its
+    mass over the region's (``mass``: (N,) the system's node masses in kg; a load per kilogram,
+    the same pull at every grid resolution, and a node carrying a sliver of the mesh gets a
+    sliver of it).
 
     Raises:
         SceneError: a pull region that catches no node.
     """
+    if physics.material is not None and mass is None:
+        raise ValueError("scene_loads: a material scene's pulls need the node masses")
     loads = []
     for i, pull in enumerate(physics.pull):
         nodes = _caught(pull.region, grid, bbox, source, f"physics.pull[{i}]")
-        force: Callable[[float], np.ndarray] = pull.force_at
-        if physics.material is not None:
-            force = _split(pull.force_at, int(nodes.sum()))
-        loads.append(Load(nodes, force))
+        if physics.material is None:
+            loads.append(Load(nodes, pull.force_at))
+        else:
+            loads.append(Load(nodes, _per_kg(pull.force_at, float(np.sum(np.asarray(mass)[nodes]))), per_kg=True))
     return tuple(loads)
 
 
-def _split(total: Callable[[float], np.ndarray], count: int) -> Callable[[float], np.ndarray]:
-    """t -> the total force divided over ``count`` nodes."""
-    return lambda t: np.asarray(total(t), dtype=np.float64) / count
+def _per_kg(total: Callable[[float], np.ndarray], mass: float) -> Callable[[float], np.ndarray]:
+    """t -> the total force in N over ``mass`` kg, N/kg."""
+    return lambda t: np.asarray(total(t), dtype=np.float64) / mass
 
 
 def scene_drags(grid: NodeGrid, physics: Physics, box: SceneBox) -> tuple[Drag, ...]:

@@ -165,7 +165,7 @@ class EquilibriumMonitor:
         """The largest applied force on a free node at time t (N)."""
         f = self._mass * float(np.linalg.norm(self.system.gravity))
         for load in self.loads:
-            f = f + np.where(load.nodes, float(np.linalg.norm(np.asarray(load.force(t), np.float64))), 0.0)
+            f[load.nodes] += np.linalg.norm(load.node_forces(t, self._mass), axis=1)
         for drag in self.drags:
             f = f.copy()
             f[drag.node] += drag.stiffness * float(np.linalg.norm(np.asarray(drag.target(t), float) - x[drag.node]))

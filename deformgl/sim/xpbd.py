@@ -196,7 +196,7 @@ class XpbdSolver:
         s = self.system
         f = np.zeros((s.count, 3))
         for load in self.loads:
-            f[load.nodes] += np.asarray(load.force(t), np.float64)
+            f[load.nodes] += load.node_forces(t, s.mass)
         f += s.wind_drag * s.wind
         return s.gravity + f / s.mass[:, None]
 

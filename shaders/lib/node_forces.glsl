@@ -3,7 +3,8 @@
 // springs, in the same order:
 //   m g - (c + alpha m) v (gravity, global and Rayleigh mass damping), wind_drag (wind - v) (WIND), then
 //   loads: force(t) per node on every node of load group g (bit g of the node's groups; a
-//          scene's [[physics.pull]]), at most 4 groups;
+//          scene's [[physics.pull]]), at most 4 groups; per kilogram (times m) where bit
+//          LOADS_PER_KG_BIT of the groups is set (deformgl/sim/springs.py load_groups);
 //   drags: a zero-rest-length spring k_d (target(t) - x) pulling one node toward a moving target.
 // LOADS and DRAGS are the counts; 0 compiles none of it. Times are the stage's: the host sets
 // u_load and u_drag_target before each pass.
@@ -21,7 +22,8 @@ uniform vec3 u_wind;
 uniform float u_wind_drag;
 #endif
 #if LOADS > 0
-uniform vec3 u_load[LOADS];         // N per node of each load group at this stage's time
+uniform vec3 u_load[LOADS];         // N per node (N/kg: LOADS_PER_KG_BIT) of each load group at this stage's time
+const int LOADS_PER_KG_BIT = 4;
 #endif
 #if DRAGS > 0
 uniform int u_drag_node[DRAGS];
@@ -37,9 +39,10 @@ void add_node_forces(inout vec3 f, int node, int groups, vec3 x, vec3 v, float m
 #endif
     vec3 f_ext = vec3(0.0);
 #if LOADS > 0
+    float per = ((groups >> LOADS_PER_KG_BIT) & 1) != 0 ? m : 1.0;
     for (int g = 0; g < LOADS; ++g) {
         if (((groups >> g) & 1) != 0) {
-            f_ext += u_load[g];
+            f_ext += per * u_load[g];
         }
     }
 #endif

@@ -14,7 +14,7 @@ uniform float u_damping;        // c, N*s/m
 uniform float u_mass_damping;   // Rayleigh alpha, 1/s (force -alpha m v)
 uniform vec3 u_gravity;
 #if PULLS > 0
-uniform vec3 u_pull_force[PULLS];  // N per node, this step
+uniform vec3 u_pull_force[PULLS];  // N per node, or N/kg on a FLAG_PULLS_PER_KG node, this step
 #endif
 
 // x: state texel at t; x_prev: position at t - dt; node: static node data (lib/node_flags.glsl)
@@ -31,8 +31,9 @@ vec4 verlet_node(ivec2 texel, vec4 x, vec3 x_prev, vec4 node, SpringSum s) {
     f += hood_cell_force(texel, x.xyz, cell_bits(flags));
 #endif
 #if PULLS > 0
+    float per = (flags & FLAG_PULLS_PER_KG) != 0 ? m : 1.0;
     for (int g = 0; g < PULLS; ++g) {
-        f += float((flags >> (PULL_SHIFT + g)) & 1) * u_pull_force[g];
+        f += float((flags >> (PULL_SHIFT + g)) & 1) * (per * u_pull_force[g]);
     }
 #endif
     return vec4(2.0 * x.xyz - x_prev + (u_dt * u_dt / m) * f, normal_code);

@@ -49,7 +49,8 @@ from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
 from deformgl.sim.stages import spec
-from deformgl.sim.springs import FLEXION, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import (FLEXION, LOAD_PER_KG_BIT, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem,
+                                  load_groups)
 from deformgl.sim.volume import CellVolumes
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
@@ -63,6 +64,8 @@ FLAG_EXISTS = 1
 FLAG_FIXED = 2
 #: Bit of load (pull) group g is ``1 << (PULL_SHIFT + g)``.
 PULL_SHIFT = 2
+#: The node's pulls are per kilogram (after the cells' bits, lib/node_flags.glsl).
+FLAG_PULLS_PER_KG = 1 << 14
 MAX_PULLS = MAX_LOADS
 #: Texture unit of the spring-weight texture array (SPRING_WEIGHTS).
 WEIGHT_UNIT = 4
@@ -154,10 +157,13 @@ def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.n
 
 
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
-    """(N,) int64 flag bits of the static node texture: exists, fixed, load groups."""
+    """(N,) int64 flag bits of the static node texture: exists, fixed, load groups and
+    :data:`FLAG_PULLS_PER_KG` (``load_bits``: :func:`~deformgl.sim.springs.load_groups`)."""
     bits = FLAG_EXISTS + FLAG_FIXED * np.asarray(fixed, np.int64)
     if load_bits is not None:
-        bits = bits + (np.asarray(load_bits, np.int64) << PULL_SHIFT)
+        groups = np.asarray(load_bits, np.int64)
+        bits = bits + ((groups & ((1 << MAX_LOADS) - 1)) << PULL_SHIFT)
+        bits = bits + FLAG_PULLS_PER_KG * ((groups >> LOAD_PER_KG_BIT) & 1)
     return bits
 
 

@@ -21,7 +21,8 @@ uniform vec3 u_wind;
 uniform float u_wind_drag;
 #endif
 #if LOADS > 0
-uniform vec3 u_load[LOADS];        // N per node of each load group at the substep's start
+uniform vec3 u_load[LOADS];        // N per node of each load group at the substep's start (N/kg on nodes
+                                   // whose groups have bit 4 set: a material scene's pull)
 #endif
 
 layout(location = 0) out vec4 o_p;
@@ -43,9 +44,10 @@ void main() {
     g += u_wind_drag * w;
 #endif
 #if LOADS > 0
+    float per = ((groups >> 4) & 1) != 0 ? 1.0 / w : 1.0;  // (a per-kg load's f w is its N/kg)
     for (int k = 0; k < LOADS; ++k) {
         if (((groups >> k) & 1) != 0) {
-            f += u_load[k];
+            f += per * u_load[k];
         }
     }
 #endif
