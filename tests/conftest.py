@@ -46,6 +46,7 @@ GL_WITHOUT_CTX = (
     "tests/test_api.py::test_a_body_releases_the_context_it_made",
     "tests/test_installed.py::",
     "tests/test_multigrid.py::test_the_multigrid_bench_prints_its_iteration_table",  # (the bench makes its own)
+    "tests/test_doc_pictures.py::test_the_picture_is_what_its_command_prints",  # (the CLI's own)
 )
 #: Tests taking more than ~3 s on 2 cores, with their fixtures' setup (node-id prefixes; measured
 #: with ``pytest --durations=40``).
