@@ -356,6 +356,8 @@ BAD_CALLS = [
     (lambda: dg.Body.from_arrays(np.where(V == 1.0, np.nan, V), F), "Body.from_arrays: vertices[4] is non-finite"),
     (lambda: dg.Body.from_arrays(V, F - 1), "Body.from_arrays: faces[0] [0, 2, -1] has a vertex index outside 0..7"),
     (lambda: dg.Body.from_arrays(V * 1e300, F, resolution=4), "Body.from_arrays: the mesh's bounding box"),
+    (lambda: dg.Body.from_arrays(V, F, scale=1e-38), "<arrays>: the mesh is 1e-38 across: below 1e-30"),  # was blank
+    (lambda: dg.Body.from_arrays(V * 5e-324, F), "<arrays>: the mesh is 4.94e-324 across"),  # was OverflowError
     (lambda: dg.Body.from_mesh(3), "Body.from_mesh: mesh must be a file path or a trimesh.Trimesh"),
     (lambda: dg.load_scene(3), "load_scene: path must be a file path"),
     (lambda: dg.load_scene("\x00"), r"\x00: cannot read scene file: embedded null byte"),

@@ -145,7 +145,8 @@ def test_fuzz_scene_files_through_render(ctx, tmp_path, data):
     folder = _folder(tmp_path)
     scene, out = folder / "scene.toml", folder / "out.png"
     scene.write_text(text)
-    event(check_outcome(run_cli(["render", scene, "-o", out, "--quiet"], watch=folder), [out]))
+    # (--steps 3: a scene that lost [physics] would otherwise fall out of the frame for 300 steps)
+    event(check_outcome(run_cli(["render", scene, "-o", out, "--quiet", "--steps", "3"], watch=folder), [out]))
 
 
 def test_the_base_scenes_render_and_use_their_inputs(ctx, tmp_path):
@@ -449,3 +450,18 @@ def test_regression_a_render_too_small_to_show_the_body_is_refused(ctx, tmp_path
     outcome = run_cli(["render", scene, "-o", out, "--quiet"], watch=folder)
     assert check_outcome(outcome, [out], expect="error") == "error"
     assert "render.size[1]: must be in [16, 16384], got 1" in outcome.stderr
+
+
+@pytest.mark.parametrize("scale", [1e-38, 5e-324])
+def test_regression_a_mesh_too_small_to_draw_is_refused(ctx, tmp_path, scale):
+    """Found by the API fuzzer: a box scaled by 1e-38 drew a blank image, one scaled by 5e-324
+    crashed the voxelizer (OverflowError, an internal error from the CLI); both meshes are now
+    refused before any work, from the CLI and from the API."""
+    folder = _folder(tmp_path)
+    mesh, scene, out = folder / "tiny.obj", folder / "scene.toml", folder / "out.png"
+    mesh.write_text(_mesh_text("obj", [tuple(c * scale for c in p) for p in BOX[0]], BOX[1]))
+    scene.write_text(tomli_w.dumps(MESH_BASE))
+    outcome = run_cli(["render", scene, "-o", out, "--quiet", "--mesh", mesh], watch=folder)
+    assert check_outcome(outcome, [out], expect="error") == "error" and "too small to voxelize" in outcome.stderr
+    outcome = _call(dg.Body.from_arrays, np.array(BOX[0]) * scale, np.array(BOX[1]), ctx=ctx)
+    assert check_api(outcome, names=["too small"], expect="error") == "error"

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from deformgl.errors import InputError
+from deformgl.scene.spec import MIN_EXTENT
 from deformgl.sim.integrators import GPU_BUFFERS, VEC4_BYTES
 
 __all__ = ["Budget", "HOST_BYTES", "estimate", "check", "check_scene", "probe_framebuffer",
@@ -122,8 +123,8 @@ def grid_box(extent: np.ndarray, nodes_along_longest: int | None, spacing: float
     """Nodes along each axis of the voxelizer's grid (before trimming; padding excluded), as
     :func:`deformgl.grid.voxelize.voxelize` computes them."""
     extent = np.asarray(extent, dtype=np.float64)
-    if nodes_along_longest is not None:
-        h = float(extent.max()) / (nodes_along_longest - 1) if extent.max() > 0 else 1.0
+    if nodes_along_longest is not None:  # (a mesh below MIN_EXTENT: the build refuses it, naming it)
+        h = float(extent.max()) / (nodes_along_longest - 1) if extent.max() >= MIN_EXTENT else 1.0
     else:
         h = float(spacing)  # type: ignore[arg-type]
     n = np.rint(extent / h) + 1

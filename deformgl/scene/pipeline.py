@@ -31,7 +31,7 @@ from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import Load, SpringSystem
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene.schema import Scene
-from deformgl.scene.spec import ClothSpec, MeshSpec, Vec3
+from deformgl.scene.spec import MIN_EXTENT, ClothSpec, MeshSpec, Vec3
 from deformgl.scene.node_state import NodeState
 from deformgl.scene.run import SceneBox, scene_constraints, scene_loads, scene_system
 from deformgl.trilinear.scenegraph import TrilinearRenderer
@@ -162,6 +162,10 @@ def mesh_grid(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing
     material, each carrying its fill (:mod:`deformgl.grid.fill`); otherwise the nodes whose
     cubes meet the mesh (:mod:`deformgl.grid.voxelize`, the per-spring-constant model of
     Mosegaard & Sørensen 2005)."""
+    longest = float(np.max(np.ptp(np.asarray(mesh.vertices, np.float64), axis=0), initial=0.0))
+    if not longest >= MIN_EXTENT:  # (the grid's arithmetic and the float32 draw lose a smaller mesh)
+        raise InputError(f"{source}: the mesh is {longest:.3g} across: below {MIN_EXTENT:g}, too small to "
+                         f"voxelize and draw; scale it up")
     fill = None
     if solid:
         vox, fill = _filled(mesh, nodes_along_longest, spacing, source)

@@ -25,6 +25,10 @@ MAX_SIZE = 16384
 #: The smallest image side (pixels): below it a render can miss the body altogether, a blank image
 #: written as a success (found by tests/test_fuzz_render.py: a 64x1 render.size).
 MIN_SIZE = 16
+#: The smallest mesh (its longest bounding-box side, mesh units times scale) a grid is built for:
+#: below it the voxelizer's arithmetic overflows and float32 positions draw nothing (found by
+#: tests/test_fuzz_render.py: a box scaled by 1e-38 rendered blank, by 5e-324 crashed).
+MIN_EXTENT = 1e-30
 MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
 AXES = ("x", "y", "z")
 #: Where a scene's simulation runs: fragment passes, transform feedback, or the float64 NumPy reference.
