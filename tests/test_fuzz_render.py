@@ -275,7 +275,7 @@ def meshes(draw: Any) -> tuple[str, bytes]:
             i = draw(st.integers(0, len(vertices) - 1))
             vertices[i] = tuple(draw(COORDS) if draw(st.booleans()) else v for v in vertices[i])  # type: ignore[assignment]
         if draw(st.booleans()):
-            vertices = [tuple(v * draw(st.sampled_from([1e-9, 1e6, 1e30, 0.0])) for v in p) for p in vertices]  # type: ignore[misc]
+            vertices = [tuple(v * draw(st.sampled_from([1e-9, 1e6, 1e30, 0.0, 1e-38, 5e-324])) for v in p) for p in vertices]  # type: ignore[misc]
         if draw(st.booleans()) and faces:
             faces[draw(st.integers(0, len(faces) - 1))] = draw(st.tuples(*[st.integers(-2, 10)] * 3))
     else:
@@ -352,7 +352,7 @@ def arrays(draw: Any) -> tuple[Any, Any]:
         if op == "coord" and v.ndim == 2 and v.shape[1] == 3:
             v[draw(st.integers(0, len(v) - 1)), draw(st.integers(0, 2))] = draw(COORDS)
         elif op == "scale":
-            v = v * draw(st.sampled_from([1e-12, 1e-6, 1e6, 1e20, 1e35, -1.0]))
+            v = v * draw(st.sampled_from([1e-12, 1e-6, 1e6, 1e20, 1e35, -1.0, 1e-38, 5e-324]))
         elif op == "v shape" and v.size == 24:
             v = v.reshape(draw(st.sampled_from([(24,), (12, 2), (4, 6), (1, 8, 3)])))
         elif op == "f shape" and f.ndim == 2:
