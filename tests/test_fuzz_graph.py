@@ -424,3 +424,17 @@ def test_a_scene_node_file_beyond_float32_is_refused(ctx, tmp_path, value):
     outcome = run_cli(["render", tmp_path / "d.toml", "-o", out, "--size", SIZE, "--quiet"], watch=tmp_path)
     check_outcome(outcome, [out], expect="error", codes=(2,))
     assert f"n.npy: frame 0, node 20 has a coordinate beyond float32 (0, {value:.6g}, 0)" in outcome.stderr
+
+
+@pytest.mark.parametrize("far", [1e6, 1e9])  # (at 1e30 float64 itself collapses the composed lattice)
+def test_content_far_from_the_origin_is_drawn_as_at_the_origin(ctx, tmp_path, far):
+    """Found by the lattice fuzzer (its 'translate = [1e6, 0, 0]' above a valid lattice): a unit
+    sphere translated to 1e6 drew nothing in float32 (a blank PNG before the blank check, then a
+    refusal); the composed scene is now drawn recentred, the same image as at the origin."""
+    np.save(tmp_path / "lat.npy", identity())
+    images = []
+    for x in (0.0, far):
+        outcome, out = render(tmp_path, graph_text(top=f"translate = [{x!r}, 0, 0]"), name=f"at{x:g}")
+        check_outcome(outcome, [out], expect="ok")
+        images.append(read_image(out))
+    assert np.abs(images[0].astype(int) - images[1]).max() <= 8

@@ -9,6 +9,7 @@ Each node spec referenced by several parents is built once per inherited colour 
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -298,6 +299,34 @@ def check_drawn(image: np.ndarray, background: tuple[float, float, float], file:
     return image
 
 
+#: Content farther from the origin than this many of its own diagonals is drawn recentred.
+FAR_DIAGONALS = 100.0
+
+
+def recentred(scenes: list[ComposedScene]) -> list[ComposedScene]:
+    """``scenes`` moved (float64, on copies) so that their bounds' centre is the origin, when it
+    is more than :data:`FAR_DIAGONALS` diagonals away: drawn in float32, content far from the
+    origin loses its shape to rounding (a unit sphere translated to 1e6 drew nothing), and a
+    camera framing it sees the same image of the moved copy. Nearer content is returned as is."""
+    los, his = zip(*(s.bounds() for s in scenes))
+    lo, hi = np.min(los, axis=0), np.max(his, axis=0)
+    centre = (lo + hi) / 2
+    if np.abs(centre).max() <= FAR_DIAGONALS * max(float(np.linalg.norm(hi - lo)), 1e-300):
+        return scenes
+    moved = []
+    for scene in scenes:
+        batches = []
+        for b in scene.batches:
+            affine = None
+            if b.affine is not None:
+                affine = b.affine.copy()
+                affine[:, :, 3] -= centre
+            batches.append(dataclasses.replace(b, affine=affine, grids=[g - centre for g in b.grids],
+                                               corners=None if b.corners is None else b.corners - centre))
+        moved.append(ComposedScene(batches))
+    return moved
+
+
 def draw_composed(ctx: moderngl.Context, graph: SceneGraph, scenes: list[ComposedScene],
                   size: tuple[int, int] | None = None, *, file: str = "<graph>") -> np.ndarray:
     """One image of composed roots with the graph's view: one root fills it, two are drawn side
@@ -308,6 +337,7 @@ def draw_composed(ctx: moderngl.Context, graph: SceneGraph, scenes: list[Compose
     """
     v = graph.view
     w, h = _check_size(size or v.size)
+    scenes = recentred(scenes)
     if len(scenes) == 2:
         half = (w // 2, h)
         view = scene_view(scenes, half, azimuth=v.azimuth, elevation=v.elevation, distance=v.distance)
