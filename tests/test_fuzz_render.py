@@ -465,3 +465,16 @@ def test_regression_a_mesh_too_small_to_draw_is_refused(ctx, tmp_path, scale):
     assert check_outcome(outcome, [out], expect="error") == "error" and "too small to voxelize" in outcome.stderr
     outcome = _call(dg.Body.from_arrays, np.array(BOX[0]) * scale, np.array(BOX[1]), ctx=ctx)
     assert check_api(outcome, names=["too small"], expect="error") == "error"
+
+
+def test_regression_a_camera_that_cannot_see_the_body_is_refused(ctx, tmp_path):
+    """Found by the scene fuzzer: ``render.camera.target = [-1, ...]`` on the cloth wrote a blank
+    image as a success; a camera whose view misses the body's box is refused before the run."""
+    folder = _folder(tmp_path)
+    scene, out = folder / "scene.toml", folder / "out.png"
+    data = tomllib.loads(tomli_w.dumps(BASES["cloth_64"]))
+    data["render"]["camera"]["target"][0] = -1
+    scene.write_text(tomli_w.dumps(data))
+    outcome = run_cli(["render", scene, "-o", out, "--quiet", "--steps", "3"], watch=folder)
+    assert check_outcome(outcome, [out], expect="error") == "error"
+    assert "render.camera: the body lies wholly outside the view" in outcome.stderr

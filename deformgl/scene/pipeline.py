@@ -200,12 +200,24 @@ def build_scene_model(scene: Scene) -> SceneModel:
 
 
 def scene_view(scene: Scene, bbox: np.ndarray) -> View:
-    """The scene's camera framing the rest bounding box."""
+    """The scene's camera framing the rest bounding box.
+
+    Raises:
+        InputError: the rest bounding box lies wholly outside the camera's view (a target far
+            off the body, say): the image would be blank (found by tests/test_fuzz_render.py).
+    """
     cam = scene.render.camera
     w, h = scene.render.size
-    return frame_box(bbox[0], bbox[1], projection=cam.projection, azimuth=cam.azimuth,
+    view = frame_box(bbox[0], bbox[1], projection=cam.projection, azimuth=cam.azimuth,
                      elevation=cam.elevation, fov=cam.fov, distance=cam.distance,
                      target=np.asarray(cam.target), aspect=w / h)
+    corners = np.array([[x, y, z, 1.0] for x in bbox[:, 0] for y in bbox[:, 1] for z in bbox[:, 2]])
+    cx, cy, cz, cw = (corners @ np.asarray(view.view_projection, np.float64).T).T
+    if any(out.all() for out in (cx < -cw, cx > cw, cy < -cw, cy > cw, cz < -cw, cz > cw)):
+        raise InputError(f"{scene.source}: render.camera: the body lies wholly outside the view (target "
+                         f"{list(cam.target)}, distance {cam.distance:g}, azimuth {cam.azimuth:g}, elevation "
+                         f"{cam.elevation:g}): the image would be blank")
+    return view
 
 
 def scene_lighting(scene: Scene) -> Lighting:
@@ -340,6 +352,7 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
     check_scene(ctx, scene)  # host and GPU memory, render-target limits: before anything is built
     built = build_scene_model(scene)
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+    scene_view(scene, built.bbox)  # (a camera that cannot see the body: refused before the run)
     state = NodeState(ctx, scene, built, progress=progress)
     draw_pass = None
     target = None
