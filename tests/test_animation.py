@@ -225,7 +225,7 @@ def test_set_overrides_any_scene_key_and_bad_ones_are_one_line_errors(ctx, jelly
         load_scene(jelly, {"physics.pull.5.force": [0, 0, 0]})
     out = tmp_path / "o.png"
     code, _, err = cli(capsys, "render", jelly, "-o", out, "--set", "physics.dt=-1", "--quiet")
-    assert code == 2 and err == f"deformgl: error: {jelly}: physics.dt: must be > 0, got -1\n"
+    assert code == 2 and err == "deformgl: error: --set physics.dt=-1: must be > 0, got -1\n"  # the flag, not the file (issue 42)
     code, _, err = cli(capsys, "render", jelly, "-o", out, "--set", "physics.integrator=midpoint", "--set",
                        "physics.safety.unstable=subdivide", "--json", "--quiet")
     assert code == 0, err
