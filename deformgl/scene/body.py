@@ -254,7 +254,7 @@ class Body:
         options.setdefault("source", name)
         path = find_mesh(mesh)
         if not _is_file(path):
-            raise InputError(f"{name}: file not found (Body.from_mesh: mesh, in {Path.cwd()} nor among the shipped meshes)")
+            raise InputError(f"{name}: file not found (not in {Path.cwd()} nor among the shipped meshes)")
         return cls(load_mesh(path), **options)
 
     @classmethod
