@@ -417,8 +417,9 @@ def test_a_far_lattice_point_is_not_judged_linear_away():
         Trilinear(box, _changed(1e300))
     grid = Trilinear(box, _changed(1e30))  # within float32: the changed corner keeps the grid trilinear
     assert not grid.is_linear()
-    (scene_batch,) = compose_scene(TransformNode(grid, [GeometryNode(
-        __import__("deformgl.trilinear.shapes", fromlist=["uv_sphere"]).uv_sphere(0.8, 12, 8, "s"))])).batches
+    from deformgl.trilinear.shapes import uv_sphere
+
+    (scene_batch,) = compose_scene(TransformNode(grid, [GeometryNode(uv_sphere(0.8, 12, 8, "s"))])).batches
     assert scene_batch.path == "grid"
 
 
