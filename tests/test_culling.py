@@ -120,7 +120,7 @@ def test_cull_leaves_a_closed_unfolded_mesh_scene_as_it_was(ctx):
     from deformgl.scene.pipeline import build_scene_model, make_draw_pass
     from deformgl.sim.backends.foundation import NodeTextures
     for name, most in (("jelly", 0), ("fin", 20)):
-        scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=40, mapping="constant")
+        scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=50, mapping="constant")
         assert scene.render.cull is False  # (the default)
         culled = dataclasses.replace(scene, render=dataclasses.replace(scene.render, cull=True))
         built = build_scene_model(culled)

@@ -52,7 +52,8 @@ def test_the_cantilever_stops_within_one_percent_of_its_1_s_sag(ctx, integrator,
 def test_explicit_euler_does_not_run_the_cantilever(ctx):
     with cantilever(ctx) as body:
         sim = body.simulate("euler", "fragment", dt=1e-4)
-        with pytest.raises(SimulationError, match="euler limit"):
+        # no stable dt at all with the barrier's stiffness, which Rayleigh beta does not damp
+        with pytest.raises(SimulationError, match="euler is unstable for every dt"):
             dg.run(sim, 10, unstable="subdivide")
 
 

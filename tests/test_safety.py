@@ -97,7 +97,7 @@ def test_plan_messages_are_worded_for_the_python_api_when_asked(jelly):
         plan_steps(system, over, "<arrays>", wording=API_WORDING)
     text = str(api.value)
     assert text.startswith("<arrays>: dt ") and f"verlet limit {limit:.4g} s" in text
-    assert text.endswith('Pass unstable="run" to run it anyway or unstable="subdivide" to split each step')
+    assert text.endswith('Lower it, or pass unstable="subdivide" to split each step or unstable="run" to run it anyway')
     assert "physics." not in text and "--" not in text
     with pytest.raises(SimulationError, match=f'more than the {MAX_SUBSTEPS} that unstable="subdivide" uses: '
                                               f"reduce dt$"):

@@ -144,18 +144,19 @@ def test_only_full_cells_carry_the_term():
 
 @pytest.mark.parametrize("nu", [0.1, 0.2499, 0.5, 0.6, float("nan")])
 def test_a_poissons_ratio_the_lattice_cannot_give_is_refused(nu):
-    with pytest.raises(ValueError, match="poissons_ratio must be in"):
+    with pytest.raises(ValueError, match="poissons_ratio must be"):
         ElasticMaterial(1e4, 1000.0, poissons_ratio=nu)
 
 
 @pytest.mark.parametrize("nu", NUS)
 def test_the_critical_dt_is_the_gershgorin_bound_of_the_built_system(nu):
-    """The material's formula (springs 36 mu, centre term 12 kappa per rho h^2) equals the
-    Gershgorin bound computed on a built block's interior node."""
+    """The material's formula (springs 36 mu, centre term 12 kappa, the barrier's envelope
+    (sqrt(3) + 3)^2 kappa_b per rho h^2) equals the Gershgorin bound the dt check computes on a
+    built block's interior node."""
     material = ElasticMaterial(2.0e4, 1100.0, poissons_ratio=nu)
     grid = NodeGrid(np.zeros(3), 0.004, np.ones((5, 5, 5), bool))
     system, _ = lattice_system(grid, material)
-    omega = max_angular_frequency(system).omega
+    omega = max_angular_frequency(system, barrier=True).omega
     assert critical_dt(material, 0.004) == pytest.approx(2.0 / omega, rel=1e-9)
 
 

@@ -199,7 +199,7 @@ class Plan:
              f"equilibrium, predicted static error {self.float32:.2%} (bench trade --stiff)"
              if self.iterations else
              f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
-             f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (36 mu + 12 kappa))): predicted time-stepping "
+             f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (305 mu + 12 kappa)), the barrier's envelope in it): predicted time-stepping "
              f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}"),
             *([f"why: {self.why_integrator}"] if self.why_integrator else []),
             *(f"cost of a 1/60 s frame: {line}" for line in self.priced),

@@ -155,8 +155,8 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
             hint = (" (a conservative bound, used above 30,000 free nodes: the exact limit of a volume "
                     "can be up to twice it; running anyway keeps the blow-up census watching)")
         setting = f" ({w.policy})" if w.policy else ""
-        raise RefusedStepError(f"{where}{hint}. Pass {w.run_anyway} to run it anyway or {w.subdivide} to split "
-                              f"each step{setting}")
+        raise RefusedStepError(f"{where}{hint}. Lower it, or pass {w.subdivide} to split each step or "
+                              f"{w.run_anyway} to run it anyway{setting}")
     if policy == "run":
         return StepPlan(dt, physics.steps, 1, f"running anyway: {refusal.message}")
     limit = refusal.limit.dt
@@ -179,9 +179,8 @@ def material_terms(system: SpringSystem, material: object, limit: float) -> str:
         return ""
     h = system.spacing
     scale = h * math.sqrt(material.density / material.youngs_modulus)
-    return (f"; in material terms the limit is {limit / scale:.3g} h sqrt(rho/E) with E = "
-            f"{material.youngs_modulus:.4g} Pa, rho = {material.density:.4g} kg/m^3, grid spacing h = {h:.4g} m: "
-            f"it falls in proportion to h and to 1/sqrt(E)")
+    return (f"; it is {limit / scale:.3g} h sqrt(rho/E) (h = {h:.4g} m, E = {material.youngs_modulus:.4g} Pa, "
+            f"rho = {material.density:.4g} kg/m^3)")
 
 
 class BlowUp(SimulationError):

@@ -206,22 +206,22 @@ class DtLimit:
     barrier: float = 0.0
 
     def message(self, dt: float) -> str:
-        """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s = 2/w,
-        w = 645 rad/s set by node 17 (spring 40, k = 500 N/m, m = 0.01 kg)``; a sheet whose
-        bending is the larger part of the node's stiffness names it instead of the spring."""
+        """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s, w = 645
+        rad/s at node 17 (spring 40, k = 500 N/m, m = 0.01 kg; exact bound)``; a sheet whose
+        bending, or a body whose cells' barrier, is the larger part of the node's stiffness names
+        it instead of the spring (the limit's formula: :attr:`formula`)."""
         if self.bending:
             what = f"a sheet's bending, D = {self.bending:.4g} N*m"
         elif self.barrier:
-            what = f"the cells' inversion barrier at full strength, kappa_b = {self.barrier:.4g} Pa"
+            what = f"the cells' inversion barrier, kappa_b = {self.barrier:.4g} Pa"
         else:
             what = f"spring {self.spring}, k = {self.stiffness:.4g} N/m"
-        where = f"w = {self.omega:.4g} rad/s set by node {self.node} ({what}, m = {self.mass:.4g} kg; {self.bound} bound)"
+        where = f"w = {self.omega:.4g} rad/s at node {self.node} ({what}, m = {self.mass:.4g} kg; {self.bound} bound)"
         if self.dt == 0.0:
             return (f"dt {dt:.4g} s: {self.integrator} is {self.formula}: its growth factor "
                     f"exceeds 1 at every dt; {where}. Add damping (velocity_damping or spring "
                     f"damping) or use semi-implicit, verlet or rk4")
-        return (f"dt {dt:.4g} s is above the {self.integrator} limit {self.dt:.4g} s = "
-                f"{self.formula}, {where}")
+        return f"dt {dt:.4g} s is above the {self.integrator} limit {self.dt:.4g} s, {where}"
 
 
 @dataclass(frozen=True)

@@ -260,14 +260,16 @@ def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "ve
     Interior node of mass ``rho h^3``: the springs give ``w^2 <= 2 * 18 k / m = 36 mu / (rho h^2)``
     (k = mu h), the volumetric term of its 8 cells at most ``8 * 1.5 kappa h / m = 12 kappa /
     (rho h^2)`` (Cauchy-Schwarz on ``V kappa (sum_c G_c . x_c)^2`` with ``sum_c |G_c|^2 = 3 / (2 h^2)``);
-    at nu = 1/4 ``w_max <= h^-1 sqrt(14.4 E / rho)``. Verlet and semi-implicit Euler are stable
-    for ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits` computes
-    on a built system). The inversion barrier is not in it: it acts only on corners near
-    inversion (:mod:`deformgl.sim.volume`). Explicit Euler has no undamped limit (it is unstable
-    at every dt without damping); RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see
-    deformgl.sim.limits).
+    and the inversion barrier's envelope of its 8 cells (every corner active, the stiffest it gets
+    in compression: :func:`deformgl.sim.volume.frequency_terms`) ``8 (sqrt(3) + 3)^2 / 8 kappa_b h
+    / m = 22.4 kappa_b / (rho h^2)``, ``kappa_b = 12 mu``. Verlet and semi-implicit Euler are
+    stable for ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits`
+    computes on a built system of full cells; the run's check may accept more, on the exact
+    spectrum). Explicit Euler has no undamped limit (it is unstable at every dt without damping);
+    RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see deformgl.sim.limits).
     """
-    omega = math.sqrt((36.0 * material.shear_modulus + 12.0 * material.volume_modulus)
+    barrier = (math.sqrt(3.0) + 3.0) ** 2 * BARRIER_SCALE * material.shear_modulus
+    omega = math.sqrt((36.0 * material.shear_modulus + 12.0 * material.volume_modulus + barrier)
                       / material.density) / spacing
     factor = {"verlet": 2.0, "semi-implicit": 2.0, "rk4": 2.0 * math.sqrt(2.0)}.get(integrator, 2.0)
     return factor / omega
