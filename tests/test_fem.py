@@ -217,7 +217,7 @@ def test_the_fragment_backend_settles_on_the_static_solve_too(ctx):
 
     material = ElasticMaterial(MATERIAL.youngs_modulus, MATERIAL.density, mass_damping=70.0)
     case = lattice_case(CANTILEVER, 2, material)
-    dt = 0.5 * critical_dt(material, case.spacing)
+    dt = 0.5 * critical_dt(material, case.spacing, barrier=False)  # (float32 Verlet: no smaller, ACCURACY 4)
     with make_simulation(case.system, "verlet", "fragment", dt=dt, ctx=ctx) as sim:
         sim.step(int(0.6 / dt))
         u = sim.positions().astype(np.float64) - case.system.rest_positions

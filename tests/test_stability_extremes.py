@@ -113,7 +113,7 @@ def test_dt_limit_is_the_limit_check_dt_enforces_and_names_the_barrier():
     system = hanging_cantilever(5, 0.25)
     limit = dt_limit(system, "verlet")
     assert limit.bound == "lanczos" and limit.dt > dt_limit(system, "verlet", exact=False).dt
-    assert "inversion barrier at full strength" in dt_limit(system, "verlet", exact=False).message(1.0)
+    assert "the cells' inversion barrier, kappa_b" in dt_limit(system, "verlet", exact=False).message(1.0)
     with dg.make_simulation(system, "verlet", "numpy", dt=1.01 * limit.dt) as sim:
         with pytest.raises(dg.DeformglError, match="above the verlet limit"):
             dg.run(sim, 1)

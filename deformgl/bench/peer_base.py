@@ -9,7 +9,8 @@ from deformgl.sim.springs import Load, SpringSystem, load_groups
 
 
 def _pull_rows(loads: tuple[Load, ...], t: float) -> np.ndarray:
-    """(MAX_PULLS, 3) float32 force per node of each load at time t, as the fragment pass gets it."""
+    """(MAX_PULLS, 3) float32 force per node of each load at time t (loads per node only: the
+    stepper refuses per-kg loads), as the fragment pass gets it."""
     out = np.zeros((MAX_PULLS, 3), np.float32)
     for g, load in enumerate(loads):
         out[g] = np.asarray(load.force(t), dtype=np.float64)
@@ -43,6 +44,8 @@ class PeerStepper:
         if terms.weights is not None or terms.mass_damping:
             raise ValueError("the peers do not model per-spring stiffness or mass damping (a material's "
                              "calibrated lattice): they step the per-spring form of the paper scenes")
+        if any(load.per_kg for load in loads):
+            raise ValueError("the peers apply loads per node, not per kilogram (a material scene's pull)")
         self.system = system
         self.dt = float(dt)
         self.loads = tuple(loads)

@@ -10,11 +10,13 @@ relative error of the body's deflection is below the tolerance, and say why:
   compression, the block; torsion, the twisted bar), at the body's Poisson's ratio
   (:func:`measured_errors`, :data:`MEASURED_NU`: compression's error grows with nu). The grid gets the fewest nodes across the
   thickness with ``e_d <= tolerance - e_t - e_32``;
-* time stepping: Verlet (the cheapest step of the resolution study) at dt = 0.9 x
-  :func:`~deformgl.sim.materials.critical_dt` when its measured time-stepping error
+* time stepping: Verlet (the cheapest step of the resolution study) at dt = 0.9 x the rest
+  stiffness's :func:`~deformgl.sim.materials.critical_dt` when its measured time-stepping error
   ``e_t = D f`` (first order: the mass damping's velocity is a backward difference) is below a
-  tenth of the tolerance; else semi-implicit Euler at the largest f that keeps it so (float32
-  Verlet gets *less* accurate at smaller dt: the positions' rounding swallows a dt^2);
+  tenth of the tolerance and the cells' barrier allows that step (:func:`barrier_cap`: it does
+  not, 0.31 x at nu = 1/4, since the dt check holds the barrier's envelope); else semi-implicit
+  Euler at the largest f that keeps it so (float32 Verlet gets *less* accurate at smaller dt: the
+  positions' rounding swallows a dt^2);
 * float32: :data:`FLOAT32_ERROR`, the largest fragment-vs-NumPy difference measured at 0.9 x;
 * implicit Euler (``bench trade --stiff``, docs/PERFORMANCE.md) at the frame step
   :data:`FRAME_DT` instead, when it is cheaper per simulated second and its error fits: its fixed
@@ -78,8 +80,9 @@ MEASURED_NU: dict[float, dict[str, dict[int, float]]] = {
            "torsion": {3: 0.4375, 5: 0.1836, 9: 0.0566, 17: 0.0147}},
 }
 MAX_FRACTION = 0.9
-#: Time-stepping error of the tip per unit dt / critical dt (``bench trade --resolution``, first
-#: order): Verlet 3.3e-4 at 0.9, semi-implicit Euler 8.6e-4 at 0.9 (2 across, the largest).
+#: Time-stepping error of the tip per unit dt / critical dt (the rest stiffness's,
+#: ``critical_dt(barrier=False)``; ``bench trade --resolution``, first order): Verlet 3.3e-4 at
+#: 0.9, semi-implicit Euler 8.6e-4 at 0.9 (2 across, the largest).
 TIME_STEP_ERROR = {"verlet": 4.0e-4, "semi-implicit": 1.0e-3}
 #: The largest float32 error (fragment vs NumPy) measured at 0.9 x the critical dt; float32
 #: Verlet's grows as dt shrinks (3e-2 at 0.25 x), so Verlet is only used at 0.9 x.
@@ -198,9 +201,10 @@ class Plan:
              f"fixed point is the "
              f"equilibrium, predicted static error {self.float32:.2%} (bench trade --stiff)"
              if self.iterations else
-             f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the "
-             f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (305 mu + 12 kappa)), the barrier's envelope in it): predicted time-stepping "
-             f"error {self.time_stepping:.2%} (bench trade --resolution), float32 {self.float32:.2%}"),
+             f"integrator: {self.integrator} at dt = {self.dt:.3g} s = {self.fraction:.2f} x the rest "
+             f"critical dt {self.critical:.3g} s (2 h sqrt(rho / (36 mu + 12 kappa)); the cells' barrier caps it at "
+             f"{barrier_cap(m):.2f} x): predicted time-stepping error {self.time_stepping:.2%} (bench trade "
+             f"--resolution), float32 {self.float32:.2%}"),
             *([f"why: {self.why_integrator}"] if self.why_integrator else []),
             *(f"cost of a 1/60 s frame: {line}" for line in self.priced),
             *([f"note: the discretisation errors are those measured at this body's nu = {m.poissons_ratio:g} "
@@ -231,12 +235,15 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     if min(size) <= 0:
         raise InputError(f"the body's bounding box {size} m has no thickness")
     # Verlet at 0.9 x critical while its time-stepping error fits a tenth of the tolerance; a
-    # smaller dt with float32 Verlet is less accurate (module docstring), so then semi-implicit
+    # smaller dt with float32 Verlet is less accurate (module docstring), so then semi-implicit.
+    # The fractions are of the rest stiffness's critical dt, which the errors were measured on;
+    # the cells' barrier caps the step below it (materials.critical_dt with its envelope)
     integrator = "verlet"
+    cap = barrier_cap(material)
     fraction = MAX_FRACTION
-    if TIME_STEP_ERROR["verlet"] * fraction > 0.1 * tolerance:
+    if cap < MAX_FRACTION or TIME_STEP_ERROR["verlet"] * fraction > 0.1 * tolerance:
         integrator = "semi-implicit"
-        fraction = min(MAX_FRACTION, 0.1 * tolerance / TIME_STEP_ERROR[integrator])
+        fraction = min(cap, 0.1 * tolerance / TIME_STEP_ERROR[integrator])
     e_t, e_32 = TIME_STEP_ERROR[integrator] * fraction, FLOAT32_ERROR[integrator]
     budget = tolerance - e_t - e_32
     c, p = fit(load, poissons_ratio=material.poissons_ratio)
@@ -249,10 +256,17 @@ def make_plan(size: tuple[float, float, float], material: ElasticMaterial, toler
     thickness = min(size)
     h = thickness / cells
     along = math.ceil(max(size) / h - 1e-9) + 1  # the built spacing is at most the planned one
-    crit = critical_dt(material, h, integrator)
+    crit = critical_dt(material, h, integrator, barrier=False)
     plan = Plan(tolerance, load, size, material, cells + 1, h, along, integrator, fraction,
                 fraction * crit, crit, c * (1.0 / cells) ** p, e_t, e_32, (c, p))
     return _consider_implicit(plan) if implicit else plan
+
+
+def barrier_cap(material: ElasticMaterial) -> float:
+    """The largest explicit step as a fraction of the rest stiffness's critical dt that the dt
+    check's Gershgorin bound with the cells' barrier accepts, less the 10 % margin of
+    :data:`MAX_FRACTION` (0.31 at nu = 1/4: the barrier's envelope, ``materials.critical_dt``)."""
+    return MAX_FRACTION * critical_dt(material, 1.0) / critical_dt(material, 1.0, barrier=False)
 
 
 def implicit_iterations(along: int, poissons_ratio: float = 0.25, across: int | None = None) -> int:

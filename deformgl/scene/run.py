@@ -156,8 +156,8 @@ def scene_loads(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: s
     Raises:
         SceneError: a pull region that catches no node.
     """
-    if physics.material is not None and mass is None:
-        raise ValueError("scene_loads: a material scene's pulls need the node masses")
+    if physics.material is not None and physics.pull and mass is None:
+        raise TypeError("scene_loads: a material scene's pulls need the node masses (mass=)")
     loads = []
     for i, pull in enumerate(physics.pull):
         nodes = _caught(pull.region, grid, bbox, source, f"physics.pull[{i}]")

@@ -254,7 +254,8 @@ def lattice_stiffness(material: ElasticMaterial, spacing: float) -> float:
     return material.shear_modulus * spacing
 
 
-def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "verlet") -> float:
+def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "verlet", *,
+                barrier: bool = True) -> float:
     """The explicit stability limit of the lattice in s, a multiple of ``h sqrt(rho / E)``.
 
     Interior node of mass ``rho h^3``: the springs give ``w^2 <= 2 * 18 k / m = 36 mu / (rho h^2)``
@@ -267,9 +268,11 @@ def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "ve
     computes on a built system of full cells; the run's check may accept more, on the exact
     spectrum). Explicit Euler has no undamped limit (it is unstable at every dt without damping);
     RK4's limit is about 2.83 / w_max, midpoint's 0 undamped (see deformgl.sim.limits).
+    ``barrier=False``: the rest stiffness alone, ``2 h sqrt(rho / (36 mu + 12 kappa))`` (the scale
+    the time-stepping and float32 errors of ``bench trade --resolution`` were measured on).
     """
-    barrier = (math.sqrt(3.0) + 3.0) ** 2 * BARRIER_SCALE * material.shear_modulus
-    omega = math.sqrt((36.0 * material.shear_modulus + 12.0 * material.volume_modulus + barrier)
+    envelope = (math.sqrt(3.0) + 3.0) ** 2 * BARRIER_SCALE * material.shear_modulus if barrier else 0.0
+    omega = math.sqrt((36.0 * material.shear_modulus + 12.0 * material.volume_modulus + envelope)
                       / material.density) / spacing
     factor = {"verlet": 2.0, "semi-implicit": 2.0, "rk4": 2.0 * math.sqrt(2.0)}.get(integrator, 2.0)
     return factor / omega

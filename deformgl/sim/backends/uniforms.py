@@ -15,7 +15,8 @@ def uniform_array(values: list) -> object:
 
 def pull_uniforms(pull, n_pulls: int, who: str) -> dict[str, object]:
     """``u_pull_force`` of the foundation's Verlet passes (one-node and blocked): the first
-    ``n_pulls`` rows of ``pull`` (N per node, this step); empty without pulls.
+    ``n_pulls`` rows of ``pull`` (N per node, or N/kg on nodes flagged ``FLAG_PULLS_PER_KG``, this
+    step); empty without pulls.
 
     Raises:
         TypeError: pull groups but no forces (``who`` names the pass).
