@@ -47,6 +47,7 @@ GL_WITHOUT_CTX = (
     "tests/test_installed.py::",
     "tests/test_multigrid.py::test_the_multigrid_bench_prints_its_iteration_table",  # (the bench makes its own)
     "tests/test_doc_pictures.py::test_the_picture_is_what_its_command_prints",  # (the CLI's own)
+    "tests/test_animation.py::test_an_animation_camera_that_misses_the_body_is_refused_before_the_run",
 )
 #: Tests taking more than ~3 s on 2 cores, with their fixtures' setup (node-id prefixes; measured
 #: with ``pytest --durations=40``).

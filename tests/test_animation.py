@@ -339,3 +339,25 @@ def test_export_mesh_as_one_animated_gltf_with_a_morph_target_per_frame(ctx, jel
     assert np.array_equal(weights, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     assert gltf["animations"][0]["channels"][0]["target"] == {"node": 0, "path": "weights"}
     assert len(trimesh.load(tmp_path / "a.glb", force="mesh").faces) == len(ply.faces)  # a reader takes it
+
+
+def test_an_animation_camera_that_misses_the_body_is_refused_before_the_run(tmp_path, monkeypatch):
+    """A turntable that turns the camera off the body (the target 4 boxes off to the side: the
+    body is in view at azimuth 90, out of it past 150) is refused when the frames are planned,
+    before any step is simulated; it used to fail when the last frames were drawn, after the run."""
+    from fuzz_oracle import run_cli
+
+    scene = tmp_path / "away.toml"
+    text = (SCENES / "jelly.toml").read_text()
+    text = text.replace('path = "assets/', f'path = "{(SCENES / "assets").as_posix()}/')
+    text = text.replace("azimuth = 35.0", "azimuth = 90.0").replace("target = [0.5, 0.45, 0.5]", "target = [4.0, 0.45, 0.5]")
+    scene.write_text(text + "\n[animation]\nframes = 4\nsteps_per_frame = 100\nturntable = 120.0\n")
+    out = tmp_path / "away.gif"
+    import deformgl.scene.animation as animation
+    runs = []
+    real_run = animation.run_scene
+    monkeypatch.setattr(animation, "run_scene", lambda *a, **k: runs.append(1) or real_run(*a, **k))
+    outcome = run_cli(["render", scene, "-o", out], watch=tmp_path)
+    assert outcome.code == 2 and not runs, outcome.describe()
+    assert "the body lies wholly outside the view" in outcome.stderr and "steps of dt" not in outcome.stderr
+    assert not out.exists() and outcome.new_files == set(), outcome.describe()

@@ -63,8 +63,8 @@ def test_the_hanging_cantilever_runs_10_s_at_0_9_of_dt_limit(ctx):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("integrator", ["semi-implicit", "verlet", "rk4"])
-@pytest.mark.parametrize("nu", [0.25, 0.45])
+@pytest.mark.parametrize("nu, integrator", [(nu, i) for nu in (0.25, 0.45) for i in ("semi-implicit", "verlet", "rk4")
+                                            if (nu, i) != (0.25, "verlet")])  # (that one above)
 def test_the_hanging_cantilever_runs_10_s_at_0_9_of_dt_limit_at_5_across(ctx, nu, integrator):
     run_at_the_limit(ctx, 5, nu, integrator)
 
@@ -76,7 +76,7 @@ def test_the_hanging_cantilever_runs_10_s_at_0_9_of_dt_limit_at_9_across(ctx, nu
     run_at_the_limit(ctx, 9, nu, integrator)
 
 
-def small_cells() -> CellVolumes:
+def small_cells() -> tuple[NodeGrid, CellVolumes]:
     grid = NodeGrid(np.zeros(3), 0.01, np.ones((3, 4, 3), bool))
     return grid, CellVolumes(grid_cells(grid.occupied, grid.index), 0.01, 0.0, 2.4e4)
 

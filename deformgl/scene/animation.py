@@ -27,6 +27,7 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.progress import Progress
+from deformgl.render.camera import View
 from deformgl.render.passes import RenderTarget
 from deformgl.scene.budget import check_scene
 from deformgl.scene.obstacles import draw_obstacles
@@ -196,8 +197,7 @@ class _Drawer:
              capture: bool) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
         scene, built, target = self.scene, self.built, self.target
         assert target is not None
-        view = scene_view(dataclasses.replace(scene, render=dataclasses.replace(scene.render, camera=camera)),
-                          built.bbox)
+        view = _view_of(scene, built, camera)
         draw_pass = self.passes[mode]
         target.begin(tuple(scene.render.background))  # type: ignore[arg-type]
         draw_pass.draw(texture, view, self.lighting)
@@ -223,6 +223,20 @@ class _Drawer:
 def _check_modes(scene: Scene, modes: Sequence[str]) -> None:
     for mode in modes:
         scene.with_overrides(mapping=mode)  # the --mapping checks: a cloth, attachments
+
+
+def _frame_camera(plan: FramePlan, k: int, view: View3 | None) -> Camera:
+    """Frame k's camera, or with ``view`` that view turned as far as the turntable has."""
+    camera = plan.cameras[k]
+    if view is None:
+        return camera
+    spin = camera.azimuth - plan.cameras[0].azimuth
+    return dataclasses.replace(camera, azimuth=view[0] + spin, elevation=view[1], distance=view[2])
+
+
+def _view_of(scene: Scene, built: SceneModel, camera: Camera) -> View:
+    """The view matrices of ``camera`` on the scene's body (refuses one that misses the body)."""
+    return scene_view(dataclasses.replace(scene, render=dataclasses.replace(scene.render, camera=camera)), built.bbox)
 
 
 def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = None, *,
@@ -267,6 +281,9 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
     check_texture_limit(scene, built.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
     if check_model is not None:
         check_model(scene, built)
+    for k in range(plan.frames):  # a camera that cannot see the body: refused before the run
+        for view in (list(views) if views else [None]):
+            _view_of(scene, built, _frame_camera(plan, k, view))
     images: list[np.ndarray | None] = [None] * plan.frames
     meshes: list[Any] = [None] * plan.frames
     states: list[Any] = [None] * plan.frames
@@ -284,10 +301,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
         for mode in modes:
             row, names = [], []
             for view in (list(views) if views else [None]):
-                camera = plan.cameras[k]
-                if view is not None:
-                    spin = camera.azimuth - plan.cameras[0].azimuth
-                    camera = dataclasses.replace(camera, azimuth=view[0] + spin, elevation=view[1], distance=view[2])
+                camera = _frame_camera(plan, k, view)
                 capture = mesh and meshes[k] is None and mode == mapped[0]
                 image, captured = drawer.draw(texture, t, camera, mode, capture)
                 if capture and captured is not None:
