@@ -117,3 +117,15 @@ def test_dt_limit_is_the_limit_check_dt_enforces_and_names_the_barrier():
     with dg.make_simulation(system, "verlet", "numpy", dt=1.01 * limit.dt) as sim:
         with pytest.raises(dg.DeformglError, match="above the verlet limit"):
             dg.run(sim, 1)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda s: dg.dt_limit(s, "leapfrog"), r"^dt_limit: integrator: unknown 'leapfrog'"),
+    (lambda s: dg.dt_limit("a body", "verlet"), r"^dt_limit: system: expected a SpringSystem"),
+    (lambda s: dg.dt_limit(s, "xpbd"), r"^dt_limit: integrator: xpbd has no explicit dt limit"),
+    (lambda s: dg.check_dt(s, "verlet", float("nan")), r"^check_dt: dt: must be a finite number > 0 s"),
+    (lambda s: dg.check_dt(s, "verlet", "1e-3"), r"^check_dt: dt: must be a finite number > 0 s"),
+])
+def test_the_limits_api_names_the_bad_argument(call, match):
+    with pytest.raises(dg.DeformglError, match=match):
+        call(hanging_cantilever(3, 0.25))

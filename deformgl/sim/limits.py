@@ -15,6 +15,7 @@ from deformgl.sim.spectrum import (
     _describe, _mass_normalised, exact_frequency, modal_damping)
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 from deformgl.sim.stages import spec
+from deformgl.errors import ArgumentError
 from deformgl.sim.volume import frequency_terms
 
 
@@ -274,6 +275,17 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
     return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, bending, barrier)
 
 
+def _check_arguments(caller: str, system: object, integrator: object) -> None:
+    """One-line :class:`~deformgl.errors.ArgumentError` for a system that is not a
+    :class:`SpringSystem` or an integrator that is not one of ``INTEGRATORS``."""
+    if not isinstance(system, SpringSystem):
+        raise ArgumentError(f"{caller}: system: expected a SpringSystem (Body.system, a scene's model), "
+                            f"got {type(system).__name__}")
+    known = (*EXPLICIT_INTEGRATORS, *IMPLICIT_INTEGRATORS, *STABLE_INTEGRATORS)
+    if integrator not in known:
+        raise ArgumentError(f"{caller}: integrator: unknown {integrator!r}; expected one of {', '.join(known)}")
+
+
 def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None,
              exact_up_to: int = 300, lanczos_up_to: int = 30000) -> DtLimit:
     """The dt limit that :func:`check_dt` enforces: of the stiffness the run can meet (the rest
@@ -285,12 +297,13 @@ def dt_limit(system: SpringSystem, integrator: str, *, exact: bool | None = None
     barrier, at 0.9 of it).
 
     Raises:
-        ValueError: an integrator without an explicit dt limit (implicit Euler, XPBD: their
-            solve's residual is reported instead) or an unknown one.
+        ArgumentError: an integrator without an explicit dt limit (implicit Euler, XPBD: their
+            solve's residual is reported instead) or an unknown one, or a system that is not one.
     """
+    _check_arguments("dt_limit", system, integrator)
     if integrator in IMPLICIT_INTEGRATORS or integrator in STABLE_INTEGRATORS:
-        raise ValueError(f"{integrator} has no explicit dt limit (only the explicit integrators have one: "
-                         f"{', '.join(EXPLICIT_INTEGRATORS)}); check_dt accepts every dt for it")
+        raise ArgumentError(f"dt_limit: integrator: {integrator} has no explicit dt limit (only the explicit "
+                            f"integrators have one: {', '.join(EXPLICIT_INTEGRATORS)}); check_dt accepts every dt for it")
     if exact is not None:
         return _dt_limit(system, integrator, "exact" if exact else "gershgorin")
     free = int((~system.fixed).sum())
@@ -316,8 +329,9 @@ def check_dt(system: SpringSystem, integrator: str, dt: float, *,
     per step ``sqrt(1 + (w dt)^2)`` resp. ``sqrt(1 + (w dt)^4/4)``); with damping they get their
     damped limit, like the other three.
     """
-    if not dt > 0:
-        raise ValueError(f"check_dt: dt must be > 0, got {dt}")
+    _check_arguments("check_dt", system, integrator)
+    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.number)) or not dt > 0 or not np.isfinite(dt):
+        raise ArgumentError(f"check_dt: dt: must be a finite number > 0 s, got {dt!r}")
     if integrator in IMPLICIT_INTEGRATORS or integrator in STABLE_INTEGRATORS:
         return None  # no explicit limit: backward Euler's solve and XPBD's residual are reported instead
     cheap = _dt_limit(system, integrator, "gershgorin")
