@@ -244,7 +244,7 @@ def test_the_jelly_scene_is_a_material_scene_at_any_resolution():
         built = build_scene_model(dataclasses.replace(scene, grid=dataclasses.replace(scene.grid, nodes_along_longest=n)))
         assert built.lattice is not None and built.lattice.cells > 0
         masses.append(built.system.mass.sum())
-        total_pull = sum(load.force(1.0) * load.nodes.sum() for load in built.loads)
+        total_pull = sum(load.node_forces(1.0, built.system.mass).sum(axis=0) for load in built.loads)
         assert np.allclose(total_pull, [1.0, 0.0, 0.0])  # total N, whatever the node count
     # the body weighs rho x its volume (0.0976 x 0.0586 x 0.0781 m box: 0.46 kg) within the
     # voxelization's rounding of the box to whole cells
