@@ -69,9 +69,15 @@ def test_the_hanging_cantilever_runs_10_s_at_0_9_of_dt_limit_at_5_across(ctx, nu
     run_at_the_limit(ctx, 5, nu, integrator)
 
 
+#: CI runs the 9-across case that held 15 cells inverted at J_b 0.6 (15 s); the other five (20-61 s
+#: each, 176 s in all) are ``soak``, left out of CI's time budget: ``pytest -m soak`` (all passed
+#: 2026-12-07, the figures in docs/ACCURACY.md section 7)
+NINE_ACROSS = [pytest.param(nu, i, marks=() if (nu, i) == (0.25, "semi-implicit") else pytest.mark.soak)
+               for nu in (0.25, 0.45) for i in ("semi-implicit", "verlet", "rk4")]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("integrator", ["semi-implicit", "verlet", "rk4"])
-@pytest.mark.parametrize("nu", [0.25, 0.45])
+@pytest.mark.parametrize("nu, integrator", NINE_ACROSS)
 def test_the_hanging_cantilever_runs_10_s_at_0_9_of_dt_limit_at_9_across(ctx, nu, integrator):
     run_at_the_limit(ctx, 9, nu, integrator)
 
