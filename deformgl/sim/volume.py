@@ -58,6 +58,7 @@ CORNER_SIGNS = np.array([[2 * dx - 1, 2 * dy - 1, 2 * dz - 1]
 _CORNER_NEIGHBOURS = np.array([[c ^ (1 << k) for k in range(3)] for c in range(8)], dtype=np.int64)
 #: (8, 4) the tet of corner c: c, then its neighbours along x, y, z.
 _CORNER_TETS = np.concatenate([np.arange(8)[:, None], _CORNER_NEIGHBOURS], axis=1)
+_CORNER_TETS.setflags(write=False)  # (shared: corner_tets returns it, implicit_cells.TET_CORNERS is it)
 
 
 @dataclass(frozen=True, eq=False)
