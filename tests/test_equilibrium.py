@@ -200,7 +200,7 @@ def test_the_api_and_the_scene_pass_their_loads_drags_and_schedule_to_the_stop(c
     import dataclasses
 
     from deformgl.data import packaged_scene
-    from deformgl.scene.run import scripted_until
+    from deformgl.scene.physics import scripted_until
     from deformgl.scene.schema import load_scene
     from deformgl.scene.spec import DragSpec, Keyframes, SphereSpec
 

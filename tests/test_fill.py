@@ -1,6 +1,6 @@
 """Cells that carry the mesh (issue 28): the fill of each cell (deformgl.grid.fill), the lattice
 that carries it (deformgl.sim.materials: fill_shares and the masses), and regions that select
-material (deformgl.scene.run.region_nodes). The comparison with the mesh's own FEM is
+material (deformgl.scene.physics.region_nodes). The comparison with the mesh's own FEM is
 tests/test_mesh_accuracy.py (the 'fem' extra)."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from deformgl.grid.fill import CellFill, fill_cells
 from deformgl.grid.nodes import NodeGrid
 from deformgl.grid.voxelize import voxelize
 from deformgl.scene.pipeline import build_scene_model
-from deformgl.scene.run import region_nodes
+from deformgl.scene.physics import region_nodes
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import Region
 from deformgl.sim.limits import gershgorin_limit

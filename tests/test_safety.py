@@ -15,7 +15,7 @@ from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
 from deformgl.sim.guards import (API_WORDING, MAX_SUBSTEPS, SAFETY_MARGIN, SCENE_WORDING, BlowUp, StepPlan,
                                  describe_bad_node, plan_steps)
 from deformgl.scene.schema import Safety, load_scene
-from deformgl.scene.run import SceneBox, run_scene, scene_system
+from deformgl.scene.physics import SceneBox, run_scene, scene_system
 from deformgl.sim.run import run_with_retries
 from deformgl.sim.stability import check_dt, dt_limit
 

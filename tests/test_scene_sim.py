@@ -13,7 +13,7 @@ from deformgl.errors import SimulationError
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.scene.pipeline import NodeState, build_scene_model
 from deformgl.scene.schema import Converge, Safety, load_scene
-from deformgl.scene.run import SceneBox, run_scene, scene_constraints, scene_drags, scene_loads, scene_system
+from deformgl.scene.physics import SceneBox, run_scene, scene_constraints, scene_drags, scene_loads, scene_system
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 

@@ -211,7 +211,7 @@ def test_census_catches_non_finite_nodes(ctx):
 
 def test_scene_keys_and_the_residual_note(tmp_path):
     from deformgl.data import scenes_dir
-    from deformgl.scene.run import xpbd_options
+    from deformgl.scene.physics import xpbd_options
     from deformgl.scene.schema import load_scene
 
     text = (scenes_dir() / "jelly.toml").read_text()

@@ -20,7 +20,7 @@ version of it, docs/EQUATIONS.md "Cells that carry the mesh").
 Regions select material, not space: :meth:`CellFill.node_weights` spreads every sample point
 inside the mesh over its cell's 8 corners with the trilinear weights, so a node's weight is its
 share of the material around it; a region holds a node when most of that share lies in the region
-(:func:`deformgl.scene.run.region_nodes`).
+(:func:`deformgl.scene.physics.region_nodes`).
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ from deformgl.gl.es_context import read_texture
 from deformgl.grid.nodes import CompactLayout
 from deformgl.pack.export_shaders import PACK_VERSION, pack_contents, write_pack
 from deformgl.scene.pipeline import build_scene_model, make_draw_pass, scene_lighting, scene_view
-from deformgl.scene.run import SceneBox, scene_constraints, scene_drags
+from deformgl.scene.physics import SceneBox, scene_constraints, scene_drags
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import Scene
 from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms

@@ -34,7 +34,7 @@ from deformgl.scene.obstacles import draw_obstacles
 from deformgl.scene.pipeline import (NodeState, SceneModel, build_scene_model, check_gl_limits, check_texture_limit,
                                      draw_attachments, make_draw_pass, scene_lighting, scene_view)
 from deformgl.scene.record import run_record
-from deformgl.scene.run import SceneBox, SceneRun, run_scene, scene_constraints
+from deformgl.scene.physics import SceneBox, SceneRun, run_scene, scene_constraints
 from deformgl.scene.spec import Camera, Scene
 
 __all__ = ["FramePlan", "Frames", "View3", "compose_grid", "frame_plan", "render_frames"]

@@ -4,7 +4,7 @@ node grid, its spring system, simulations of it, its mapped detailed mesh and im
 This is the code path of a scene (:mod:`deformgl.scene.pipeline`) without the scene file: the
 mesh is recentred on its bounding-box centre, voxelized at ``resolution`` nodes along its longest
 side (or at ``spacing``), the spring system is built from the physics
-(:func:`~deformgl.scene.run.scene_system`), the binding to the node surface is the scene's (cached the same way), and
+(:func:`~deformgl.scene.physics.scene_system`), the binding to the node surface is the scene's (cached the same way), and
 node positions reach the draw passes through the same :class:`DrivenNodes` upload. Everything GL
 the body makes (its context if it made one, simulations, node textures, draw passes, targets)
 is owned by one :class:`~deformgl.gl.resources.GLOwner` and freed by :meth:`Body.release` or
@@ -46,7 +46,7 @@ from deformgl.scene import pipeline
 from deformgl.scene.checks import _one_line
 from deformgl.scene.pipeline import mesh_grid, recentred
 from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport, SheetMaterial
-from deformgl.scene.run import scene_system
+from deformgl.scene.physics import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, MAX_SIZE, MIN_SIZE, Physics, Region, Scene
 from deformgl.scene.stepping import GuardedSimulation, make_simulation

@@ -11,7 +11,7 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
-from deformgl.scene.run import SceneBox, SceneRun, run_scene
+from deformgl.scene.physics import SceneBox, SceneRun, run_scene
 from deformgl.scene.schema import Scene
 from deformgl.sim.backends.foundation import NodeTextures
 

@@ -33,7 +33,7 @@ from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene.schema import Scene
 from deformgl.scene.spec import MIN_EXTENT, ClothSpec, MeshSpec, Vec3
 from deformgl.scene.node_state import NodeState
-from deformgl.scene.run import SceneBox, scene_constraints, scene_loads, scene_system
+from deformgl.scene.physics import SceneBox, scene_constraints, scene_loads, scene_system
 from deformgl.trilinear.scenegraph import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
@@ -50,8 +50,8 @@ class SceneModel:
         mesh: the detailed mesh, recentred.
         centre: (3,) the world offset removed from every position.
         grid: node grid (recentred coordinates).
-        system: the spring system (:func:`~deformgl.scene.run.scene_system`).
-        loads: the ``[[physics.pull]]`` loads (:func:`~deformgl.scene.run.scene_loads`).
+        system: the spring system (:func:`~deformgl.scene.physics.scene_system`).
+        loads: the ``[[physics.pull]]`` loads (:func:`~deformgl.scene.physics.scene_loads`).
         bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
         lattice: what the cell assembly of a ``[material]`` scene found, or None.
     """

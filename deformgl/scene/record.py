@@ -49,7 +49,7 @@ def material_fields(scene) -> dict[str, Any]:
 def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, wall: float = 0.0,
                ctx=None) -> dict[str, Any]:
     """The record of one render of ``scene`` (its :class:`~deformgl.scene.pipeline.SceneModel`
-    ``built`` and :class:`~deformgl.scene.run.SceneRun` ``run``, None when nothing was simulated)."""
+    ``built`` and :class:`~deformgl.scene.physics.SceneRun` ``run``, None when nothing was simulated)."""
     physics = scene.physics
     simulated = run is not None
     return {

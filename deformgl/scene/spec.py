@@ -108,7 +108,7 @@ class Region:
 @dataclass(frozen=True, slots=True)
 class Pull:
     """A scripted force (N per node; with a ``[material]`` N in all, spread over the region's
-    node masses: :func:`deformgl.scene.run.scene_loads`) on the nodes in ``region``: zero before ``start``, rising
+    node masses: :func:`deformgl.scene.physics.scene_loads`) on the nodes in ``region``: zero before ``start``, rising
     linearly to full over ``ramp`` seconds, zero again from ``stop`` (may be ``inf``) on."""
     region: Region
     force: Vec3
