@@ -1,9 +1,14 @@
-"""The benchmark commands produce complete tables (content, not speed: timings are never asserted)."""
+"""The benchmark commands (``deformgl bench sim|trade``) and the studies of the repository's
+``studies/`` folder produce complete tables (content, not speed: timings are never asserted)."""
 
+import importlib
 from pathlib import Path
 
-from deformgl.bench.studies import bench_integrators, bench_sim, format_integrators, format_sim, machine_line
+import pytest
+
+from deformgl.bench.sim_speed import bench_sim, format_sim, machine_line
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
+from studies.integrator_speed import bench_integrators, format_integrators
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -25,20 +30,50 @@ def test_bench_integrators_covers_every_integrator_and_names_the_renderer(ctx):
 
 
 def test_bench_sim_table_has_every_variant_and_the_numpy_ratio(ctx):
-    rows = bench_sim(ctx, steps=1, grids=((4, 4, 4),))
+    from studies.pass_variants import PASS_VARIANTS
+
+    rows = bench_sim(ctx, steps=1, grids=((4, 4, 4),), variants=PASS_VARIANTS)
     text = format_sim(rows, machine_line(ctx))
     for variant in ("compact", "compact+branch", "atlas rects", "atlas quad", "atlas points"):
         assert variant in text
     assert "speed-up vs numpy" in text and rows[0].numpy_ms > 0
 
 
+def test_deformgl_bench_sim_times_the_layouts_a_scene_gets(ctx, capsys):
+    """``deformgl bench sim``: the compact layout and the blocked one the backend picks, against NumPy."""
+    rows = bench_sim(ctx, steps=1, grids=((4, 4, 4),))
+    assert list(rows[0].variant_ms) == ["compact", "blocked (default)"] and rows[0].numpy_ms > 0
+    assert "speed-up vs numpy" in format_sim(rows, machine_line(ctx))
+
+
+@pytest.mark.parametrize("argv", [["render"], ["scaling", "--quick"], ["accuracy"], ["profile"], ["integrators"],
+                                  ["sim", "--bending"], ["sim", "--poisson", "0.45"]])
+def test_a_former_bench_choice_names_its_study_in_one_line(argv, capsys):
+    from deformgl.cli import main
+    from deformgl.cli_bench import MOVED
+
+    assert main(["bench", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    key = argv[0] if argv[0] != "sim" else argv[1]
+    assert len(err.splitlines()) == 1 and MOVED[key] in err and "Traceback" not in err, err
+
+
+def test_every_study_the_bench_points_to_is_a_command():
+    from deformgl.cli_bench import MOVED
+
+    for command in MOVED.values():
+        module = importlib.import_module(command.removeprefix("python -m "))
+        assert callable(module.main), command
+
+
 def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, tmp_path, capsys, monkeypatch):
-    """``bench trade|mappings|scaling --out DIR`` (shrunk: quick trade on the volume only, two
-    small scaling sizes, mappings on 4 nodes) print the table and write the files."""
+    """``deformgl bench trade``, ``python -m studies.mapping_accuracy`` and ``python -m
+    studies.scaling`` with ``--out DIR`` (shrunk: quick trade on the volume only, two small scaling
+    sizes, mappings on 4 nodes) print the table and write the files."""
     import json
 
-    import deformgl.bench.mapping_accuracy as mapping_accuracy
-    import deformgl.bench.scaling as scaling
+    import studies.mapping_accuracy as mapping_accuracy
+    import studies.scaling as scaling
     import deformgl.bench.trade as trade
     from deformgl.cli import main
 
@@ -49,8 +84,10 @@ def test_bench_studies_print_their_tables_and_write_csv_json_and_the_chart(ctx, 
     accuracy = mapping_accuracy.mapping_accuracy
     monkeypatch.setattr(mapping_accuracy, "mapping_accuracy",
                         lambda ctx, **kw: accuracy(ctx, **kw, grids=(4,), repeats=1))
+    commands = {"trade": lambda argv: main(["bench", "trade", *argv]), "mappings": mapping_accuracy.main,
+                "scaling": scaling.main}
     for what, words in (("trade", "Pareto front"), ("mappings", "one-to-one"), ("scaling", "ns/node-step")):
-        assert main(["bench", what, "--quick", "--quiet", "--out", str(tmp_path)]) == 0
+        assert commands[what](["--quick", "--quiet", "--out", str(tmp_path)]) == 0
         out = capsys.readouterr().out
         assert words in out and "renderer" in out, out
         assert json.loads((tmp_path / f"{what}.json").read_text())
@@ -71,7 +108,7 @@ def test_bench_out_must_be_a_folder(tmp_path, capsys):
 
 
 def test_bench_profile_rebuilds_the_step_stage_by_stage(ctx):
-    from deformgl.bench.profile import STAGES, format_profile, profile_step
+    from studies.step_profile import STAGES, format_profile, profile_step
 
     rows = profile_step(ctx, grids=((6, 5, 4),), passes=2, repeats=1)
     assert [r.what for r in rows if r.lookup == "index"] == [*STAGES, "full step"]
@@ -82,7 +119,7 @@ def test_bench_profile_rebuilds_the_step_stage_by_stage(ctx):
 
 
 def test_bench_profile_times_the_lattice_weights_both_ways(ctx):
-    from deformgl.bench.profile import format_lattice_weights, lattice_weights
+    from studies.step_profile import format_lattice_weights, lattice_weights
 
     rows = lattice_weights(ctx, grids=((6, 5, 4),), steps=2, rounds=2)
     assert [(name, nodes) for name, nodes, _, _ in rows] == [("6x5x4", 120)]
@@ -95,7 +132,7 @@ def test_bench_render_times_every_draw_path_and_the_renderers_frame(ctx):
     """On the jelly's closed box mesh: the static baseline, the node surface, both mappings in
     each of the three mapping passes, the culled draw, and the frame budgets with and without
     culling, on the mapping pass the renderer uses."""
-    from deformgl.bench.studies import bench_render, format_render
+    from studies.render_speed import bench_render, format_render
     from deformgl.scene.pipeline import RENDER_MAPPING_PASS
 
     rows, frame_ms, info = bench_render(ctx, SCENES / "jelly.toml", size=64, repeats=1, frame_size=32,
@@ -112,7 +149,7 @@ def test_bench_render_times_every_draw_path_and_the_renderers_frame(ctx):
 
 def test_the_pack_enumerates_every_profile_stage():
     """deformgl.pack.variants counts the ablation stages without importing the bench."""
-    from deformgl.bench.profile import STAGES
+    from studies.step_profile import STAGES
     from deformgl.pack.variants import PROFILE_STAGES
 
     assert PROFILE_STAGES == len(STAGES)

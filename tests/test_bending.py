@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from deformgl.bench.cloth_bending import elastica_errors, plate_ratio, strip_ratio, twisted_plate_ratio
+from studies.cloth_bending import elastica_errors, plate_ratio, strip_ratio, twisted_plate_ratio
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.bending import SHEET_BENDING_POISSON, sheet_bending
@@ -222,7 +222,7 @@ def test_flap_scene_settles_at_the_static_equilibrium() -> None:
     """scenes/cloth_flap.toml (3 mm rubber, D = 5e-3 N m, rho_A g L^3 / D = 22) run to its end
     with implicit Euler (NumPy) is at rest where Newton's static equilibrium of the same sheet
     is: within 1 % of its 12 cm sag (measured 0.74 mm)."""
-    from deformgl.bench.tissue_accuracy import static_equilibrium
+    from studies.tissue_accuracy import static_equilibrium
     from deformgl.scene.pipeline import build_scene_model
     from deformgl.scene.schema import load_scene
 
@@ -270,7 +270,7 @@ def test_flap_scene_refuses_xpbd_and_a_large_explicit_dt(tmp_path) -> None:
 def test_bench_sim_bending_prints_the_cost_ratios(ctx) -> None:
     """``deformgl bench sim --bending``'s table: the flexion springs' ratio is 1 in every round,
     every variant of both integrators has a row (timings are for the benchmark, not asserted)."""
-    from deformgl.bench.bending_cost import INTEGRATORS, VARIANTS, bench_bending, format_bending
+    from studies.bending_cost import INTEGRATORS, VARIANTS, bench_bending, format_bending
 
     rows = bench_bending(ctx, steps=2, rounds=2, sheets=(8,))
     assert {(r.integrator, r.variant) for r in rows} == {(i, v) for i in INTEGRATORS for v in VARIANTS}

@@ -16,7 +16,7 @@ import pytest
 import trimesh
 from trimesh.triangles import closest_point as triangle_closest_point
 
-from deformgl.bench import binding as bench_bd
+from studies import binding_speed as bench_bd
 from deformgl.mapping import binding as bd
 from deformgl.mapping import binding_cache as cache
 from deformgl.mapping import closest

@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from deformgl.bench.studies import bench_occupancy
+from deformgl.bench.sim_speed import bench_occupancy
 from deformgl.grid.blocks import BLOCK_SHAPES, CORNER_OFFSETS, BlockedLayout, parse_block
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
 from deformgl.sim.backends.blocked import BLOCK_TABLE, blocked_refusal, default_block

@@ -221,7 +221,12 @@ def test_a_scene_found_nowhere_is_a_one_line_error(tmp_path, monkeypatch, capsys
         lines = err.strip().splitlines()
         assert code == 2 and len(lines) == 1, err
         assert f"{given}: scene file not found" in lines[0] and "dragon.toml" in lines[0]
-    code, _, err = run_cli(capsys, "bench", "render", "--scene", "nope.toml")
+    from studies.common import run_main
+    from studies.render_speed import main as render_speed
+
+    with pytest.raises(SystemExit) as done:  # (the study that was `deformgl bench render`)
+        run_main(lambda argv: render_speed(["--scene", "nope.toml"]))
+    code, err = done.value.code, capsys.readouterr().err
     assert code == 2 and "--scene: scene file not found" in err
 
 

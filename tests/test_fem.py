@@ -158,7 +158,7 @@ def test_fem_converges_and_lies_between_euler_bernoulli_and_timoshenko(cantileve
 @pytest.mark.fem
 @pytest.mark.slow
 def test_the_lattice_converges_to_fem_at_second_order(cantilever_fem):
-    from deformgl.bench.accuracy import fitted_order
+    from studies.accuracy import fitted_order
 
     fem, _, _ = cantilever_fem
     across = (2, 3, 4, 5, 9)

@@ -1,4 +1,4 @@
-"""The soft-tissue references (deformgl.bench.fem_tissue, deformgl.bench.fem_nonlinear) against
+"""The soft-tissue references (studies.fem_tissue, studies.fem_nonlinear) against
 analytic limits and independent solutions: the mixed FEM against the displacement FEM of
 deformgl.bench.fem and beam theory, the frictionless column against uniaxial stress, the elastica
 against small-load beam theory and a shooting solution, the neo-Hookean FEM against its own
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from deformgl.bench.fem import WORKLOADS, fem_reference, fem_value
-from deformgl.bench.fem_nonlinear import MixedNeoHookean, lame, neo_hookean_cantilever_tip
-from deformgl.bench.fem_tissue import (column_strain_ratio, elastica_tip, mixed_cantilever_sag,
+from studies.fem_nonlinear import MixedNeoHookean, lame, neo_hookean_cantilever_tip
+from studies.fem_tissue import (column_strain_ratio, elastica_tip, mixed_cantilever_sag,
                                        mixed_cantilever_study, richardson, sag_scale, timoshenko_sag)
 
 pytestmark = pytest.mark.fem
@@ -194,9 +194,9 @@ def test_neo_hookean_converges(E):
 
 
 def test_the_references_stored_for_the_lattice_checks_are_this_fem():
-    """deformgl.bench.tissue_accuracy stores the extrapolated FEM values (so that its checks run
+    """studies.tissue_accuracy stores the extrapolated FEM values (so that its checks run
     without the fem extra): a fresh coarse solve lands within its discretisation error of them."""
-    from deformgl.bench.tissue_accuracy import CANTILEVER_FEM, COLUMN_FEM, ELASTICA
+    from studies.tissue_accuracy import CANTILEVER_FEM, COLUMN_FEM, ELASTICA
 
     for nu in (0.25, 0.45):
         assert normalised(1.0, 0.1, 5.0e3, nu, 2) == pytest.approx(CANTILEVER_FEM[nu], rel=5e-3)
@@ -207,10 +207,10 @@ def test_the_references_stored_for_the_lattice_checks_are_this_fem():
 
 def test_the_plans_errors_at_the_bodys_nu_are_what_the_lattice_and_fem_give():
     """deformgl.plan.planner.MEASURED_NU (the plan's discretisation errors at nu > 1/4) is what
-    ``python -m deformgl.bench.tissue_accuracy`` table 4 prints: re-measured at 5 across (block at
+    ``python -m studies.tissue_accuracy`` table 4 prints: re-measured at 5 across (block at
     0.45, bar in torsion at 0.49), to the 4 digits stored. Compression's error grows with nu."""
     from deformgl.plan.planner import MEASURED, MEASURED_NU
-    from deformgl.bench.tissue_accuracy import workload_errors
+    from studies.tissue_accuracy import workload_errors
 
     estimate, block = workload_errors("block", 0.45, [5])
     assert block[5] == pytest.approx(MEASURED_NU[0.45]["compression"][5], abs=6e-5) and estimate < 5e-3

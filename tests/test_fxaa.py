@@ -1,5 +1,5 @@
 """The FXAA post-process pass (shaders/render/fxaa.frag), ``[render] aa``, and the AA part of
-``bench render`` (deformgl.bench.aa)."""
+``bench render`` (studies.aa)."""
 
 import dataclasses
 from pathlib import Path
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deformgl.bench.aa import AA_MODES, format_budgets, frame_budgets, image_difference, reference_image
+from studies.aa import AA_MODES, format_budgets, frame_budgets, image_difference, reference_image
 from deformgl.errors import GLError, SceneError
 from deformgl.render.camera import View
 from deformgl.render.mapped import StaticMeshPass

@@ -69,10 +69,20 @@ def test_the_installed_package_is_the_wheel(installed):
     assert not any(str(ROOT) in line for line in where), where
 
 
-def test_bench_binding_runs_installed_outside_the_checkout(installed):
+def test_bench_binding_runs_installed_outside_the_checkout(installed, tmp_path):
+    """The binding study (the repository's studies/, not in the wheel) on the installed package
+    finds the shipped mesh; the wheel's ``deformgl bench binding`` names that command."""
     bindir, work, env = installed
-    out = _run([str(bindir / "deformgl"), "bench", "binding", "--quick"], work, env).stdout
+    shutil.copytree(ROOT / "studies", tmp_path / "studies", ignore=shutil.ignore_patterns("__pycache__"))
+    out = _run([str(bindir / "python"), "-m", "studies.binding_speed", "--quick"], work,
+               {**env, "PYTHONPATH": str(tmp_path)}).stdout
     assert "bind dragon_vrip_res3.ply.gz to" in out and "vertices" in out, out
+    moved = subprocess.run([str(bindir / "deformgl"), "bench", "binding", "--quick"], cwd=work, env=env,
+                           capture_output=True, text=True, timeout=60)
+    assert moved.returncode == 2 and "python -m studies.binding_speed" in moved.stderr, moved.stderr
+    missing = subprocess.run([str(bindir / "python"), "-c", "import studies"], cwd=work, env=env,
+                             capture_output=True, text=True, timeout=60)
+    assert missing.returncode != 0 and "No module named 'studies'" in missing.stderr  # not in the wheel
 
 
 @pytest.mark.parametrize("scene", ["dragon.toml", "scenes/dragon.toml"])

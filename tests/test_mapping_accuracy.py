@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 from deformgl.mapping.bases import map_vertices
-from deformgl.bench.mapping_accuracy import (MODES, GridMappings, MappingRow, format_mapping_accuracy,
+from studies.mapping_accuracy import (MODES, GridMappings, MappingRow, format_mapping_accuracy,
                                        mapping_accuracy, write_csv, write_json)
 from deformgl.mapping.node_drivers import Motion
 from deformgl.sim.normals import unpack_normals

@@ -1,4 +1,4 @@
-"""The lattice on a real mesh against the FEM of the mesh (deformgl.bench.mesh_accuracy): the
+"""The lattice on a real mesh against the FEM of the mesh (studies.mesh_accuracy): the
 measurement of issue 28, today's figures (docs/ACCURACY.md, section 9)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ pytestmark = pytest.mark.fem
 
 
 def test_the_meshes_are_made_watertight() -> None:
-    from deformgl.bench.mesh_accuracy import MESHES, repaired_mesh
+    from studies.mesh_accuracy import MESHES, repaired_mesh
 
     for name in MESHES:
         mesh = repaired_mesh(name)
@@ -23,7 +23,7 @@ def test_the_meshes_are_made_watertight() -> None:
 def test_the_lattice_on_the_dragon_is_todays_lattice() -> None:
     """The lattice side at 12 and 16 nodes along against the stored FEM reference: the figures of
     docs/ACCURACY.md section 9 (a change of the lattice on meshes moves them: update both)."""
-    from deformgl.bench.mesh_accuracy import FEM_REFERENCE, LATTICE_FIGURES, lattice_sag, repaired_mesh
+    from studies.mesh_accuracy import FEM_REFERENCE, LATTICE_FIGURES, lattice_sag, repaired_mesh
 
     mesh = repaired_mesh("dragon")
     mean, largest, top = FEM_REFERENCE["dragon"]
@@ -39,7 +39,7 @@ def test_the_finned_bar_is_held_and_weighed_at_16_along() -> None:
     """The finned bar (its fin thinner than a cell): the region that caught no node before holds
     its base, and the lattice weighs the union of its two shells within 2 %; its sag is today's
     figure of docs/ACCURACY.md section 9 (the fin (h/t)^2 too stiff)."""
-    from deformgl.bench.mesh_accuracy import FEM_REFERENCE, LATTICE_FIGURES, lattice_sag, repaired_mesh
+    from studies.mesh_accuracy import FEM_REFERENCE, LATTICE_FIGURES, lattice_sag, repaired_mesh
 
     mesh = repaired_mesh("finned_bar")
     assert mesh.is_watertight and mesh.body_count == 1 and mesh.volume == pytest.approx(99.0e-6, rel=1e-3)
@@ -57,7 +57,7 @@ def test_the_mesh_fem_against_a_column_under_its_weight() -> None:
     rho g L^2 / (2 E) over the free length L, within 0.2 % (measured +0.002 %)."""
     import trimesh
 
-    from deformgl.bench.mesh_accuracy import DENSITY, G, HOLD, YOUNGS_MODULUS, fem_sag
+    from studies.mesh_accuracy import DENSITY, G, HOLD, YOUNGS_MODULUS, fem_sag
 
     box = trimesh.creation.box(extents=(0.01, 0.1, 0.01))
     column = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.004))

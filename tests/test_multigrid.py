@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from deformgl.bench.fem import WORKLOADS, lattice_case
-from deformgl.bench.implicit import ALPHA, BLOCK
+from deformgl.bench.trade_stiff import ALPHA, BLOCK
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.implicit import (EPS64, PRECONDITIONERS, assemble, multigrid_levels, pcg, preconditioner,
                                    residual_floor)
@@ -298,9 +298,9 @@ def test_a_grid_without_a_coarser_level_is_refused() -> None:
 
 
 def test_the_multigrid_bench_prints_its_iteration_table(capsys) -> None:
-    """``python -m deformgl.bench.multigrid --only iterations --quick`` prints the machine and the
+    """``python -m studies.preconditioners --only iterations --quick`` prints the machine and the
     iterations per preconditioner, multigrid's fewest on every body."""
-    from deformgl.bench.multigrid import main
+    from studies.preconditioners import main
 
     main(["--only", "iterations", "--quick"])
     out = capsys.readouterr().out
@@ -315,7 +315,7 @@ def test_the_multigrid_bench_prints_its_iteration_table(capsys) -> None:
 def test_the_stiff_studys_preconditioner_table_has_multigrid() -> None:
     """``bench trade --stiff``'s CG table (float64) has a multigrid column beside Jacobi and
     block-Jacobi, and on the FEM-checked cantilever multigrid needs a fraction of their iterations."""
-    from deformgl.bench.implicit import format_preconditioners, preconditioner_bodies, preconditioner_iterations
+    from studies.preconditioners import format_preconditioners, preconditioner_bodies, preconditioner_iterations
 
     rows = preconditioner_iterations(preconditioner_bodies([], quick=True), dts=(1 / 60,))
     first = rows[0].first

@@ -157,7 +157,9 @@ def test_two_models_in_one_process(peer):
 def test_bench_peers_reports_a_timing(peer):
     need(peer)
     model = jelly(shape=(5, 4, 3))
-    timing = peers.bench_peers(model.system, 1e-3, steps=3, peers=[peer], repeats=2)[peer]
+    from studies.peer_timing import bench_peers
+
+    timing = bench_peers(model.system, 1e-3, steps=3, peers=[peer], repeats=2)[peer]
     assert timing.nodes == model.grid.count
     assert timing.ms_per_step > 0 and timing.jit_s >= 0 and timing.setup_s >= 0
     assert timing.nodes_per_s == pytest.approx(model.grid.count / (timing.ms_per_step * 1e-3))
@@ -189,7 +191,7 @@ def test_invalid_dt():
 def test_peers_report_times_every_peer_in_alternating_rounds(ctx):
     for peer in peers.PEERS:
         need(peer)
-    from deformgl.bench.studies import peers_report
+    from deformgl.bench.sim_speed import peers_report
 
     text = peers_report(ctx, steps=2, grids=((4, 4, 3),), rounds=2)
     assert "renderer" in text and "2 alternating rounds" in text and "4x4x3 (48 nodes): fragment" in text

@@ -134,10 +134,10 @@ def test_work_prices_units_and_the_multigrid_step_grows_slower_than_jacobis() ->
 
 
 def test_the_rates_fit_recovers_known_rates_and_prints_its_error(ctx) -> None:
-    """``python -m deformgl.bench.plan_rates``'s fit: times made from known rates give those rates
+    """``python -m studies.plan_rates``'s fit: times made from known rates give those rates
     back (every unit is determined by the configurations), and the table shows model/measured 1.00;
     a read is timed apart and costs something."""
-    from deformgl.bench.plan_rates import configs, fit_rates, format_rates, read_seconds
+    from studies.plan_rates import configs, fit_rates, format_rates, read_seconds
     from deformgl.plan.cost import Rates
 
     cases = configs((5, 9, 17))

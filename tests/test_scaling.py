@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from deformgl.grid import nodes as grid_module
-from deformgl.bench.studies import block_system
+from deformgl.bench.sim_speed import block_system
 from deformgl.sim.backends.feedback import FeedbackSimulation
-from deformgl.bench.scaling import UPPER_NODES, ScalingReport, ScalingRow, bench_scaling, fit_power_law
+from studies.scaling import UPPER_NODES, ScalingReport, ScalingRow, bench_scaling, fit_power_law
 
 
 def test_fit_recovers_an_exact_power_law():

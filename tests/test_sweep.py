@@ -181,7 +181,7 @@ def test_bench_trade_on_dask_workers_measures_the_same_runs_as_in_process(ctx):
     """One task per workload: the same rows (integrators, dts, steps) with the same errors as the
     in-process study; only the costs differ (measured while the workloads share the machine)."""
     from deformgl.bench.trade import trade_study
-    from deformgl.sweep.trade import distributed_trade
+    from deformgl.sweep.trade_tasks import distributed_trade
 
     backends = ("numpy",)  # (the GPU backends' rows go the same way; numpy keeps the test short)
     here = trade_study(ctx, quick=True, backends=backends, fractions=(0.6,))

@@ -1,6 +1,6 @@
 """Soft tissue at its own Poisson's ratio, end to end (issue 27): the lattice with the cells'
-volumetric term against the mixed FEM and the elastica (deformgl.bench.tissue_accuracy), the
-runs that inverted cells before (deformgl.bench.inversion), the liver scene from the CLI and
+volumetric term against the mixed FEM and the elastica (studies.tissue_accuracy), the
+runs that inverted cells before (studies.inversion), the liver scene from the CLI and
 the API on every backend and integrator, and the dt check at high nu."""
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from deformgl.bench import tissue_accuracy as ta
-from deformgl.bench.inversion import run_case, standard_cases
+from studies import tissue_accuracy as ta
+from studies.inversion import run_case, standard_cases
 
 ROOT = Path(__file__).resolve().parents[1]
 LIVER = ROOT / "scenes" / "liver.toml"
@@ -184,7 +184,7 @@ def test_the_dt_check_predicts_the_limit_at_high_nu(tmp_path):
 def test_bench_sim_poisson_prints_the_cost_ratios(ctx):
     """``deformgl bench sim --poisson``'s table: the baseline's ratio is 1 in every round, every
     variant of every integrator has a row (timings are for the benchmark, not asserted)."""
-    from deformgl.bench.cells_cost import bench_poisson, format_poisson
+    from studies.cells_cost import bench_poisson, format_poisson
 
     rows = bench_poisson(ctx, [0.45], steps=2, rounds=2, grids=((6, 6, 6),))
     assert {(r.integrator, r.variant) for r in rows} == {(i, v) for i in ("verlet", "semi-implicit")
@@ -197,7 +197,7 @@ def test_bench_sim_poisson_prints_the_cost_ratios(ctx):
 def test_cg_iterations_grow_with_nu():
     """Implicit Euler's CG works harder as lambda / mu grows (measured at 9 across: 17.3, 42.4,
     90.3 per step at nu 0.25, 0.45, 0.49)."""
-    from deformgl.bench.cells_cost import cg_iterations, format_cg
+    from studies.cells_cost import cg_iterations, format_cg
 
     rows = cg_iterations([0.49], across=5, steps=5)
     assert [r[0] for r in rows] == [0.25, 0.49] and rows[1][1] > 1.5 * rows[0][1]

@@ -6,7 +6,7 @@ import trimesh
 
 from deformgl.errors import InputError
 from deformgl.files import read_png
-from deformgl.bench.trilinear import BenchSetup, bench_depth, bench_trilinear, format_trilinear
+from studies.trilinear_speed import BenchSetup, bench_depth, bench_trilinear, format_trilinear
 from deformgl.trilinear.scenes import render_trilinear_scene, write_trilinear_scene
 from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
 

@@ -262,7 +262,7 @@ def test_state_and_xpbd_system_replacement_keep_shapes():
 
 @pytest.mark.slow
 def test_study_rows_place_xpbd_against_an_explicit_integrator(ctx):
-    from deformgl.bench.xpbd_study import CASES, format_rows, study_case
+    from studies.xpbd_study import CASES, format_rows, study_case
 
     rows = study_case(ctx, CASES["tissue-1MPa"], 3, xpbd=((10, 1), (30, 30)), dts=(1.0 / 60.0,),
                       explicit=(("verlet", 0.9),))
@@ -303,13 +303,13 @@ def test_converged_setting_matches_the_lattice_and_fem_statics():
 
 
 def test_the_grid_hierarchy_brings_stiff_xpbd_closer_at_fewer_sweeps_but_not_to_its_sag() -> None:
-    """Issue 29, item 6 (python -m deformgl.bench.xpbd_hierarchy): on the 1 MPa block at 5
+    """Issue 29, item 6 (python -m studies.xpbd_hierarchy): on the 1 MPa block at 5
     across, hierarchical XPBD (20 sweeps of the lattice at 2h, prolongated, then 10 fine) after
     0.5 s at dt = 1/60 s is 9x closer to the equilibrium than plain XPBD's 30 fine sweeps, at
     fewer fine-sweep equivalents; and neither is within the sag of it (what the measurement says:
     the hierarchy pays against plain XPBD, and stiff statics still belong to implicit Euler)."""
     from deformgl.bench.fem import static_displacement
-    from deformgl.bench.xpbd_hierarchy import levels, run
+    from studies.xpbd_hierarchy import levels, run
 
     hierarchy = levels(5, 1)
     fine, coarse = hierarchy[0].system, hierarchy[1].system

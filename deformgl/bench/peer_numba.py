@@ -1,18 +1,9 @@
 """The fragment backend's Verlet fast path in Numba (``@njit(parallel=True)``, ``prange`` over the
-nodes), the third CPU peer of :mod:`deformgl.bench.peers`.
-
-The same float32 position-Verlet step as ``shaders/sim/verlet.frag`` and the Taichi and Warp
-peers (Mosegaard & Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of
-``NodeGrid.neighbours``, per-class stiffness, velocity damping ``-c (x - x_prev)/dt``, gravity,
-pull groups, fixed nodes kept exactly). Every scalar is a float32 so Numba does not promote the
-arithmetic to float64. Numba runs the ``prange`` loop on its own thread pool
-(``numba.get_num_threads()``, by default the core count), on the ``workqueue`` threading layer
-unless ``NUMBA_THREADING_LAYER`` says otherwise: with the OpenMP layer (libgomp, chosen by
-default where it is installed) a step of the 20k-node block took 21-27 ms instead of 1.1 ms on
-the shared 2-core machine, its threads spin-waiting at every parallel region's barrier against
-the other processes (``OMP_WAIT_POLICY=passive`` gave 1.1 ms as well). Imported lazily by
-:func:`deformgl.bench.peers.make_stepper`; ``import numba`` happens in :func:`_kernel`.
-"""
+nodes), the third CPU peer of :mod:`deformgl.bench.peers`: the same float32 step as the Taichi and
+Warp peers, every scalar a float32. The ``prange`` loop runs on Numba's thread pool on the
+``workqueue`` threading layer unless ``NUMBA_THREADING_LAYER`` says otherwise (the OpenMP layer's
+threads spin-wait at each barrier on a shared machine). Imported lazily by
+:func:`deformgl.bench.peers.make_stepper`; ``import numba`` happens in :func:`_kernel`."""
 
 from __future__ import annotations
 

@@ -1,31 +1,15 @@
 """The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi,
-NVIDIA Warp and Numba on the CPU, to benchmark the fragment-pass step side by side with other JIT systems.
+NVIDIA Warp and Numba on the CPU, for ``deformgl bench sim --peers``.
 
 Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (Mosegaard &
-Sørensen 2005, eq. 1 and eq. 2, over the 18 neighbours of ``NodeGrid.neighbours``, per-class stiffness,
-velocity damping ``-c (x - x_prev)/dt``, gravity, pull groups, fixed nodes kept exactly). The
-state stays inside the peer between steps; only :meth:`positions` copies it out. The
-normals of Mosegaard & Sørensen 2005, eq. 3 are not computed (nothing here draws).
-
-The peer packages are optional (``pip install deformgl[peers]``) and imported lazily:
-
-* Taichi runs its kernels on the CPU backend (``ti.init(arch=ti.cpu)``, once per process, with
-  Taichi's default thread pool of ``cpu_max_num_threads`` = the core count). Each system gets its
-  own fields in their own SNode tree and its own kernel, so several systems live in one process
-  without ``ti.reset()``.
-* Warp runs on ``device="cpu"``; a Warp CPU launch is a serial loop over the launch dimension on
-  the calling thread (one thread).
-* Numba (:mod:`deformgl.bench.peer_numba`) runs an ``@njit(parallel=True)`` kernel whose
-  ``prange`` over the nodes uses Numba's thread pool (the core count).
-
-On dense grids (every node of the box exists: blocks, cloth sheets) both peers find neighbour
-``j`` of node ``i`` at ``i + offsets[j]`` when bit ``j`` of the node's mask is set, like the
-fragment pass's ``COMPACT_DENSE`` variant; elsewhere they read the (N, 18) neighbour table.
-"""
+Sørensen 2005, eq. 1 and 2: the 18 neighbours, per-class stiffness, velocity damping, gravity,
+pull groups, fixed nodes) and keeps its state between steps. The packages are optional (the
+'peers' extra) and imported lazily. Taichi runs on its CPU backend (one SNode tree and kernel per
+system); Warp on ``device="cpu"`` (one thread); Numba (:mod:`deformgl.bench.peer_numba`) with
+``prange``. On dense grids neighbour ``j`` of node ``i`` is ``i + offsets[j]`` when bit ``j`` of
+the node's mask is set; elsewhere the (N, 18) neighbour table."""
 
 # no "from __future__ import annotations": Taichi and Warp read the kernel annotations as objects
-import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -348,61 +332,3 @@ def make_stepper(peer: str, system: SpringSystem, dt: float, loads: tuple[Load, 
 
         return NumbaStepper(system, dt, loads)
     return STEPPERS[peer](system, dt, loads)
-
-
-@dataclass
-class PeerTiming:
-    """One peer on one system.
-
-    Attributes:
-        peer: name; version: package version; nodes: N.
-        ms_per_step: best of ``repeats`` runs of ``steps`` steps, after warm-up, JIT excluded.
-        nodes_per_s: N / (s per step).
-        setup_s: building the stepper (first use: import, init) without the kernel compile.
-        jit_s: the first step, which compiles (or loads from the peer's kernel cache) the kernel.
-        threads: worker threads the peer uses for a step.
-        cpu_per_wall: process CPU time / wall time during the timed runs (how many cores it kept busy).
-    """
-
-    peer: str
-    version: str
-    nodes: int
-    ms_per_step: float
-    nodes_per_s: float
-    setup_s: float
-    jit_s: float
-    threads: int
-    cpu_per_wall: float
-
-
-def bench_peers(system: SpringSystem, dt: float, steps: int = 20, *, peers=None, repeats: int = 3,
-                loads: tuple[Load, ...] = ()) -> dict[str, PeerTiming]:
-    """Time each available peer's step on ``system``.
-
-    Each peer: build, one step (JIT, timed apart), a warm-up of ``steps`` steps, then the best of
-    ``repeats`` runs of ``steps`` steps. Peers that cannot be imported are left out.
-    """
-    versions = available_peers()
-    out = {}
-    for peer in peers or PEERS:
-        version = versions.get(peer)
-        if version is None:
-            continue
-        t0 = time.perf_counter()
-        stepper = make_stepper(peer, system, dt, loads)
-        t1 = time.perf_counter()
-        stepper.step(1)
-        t2 = time.perf_counter()
-        stepper.step(steps)
-        best, cpu, wall = float("inf"), 0.0, 0.0
-        for _ in range(repeats):
-            c0, w0 = time.process_time(), time.perf_counter()
-            stepper.step(steps)
-            w = time.perf_counter() - w0
-            cpu += time.process_time() - c0
-            wall += w
-            best = min(best, w)
-        ms = best / steps * 1e3
-        out[peer] = PeerTiming(peer, version, system.count, ms, system.count / (ms * 1e-3),
-                               t1 - t0, t2 - t1, stepper.threads, cpu / wall)
-    return out

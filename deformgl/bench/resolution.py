@@ -1,27 +1,14 @@
-"""``deformgl bench trade --resolution``: the grid resolution on the speed/accuracy chart
-(issue 12, item 4).
+"""``deformgl bench trade --resolution``: the grid resolution on the speed/accuracy chart.
 
 Workload: the FEM-checked cantilever of :mod:`deformgl.bench.fem` (1 x 0.1 x 0.1 m, clamped,
-released from rest under gravity), E = 1e8 Pa, rho = 1000 kg/m^3 and Rayleigh mass damping
-alpha = :data:`ALPHA` 1/s (twice the beam's first angular frequency, 32 rad/s: resolution
-independent), for each grid resolution (nodes across the thickness) x integrator x dt (fractions
-of :func:`~deformgl.sim.materials.critical_dt`). Measured on the tip (the free end face's mean
-downward displacement) at T = :data:`SIM_TIME` and kept apart, each relative to the FEM static
-tip deflection:
-
-* discretisation: the static lattice's tip against converged FEM (:mod:`deformgl.bench.fem`;
-  without scikit-fem, against :data:`FEM_TIP`, the value `bench accuracy` printed);
-* time stepping: the float64 NumPy run at dt against a converged float64 RK4 run (dt = the RK4
-  limit / :data:`REFERENCE_DIVISOR`) of the same lattice at T;
-* float32: the fragment (GPU) run against the NumPy run of the same integrator and dt at T.
-
-``error`` is their sum, a bound of the tip's error against the converged continuum. Cost: the
-fragment backend's ms per step (``ctx.finish()`` included), the median of :data:`ROUNDS` rounds
-in which every configuration times one batch in turn (alternating, so a slow moment of the
-shared machine hits all alike), as ms per simulated second = (ms/step) / dt. The front
-(:func:`deformgl.bench.trade.pareto_front`, error against cost) says which grid and integrator
-give a requested accuracy cheapest.
-"""
+released from rest under gravity, Rayleigh mass damping :data:`ALPHA`), for each resolution x
+integrator x dt (fractions of :func:`~deformgl.sim.materials.critical_dt`). The tip's error at
+T = :data:`SIM_TIME`, relative to the FEM static tip, kept apart as discretisation (the static
+lattice against converged FEM, or :data:`FEM_TIP` without scikit-fem), time stepping (float64 at
+dt against float64 RK4 at the RK4 limit / :data:`REFERENCE_DIVISOR`) and float32 (the fragment
+backend against NumPy); ``error`` is their sum. Cost: the fragment backend's ms per simulated
+second, the median of :data:`ROUNDS` alternating rounds. The front
+(:func:`deformgl.bench.trade.pareto_front`) says which grid and integrator is cheapest for an accuracy."""
 
 from __future__ import annotations
 
@@ -241,8 +228,8 @@ def resolution_study(ctx: moderngl.Context, *, quick: bool = False,
         across, integrators, fractions: override the defaults.
         progress: called with a line before each resolution.
     """
-    from deformgl.bench.accuracy import cpu_line
-    from deformgl.bench.studies import machine_line
+    from deformgl.bench.sim_speed import cpu_line
+    from deformgl.bench.sim_speed import machine_line
 
     across = tuple(across or (QUICK_ACROSS if quick else ACROSS))
     integrators = tuple(integrators or (QUICK_INTEGRATORS if quick else INTEGRATORS))

@@ -1,5 +1,5 @@
 """The files of ``deformgl bench trade --stiff --out DIR``: ``stiff.csv`` (every row of
-:func:`deformgl.bench.implicit.stiff_study`), ``stiff.json`` (the rows, the cases' headers and the
+:func:`deformgl.bench.trade_stiff.stiff_study`), ``stiff.json`` (the rows, the cases' headers and the
 machine) and ``stiff.png`` (the chart, the 'plot' extra), each written atomically
 (:mod:`deformgl.bench.report_files`, :func:`deformgl.bench.charts.save_png`)."""
 
@@ -12,11 +12,11 @@ import textwrap
 from collections.abc import Sequence
 
 from deformgl.bench import report_files
-from deformgl.bench.implicit import REL, VISUAL, StiffCase, StiffRow
+from deformgl.bench.trade_stiff import REL, VISUAL, StiffCase, StiffRow
 
 __all__ = ["FIELDS", "write_csv", "write_json", "write_chart"]
 
-#: The CSV's columns, the fields of :class:`~deformgl.bench.implicit.StiffRow` in order.
+#: The CSV's columns, the fields of :class:`~deformgl.bench.trade_stiff.StiffRow` in order.
 FIELDS = tuple(f.name for f in dataclasses.fields(StiffRow))
 
 

@@ -1,38 +1,17 @@
-"""``deformgl bench trade``: speed against accuracy of the five integrators on each backend.
+"""``deformgl bench trade``: speed against accuracy of the five integrators (Movania & Feng 2012,
+section 3; :mod:`deformgl.sim.integrators`) on each backend.
 
-The integrators are those of Movania & Feng 2012 (section 3: explicit Euler, semi-implicit
-Euler, midpoint, RK4, position Verlet; :mod:`deformgl.sim.integrators`). Method:
-
-* Two standard workloads (:func:`standard_workloads`): a damped 6x6x6 block, bottom layer
-  fixed, whose top corner is pulled by a :class:`~deformgl.sim.springs.Drag` along a smooth path
-  (3 spacings sideways, 1 up, cosine ramp over T); and a 16x16 cloth falling under gravity onto
-  a fixed sphere. Both have spring damping (top-mode damping ratio about 0.5) and global
-  damping, so forward Euler and midpoint have a stable dt too. They have at most 300 free
-  nodes, so :func:`~deformgl.sim.stability.dt_limit` uses the exact spectrum (a dense ``eigh``); on
-  these grids the cheap Gershgorin bound is about 2x below it, which would squeeze the whole dt
-  range. Small grids mean that GPU cost is mostly per-pass overhead on llvmpipe.
-* dt = f x limit for f in :data:`FRACTIONS` (0.1 ... 0.9), rounded down so that T/dt is an
-  integer. 1.0 is left out: the limit is that of the linearised system at rest and ignores the
-  drag spring, stretched springs and contacts; a run that blows up anyway is recorded as
-  diverged (non-finite, or a node more than :data:`DIVERGED_SPACINGS` spacings off).
-* Error: the node-position error at T = :data:`SIM_TIME` against a float64 RK4 reference at a
-  tiny step (the RK4 limit / ``reference_divisor``, then halved; the halved run is the
-  reference and the largest node difference of the two its estimated error), RMS and max over
-  the free nodes, in grid spacings. The sphere contact makes the cloth's motion non-smooth
-  (a node is projected out of the sphere after the step), so there every integrator, the
-  reference included, converges at first order only (RK4's four unconstrained stages make its
-  error ~4x Verlet's at equal dt): the cloth's reference needs limit / 512 (30000 steps) to
-  stay ~7x below the smallest error measured, while the smooth volume's is below 1e-10
-  spacings at limit / 50.
-* Cost: the median wall time of a separate batch of steps (after the measured run as warm-up,
-  ``ctx.finish()`` included; :func:`deformgl.bench.studies.timed`), as ms/step and as ms per simulated
-  second = (ms/step) / dt. The Pareto front (:func:`pareto_front`) is taken on RMS error
-  against ms per simulated second, per workload and backend.
-
-The grid resolution is the other knob: ``deformgl bench trade --resolution``
-(:mod:`deformgl.bench.resolution`) puts the FEM-checked cantilever at several grids x integrator x
-dt on the same kind of chart, with its error against finite elements (docs/ACCURACY.md).
-"""
+Workloads (:func:`standard_workloads`): a damped 6x6x6 block whose top corner a
+:class:`~deformgl.sim.springs.Drag` pulls along a smooth path, and a 16x16 cloth falling onto a
+fixed sphere; at most 300 free nodes, so :func:`~deformgl.sim.limits.dt_limit` uses the exact
+spectrum. dt = f x limit for f in :data:`FRACTIONS`, rounded so that T/dt is an integer; a run
+that goes non-finite or :data:`DIVERGED_SPACINGS` spacings off is "diverged". Error: node
+positions at T = :data:`SIM_TIME` against a float64 RK4 reference at a tiny step (the halved run's
+difference is its error estimate), RMS and max over the free nodes, in grid spacings; the
+sphere contact makes the cloth first order for every integrator, hence its finer reference.
+Cost: the median wall time of a separate batch of steps (``ctx.finish()`` included), as ms/step
+and ms per simulated second; the Pareto front (:func:`pareto_front`) is per workload and
+backend. The grid resolution is the other knob: ``--resolution`` (:mod:`deformgl.bench.resolution`)."""
 
 from __future__ import annotations
 
@@ -50,12 +29,12 @@ from typing import Any, TypeVar
 import moderngl
 import numpy as np
 
-from deformgl.bench.studies import machine_line, timed
+from deformgl.bench.sim_speed import machine_line, timed
 from deformgl.grid.nodes import NodeGrid
 from deformgl.bench import report_files
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere, initial_state, simulate
 from deformgl.sim.springs import Drag, SpringSystem, cloth, from_grid
-from deformgl.sim.stability import dt_limit
+from deformgl.sim.limits import dt_limit
 
 __all__ = ["BACKENDS", "FRACTIONS", "QUICK_FRACTIONS", "SIM_TIME", "DIVERGED_SPACINGS",
            "Workload", "Reference", "TradeRow", "TradeReport", "standard_workloads",

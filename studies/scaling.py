@@ -22,7 +22,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from deformgl.bench.studies import block_system, fragment_verlet, machine_line
+from deformgl.bench.sim_speed import block_system, fragment_verlet, machine_line
 from deformgl.errors import GLError
 from deformgl.bench.report_files import write_csv, write_json
 
@@ -344,3 +344,29 @@ def bench_scaling(ctx: moderngl.Context, *, sizes: Sequence[int | tuple[int, int
             sim.release()
     report.wall_s = time.perf_counter() - start
     return report
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.scaling [--quick] [--out DIR]``: the table, and with ``--out``
+    DIR/scaling.csv, .json and .png."""
+    from deformgl.files import OutputSet
+    from studies.common import chart, gl_context, parse, parser, progress
+
+    args = parse(parser("scaling", "ms/step from 4k to 1M nodes, the fitted exponent, bytes/node"), argv)
+    out = args.out
+    outputs = OutputSet([out / f"scaling.{ext}" for ext in ("csv", "json", "png")] if out else [])
+    with gl_context(args) as ctx:
+        scaling = bench_scaling(ctx, progress=progress(args), **({"sizes": QUICK_SIZES} if args.quick else {}))
+    print(scaling.format())
+    if out is not None:
+        with outputs:
+            scaling.write_csv(out / "scaling.csv")
+            scaling.write_json(out / "scaling.json")
+            chart(lambda: scaling.write_chart(out / "scaling.png"))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

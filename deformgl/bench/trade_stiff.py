@@ -1,38 +1,18 @@
-"""Implicit Euler and XPBD against the explicit integrators on stiff bodies: ``deformgl bench trade --stiff``.
+"""``deformgl bench trade --stiff``: implicit Euler and XPBD against the explicit integrators on
+stiff bodies.
 
-Workloads (:data:`CASES`): a tissue block (:data:`BLOCK`, a 0.1 m cube clamped at its base, sagging
-under gravity) of the calibrated lattice (:func:`~deformgl.sim.materials.lattice_system`) at E = 3 kPa
-and E = 1 MPa (rho = 1060 kg/m^3, Rayleigh mass damping alpha), at several resolutions (nodes across
-the cube; the same body at each). The target is the lattice's equilibrium under gravity: the linear
-static solve (:func:`~deformgl.bench.fem.static_displacement`) refined by the float64 implicit
-reference with a direct solve (:mod:`deformgl.sim.implicit`, run until no node moves 1e-6 h in a
-step) where the system has at most :data:`~deformgl.bench.fem.DIRECT_DOFS` free unknowns (above, the
-linear solve itself: at E = 1 MPa the two differ by < 1e-5 h at 5 to 17 across, the header lines
-say by how much). At E = 3 kPa the sag is a large strain and the nonlinear equilibrium differs from
-the linear solve. Each run is on the fragment backend, stepped in chunks of ``CHUNK`` s of simulated
-time; after each chunk the positions are read (not timed) and the largest node distance from the
-equilibrium compared with ``0.05 h`` ("visually converged", the issue's criterion) and with 5 % of the
-equilibrium's largest sag (``REL``: at E = 1 MPa the sag itself is below 0.05 h, so the body at rest
-already meets the first criterion; the second one asks for the sag). The error against FEM statics
-is the top face's mean sag (:func:`~deformgl.bench.fem.lattice_value`) at the end of the run against
-linear hexahedral FEM of the same cube (:func:`~deformgl.bench.fem.fem_reference`, the 'fem' extra;
-NaN without it): the lattice's discretisation error plus the run's.
-
-Rows: implicit Euler (:mod:`deformgl.sim.backends.implicit_gpu`) at dt = 1/60 ... 1/1000 s x CG
-iterations per step with the Jacobi preconditioner, and at 1/60 s with the multigrid V-cycle
-(:data:`MULTIGRID`, the ``preconditioner`` column; the verdicts name each preconditioner), XPBD (:mod:`deformgl.sim.backends.xpbd_gpu`) at dt = 1/60 s x iterations x
-substeps, and Verlet / semi-implicit Euler at 0.9 of their stability limit
-(:func:`~deformgl.sim.limits.dt_limit`); the finer grids (from :data:`FINE` across) run a smaller
-set (:data:`FINE_IMPLICIT`, :data:`FINE_XPBD`) for :data:`FINE_SIM_TIME`. Columns: wall seconds per
-simulated second (GPU time of the steps, ``ctx.finish()`` before the clock stops), the simulated time
-until the error stays at or below each criterion, the wall time to get there, the error at the end,
-the error against FEM, and for implicit Euler the numerical damping of the lowest mode:
-``|R|^(1/dt) = (1 + (w1 dt)^2)^(-1/(2 dt))`` per simulated second, the amplitude left after one
-second by an exactly solved undamped backward-Euler step (the explicit integrators at their limits
-keep it: |R| = 1 undamped; XPBD's is measured by ``python -m deformgl.bench.xpbd_study``, NaN here).
-The study has no converged dynamic (trajectory) reference: the rows' errors are against the
-equilibrium, and the damping column is what the stable methods lose of the motion.
-"""
+Workloads (:data:`CASES`): a 0.1 m tissue cube (:data:`BLOCK`) of the calibrated lattice, clamped
+at its base and sagging under gravity, at E = 3 kPa and 1 MPa and several resolutions. The
+target is the lattice's equilibrium (:func:`~deformgl.bench.fem.static_displacement`, refined by
+the float64 implicit reference where the system has at most
+:data:`~deformgl.bench.fem.DIRECT_DOFS` free unknowns). Each run steps the fragment backend in
+chunks of ``CHUNK`` s; after each chunk the largest node distance from the equilibrium is
+compared with 0.05 h (:data:`VISUAL`) and with 5 % of the largest sag (:data:`REL`). Rows:
+implicit Euler (Jacobi and multigrid CG), XPBD, and Verlet / semi-implicit Euler at 0.9 of their
+limit; columns: wall s per simulated s, time to each criterion, the error at the end and against
+FEM statics (:func:`~deformgl.bench.fem.fem_reference`, the 'fem' extra; NaN without it), and
+implicit Euler's damping of the lowest mode, ``(1 + (w1 dt)^2)^(-1/(2 dt))`` per simulated second.
+A scene in 60 Hz frames, implicit against explicit, is ``python -m studies.realtime``."""
 
 from __future__ import annotations
 
@@ -54,7 +34,6 @@ from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["BLOCK", "CASES", "block_material", "block_system", "StiffCase", "StiffRow", "stiff_cases", "stiff_study", "stiff_row", "format_stiff", "lowest_frequency",
-           "PreconditionerRow", "preconditioner_bodies", "preconditioner_iterations", "format_preconditioners",
            "fem_sag"]
 
 CHUNK = 1.0 / 60.0
@@ -350,130 +329,3 @@ def verdicts(rows: list[StiffRow]) -> list[str]:
                     lines.append(f"{case} ({label}): {name} converged: {best is not None}, "
                                  f"explicit converged: {exp is not None}")
     return lines
-
-
-@dataclass(frozen=True)
-class PreconditionerRow:
-    """CG iterations to a relative tolerance, per preconditioner, on one case at one dt."""
-
-    case: str
-    dt: float
-    tolerance: float
-    first: dict[str, int]     # the first step's solve from dv = 0
-    warm: dict[str, float]    # mean per step over QUICK_SIM_TIME of warm-started steps
-
-
-def preconditioner_bodies(cases: list[StiffCase], quick: bool = False) -> list[tuple[str, SpringSystem]]:
-    """The study's blocks up to :data:`FINE` across and the FEM-checked cantilever (E = 1e8 Pa,
-    3 or 5 nodes across)."""
-    from deformgl.bench.fem import MATERIAL, WORKLOADS
-
-    across = 3 if quick else 5
-    beam = lattice_case(WORKLOADS["cantilever"], across, MATERIAL).system
-    return ([(c.name, c.system) for c in cases if c.across <= FINE]
-            + [(f"cantilever E=1e8 Pa, {across} across", beam)])
-
-
-def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,
-                              dts: tuple[float, ...] = (1 / 60, 1 / 1000),
-                              tolerance: float = 1e-4) -> list[PreconditionerRow]:
-    """Jacobi, block-Jacobi and multigrid (:data:`~deformgl.sim.implicit.PRECONDITIONERS`) on (name,
-    system) bodies: CG iterations to ``tolerance`` (the float64 reference, the GPU's iteration)
-    on the first step from rest and averaged over the warm-started steps of
-    :data:`QUICK_SIM_TIME` s."""
-    from deformgl.sim.implicit import PRECONDITIONERS
-
-    rows = []
-    for name, system in bodies:
-        for dt in dts:
-            first: dict[str, int] = {}
-            warm: dict[str, float] = {}
-            for kind in PRECONDITIONERS:
-                sim = ImplicitNumpySimulation(system, dt, cg_iterations=5000, cg_tolerance=tolerance,
-                                              cg_check_every=1, cg_preconditioner=kind)
-                steps = max(1, round(QUICK_SIM_TIME / dt))
-                counts = []
-                for _ in range(steps):
-                    sim.step()
-                    counts.append(sim.last_report.iterations)
-                first[kind], warm[kind] = counts[0], float(np.mean(counts[1:] if steps > 1 else counts))
-            rows.append(PreconditionerRow(name, dt, tolerance, first, warm))
-    return rows
-
-
-def format_preconditioners(rows: list[PreconditionerRow]) -> str:
-    kinds = {"jacobi": "J", "block-jacobi": "BJ", "multigrid": "MG"}
-    lines = ["CG iterations to a true relative residual, Jacobi vs block-Jacobi vs multigrid (float64 reference): "
-             f"first step from dv = 0, and the mean over {QUICK_SIM_TIME:g} s of warm-started steps",
-             f"{'case':<32} {'dt s':>8} {'tol':>6} "
-             + " ".join(f"{'first ' + k:>8}" for k in kinds.values()) + " "
-             + " ".join(f"{'warm ' + k:>8}" for k in kinds.values())]
-    for r in rows:
-        lines.append(f"{r.case:<32} {r.dt:>8.3g} {r.tolerance:>6.0e} "
-                     + " ".join(f"{r.first[k]:>8}" for k in kinds) + " "
-                     + " ".join(f"{r.warm[k]:>8.3g}" for k in kinds))
-    return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class RealtimeRow:
-    """One integrator on a scene: frames of 1/60 s of simulated time per wall second."""
-
-    integrator: str
-    dt: float
-    steps_per_frame: int
-    iterations: int
-    fps: float
-    residual: float | None   # implicit: the last step's relative CG residual
-
-
-def realtime(ctx, scene: str = "dragon_heart_scale.toml", *, frames: int = 10,
-             iterations: tuple[int, ...] = (10, 20), progress: Callable[[str], None] | None = None
-             ) -> tuple[list[RealtimeRow], float, int]:
-    """Implicit Euler at dt = 1/60 s (one step per 60 Hz frame) against the scene's explicit
-    integrator at its dt, on the fragment backend, ``frames`` frames each (GPU time of the steps,
-    after one untimed step). Returns the rows, the largest node distance in grid spacings between
-    the implicit (most iterations) and explicit positions after the frames, and the node count."""
-    from deformgl.data import scene_file
-    from deformgl.scene.pipeline import build_scene_model
-    from deformgl.scene.schema import load_scene
-
-    spec = load_scene(scene_file(scene))
-    model = build_scene_model(spec)
-    physics = spec.physics
-    rows: list[RealtimeRow] = []
-    ends: dict[str, np.ndarray] = {}
-
-    def timed(name: str, dt: float, per_frame: int, its: int) -> None:
-        options = {"cg_iterations": its} if name == "implicit-euler" else {}
-        if progress:
-            progress(f"{spec.source.name}: {name} dt {dt:.3g} s x {per_frame} steps per frame"
-                     + (f", {its} CG iterations" if its else ""))
-        with make_simulation(model.system, name, "fragment", dt=dt, ctx=ctx, loads=model.loads, **options) as sim:
-            sim.step(1)
-            ctx.finish()
-            start = time.perf_counter()
-            sim.step(frames * per_frame - 1)
-            ctx.finish()
-            wall = time.perf_counter() - start
-            residual = sim.residual() if name == "implicit-euler" else None  # type: ignore[attr-defined]
-            ends[name] = sim.positions().astype(np.float64)
-        rows.append(RealtimeRow(name, dt, per_frame, its, (frames - 1 / per_frame) / wall, residual))
-
-    for its in iterations:
-        timed("implicit-euler", CHUNK, 1, its)
-    timed(physics.integrator, physics.dt, max(1, round(CHUNK / physics.dt)), 0)
-    gap = float(np.max(np.linalg.norm(ends["implicit-euler"] - ends[physics.integrator], axis=1))) / model.grid.spacing
-    return rows, gap, model.system.count
-
-
-def format_realtime(rows: list[RealtimeRow], gap: float, nodes: int, scene: str, machine: str = "") -> str:
-    lines = [f"Real time on {scene} ({nodes} nodes, fragment backend){'; ' + machine if machine else ''}: "
-             "frames of 1/60 s simulated per wall second",
-             f"{'integrator':<15} {'dt s':>9} {'steps/frame':>11} {'CG it':>5} {'fps':>8} {'CG residual':>11}"]
-    for r in rows:
-        res = "-" if r.residual is None else f"{r.residual:.2g}"
-        its = str(r.iterations) if r.iterations else "-"
-        lines.append(f"{r.integrator:<15} {r.dt:>9.3g} {r.steps_per_frame:>11} {its:>5} {r.fps:>8.3g} {res:>11}")
-    lines.append(f"largest node distance implicit vs explicit after the frames: {gap:.3g} h")
-    return "\n".join(lines)

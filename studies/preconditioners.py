@@ -1,17 +1,17 @@
-"""``python -m deformgl.bench.multigrid``: the implicit step's multigrid against Jacobi and
+"""``python -m studies.preconditioners``: the implicit step's multigrid against Jacobi and
 block-Jacobi (issue 29).
 
 Three measurements, each printed with the machine line:
 
 1. **Iterations** (:func:`iteration_rows`): CG iterations to a true relative residual of 1e-4 on
-   the first step (dt = 1/60 s, from rest) of the stiff block (:data:`~deformgl.bench.implicit.BLOCK`
+   the first step (dt = 1/60 s, from rest) of the stiff block (:data:`~deformgl.bench.trade_stiff.BLOCK`
    at E = 1 MPa) at 9, 17, 33 and 65 nodes across, at nu = 1/4 and 0.45, and of the heart scene's
    body (scenes/dragon_heart_scale.toml: the res3 dragon filled with the heart preset, fixed at its
    base) at 17, 33 and 65 along, per preconditioner (float64, :mod:`deformgl.sim.implicit`). The
    multigrid's set-up (its Galerkin levels) is timed apart.
 2. **The stiff block against explicit** (:func:`stiff_rows`): the block at 33 across (and 17),
    wall time per simulated second on the fragment backend until every node stays within 5 % of
-   the equilibrium's largest sag (:func:`deformgl.bench.implicit.stiff_row`): Verlet and
+   the equilibrium's largest sag (:func:`deformgl.bench.trade_stiff.stiff_row`): Verlet and
    semi-implicit Euler at 0.9 of their limits, implicit Euler at dt = 1/60 s with a fixed number
    of CG iterations a step per preconditioner; the verdict is the cheapest converged row of each
    preconditioner against the cheapest explicit one.
@@ -28,27 +28,21 @@ import argparse
 import statistics
 import time
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from deformgl.bench.implicit import REL, block_system, stiff_cases, stiff_row
+from deformgl.bench.sim_blocks import scene_path
+from deformgl.bench.trade_stiff import FINE, QUICK_SIM_TIME, REL, StiffCase, block_system, stiff_cases, stiff_row
 from deformgl.errors import DeformglError
-from deformgl.sim.implicit import PRECONDITIONERS, assemble, multigrid_levels, pcg, preconditioner
+from deformgl.sim.implicit import PRECONDITIONERS, ImplicitNumpySimulation, assemble, multigrid_levels, pcg, preconditioner
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.limits import dt_limit
 from deformgl.sim.springs import SpringSystem
-
-if TYPE_CHECKING:
-    from deformgl.render.camera import View
-    from deformgl.render.mapped_setup import MappedVertices
-    from deformgl.render.passes import Lighting
-    from deformgl.scene.pipeline import SceneModel
-    from deformgl.scene.spec import Scene
+from studies.heart_frame import heart_frame_setup
 
 __all__ = ["IterationRow", "iteration_rows", "format_iterations", "stiff_rows", "format_stiff_rows",
-           "heart_frames", "format_frames", "heart_body", "HeartFrame", "heart_frame_setup"]
+           "heart_frames", "format_frames", "heart_body", "PreconditionerRow", "preconditioner_bodies",
+           "preconditioner_iterations", "format_preconditioners"]
 
 FRAME_DT = 1.0 / 60.0
 TOLERANCE = 1e-4
@@ -63,19 +57,13 @@ class IterationRow:
     setup_s: float   # the multigrid's levels (prolongations and Galerkin products)
 
 
-def _scene_path() -> Path:
-    from deformgl.data import find_scene
-
-    return Path(find_scene("dragon_heart_scale.toml"))
-
-
 def heart_body(along: int) -> SpringSystem:
     """The heart scene's body at ``along`` nodes along its longest side (its fixed base, the
     scene's gravity; its pull is a load of the run, not of the body)."""
     from deformgl.scene.pipeline import build_scene_model
     from deformgl.scene.schema import load_scene
 
-    return build_scene_model(load_scene(_scene_path(), {"grid.nodes_along_longest": along})).system
+    return build_scene_model(load_scene(scene_path(), {"grid.nodes_along_longest": along})).system
 
 
 def _count(system: SpringSystem) -> tuple[dict[str, int], float]:
@@ -125,7 +113,7 @@ def format_iterations(rows: list[IterationRow]) -> str:
 
 def stiff_rows(ctx, across=(17, 33), sim_time: float = 0.5,
                iterations: dict[str, tuple[int, ...]] | None = None) -> list[tuple[str, object]]:
-    """(label, :class:`~deformgl.bench.implicit.StiffRow`) of the stiff block at each resolution."""
+    """(label, :class:`~deformgl.bench.trade_stiff.StiffRow`) of the stiff block at each resolution."""
     iterations = iterations or {"jacobi": (10, 30), "block-jacobi": (10, 30), "multigrid": (1, 2, 3, 5)}
     out: list[tuple[str, object]] = []
     for case in stiff_cases(cases=tuple((1.0e6, n) for n in across)):
@@ -162,44 +150,6 @@ def format_stiff_rows(rows: list[tuple[str, object]]) -> str:
             else:
                 lines.append(f"{case}: implicit {kind}: no row reached {REL:g} of the sag")
     return "\n".join(lines)
-
-
-@dataclass(frozen=True)
-class HeartFrame:
-    """What a heart frame draws, built once (CPU): the scene and its model, the curvature-corrected
-    mapping's vertex data, the front faces to cull, the view and the lights."""
-
-    scene: Scene
-    built: SceneModel
-    data: MappedVertices
-    front: str | None
-    view: View
-    lighting: Lighting
-
-    def mapped_pass(self, ctx, layout):
-        """The mesh's draw pass (the mapping pass ``deformgl render`` uses) over node ``layout``."""
-        from deformgl.render.mapped import MappedMeshPass
-        from deformgl.scene.pipeline import RENDER_MAPPING_PASS
-
-        return MappedMeshPass(ctx, self.built.grid, layout, self.built.mesh.faces, self.data, front_face=self.front,
-                              mapping_pass=RENDER_MAPPING_PASS)
-
-
-def heart_frame_setup() -> HeartFrame:
-    """The heart scene's :class:`HeartFrame` (its binding from the cache)."""
-    from deformgl.grid.surface import grid_surface
-    from deformgl.render.mapped import closed_front_face
-    from deformgl.render.mapped_setup import get_binding, mapped_vertices
-    from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
-    from deformgl.scene.schema import load_scene
-    from deformgl.sim.normals import rest_normals
-
-    scene = load_scene(_scene_path())
-    built = build_scene_model(scene)
-    binding = get_binding(built.mesh, built.grid, grid_surface(built.grid), use_cache=True, uv=None)
-    data = mapped_vertices(binding, "curvature", built.grid.rest_positions, rest_normals(built.grid))
-    return HeartFrame(scene, built, data, closed_front_face(built.mesh.vertices, built.mesh.faces),
-                      scene_view(scene, built.bbox), scene_lighting(scene))
 
 
 def heart_frames(ctx, rounds: int = 7, kinds=PRECONDITIONERS) -> dict[str, tuple[list[float], float]]:
@@ -247,12 +197,75 @@ def format_frames(frames: dict[str, tuple[list[float], float]]) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class PreconditionerRow:
+    """CG iterations to a relative tolerance, per preconditioner, on one case at one dt."""
+
+    case: str
+    dt: float
+    tolerance: float
+    first: dict[str, int]     # the first step's solve from dv = 0
+    warm: dict[str, float]    # mean per step over QUICK_SIM_TIME (deformgl.bench.trade_stiff) of warm-started steps
+
+
+def preconditioner_bodies(cases: list[StiffCase], quick: bool = False) -> list[tuple[str, SpringSystem]]:
+    """The study's blocks up to :data:`FINE` across and the FEM-checked cantilever (E = 1e8 Pa,
+    3 or 5 nodes across)."""
+    from deformgl.bench.fem import MATERIAL, WORKLOADS, lattice_case
+
+    across = 3 if quick else 5
+    beam = lattice_case(WORKLOADS["cantilever"], across, MATERIAL).system
+    return ([(c.name, c.system) for c in cases if c.across <= FINE]
+            + [(f"cantilever E=1e8 Pa, {across} across", beam)])
+
+
+def preconditioner_iterations(bodies: list[tuple[str, SpringSystem]], *,
+                              dts: tuple[float, ...] = (1 / 60, 1 / 1000),
+                              tolerance: float = 1e-4) -> list[PreconditionerRow]:
+    """Jacobi, block-Jacobi and multigrid (:data:`~deformgl.sim.implicit.PRECONDITIONERS`) on (name,
+    system) bodies: CG iterations to ``tolerance`` (the float64 reference, the GPU's iteration)
+    on the first step from rest and averaged over the warm-started steps of
+    :data:`QUICK_SIM_TIME` s."""
+    rows = []
+    for name, system in bodies:
+        for dt in dts:
+            first: dict[str, int] = {}
+            warm: dict[str, float] = {}
+            for kind in PRECONDITIONERS:
+                sim = ImplicitNumpySimulation(system, dt, cg_iterations=5000, cg_tolerance=tolerance,
+                                              cg_check_every=1, cg_preconditioner=kind)
+                steps = max(1, round(QUICK_SIM_TIME / dt))
+                counts = []
+                for _ in range(steps):
+                    sim.step()
+                    counts.append(sim.last_report.iterations)
+                first[kind], warm[kind] = counts[0], float(np.mean(counts[1:] if steps > 1 else counts))
+            rows.append(PreconditionerRow(name, dt, tolerance, first, warm))
+    return rows
+
+
+def format_preconditioners(rows: list[PreconditionerRow]) -> str:
+    kinds = {"jacobi": "J", "block-jacobi": "BJ", "multigrid": "MG"}
+    lines = ["CG iterations to a true relative residual, Jacobi vs block-Jacobi vs multigrid (float64 reference): "
+             f"first step from dv = 0, and the mean over {QUICK_SIM_TIME:g} s of warm-started steps",
+             f"{'case':<32} {'dt s':>8} {'tol':>6} "
+             + " ".join(f"{'first ' + k:>8}" for k in kinds.values()) + " "
+             + " ".join(f"{'warm ' + k:>8}" for k in kinds.values())]
+    for r in rows:
+        lines.append(f"{r.case:<32} {r.dt:>8.3g} {r.tolerance:>6.0e} "
+                     + " ".join(f"{r.first[k]:>8}" for k in kinds) + " "
+                     + " ".join(f"{r.warm[k]:>8.3g}" for k in kinds))
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.multigrid", description=__doc__.splitlines()[0])
-    parser.add_argument("--only", choices=["iterations", "stiff", "heart"], default=None)
+    parser = argparse.ArgumentParser(prog="python -m studies.preconditioners", description=__doc__.splitlines()[0])
+    parser.add_argument("--only", choices=["iterations", "stiff", "heart", "trade"], default=None,
+                        help="one table: trade is the CG iterations on the blocks of `deformgl bench trade --stiff` "
+                             "and the FEM-checked cantilever")
     parser.add_argument("--quick", action="store_true", help="smaller sizes (the tests')")
     args = parser.parse_args(argv)
-    from deformgl.bench.studies import machine_line
+    from deformgl.bench.sim_speed import machine_line
     from deformgl.gl.context import create_context
 
     ctx = create_context()
@@ -265,6 +278,9 @@ def main(argv: list[str] | None = None) -> int:
                                            0.25 if args.quick else 0.5)), flush=True)
     if args.only in (None, "heart"):
         print(format_frames(heart_frames(ctx, 2 if args.quick else 7)), flush=True)
+    if args.only in (None, "trade"):
+        print(format_preconditioners(preconditioner_iterations(preconditioner_bodies(stiff_cases(args.quick),
+                                                                                     args.quick))), flush=True)
     return 0
 
 

@@ -37,7 +37,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from deformgl.bench.studies import timed
+from deformgl.bench.sim_speed import timed
 from deformgl.data import packaged_scene
 from deformgl.sim.normals import rest_normals
 from deformgl.mapping.closest import closest_on_triangles
@@ -384,3 +384,36 @@ def write_chart(path: str | os.PathLike[str], rows: list[MappingRow], machine: s
     fig.suptitle(f"mapping error against draw cost; {machine}", fontsize=8)
     fig.tight_layout()
     save_png(fig, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.mapping_accuracy [--scene FILE] [--out DIR]``: the table, and with
+    ``--out`` DIR/mappings.csv, .json and .png."""
+    from deformgl.bench.sim_speed import machine_line
+    from deformgl.data import scene_file
+    from deformgl.files import OutputSet
+    from studies.common import chart, gl_context, parse, parser
+
+    p = parser("mapping_accuracy", "each mapping's error against an analytic bend and twist, and its draw time")
+    p.add_argument("--scene", type=Path, default=None,
+                   help="the scene whose mesh, camera and light are used (default: the shipped dragon_bend_constant.toml)")
+    args = parse(p, argv)
+    scene = scene_file(args.scene, "--scene") if args.scene else DEFAULT_SCENE
+    out = args.out
+    outputs = OutputSet([out / f"mappings.{ext}" for ext in ("csv", "json", "png")] if out else [])
+    with gl_context(args) as ctx:
+        rows = mapping_accuracy(ctx, scene_path=scene)
+        machine = machine_line(ctx)
+    print(format_mapping_accuracy(rows, machine))
+    if out is not None:
+        with outputs:
+            write_csv(out / "mappings.csv", rows)
+            write_json(out / "mappings.json", rows, machine)
+            chart(lambda: write_chart(out / "mappings.png", rows, machine))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

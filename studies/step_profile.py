@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import moderngl
 
-from deformgl.bench.studies import block_system, fragment_verlet, machine_line, stable_dt, timed
+from deformgl.bench.sim_speed import block_system, fragment_verlet, machine_line, stable_dt, timed
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
@@ -196,3 +196,20 @@ def profile_report(ctx: moderngl.Context) -> str:
     weight texture against its levels code."""
     return "\n".join([format_profile(profile_step(ctx), machine_line(ctx)),
                       *format_lattice_weights(lattice_weights(ctx))])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.step_profile``: the step pass rebuilt stage by stage."""
+    from studies.common import gl_context, parse, parser
+
+    args = parse(parser("step_profile", "the step pass rebuilt stage by stage (own texels, neighbour lookup, "
+                                         "18 neighbour fetches, spring sums), what each costs"), argv)
+    with gl_context(args) as ctx:
+        print(profile_report(ctx))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

@@ -71,3 +71,22 @@ def bench_binding(repeats: int = 3, *, mesh_path: str | os.PathLike[str] | None 
     return (f"bind {source.name} to {n:,} nodes ({len(surface.nodes):,} on the surface, "
             f"{len(surface.triangles):,} triangles), median of {repeats}, {os.cpu_count()} CPUs: "
             + ", ".join(parts))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.binding_speed [--quick]``: binding time of the shipped meshes."""
+    from deformgl.bench.sim_speed import machine_line
+    from studies.common import gl_context, parse, parser
+
+    args = parse(parser("binding_speed", "binding time of 23k- and 50k-vertex meshes to a 20k-node grid "
+                                          "(--quick: one timing per case instead of three)"), argv)
+    with gl_context(args) as ctx:
+        print(machine_line(ctx))
+    print(bench_binding(repeats=1 if args.quick else 3))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

@@ -1,13 +1,7 @@
 """``deformgl bench trade --workers N`` (or ``--scheduler ADDRESS``): the trade study's workloads
-as Dask tasks, one per workload (each runs every backend, integrator and dt of its workload in a
-worker with its own EGL context, its float64 reference included), gathered into one
-:class:`~deformgl.bench.trade.TradeReport` in the order of the in-process study.
-
-The errors are those of the in-process study (the same runs); the costs are measured with the
-workloads running at the same time, so on one machine they share its cores: the study's cost
-columns are comparable within a run, not with an in-process run. Use one worker per machine or
-GPU (a cluster's workers) for costs that mean the same as the in-process ones.
-"""
+as Dask tasks, one per workload, each in a worker with its own EGL context, gathered into one
+:class:`~deformgl.bench.trade.TradeReport` in the in-process order. The errors are the in-process
+study's; the costs, measured with the workloads running together, compare within a run only."""
 
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ correction, about w C / (1/(k dt^2)) = 2e-9 m, is below float32's resolution of 
 0.1 m (1.5e-8 m), so the tip wanders in a limit cycle of +-0.4 mm and the stop (rightly) never
 calls it converged; its row is also measured on the float64 NumPy backend, which settles.
 
-``python -m deformgl.bench.convergence [--quick]`` prints the table (``--quick``: dt 1e-4 s,
+``python -m studies.convergence [--quick]`` prints the table (``--quick``: dt 1e-4 s,
 three integrators; the full table takes about 10 minutes on 2 cores with llvmpipe).
 """
 
@@ -30,7 +30,7 @@ import moderngl
 import numpy as np
 
 from deformgl.scene.body import Body, below
-from deformgl.scene.stepping import run
+from deformgl import run
 from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.materials import ElasticMaterial
 
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="dt 1e-4 s, three integrators")
     args = parser.parse_args(argv)
-    from deformgl.bench.studies import machine_line
+    from deformgl.bench.sim_speed import machine_line
     from deformgl.gl.context import create_context
 
     ctx = create_context()

@@ -1,7 +1,7 @@
-"""``python -m deformgl.bench.plan_rates``: the renderer's price of a pass, a texel fetch, a
+"""``python -m studies.plan_rates``: the renderer's price of a pass, a texel fetch, a
 reduction and a scalar read (:class:`deformgl.plan.cost.Rates`), fitted to timed steps.
 
-Steps of the stiff block (:data:`~deformgl.bench.implicit.BLOCK`, E = 1 MPa, nu = 1/4, and one
+Steps of the stiff block (:data:`~deformgl.bench.trade_stiff.BLOCK`, E = 1 MPa, nu = 1/4, and one
 at nu = 0.45 for the cells' term) at several resolutions on the fragment backend: Verlet and
 semi-implicit Euler, implicit Euler with Jacobi CG (10 and 30 iterations) and multigrid CG (3
 and 8) at fixed iteration counts. All simulations are built first; each round times every
@@ -70,9 +70,9 @@ def configs(across: tuple[int, ...] = (9, 17, 33)) -> list[Config]:
 
 def measure(ctx, cases: list[Config], rounds: int = 5) -> list[list[float]]:
     """Seconds per step of each configuration in each round (the configurations alternate)."""
-    from deformgl.bench.implicit import block_system
+    from deformgl.bench.trade_stiff import block_system
     from deformgl.sim.limits import dt_limit
-    from deformgl.sim.simulation import make_simulation
+    from deformgl import make_simulation
 
     sims = []
     try:
@@ -148,11 +148,11 @@ def format_rates(cases: list[Config], times: list[list[float]], rates: Rates) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.plan_rates", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m studies.plan_rates", description=__doc__.split("\n\n")[0])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--quick", action="store_true", help="5 and 9 across, 2 rounds (a smoke run)")
     args = parser.parse_args(argv)
-    from deformgl.bench.studies import machine_line
+    from deformgl.bench.sim_speed import machine_line
     from deformgl.gl.context import create_context
 
     ctx = create_context()

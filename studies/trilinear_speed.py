@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import moderngl
 
-from deformgl.bench.studies import machine_line
+from deformgl.bench.sim_speed import machine_line
 from deformgl.render.camera import View
 from deformgl.render.passes import RenderTarget
 from deformgl.trilinear.renderer import TrilinearRenderer, shader_defines
@@ -211,3 +211,19 @@ def trilinear_bench_report(ctx: moderngl.Context, *, size: tuple[int, int] = (51
         progress("depth 1 vs 8")
     depth_rows = bench_depth(ctx, size=size, repeats=repeats)
     return format_trilinear(rows, depth_rows, machine_line(ctx), size=size, repeats=repeats)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.trilinear_speed``: linear vs trilinear frames/s of the paper's set-ups."""
+    from studies.common import gl_context, parse, parser
+
+    args = parse(parser("trilinear_speed", "linear vs trilinear frames/s for the paper's three set-ups"), argv)
+    with gl_context(args) as ctx:
+        print(trilinear_bench_report(ctx))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

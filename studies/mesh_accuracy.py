@@ -1,5 +1,5 @@
 """The lattice on a real mesh against finite elements of the mesh itself:
-``python -m deformgl.bench.mesh_accuracy`` (the 'fem' extra: scikit-fem, PyAMG, tetgen, pymeshfix,
+``python -m studies.mesh_accuracy`` (the 'fem' extra: scikit-fem, PyAMG, tetgen, pymeshfix,
 manifold3d; tetgen and pymeshfix wrap AGPL code, TetGen and MeshFix, which is why they stay in
 an optional extra).
 
@@ -262,7 +262,7 @@ def lattice_sag(mesh: trimesh.Trimesh, nodes_along: int) -> MeshSag:
     return MeshSag(mean, largest, top, grid.count, mass_ratio, time.perf_counter() - start)
 
 
-#: The FEM references (``python -m deformgl.bench.mesh_accuracy`` prints them): mean, largest
+#: The FEM references (``python -m studies.mesh_accuracy`` prints them): mean, largest
 #: and topmost vertex's sag in m of each mesh at its finer level (the dragon: 115,807 tetrahedra;
 #: the coarse level's 25,206 are within 0.32 %, 0.51 % and 0.48 % of it; the finned bar: 10,858
 #: tetrahedra, the mean and largest within 0.34 % of 4,292's, 2026-12-05).
@@ -282,7 +282,7 @@ LATTICE_FIGURES: dict[str, dict[int, tuple[float, float, float, float]]] = {
 
 def main(argv: list[str] | None = None) -> int:
     """Print the FEM's refinement study and the lattice's table for each mesh."""
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.mesh_accuracy",
+    parser = argparse.ArgumentParser(prog="python -m studies.mesh_accuracy",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", choices=sorted(MESHES), action="append", help="the meshes (default: all)")
     parser.add_argument("--nodes", default="12,16,24,32", help="nodes along the longest side, comma separated")

@@ -5,7 +5,7 @@ fragment backend with its three ways to bend: the flexion springs of Movania & F
 (``flexion_ratio`` 0.1, the baseline: the paper's cloth), the plate term (``bending_stiffness``,
 :mod:`deformgl.sim.bending`) and none (a membrane), for semi-implicit Euler (the integrator pass)
 and implicit Euler (20 CG iterations a step). Rounds alternate the variants in one process, as
-:mod:`deformgl.bench.cells_cost`; each round's ms per step and ratio to that round's baseline are
+:mod:`studies.cells_cost`; each round's ms per step and ratio to that round's baseline are
 kept, and the table prints the median ratio with its spread.
 """
 
@@ -16,10 +16,10 @@ from collections.abc import Sequence
 import moderngl
 import numpy as np
 
-from deformgl.bench.cells_cost import CostRow, cost_rows
+from studies.cells_cost import CostRow, cost_rows
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import SheetMaterial, sheet_system
-from deformgl.sim.simulation import make_simulation
+from deformgl import make_simulation
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 
 __all__ = ["SHEETS", "bench_bending", "format_bending"]
@@ -65,3 +65,23 @@ def format_bending(rows: list[CostRow], machine: str, rounds: int = 7) -> str:
         lines.append(f"  {r.grid:>9} {r.nodes:>7} {r.integrator:>14} {r.variant:>15} | {r.ms:>8.3f} | "
                      f"{r.ratio[0]:>6.2f} ({r.ratio[1]:.2f} to {r.ratio[2]:.2f})")
     return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.bending_cost [--steps N]``."""
+    from deformgl.bench.sim_speed import machine_line
+    from studies.common import gl_context, parse, parser
+
+    p = parser("bending_cost", "the cost per step of a cloth's bending stiffness (the plate term) against "
+                               "flexion springs and a membrane on the fragment backend")
+    p.add_argument("--steps", type=int, default=40, help="steps per timing (default 40)")
+    args = parse(p, argv)
+    with gl_context(args) as ctx:
+        print(format_bending(bench_bending(ctx, steps=args.steps), machine_line(ctx)))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

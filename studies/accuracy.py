@@ -17,7 +17,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import platform
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -30,10 +29,11 @@ from deformgl.bench import report_files
 from deformgl.bench.fem import (MATERIAL, WORKLOADS, FemResult, Workload, beam_theory, fem_reference,
                                 lattice_case, lattice_value, observed_order, require_skfem,
                                 twist_theory)
+from deformgl.bench.sim_speed import cpu_line
 from deformgl.sim.materials import MIN_POISSON
 
 __all__ = ["FEM_MESHES", "QUICK_ACROSS", "QUICK_FEM_MESHES", "POISSON", "AccuracyRow",
-           "PoissonRow", "AccuracyReport", "fitted_order", "accuracy_study", "cpu_line"]
+           "PoissonRow", "AccuracyReport", "fitted_order", "accuracy_study"]
 
 #: FEM meshes (ElementHex2 elements across the thickness) of the full study, per workload.
 FEM_MESHES = {"cantilever": (1, 2, 4), "block": (2, 4, 8), "twist": (1, 2, 4)}
@@ -42,18 +42,6 @@ QUICK_ACROSS = (2, 3, 5, 9)
 #: Poisson's ratios of the second table (FEM and lattice alike; below 1/4 the lattice stays at 1/4).
 POISSON = (0.0, 0.3, 0.4, 0.45, 0.49)
 QUICK_POISSON = (0.45,)
-
-
-def cpu_line() -> str:
-    """One line naming the CPU and core count (no GL: the study runs on the CPU)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            names = [ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")]
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return f"machine: {cpu}, {os.cpu_count()} cores"
 
 
 @dataclass(frozen=True)
@@ -224,21 +212,26 @@ def accuracy_study(*, quick: bool = False, workloads: Sequence[str] = tuple(WORK
     return AccuracyReport(rows, fem, refs, poisson_rows, cpu_line(), date)
 
 
-def run_cli(args: Any) -> int:
-    """``deformgl bench accuracy [--quick] [--quiet] [--out DIR]``: the tables, and with
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.accuracy [--quick] [--quiet] [--out DIR]``: the tables, and with
     ``--out`` DIR/accuracy.csv and accuracy.json, written together or not at all."""
-    import sys
-
     from deformgl.files import OutputSet
+    from studies.common import parse, parser, progress
 
+    args = parse(parser("accuracy", "the calibrated lattice's static equilibrium against converged hexahedral FEM"), argv)
     require_skfem()
     out = args.out
     outputs = OutputSet([out / f"accuracy.{ext}" for ext in ("csv", "json")] if out else [])
-    note = None if args.quiet else (lambda line: print(f"[bench] {line} ...", file=sys.stderr, flush=True))
-    report = accuracy_study(quick=args.quick, progress=note)
+    report = accuracy_study(quick=args.quick, progress=progress(args))
     print(report.format())
     if out is not None:
         with outputs:
             report.write_csv(out / "accuracy.csv")
             report.write_json(out / "accuracy.json")
     return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

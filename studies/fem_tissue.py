@@ -26,7 +26,7 @@ checked against. Boxes in metres, x the beam axis, y up (gravity -y), clamped fa
   theta(0) = 0, theta'(L) = 0 (theta the downward slope angle, s the arc length, I = w^4/12),
   with x' = cos theta, y' = -sin theta; solved by
   ``scipy.integrate.solve_bvp`` with continuation in the load. Returns the tip's (u_x, u_y).
-* :func:`deformgl.bench.fem_nonlinear.neo_hookean_cantilever_tip`: the same cantilever,
+* :func:`studies.fem_nonlinear.neo_hookean_cantilever_tip`: the same cantilever,
   compressible neo-Hookean, large deflection (its module says how).
 
 Verified (``tests/test_fem_tissue.py``): the mixed cantilever at nu = 1/4 equals
@@ -37,7 +37,7 @@ strain p/E to round-off; the elastica matches q L^4/(8 EI) at small load and an 
 shooting solution (``solve_ivp`` + root finding) to 1e-6 at large load; the neo-Hookean tip
 equals the linear FEM at a tiny load and is within 1 % (sag) of the elastica at E = 500 kPa.
 
-``python -m deformgl.bench.fem_tissue`` prints the reference tables with each solve's wall time.
+``python -m studies.fem_tissue`` prints the reference tables with each solve's wall time.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from deformgl.bench.fem import require_skfem
-from deformgl.bench.fem_nonlinear import cantilever_coordinates, lame, neo_hookean_cantilever_tip, sparse_solve
+from studies.fem_nonlinear import cantilever_coordinates, lame, neo_hookean_cantilever_tip, sparse_solve
 
 __all__ = ["mixed_cantilever_sag", "mixed_cantilever_study", "Study", "ColumnStrains",
            "column_strain_ratio", "column_study", "elastica_tip", "richardson", "sag_scale", "timoshenko_sag", "main"]

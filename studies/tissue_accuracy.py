@@ -1,5 +1,5 @@
 """The soft-tissue lattice (springs plus the cells' volumetric term, any Poisson's ratio) against
-continuum references: ``python -m deformgl.bench.tissue_accuracy [--quick] [--across 9,17]``.
+continuum references: ``python -m studies.tissue_accuracy [--quick] [--across 9,17]``.
 
 Three checks, each on the lattice at the body's Poisson's ratio and, beside it, the springs-only
 lattice of nu = 1/4 (``cells=None``: what deformgl was before), and a fourth table:
@@ -8,24 +8,24 @@ lattice of nu = 1/4 (``cells=None``: what deformgl was before), and a fourth tab
   (clamped at x = 0, its own weight), the area mean of the end face's sag over
   ``rho g L^4 / (E w^2)``, by the linearised lattice's static solve
   (:func:`deformgl.bench.fem.static_displacement`), against the locking-free mixed Q2/Q1 FEM of
-  :func:`deformgl.bench.fem_tissue.mixed_cantilever_study` at the same nu (:data:`CANTILEVER_FEM`).
+  :func:`studies.fem_tissue.mixed_cantilever_study` at the same nu (:data:`CANTILEVER_FEM`).
 * **column** (small strain): a 2 cm cube clamped at its bottom face under a uniform pressure on
   its top face; its lateral strain (the mean u_x of the face x = +side/2 over the band 0.4 to 0.6
   of the height, the lattice's displacement taken piecewise linear between nodes as its
   trilinear cells are, over side/2) over its axial strain (the top face's mean -u_y over the
-  height), against :func:`deformgl.bench.fem_tissue.column_study` (:data:`COLUMN_FEM`).
+  height), against :func:`studies.fem_tissue.column_study` (:data:`COLUMN_FEM`).
 * **large deflection**: the 0.2 x 0.02 x 0.02 m cantilever (rho = 1000 kg/m^3) at E = 500 kPa
   and 50 kPa, the end face's centre node displacement (u_x, u_y) at the static equilibrium of
   the nonlinear lattice (:func:`static_equilibrium`), against the inextensible elastica
-  (:func:`deformgl.bench.fem_tissue.elastica_tip`) and the neo-Hookean FEM
-  (:func:`deformgl.bench.fem_nonlinear.neo_hookean_cantilever_tip`, :data:`NEO_HOOKEAN_FEM`).
+  (:func:`studies.fem_tissue.elastica_tip`) and the neo-Hookean FEM
+  (:func:`studies.fem_nonlinear.neo_hookean_cantilever_tip`, :data:`NEO_HOOKEAN_FEM`).
 * **the plan's errors at nu** (:func:`workload_errors`): ``bench accuracy``'s block in
   compression and bar in torsion at nu 0.3, 0.45, 0.49, the lattice against the displacement FEM
   computed here (the ``fem`` extra; without it the table is skipped with a line saying so):
   :data:`deformgl.plan.planner.MEASURED_NU`.
 
 The FEM values of the three checks are stored (computing them takes minutes and the ``fem`` extra; ``python -m
-deformgl.bench.fem_tissue`` prints them, ``tests/test_fem_tissue.py`` checks the stored ones
+studies.fem_tissue`` prints them, ``tests/test_fem_tissue.py`` checks the stored ones
 against a fresh coarse solve) so that the lattice side runs with SciPy alone.
 """
 
@@ -57,7 +57,7 @@ __all__ = ["CANTILEVER_FEM", "COLUMN_FEM", "ELASTICA", "NEO_HOOKEAN_FEM", "canti
 G = 9.81
 #: Mixed Q2/Q1 FEM, the aspect-10 clamped cantilever under its weight: end-face mean sag over
 #: rho g L^4 / (E w^2), by nu (Richardson-extrapolated from 2, 4, 8 elements across, +-0.05 %;
-#: ``python -m deformgl.bench.fem_tissue``, table 1).
+#: ``python -m studies.fem_tissue``, table 1).
 CANTILEVER_FEM = {0.25: 1.50581, 0.3: 1.50224, 0.45: 1.48561, 0.49: 1.47930}
 #: Mixed Q2/Q1 FEM, the clamped cube column under a top pressure: lateral over axial strain, by
 #: nu (extrapolated from 4, 8, 16 elements across, +-0.05 %; ``fem_tissue`` table 2).
@@ -242,7 +242,7 @@ def workload_errors(name: str, nu: float, across: Sequence[int]) -> tuple[float,
     displacement FEM's estimated relative error, and the lattice's |lattice / FEM - 1| (springs and
     cells at ``nu``) at each of ``across`` (:data:`deformgl.plan.planner.MEASURED_NU` holds them at 5,
     9 and 17). Needs the 'fem' extra."""
-    from deformgl.bench.accuracy import FEM_MESHES
+    from studies.accuracy import FEM_MESHES
     from deformgl.bench.fem import fem_reference
 
     w = WORKLOADS[name]
@@ -256,7 +256,7 @@ def _errors(tip: tuple[float, float], ref: tuple[float, float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the four tables."""
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.tissue_accuracy",
+    parser = argparse.ArgumentParser(prog="python -m studies.tissue_accuracy",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="9 nodes across only (3 and 5 too in table 4)")
     parser.add_argument("--across", default=None, help="nodes across, comma separated (default 9,17; table 3 "

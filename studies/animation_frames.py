@@ -17,7 +17,7 @@ from pathlib import Path
 
 import moderngl
 
-from deformgl.bench.studies import machine_line
+from deformgl.bench.sim_speed import machine_line
 from deformgl.scene.animation import frame_plan, render_frames
 from deformgl.scene.pipeline import render
 from deformgl.scene.schema import load_scene
@@ -57,3 +57,24 @@ def bench_animation(ctx: moderngl.Context, scene_path: Path) -> str:
         f"{scene_path.name}: {n} frames of {w}x{h}, {plan.steps_per_frame} steps per frame ({plan.steps} steps)",
         *(f"{label:<48}{t * 1e3:10.1f} ms   {note}".rstrip() for label, t, note in rows),
     ])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.animation_frames [--scene FILE]``."""
+    from deformgl.data import packaged_scene, scene_file
+    from studies.common import gl_context, parse, parser
+
+    p = parser("animation_frames", "an N-frame animation from one run against a still and against N stills "
+                                   "each simulated from step 0")
+    p.add_argument("--scene", type=Path, default=None, help="the scene (default: the shipped dragon_motion.toml)")
+    args = parse(p, argv)
+    scene = scene_file(args.scene, "--scene") if args.scene else packaged_scene("dragon_motion")
+    with gl_context(args) as ctx:
+        print(bench_animation(ctx, scene))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)

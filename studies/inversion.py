@@ -1,4 +1,4 @@
-"""Large strain without inversion (issue 27, item 2): ``python -m deformgl.bench.inversion``.
+"""Large strain without inversion (issue 27, item 2): ``python -m studies.inversion``.
 
 Three runs that invert cells of a springs-only lattice, each with the lattice's cells (the
 volumetric term and the corner barrier of :mod:`deformgl.sim.volume`) and, for comparison,
@@ -30,7 +30,7 @@ import numpy as np
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.materials import ElasticMaterial, lattice_system
-from deformgl.sim.simulation import make_simulation
+from deformgl import make_simulation
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 from deformgl.sim.volume import inverted_cells
 
@@ -170,8 +170,8 @@ def format_rows(rows: list[InversionRow], machine: str = "") -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m deformgl.bench.inversion [--quick] [--backend B] [--springs-too]``."""
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.inversion", description=__doc__.split("\n\n")[0])
+    """``python -m studies.inversion [--quick] [--backend B] [--springs-too]``."""
+    parser = argparse.ArgumentParser(prog="python -m studies.inversion", description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="coarser grids, two Poisson's ratios")
     parser.add_argument("--backend", default="fragment", choices=("fragment", "feedback", "numpy"))
     parser.add_argument("--springs-too", action="store_true", help="also run each case without its cells")
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     ctx = None
     machine = "NumPy float64"
     if args.backend != "numpy":
-        from deformgl.bench.studies import machine_line
+        from deformgl.bench.sim_speed import machine_line
         from deformgl.gl.context import create_context
 
         ctx = create_context()

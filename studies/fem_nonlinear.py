@@ -35,9 +35,9 @@ elastica's tip) and the area mean of u over the end face (reference area); both 
 
 Verified (``tests/test_fem_tissue.py``): the tangent is the finite-difference derivative of the
 residual and the residual that of the energy; at a tiny load the tip equals the independent linear
-mixed FEM of :mod:`deformgl.bench.fem_tissue` (scikit-fem forms) on the same mesh to 1e-5; at
+mixed FEM of :mod:`studies.fem_tissue` (scikit-fem forms) on the same mesh to 1e-5; at
 E = 500 kPa, 0.2 x 0.02 x 0.02 m, rho = 1000 kg/m^3 it is within a few per cent of the
-inextensible elastica (:func:`deformgl.bench.fem_tissue.elastica_tip`).
+inextensible elastica (:func:`studies.fem_tissue.elastica_tip`).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``python -m deformgl.bench.xpbd_hierarchy``: does the grid hierarchy pay for XPBD? (issue 29, item 6)
+"""``python -m studies.xpbd_hierarchy``: does the grid hierarchy pay for XPBD? (issue 29, item 6)
 
 Hierarchical XPBD in the manner of Müller 2008 ("Hierarchical Position Based Dynamics", section 4):
 each substep, after the prediction, the same body's constraints on the coarser lattices (the
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from deformgl.bench.implicit import block_system
+from deformgl.bench.trade_stiff import block_system
 from deformgl.sim.multigrid import prolongation
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.xpbd import OMEGA, node_terms
@@ -156,7 +156,7 @@ BUDGETS = ((10, 0), (30, 0), (100, 0), (300, 0), (10, 10), (10, 30), (30, 30), (
 def rows(across: int = 17, depth: int = 2, budgets: tuple[tuple[int, int], ...] = BUDGETS) -> list[HierarchyRow]:
     """Plain XPBD and hierarchical XPBD on the block at ``across`` (``budgets``: (fine, coarse)
     sweeps a step), against its equilibrium (``bench trade --stiff``'s static)."""
-    from deformgl.bench.implicit import stiff_cases
+    from deformgl.bench.trade_stiff import stiff_cases
 
     case = stiff_cases(cases=((1.0e6, across),))[0]
     sag = case.sag * case.spacing
@@ -186,7 +186,7 @@ def format_rows(out: list[HierarchyRow]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.xpbd_hierarchy", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m studies.xpbd_hierarchy", description=__doc__.split("\n\n")[0])
     parser.add_argument("--across", default="9,17", help="nodes across the block, odd, comma-separated (default 9,17)")
     parser.add_argument("--quick", action="store_true", help="9 across, two budgets (the tests' smoke run)")
     args = parser.parse_args(argv)

@@ -1,5 +1,5 @@
 """The sheet's bending term (:mod:`deformgl.sim.bending`) against the analytic plate:
-``python -m deformgl.bench.cloth_bending`` prints docs/ACCURACY.md's "Cloth bending" tables.
+``python -m studies.cloth_bending`` prints docs/ACCURACY.md's "Cloth bending" tables.
 
 Every check is a flat sheet of :class:`~deformgl.sim.materials.SheetMaterial` with a plate
 bending stiffness D (N·m), in NumPy/SciPy float64:
@@ -17,8 +17,8 @@ bending stiffness D (N·m), in NumPy/SciPy float64:
    clamp is two fixed node columns, which act at their midpoint, so L runs from there (L + h/2
    from the second column); two nodes wide and, 0.1 m wide, at 3 to 17 nodes across;
 4. large deflection: the same strip, inextensible (a stiff membrane), under its own weight by
-   Newton's method on the full nonlinear sheet (:func:`deformgl.bench.tissue_accuracy.static_equilibrium`),
-   its tip against the heavy elastica (:func:`deformgl.bench.fem_tissue.elastica_tip`) of rigidity
+   Newton's method on the full nonlinear sheet (:func:`studies.tissue_accuracy.static_equilibrium`),
+   its tip against the heavy elastica (:func:`studies.fem_tissue.elastica_tip`) of rigidity
    ``D (1 - nu^2)`` at ``rho_A g L^3 / D`` = 5 and 30 (a tip sag of about half and 0.9 of the length).
 """
 
@@ -115,8 +115,8 @@ def strip_ratio(n: int, across: int = 2) -> float:
 def elastica_errors(n: int, load: float, *, length: float = 0.2, areal_density: float = 0.2) -> tuple[float, float]:
     """The inextensible strip of ``n`` nodes along ``length`` under its weight at ``rho_A g L^3 / D
     = load``: its tip's (u_x, u_y) relative to the heavy elastica's (L from the clamp's midpoint)."""
-    from deformgl.bench.fem_tissue import elastica_tip
-    from deformgl.bench.tissue_accuracy import static_equilibrium
+    from studies.fem_tissue import elastica_tip
+    from studies.tissue_accuracy import static_equilibrium
 
     stiffness = areal_density * G * length ** 3 / load
     grid = _strip(n, length)
@@ -132,7 +132,7 @@ def elastica_errors(n: int, load: float, *, length: float = 0.2, areal_density: 
 
 def main(argv: list[str] | None = None) -> int:
     """Print the four tables."""
-    parser = argparse.ArgumentParser(prog="python -m deformgl.bench.cloth_bending",
+    parser = argparse.ArgumentParser(prog="python -m studies.cloth_bending",
                                      description=__doc__.split("\n\n")[0])
     parser.parse_args(argv)
     print("NumPy/SciPy float64; lattice / analytic (1 = exact)")

@@ -24,7 +24,7 @@ Per configuration, measured on the fragment backend (float32, llvmpipe):
 * ``cost``: ms of GPU time per simulated second, (ms per step) / dt, the median of
   :data:`ROUNDS` timed batches.
 
-``python -m deformgl.bench.xpbd_study [--quick]`` prints the table (``--quick``: one workload,
+``python -m studies.xpbd_study [--quick]`` prints the table (``--quick``: one workload,
 one resolution, two XPBD settings, Verlet); ``--convergence`` the float64 cantilever's tip
 against the springs' static tip per (iterations, substeps) (:func:`cantilever_convergence`).
 """
@@ -45,7 +45,7 @@ from deformgl.bench.fem import MATERIAL, WORKLOADS, LatticeCase, Workload, latti
     static_displacement, stiffness_matrix
 from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, critical_dt
-from deformgl.sim.simulation import make_simulation
+from deformgl import make_simulation
 
 __all__ = ["CASES", "CONVERGENCE", "cantilever_convergence", "STRAIN", "SETTLE", "DECAY_PERIODS", "ROUNDS", "XpbdRow", "lowest_mode", "study_case",
            "xpbd_study", "format_rows"]
@@ -245,7 +245,7 @@ def format_rows(rows: Sequence[XpbdRow]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:  # python -m deformgl.bench.xpbd_study
+def main(argv: Sequence[str] | None = None) -> int:  # python -m studies.xpbd_study
     parser = argparse.ArgumentParser(description="XPBD against the explicit integrators on stiff workloads")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--convergence", action="store_true",
@@ -256,7 +256,7 @@ def main(argv: Sequence[str] | None = None) -> int:  # python -m deformgl.bench.
             print(f"iterations {it:5d} substeps {sub:5d} sweeps/step {it * sub:6d}: tip / static {ratio:.4f}, "
                   f"residual {residual:.3g}", flush=True)
         return 0
-    from deformgl.bench.studies import machine_line
+    from deformgl.bench.sim_speed import machine_line
     from deformgl.gl.context import create_context
 
     ctx = create_context()

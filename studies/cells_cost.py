@@ -26,7 +26,7 @@ import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial, lattice_system
-from deformgl.sim.simulation import make_simulation
+from deformgl import make_simulation
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 
 __all__ = ["COST_GRIDS", "CostRow", "bench_poisson", "cost_rows", "format_poisson", "cg_iterations"]
@@ -136,3 +136,28 @@ def format_cg(rows: list[tuple[float, float, int]]) -> str:
              "CG iterations per step", f"  {'nu':>5} | {'mean':>6} {'most':>5} | {'vs nu=0.25':>10}"]
     lines += [f"  {nu:>5.2f} | {mean:>6.1f} {most:>5d} | {mean / base:>10.2f}" for nu, mean, most in rows]
     return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m studies.cells_cost --poisson NU[,NU...] [--steps N]``."""
+    from deformgl.bench.sim_speed import machine_line
+    from deformgl.cli_bench import _nus
+    from studies.common import gl_context, parse, parser
+
+    p = parser("cells_cost", "the cost per step of the cells' volumetric term at these Poisson's ratios against "
+                             "nu = 1/4 on the fragment backend, and implicit Euler's CG iterations")
+    p.add_argument("--poisson", type=_nus, default=(0.45, 0.49), metavar="NU[,NU...]",
+                   help="Poisson's ratios in [0.25, 0.499] (default 0.45,0.49)")
+    p.add_argument("--steps", type=int, default=40, help="steps per timing (default 40)")
+    args = parse(p, argv)
+    with gl_context(args) as ctx:
+        print(format_poisson(bench_poisson(ctx, args.poisson, steps=args.steps), machine_line(ctx)))
+    print()
+    print(format_cg(cg_iterations(args.poisson)))
+    return 0
+
+
+if __name__ == "__main__":
+    from studies.common import run_main
+
+    run_main(main)
