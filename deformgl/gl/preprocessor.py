@@ -88,7 +88,8 @@ def format_defines(defines: dict[str, object]) -> list[str]:
     return lines
 
 
-def preprocess(name: str, defines: dict[str, object] | None = None, profile: str = "core") -> Source:
+def preprocess(name: str, defines: dict[str, object] | None = None, profile: str = "core",
+               chunks: dict[str, str] | None = None) -> Source:
     """Load ``shaders/<name>``, inject defines and resolve includes.
 
     Args:
@@ -96,6 +97,9 @@ def preprocess(name: str, defines: dict[str, object] | None = None, profile: str
         defines: variant switches injected after ``#version``.
         profile: ``"core"`` (GLSL 3.30 core, as written) or ``"es"`` (GLSL ES 3.00, see the
             module docstring).
+        chunks: include files given as text, by include name: an ``#include`` of one of these names
+            takes its text instead of a file (the physics terms' chunks, :mod:`deformgl.sim.terms`,
+            and the term list a pass composes of them).
 
     Returns:
         The complete source and the file list for :meth:`Source.explain_log`.
@@ -110,13 +114,13 @@ def preprocess(name: str, defines: dict[str, object] | None = None, profile: str
     head = [lines[0]] if profile == "core" else ["#version 300 es", *ES_PRECISION]
     out = [*head, *format_defines(defines or {}), "#line 2 0"]
     seen: set[str] = {name}
-    _expand(lines[1:], name, 0, first_line=2, out=out, src=src, seen=seen, depth=0)
+    _expand(lines[1:], name, 0, first_line=2, out=out, src=src, seen=seen, depth=0, chunks=chunks or {})
     src.text = "\n".join(out) + "\n"
     return src
 
 
 def _expand(lines: list[str], name: str, number: int, *, first_line: int, out: list[str],
-            src: Source, seen: set[str], depth: int) -> None:
+            src: Source, seen: set[str], depth: int, chunks: dict[str, str]) -> None:
     for offset, line in enumerate(lines):
         m = _INCLUDE.match(line)
         if not m:
@@ -130,7 +134,7 @@ def _expand(lines: list[str], name: str, number: int, *, first_line: int, out: l
             out.append(f"// {target} already included")
             continue
         try:
-            child = read_shader_file(target)
+            child = chunks[target] if target in chunks else read_shader_file(target)
         except ShaderError:
             raise ShaderError(
                 f'shaders/{name}:{lineno}: cannot resolve #include "{target}" '
@@ -140,5 +144,5 @@ def _expand(lines: list[str], name: str, number: int, *, first_line: int, out: l
         child_number = len(src.files) - 1
         out.append(f"#line 1 {child_number}")
         _expand(child.splitlines(), target, child_number, first_line=1, out=out, src=src,
-                seen=seen, depth=depth + 1)
+                seen=seen, depth=depth + 1, chunks=chunks)
         out.append(f"#line {lineno + 1} {number}")

@@ -31,20 +31,22 @@ class Program:
         fragment: fragment shader file, or ``None`` (transform feedback).
         defines: variant switches for both stages.
         varyings: transform-feedback outputs, in buffer order.
+        chunks: include files given as text (:func:`~deformgl.gl.preprocessor.preprocess`).
 
     On an OpenGL ES context the sources are preprocessed in the ``es`` profile, and a program
     without a fragment shader gets :data:`ES_EMPTY_FRAGMENT`.
     """
 
     def __init__(self, ctx: moderngl.Context, vertex: str, fragment: str | None = None, *,
-                 defines: dict[str, object] | None = None, varyings: tuple[str, ...] = ()) -> None:
+                 defines: dict[str, object] | None = None, varyings: tuple[str, ...] = (),
+                 chunks: dict[str, str] | None = None) -> None:
         self.name = f"{vertex}+{fragment}" if fragment else vertex
         self.defines = dict(defines or {})
         self.profile = profile_of(ctx)
         if fragment is None and self.profile == "es":
             fragment = ES_EMPTY_FRAGMENT
-        self.vertex_source = preprocess(vertex, self.defines, self.profile)
-        self.fragment_source = preprocess(fragment, self.defines, self.profile) if fragment else None
+        self.vertex_source = preprocess(vertex, self.defines, self.profile, chunks)
+        self.fragment_source = preprocess(fragment, self.defines, self.profile, chunks) if fragment else None
         try:
             self.gl = ctx.program(
                 vertex_shader=self.vertex_source.text,

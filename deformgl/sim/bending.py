@@ -34,7 +34,7 @@ b, node weight ``w_n`` = its full square cells / 4, its share of area ``w_n h^2`
 Under any quadratic displacement field these sum to W times the area exactly at interior nodes
 and cells (tests/test_bending.py checks cylinder, saddle and twist), with ``nu = 1/3``
 (:data:`SHEET_BENDING_POISSON`), the membrane lattice's own Poisson's ratio. Calibrated against
-the analytic plate (docs/ACCURACY.md, "Cloth bending"; :mod:`deformgl.bench.cloth_bending`): the
+the analytic plate (docs/ACCURACY.md, "Cloth bending"; ``python -m studies.cloth_bending``): the
 simply supported square plate under uniform pressure (Navier's series; Timoshenko &
 Woinowsky-Krieger 1959, section 30), the twisted plate, the cantilever strip ``q L^4 / (8 D)``
 and, at large deflection, the heavy elastica.

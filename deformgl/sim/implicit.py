@@ -227,8 +227,8 @@ def _spread(system: SpringSystem, blocks: np.ndarray) -> sp.csr_matrix:
 def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: float, *,
              drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
              geometric: str = "projected") -> LinearSystem:
-    """The step's linear system (module docstring): the springs', the drags' and the cells'
-    blocks of H (``geometric``: :data:`GEOMETRIC`); forces at time ``t + dt``."""
+    """The step's linear system (module docstring): the springs', the drags', the cells' and
+    each of ``system.terms``' blocks of H (``geometric``: :data:`GEOMETRIC`); forces at time ``t + dt``."""
     n = system.count
     h_blocks, c_blocks = _blocks(system, x, geometric)
     node_h = np.zeros(n)
@@ -246,6 +246,10 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
         bending_h = sp.kron(system.bending.matrix, sp.identity(3), format="csr")
         hess = hess + bending_h
         a_full = a_full + dt * dt * bending_h
+    for term in system.terms:  # each physics term's K = -df/dx (deformgl.sim.terms)
+        term_h = term.stiffness(x)
+        hess = hess + term_h
+        a_full = a_full + dt * dt * term_h
     f = forces(system, x, v, t + dt, drags, loads)
     b_full = dt * (f.ravel() - dt * (hess @ v.ravel()))
     free = ~system.fixed

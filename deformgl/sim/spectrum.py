@@ -67,13 +67,16 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
             out += barrier_envelope_product(system.cells, dx)
     if system.bending is not None:  # a sheet's bending, linear: the same B at any state
         out += system.bending.matrix @ dx
+    for term in system.terms:
+        out += (term.dt_stiffness(system.rest_positions, barrier=barrier) @ dx.reshape(-1)).reshape(-1, 3)
     return out
 
 
 def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarray:
     """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``, and the cells' centre
     term, :func:`deformgl.sim.volume.rest_stiffness_triplets`; with ``barrier`` the barrier's
-    envelope as :func:`stiffness_product`), fixed nodes included."""
+    envelope as :func:`stiffness_product`; each of ``system.terms`` its
+    :meth:`~deformgl.sim.terms.Term.dt_stiffness`), fixed nodes included."""
     n = system.count
     u = _rest_directions(system)
     blocks = system.stiffness[:, None, None] * u[:, :, None] * u[:, None, :]   # (S, 3, 3)
@@ -89,6 +92,8 @@ def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarr
             np.add.at(k, (rows, cols), values)
     if system.bending is not None:  # B on each coordinate: the blocks B_ij I
         k += np.kron(system.bending.matrix.toarray(), np.eye(3))
+    for term in system.terms:
+        k += term.dt_stiffness(system.rest_positions, barrier=barrier).toarray()
     return k
 
 
@@ -271,6 +276,6 @@ def modal_damping(system: SpringSystem, *, barrier: bool = False) -> ModalDampin
     cells = system.cells
     if cells is not None and (cells.volume_modulus > 0 or (barrier and cells.barrier_modulus > 0)):
         b = np.append(b, 0.0)  # the cells' terms are stiffness that Rayleigh beta does not damp
-    if system.bending is not None:
-        b = np.append(b, 0.0)  # nor a sheet's bending
+    if system.bending is not None or system.terms:
+        b = np.append(b, 0.0)  # nor a sheet's bending, nor a term's stiffness
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
 from deformgl.sim.volume import CellVolumes, frequency_terms, volume_forces
 from deformgl.sim.bending import SheetBending
+from deformgl.sim.terms.base import Term
 
 STRUCTURAL = 0
 SHEAR = 1
@@ -78,6 +79,8 @@ class SpringSystem:
             Poisson's ratio, the inversion barrier), or None (springs only).
         bending: a sheet's bending term (:mod:`deformgl.sim.bending`: the plate's D in N·m,
             ``f = -B x``), or None.
+        terms: further physics terms (:class:`deformgl.sim.terms.Term`), each one object that
+            every backend runs through its declared forms (or refuses in one line naming it).
     """
 
     rest_positions: np.ndarray
@@ -99,6 +102,7 @@ class SpringSystem:
     material: object = None
     cells: CellVolumes | None = None
     bending: SheetBending | None = None
+    terms: tuple[Term, ...] = ()
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]
@@ -130,6 +134,10 @@ class SpringSystem:
             raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
         if self.bending is not None and self.bending.count != n:
             raise ValueError(f"SpringSystem.bending: {self.bending.count} nodes, the system {n}")
+        object.__setattr__(self, "terms", tuple(self.terms))
+        for k, term in enumerate(self.terms):
+            if not isinstance(term, Term):
+                raise ValueError(f"SpringSystem.terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
 
     @property
     def count(self) -> int:
@@ -435,6 +443,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
         volume_forces(system.cells, x, out=total)
     if system.bending is not None:
         system.bending.forces(x, total)
+    for term in system.terms:
+        term.add_forces(x, v, t, total)
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
               - (system.velocity_damping + system.mass_damping * system.mass)[:, None] * v)
     for drag in drags:
@@ -470,7 +480,8 @@ def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> Fre
     :func:`deformgl.sim.volume.frequency_terms` (``1.5 kappa h`` per cell at the node); their
     inversion barrier, inactive at rest, only with ``barrier`` (its envelope, the explicit
     integrators' dt bound: :func:`deformgl.sim.volume.barrier_envelope_product`). A sheet's bending adds its row sum
-    ``sum_j |B_ij|`` (:meth:`deformgl.sim.bending.SheetBending.frequency_terms`).
+    ``sum_j |B_ij|`` (:meth:`deformgl.sim.bending.SheetBending.frequency_terms`), each of
+    ``system.terms`` its :meth:`~deformgl.sim.terms.Term.frequency_terms`.
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
@@ -478,6 +489,8 @@ def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> Fre
     cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n, barrier=barrier)
     if system.bending is not None:
         cell_terms = cell_terms + system.bending.frequency_terms()
+    for term in system.terms:
+        cell_terms = cell_terms + term.frequency_terms(system.rest_positions, barrier=barrier)
     bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)
     if n == 0 or bound.max() < 0:
         return FrequencyBound(0.0, -1, -1)

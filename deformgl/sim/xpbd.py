@@ -55,6 +55,7 @@ from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.xpbd_cells import CellConstraints
+from deformgl.sim.terms.glsl import refuse_terms
 
 __all__ = [
     "DEFAULT_ITERATIONS",
@@ -142,9 +143,11 @@ def check_bending(system: SpringSystem) -> None:
     """ValueError (one line) for a sheet with a bending term (``system.bending``): XPBD has no
     bending constraint. (The plate term's stencils couple 3 to 5 nodes each, about 15 per node;
     the Jacobi sweep keeps one multiplier per constraint end, so the GPU sweep would store 45
-    more floats per node.)"""
+    more floats per node.) The same for each of ``system.terms`` without an XPBD form
+    (:meth:`deformgl.sim.terms.Term.refusal`)."""
     if system.bending is not None:
         raise ValueError(f"xpbd: a sheet's bending_stiffness {BENDING_REFUSAL}")
+    refuse_terms(system.terms, "xpbd", "xpbd")
 
 
 def _check_drags(drags: tuple[Drag, ...], count: int) -> None:

@@ -4,9 +4,15 @@
 // (one node per fragment) and sim/verlet_block.frag (a block of nodes per fragment), so both
 // compute every node bit for bit alike (where the driver contracts a * b + c alike in both: GLSL
 // 3.30 has no `precise`; tested on llvmpipe). PULLS = number of scripted pull groups; CELLS: the
-// volumetric term (sim/cells/node_hood.glsl: hood_cell_force, which both passes provide).
+// volumetric term (sim/cells/node_hood.glsl: hood_cell_force, which both passes provide); TERMS:
+// the system's further physics terms (lib/term_node.glsl: a term table's row of a blocked node is
+// its block's texel, member g_local's layers).
 #ifndef PULLS
 #define PULLS 0
+#endif
+#ifdef TERMS
+// the system's further physics terms (deformgl/sim/terms; terms/active.glsl, composed by the host)
+#include "terms/active.glsl"
 #endif
 
 uniform float u_dt;
@@ -29,6 +35,14 @@ vec4 verlet_node(ivec2 texel, vec4 x, vec3 x_prev, vec4 node, SpringSum s) {
     vec3 f = s.force + m * u_gravity - (u_damping + u_mass_damping * m) * (x.xyz - x_prev) / u_dt;
 #ifdef CELLS
     f += hood_cell_force(texel, x.xyz, cell_bits(flags));
+#endif
+#ifdef TERMS
+#ifdef BLOCKED
+    ivec3 term_at = ivec3(texel, block_member(g_local));
+#else
+    ivec3 term_at = ivec3(texel, 0);
+#endif
+    terms_force(f, TermNode(term_at, x.xyz, (x.xyz - x_prev) / u_dt, m));
 #endif
 #if PULLS > 0
     float per = (flags & FLAG_PULLS_PER_KG) != 0 ? m : 1.0;

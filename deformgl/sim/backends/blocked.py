@@ -243,7 +243,8 @@ class BlockedVerletPass(GLOwner):
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/verlet_block.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "PULLS": terms.n_pulls, "SPRING_WEIGHTS": weighted,
                 "SPRING_WEIGHT_LEVELS": weight_levels, "CELLS": cells is not None,
-                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines()}))
+                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines(),
+                **terms.extra.defines()}, chunks=terms.extra.chunks()))
             if cells is not None:
                 self.program.set(**term_uniforms(cells))
             units = {f"u_position{m}": m for m in range(layout.members)}

@@ -53,6 +53,7 @@ import numpy as np
 
 from deformgl.gl.es_context import read_texture
 from deformgl.sim.backends.cell_tables import cell_uniforms
+from deformgl.sim.terms.glsl import refuse_terms
 from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit, has_cells
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
@@ -158,6 +159,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         _check_layout(self.spec)
         if not dt > 0:
             raise ValueError(f"FeedbackSimulation: dt must be > 0, got {dt}")
+        refuse_terms(system.terms, "feedback", "FeedbackSimulation")
         self.ctx = ctx
         self.system = system
         self.integrator = integrator

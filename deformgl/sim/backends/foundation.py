@@ -43,6 +43,7 @@ from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, bl
 from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind, cell_terms, diagonal_table,
                                              term_uniforms)
 from deformgl.sim.backends.compact_textures import layer_texture
+from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
 from deformgl.sim.base import SimulationBase
@@ -52,6 +53,7 @@ from deformgl.sim.stages import spec
 from deformgl.sim.springs import (FLEXION, LOAD_PER_KG_BIT, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem,
                                   load_groups)
 from deformgl.sim.volume import CellVolumes
+from deformgl.sim.terms.glsl import PassTerms, pass_terms
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
            "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures", "VerletPass",
@@ -71,6 +73,8 @@ MAX_PULLS = MAX_LOADS
 WEIGHT_UNIT = 4
 #: Texture unit of the cell-diagonal table (CELLS on compact layouts that are not dense).
 CELL_DIAGONAL_UNIT = 5
+#: Texture units of the physics terms' node tables (deformgl.sim.terms) on the one-node pass.
+TERM_UNITS = (6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,8 @@ class VerletTerms:
     mass_damping: float = 0.0
     weights: np.ndarray | None = field(default=None, compare=False, repr=False)
     cells: CellVolumes | None = field(default=None, compare=False, repr=False)
+    #: the system's further physics terms as the pass compiles them (deformgl.sim.terms)
+    extra: PassTerms = field(default=PassTerms(()), compare=False, repr=False)
 
 
 def _one_value(values: np.ndarray) -> float | None:
@@ -143,7 +149,8 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
     return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
-                       weights=weights, cells=active_cells(system.cells))
+                       weights=weights, cells=active_cells(system.cells),
+                       extra=pass_terms(system.terms, "fragment", "FragmentIntegrator"))
 
 
 def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.ndarray | None,
@@ -315,7 +322,7 @@ class VerletPass(GLOwner):
         draw: ``"rects"`` (default) draws, per z-slice tile, the rectangle around its existing
             nodes and skips empty texels inside it with a test; ``"points"`` draws one point per
             existing node (no test, but llvmpipe pays per primitive); ``"quad"`` covers the
-            whole atlas, padding included. ``deformgl bench sim`` measures all three.
+            whole atlas, padding included. ``python -m studies.pass_variants`` measures all three.
         branch: test each neighbour's mask bit with a branch instead of weighting by it.
     """
 
@@ -328,6 +335,8 @@ class VerletPass(GLOwner):
         cells = terms.cells
         if cells is not None and not isinstance(layout, CompactLayout):
             raise ValueError("VerletPass: the cell term needs a compact layout")
+        if terms.extra and not isinstance(layout, CompactLayout):
+            raise ValueError("VerletPass: the physics terms' tables need a compact layout, not the z-slice atlas")
         if isinstance(layout, CompactLayout) and draw == "rects":
             draw = "quad"  # a compact layout is one rectangle of existing nodes already
         self.draw = draw
@@ -340,7 +349,8 @@ class VerletPass(GLOwner):
                 "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
                 "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
                 "SPRING_WEIGHT_LEVELS": textures.weight_levels, "CELLS": cells is not None,
-                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines()}))
+                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines(),
+                **terms.extra.defines()}, chunks=terms.extra.chunks()))
             if cells is not None:
                 self.program.set(**term_uniforms(cells))
             if textures.cell_diagonals is not None:
@@ -448,12 +458,17 @@ class FoundationVerlet(SimulationBase, GLOwner):
         self.block = block
         self.textures: NodeTextures | BlockedTextures
         self.verlet: VerletPass | BlockedVerletPass
+        #: the physics terms' node tables in the layout (deformgl.sim.terms), or None
+        self.term_tables: TermTables | None = None
         with self.building():
             if block is not None:
                 node, levels = node_data(grid, system.mass, flags, terms.weights, weight_texture)
                 blocked = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
                                                    weights=None if levels else terms.weights))
+                units = range(blocked.units["weights"] + 1, int(ctx.info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16)))
+                self.term_tables = self.own(TermTables(ctx, terms.extra, grid, blocked.blocks, units))
                 block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels, branch=branch))
+                block_pass.program.set(**self.term_tables.uniforms)
                 self.textures, self.verlet = blocked, block_pass
                 #: one step: (current, previous, target, dt, pull forces)
                 self._draw_step = partial(block_pass.run, blocked)
@@ -462,6 +477,9 @@ class FoundationVerlet(SimulationBase, GLOwner):
                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights,
                                                  weight_texture=weight_texture, cells=cell_kind(terms.cells)))
                 one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
+                if terms.extra:
+                    self.term_tables = self.own(TermTables(ctx, terms.extra, grid, textures.layout, TERM_UNITS))
+                    one_pass.program.set(**self.term_tables.uniforms)
                 self.textures, self.verlet = textures, one_pass
                 self._draw_step = partial(one_pass.run, textures)
         self.current, self.previous, self.spare = 0, 1, 2
@@ -492,6 +510,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
                     t = self.t
                     for g, load in enumerate(self.loads):
                         self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
+                if self.term_tables is not None:
+                    self.term_tables.bind()
                 self._draw_step(self.current, self.previous, self.spare, self.dt, self._pull)
                 self.current, self.previous, self.spare = self.spare, self.current, self.previous
                 self._tick()

@@ -69,6 +69,7 @@ from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, Ver
 from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, bending_coefficients, compact_layout,
                                                 grid_neighbours, grid_springs, spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
+from deformgl.sim.terms.glsl import pass_terms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_terms, check_cells, diagonal_table,
                                              term_uniforms)
@@ -85,6 +86,8 @@ _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, 
 _CELL_DIAGONAL_UNIT = 9
 #: texture unit of a sheet's bending coefficients (BENDING, deformgl.sim.bending)
 _BENDING_UNIT = 10
+#: texture units of the physics terms' node tables (deformgl.sim.terms)
+_TERM_UNITS = (11, 12, 13, 14, 15)
 
 
 def _sampler(buffer: str) -> str:
@@ -289,6 +292,10 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.tex_cell_diagonals: moderngl.TextureArray | None = None
         if cells is not None and not self.dense and cells.volume_modulus > 0:
             self.tex_cell_diagonals = layer_texture(self, self.ctx, (w, h), diagonal_table(self.grid), "i4", 2)
+        #: the system's physics terms as this backend's passes compile them (deformgl.sim.terms)
+        self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator")
+        self.term_textures = self.terms.textures(
+            lambda t: layer_texture(self, self.ctx, (w, h), t.values, "f4", t.layers))
         flags = node_flags(system.fixed) | cell_flags(self.grid, cells)
         node = np.stack([system.mass, flags, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
@@ -316,6 +323,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             common["WIND"] = True
         if cells is not None:
             common.update(CELLS=True, **cell_terms(cells))
+        common.update(self.terms.defines())
         if sp.velocity:
             common["VELOCITY"] = True
         c = self.constraints
@@ -331,11 +339,12 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             (0 if self.tex_weights is None else w * h * layers * _VEC4) + \
             (0 if self.tex_bending is None else w * h * layers * _VEC4) + \
             (0 if self.tex_cell_diagonals is None else w * h * 2 * _VEC4)
+        static += sum(w * h * t.layers * _VEC4 for t in self.terms.tables)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
         program = self.own(Program(self.ctx, "sim/fullscreen.vert",
-                                    "sim/integrators/step.frag", defines=defines))
+                                    "sim/integrators/step.frag", defines=defines, chunks=self.terms.chunks()))
         self.passes[key] = program
         system = self.system
         (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
@@ -363,6 +372,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms.update(term_uniforms(self.cells))
             if self.tex_cell_diagonals is not None:
                 uniforms["u_cell_diagonals"] = _CELL_DIAGONAL_UNIT
+        if self.terms:
+            uniforms.update(self.terms.uniforms(_TERM_UNITS))
         if defines.get("GROUND"):  # (set only with a ground plane)
             c = self.constraints
             if c is None or c.ground is None:
@@ -427,6 +438,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_cell_diagonals.use(_CELL_DIAGONAL_UNIT)
         if self.tex_bending is not None:
             self.tex_bending.use(_BENDING_UNIT)
+        for tex, unit in zip(self.term_textures, _TERM_UNITS):
+            tex.use(unit)
         try:
             for _ in range(n):
                 for stage in self.spec.stages:

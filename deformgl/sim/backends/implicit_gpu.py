@@ -73,8 +73,10 @@ from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, nei
 from deformgl.sim.backends.grid_springs import bending_coefficients, compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, REDUCE_UNIT, UNITS,
-                                                   pass_defines)
+from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
+                                                   UNITS, pass_defines)
+from deformgl.sim.backends.term_tables import TermTables
+from deformgl.sim.terms.glsl import pass_terms
 from deformgl.sim.backends.multigrid_gpu import GpuMultigrid
 from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, SolveReport, SolverStats, assemble,
                                    check_cg, check_preconditioner, check_warm_start, multigrid_levels, residual_floor,
@@ -145,6 +147,9 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.cells = (cells if cells is not None and cells.count and max(cells.volume_modulus, cells.barrier_modulus) > 0
                       else None)
         self.barrier_flag = self.cells is not None and self.cells.barrier_modulus > 0
+        #: the system's physics terms as the passes compile them (deformgl.sim.terms)
+        self.terms = pass_terms(system.terms, "implicit", "ImplicitFragment", implicit=True)
+        self.term_tables: TermTables | None = None
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.last_report = SolveReport(0, 0.0, True)
         self.unconverged, self.worst_residual = 0, 0.0
@@ -182,6 +187,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         mask = np.zeros(n) if self.cells is None else incident_cells(self.grid, self.cells)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), mask], axis=1)
         self.tex_node = self._texture(size, self._image(node))
+        if self.terms:
+            self.term_tables = self.own(TermTables(self.ctx, self.terms, self.grid, self.layout, TERM_UNITS))
         self.tex_cells = None if self.cells is None else self._array_texture(neighbourhood(self.grid), "i4")
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
@@ -207,7 +214,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
                                block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None,
-                               bending=self.tex_bending is not None, multigrid=self.multigrid)
+                               bending=self.tex_bending is not None, multigrid=self.multigrid,
+                               term_defines=self.terms.defines())
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
         self._vaos = {name: self.own(self.ctx.vertex_array(p.gl, [])) for name, p in self.passes.items()}
@@ -235,7 +243,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
         return mg
 
     def _program(self, defines: dict[str, object]) -> Program:
-        program = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/implicit.frag", defines=defines))
+        program = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/implicit.frag", defines=defines,
+                                   chunks=self.terms.chunks()))
         (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
         system = self.system
         values: dict[str, object] = {
@@ -246,6 +255,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             "u_wind_drag": system.wind_drag}
         if self.cells is not None:
             values.update(cell_uniforms(self.cells))
+        if self.term_tables is not None:
+            values.update(self.term_tables.uniforms)
         if self.drags:
             values["u_drag_node"] = uniform_array([d.node for d in self.drags])
             values["u_drag_k"] = uniform_array([float(d.stiffness) for d in self.drags])
@@ -281,6 +292,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             self.tex_cells.use(_UNITS["u_cell_nb"])
         if self.tex_bending is not None and name in BENDING_PASSES:
             self.tex_bending.use(_UNITS["u_bending"])
+        if self.term_tables is not None and name in TERM_PASSES:
+            self.term_tables.bind()
         self._fbo(*(self.tex[w] if isinstance(w, str) else w for w in writes)).use()
         self._vaos[name].render(moderngl.TRIANGLES, vertices=3)
 

@@ -10,7 +10,7 @@ import numpy as np
 from deformgl.sim.integrators import Constraints
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES",
+__all__ = ["TERM_PASSES", "TERM_UNITS", "PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES",
            "BENDING_PASSES", "UNITS", "REDUCE_UNIT", "pass_defines"]
 
 #: The passes of ``implicit.frag`` (one define each).
@@ -43,17 +43,23 @@ UNITS["u_mg_rhs"] = UNITS["u_z"] = UNITS["u_q"]
 #: DIRECTION read.
 BENDING_PASSES = CELL_PASSES
 UNITS["u_bending"] = UNITS["u_r"]
+#: The passes that evaluate the physics terms (deformgl.sim.terms: forces in SETUP, K y in the
+#: product passes), and the units their node tables use there: those of dv, p and rz_new, which
+#: only UPDATE, DIRECTION and FINAL read.
+TERM_PASSES = CELL_PASSES
+TERM_UNITS = (UNITS["u_dv"], UNITS["u_p"], UNITS["u_rz_new"])
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
                  scaled: bool = True, cells: bool = False, bending: bool = False,
-                 multigrid: bool = False) -> dict[str, dict[str, object]]:
+                 multigrid: bool = False, term_defines: dict[str, object] | None = None) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
     ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
     :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
     kappa_b > 0 (none of the three if both are 0); ``bending``: a sheet's bending term
-    (``system.bending``): BENDING in :data:`BENDING_PASSES`; ``multigrid``: the V-cycle's passes
+    (``system.bending``): BENDING in :data:`BENDING_PASSES`; ``term_defines``: the physics terms' defines
+    (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`) in :data:`TERM_PASSES`; ``multigrid``: the V-cycle's passes
     (:data:`MG_PASSES`, with PRECOND_BLOCK in MG_SMOOTH's) and MULTIGRID in
     :data:`MG_CG_PASSES` (``block`` then puts PRECOND_BLOCK in SETUP only)."""
     common: dict[str, object] = {"NB_LAYERS": 6 if flexion else 5, "NB_COUNT": 24 if flexion else 18,
@@ -91,4 +97,6 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     if bending:
         for name in (n for n in BENDING_PASSES if n in out):
             out[name]["BENDING"] = True
+    for name in (n for n in TERM_PASSES if n in out):
+        out[name].update(term_defines or {})
     return out

@@ -178,6 +178,16 @@ void main() {
     dk += cell_dk;
     ok += cell_ok;
 #endif
+#ifdef TERMS
+    // the physics terms' K v and their block of the node (their forces are in f: forces.glsl)
+    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m);
+    vec3 term_kv = vec3(0.0), term_dk = vec3(0.0), term_ok = vec3(0.0);
+    terms_product(term_kv, term_node, vi);
+    terms_diagonal(term_dk, term_ok, term_node);
+    hv += term_kv;
+    dk += term_dk;
+    ok += term_ok;
+#endif
     vec3 b = dt * (f - dt * hv);
     float flag = 0.0;   // b's w: a barrier term holds the node (sim/implicit/cells.glsl)
 #ifdef IMPLICIT_CELLS

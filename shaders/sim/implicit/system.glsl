@@ -13,7 +13,8 @@
 // BENDING: a sheet's bending, the constant B of deformgl/sim/bending.py on each coordinate:
 // (B y)_i = sum_j c_j (y_i - y_j), diagonal sum_j c_j (c_j from u_bending, as forces.glsl reads it).
 // IMPLICIT_CELLS: the full cells' volumetric term and corner barriers add their (Gauss-Newton)
-// block, dt^2 H_cells (sim/implicit/cells.glsl).
+// block, dt^2 H_cells (sim/implicit/cells.glsl). TERMS (with TERMS_IMPLICIT): the system's further
+// physics terms add dt^2 K y (terms_product, terms/active.glsl, which forces.glsl includes).
 #include "lib/neighbour_count.glsl"
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
 #ifdef IMPLICIT_CELLS
@@ -99,6 +100,11 @@ vec3 apply_system(ivec2 texel, vec3 xi, vec3 yi, float m) {
     vec3 q = own * yi + (dt * dt) * sk + dt * sc;
 #ifdef IMPLICIT_CELLS
     q += (dt * dt) * cells_times(texel, xi, u_vec);
+#endif
+#ifdef TERMS
+    vec3 kq = vec3(0.0);  // the physics terms' K y at this node (terms/active.glsl)
+    terms_product(kq, TermNode(ivec3(texel, 0), xi, vec3(0.0), m), yi);
+    q += (dt * dt) * kq;
 #endif
     return q;
 }

@@ -56,6 +56,11 @@ uniform sampler2DArray u_bending;
 #include "lib/node_forces.glsl"
 #include "lib/node_texel.glsl"
 #include "lib/spring_force.glsl"
+#ifdef TERMS
+// the system's further physics terms (deformgl/sim/terms: each a chunk; terms/active.glsl, composed
+// by the host, calls them): their forces at the evaluation state, after the cells'
+#include "terms/active.glsl"
+#endif
 #ifdef CELLS
 // CELLS (the lattice's volumetric term, sim/cells/node_hood.glsl): the positions of the 18 grid
 // neighbours the springs fetch are kept, relative to the node, in their slots of the node's
@@ -169,6 +174,9 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
 #endif
 #ifdef CELLS
     f += hood_cell_force(texel, xi, cell_bits(int(texelFetch(u_node, texel, 0).g)));
+#endif
+#ifdef TERMS
+    terms_force(f, TermNode(ivec3(texel, 0), xi, vi, m));
 #endif
     add_node_forces(f, texel_node(texel), groups, xi, vi, m);
     return f / m;

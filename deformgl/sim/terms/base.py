@@ -1,0 +1,163 @@
+"""A physics term as one object: what every backend needs of it, declared in one place.
+
+A :class:`Term` is one force of the model — a spring from each node to its rest position, a
+per-cell elastic law — that acts on the nodes of a :class:`~deformgl.sim.springs.SpringSystem`
+besides its springs (``SpringSystem.terms``). It declares, in its own module:
+
+* its float64 force and energy (the NumPy reference, the equilibrium and growth checks),
+* its stiffness ``K = -df/dx`` as a sparse matrix and its product (implicit Euler's
+  ``A = M + dt C + dt^2 H``, the Jacobi and block-Jacobi preconditioners, the multigrid's Galerkin
+  levels), and at rest its share of the dt bound (Gershgorin row sums and the exact highest
+  frequency's product, :mod:`deformgl.sim.spectrum`),
+* its GLSL chunk (:class:`GlslTerm`): the force of one node in the explicit gathers (the
+  fragment backend's integrator stages, the foundation Verlet pass in the compact and the blocked
+  layout, implicit Euler's right-hand side) and the implicit product's row and diagonal block,
+  with the per-node tables and uniforms they read,
+* a one-line refusal for each backend that has no form of it (transform feedback, XPBD).
+
+The backends loop over the system's terms and name none (:mod:`deformgl.sim.terms.glsl` composes
+a pass's chunk list); a system compiles only the terms it holds. How to add a term:
+docs/ARCHITECTURE.md, "Physics terms".
+
+Units: positions in m, forces in N, stiffness in N/m, energy in J, mass in kg.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["GlslTerm", "NodeTable", "Term", "block_diagonal"]
+
+
+@dataclass(frozen=True)
+class NodeTable:
+    """Per-node data a term's chunk reads: ``values`` (N, 4 * layers) float32, uploaded in the
+    pass's node layout as a texture array of ``layers`` RGBA32F layers per node, sampled as
+    ``uniform sampler2DArray <sampler>`` and read with ``term_table(<sampler>, layers, l, n)``
+    (``shaders/lib/term_node.glsl``)."""
+
+    sampler: str
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.values, np.float32)
+        if v.ndim != 2 or v.shape[1] == 0 or v.shape[1] % 4:
+            raise ValueError(f"NodeTable {self.sampler}: values of shape {v.shape}, expected (N, 4 * layers)")
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"NodeTable {self.sampler}: values not finite in float32")
+        v.setflags(write=False)
+        object.__setattr__(self, "values", v)
+
+    @property
+    def layers(self) -> int:
+        """RGBA layers per node."""
+        return int(self.values.shape[1] // 4)
+
+    def layer(self, l: int) -> np.ndarray:
+        """(N, 4) layer l."""
+        return self.values[:, 4 * l: 4 * l + 4]
+
+
+@dataclass(frozen=True)
+class GlslTerm:
+    """A term's GLSL form. ``source`` is the chunk's text (or ``file``, a path under ``shaders/``),
+    included once per pass after ``lib/term_node.glsl``; it defines, for its ``prefix``::
+
+        void PREFIX_force(inout vec3 f, TermNode n);            // adds the node's force, N
+        void PREFIX_product(inout vec3 q, TermNode n, vec3 y);  // adds (K y)_i (implicit)
+        void PREFIX_diagonal(inout vec3 d, inout vec3 off, TermNode n);
+            // adds K's 3x3 diagonal block of the node: d its diagonal, off (xy, xz, yz)
+
+    ``PREFIX_product`` and ``PREFIX_diagonal`` only where ``implicit`` is True. A ``TermNode`` holds
+    the node's position ``x`` and velocity ``v`` at the evaluation state, its mass ``m`` and where its
+    tables are. ``uniforms`` are set on every pass that compiles the chunk; their names, the
+    tables' samplers and every function must start with ``prefix`` (or ``u_`` + prefix).
+    """
+
+    prefix: str
+    source: str | None = None
+    file: str | None = None
+    implicit: bool = False
+    uniforms: dict[str, object] = field(default_factory=dict)
+    tables: tuple[NodeTable, ...] = ()
+
+    def __post_init__(self) -> None:
+        if (self.source is None) == (self.file is None):
+            raise ValueError(f"GlslTerm {self.prefix}: give the chunk as source or as file, not both")
+        if not self.prefix.isidentifier():
+            raise ValueError(f"GlslTerm: prefix {self.prefix!r} is not a GLSL identifier")
+        for name in (*self.uniforms, *(t.sampler for t in self.tables)):
+            if not name.startswith(f"u_{self.prefix}"):
+                raise ValueError(f"GlslTerm {self.prefix}: uniform {name!r} must start with u_{self.prefix}")
+
+    @property
+    def include(self) -> str:
+        """The include name of the chunk."""
+        return self.file if self.file is not None else f"terms/{self.prefix}.glsl"
+
+
+class Term(ABC):
+    """One physics term on the nodes (see the module docstring). Subclasses are immutable."""
+
+    #: what the term is, in a user's words (messages name it: "rest anchors")
+    name: str = "term"
+
+    @abstractmethod
+    def add_forces(self, x: np.ndarray, v: np.ndarray, t: float, out: np.ndarray) -> None:
+        """Add the term's force on every node (N, 3), N, to ``out`` at positions x (m),
+        velocities v (m/s), time t (s)."""
+
+    @abstractmethod
+    def energy(self, x: np.ndarray) -> float:
+        """Its potential energy at x, J (0 for a term that stores none)."""
+
+    @abstractmethod
+    def stiffness(self, x: np.ndarray) -> sp.csr_matrix:
+        """``K = -df/dx`` at x, (3N, 3N) N/m, symmetric positive semi-definite (the projected
+        form where the exact one is indefinite): the implicit step's share of H."""
+
+    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``K(x) y`` for y (N, 3)."""
+        return (self.stiffness(x) @ np.asarray(y, np.float64).reshape(-1)).reshape(-1, 3)
+
+    def dt_stiffness(self, x_rest: np.ndarray, *, barrier: bool = False) -> sp.csr_matrix:
+        """The stiffness the dt bound covers (:mod:`deformgl.sim.spectrum`, :mod:`deformgl.sim.limits`):
+        K at rest; ``barrier``: the envelope of what the term stiffens to during a run, where that
+        differs from rest (the default: K at rest in both)."""
+        return self.stiffness(x_rest)
+
+    def frequency_terms(self, x_rest: np.ndarray, *, barrier: bool = False) -> np.ndarray:
+        """(N,) the Gershgorin row sums of :meth:`dt_stiffness`, N/m, the largest of each node's
+        three rows (the dt bound's share, :func:`deformgl.sim.springs.max_angular_frequency`)."""
+        k = abs(self.dt_stiffness(x_rest, barrier=barrier)).tocsr()
+        rows = np.asarray(k.sum(axis=1)).reshape(-1, 3)
+        return rows.max(axis=1)
+
+    def glsl(self) -> GlslTerm | None:
+        """The term's GLSL form, or None where it has none (the GPU backends refuse it)."""
+        return None
+
+    def refusal(self, backend: str) -> str | None:
+        """Why ``backend`` ("feedback", "xpbd", "fragment", "implicit") cannot run this term, one
+        phrase, or None. The default: the fragment backends run it where it has a GLSL form (and
+        implicit Euler where that form has its product); transform feedback and XPBD do not."""
+        form = self.glsl()
+        if backend in ("feedback", "xpbd"):
+            return f"{self.name} have no {'transform-feedback' if backend == 'feedback' else 'XPBD'} form"
+        if form is None:
+            return f"{self.name} have no GLSL form"
+        if backend == "implicit" and not form.implicit:
+            return f"{self.name} have no implicit product in GLSL"
+        return None
+
+
+def block_diagonal(blocks: np.ndarray) -> sp.csr_matrix:
+    """(N, 3, 3) per-node blocks as a (3N, 3N) block-diagonal matrix (a term that couples each
+    node only to itself)."""
+    b = np.ascontiguousarray(blocks, np.float64)
+    n = len(b)
+    return sp.bsr_matrix((b, np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
