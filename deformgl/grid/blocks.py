@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, node_strides, texture_width
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms, node_strides, texture_width
 
 __all__ = ["BLOCK_SHAPES", "CORNER_OFFSETS", "BlockedLayout", "parse_block"]
 
@@ -144,7 +144,7 @@ class BlockedLayout:
     def shader_uniforms(self) -> dict[str, object]:
         """Uniforms of the BLOCKED variant: the texture width, and on :attr:`dense` layouts the
         block strides (else the pass binds the block-neighbour table, ``u_block_neighbours``)."""
-        uniforms: dict[str, object] = {"u_width_log2": int(self.width).bit_length() - 1}
+        uniforms: dict[str, object] = {**layout_uniforms(self.width)}
         if self.dense:
             uniforms["u_block_strides"] = self.strides
         return uniforms

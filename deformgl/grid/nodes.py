@@ -248,6 +248,20 @@ def texture_width(count: int, max_size: int, what: str) -> int:
     return width
 
 
+def layout_uniforms(width: int, *, prefix: str = "u_") -> dict[str, int]:
+    """The uniforms of ``shaders/lib/node_texel.glsl`` (the node layout every pass reads node state
+    through) for a node texture ``width`` nodes wide: ``u_width_log2``. ``prefix`` names another
+    texture's width (``"u_src_"``: ``u_src_width_log2``, the multigrid level a pass reads from).
+
+    Raises:
+        ValueError: ``width`` is not a power of two.
+    """
+    width = int(width)
+    if width < 1 or width & (width - 1):
+        raise ValueError(f"layout_uniforms: a node texture {width} texels wide; the layout needs a power of two")
+    return {f"{prefix}width_log2": width.bit_length() - 1}
+
+
 @dataclass(frozen=True, eq=False)
 class CompactLayout(TexelImages):
     """Existing nodes packed densely in node order: node n is texel (n % width, n // width).
@@ -299,8 +313,8 @@ class CompactLayout(TexelImages):
         """Uniforms of the COMPACT variant (the neighbour texture is bound to unit 3), or of
         COMPACT_DENSE (node-number strides)."""
         if self.dense:
-            return {"u_width_log2": int(self.width).bit_length() - 1, "u_strides": self.strides}
-        return {"u_width_log2": int(self.width).bit_length() - 1, "u_neighbours": NEIGHBOUR_UNIT}
+            return {**layout_uniforms(self.width), "u_strides": self.strides}
+        return {**layout_uniforms(self.width), "u_neighbours": NEIGHBOUR_UNIT}
 
     def node_texel(self, nodes: np.ndarray) -> np.ndarray:
         """(N, 2) int64 texel of node numbers."""

@@ -181,7 +181,7 @@ class MappedMeshPass(GLOwner):
                                                 defines={"NORMAL_MAP": self.normal_mapped}))
                 self.vao = self.own(ctx.vertex_array(self.program.gl, [], index_buffer=self.ibo,
                                                      index_element_size=4))
-                self.program.set(u_width_log2=self.premap.width_log2, **map_uniforms)
+                self.program.set(**self.premap.layout_uniforms, **map_uniforms)
 
     def _build_two_stage(self, map_uniforms: dict[str, object]) -> None:
         """Stage one maps each vertex once into ``self.mapped`` by transform feedback; stage two

@@ -29,7 +29,7 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid, layout_uniforms
 from deformgl.render.mapped_data import MappedVertices
 
 #: Texture units the premapped draw reads its inputs from (after the mapped mesh's 0 and 1).
@@ -90,8 +90,9 @@ class FragmentPremap(GLOwner):
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))
 
     @property
-    def width_log2(self) -> int:
-        return int(self.size[0]).bit_length() - 1
+    def layout_uniforms(self) -> dict[str, int]:
+        """The node layout's uniforms of the outputs (vertex v at texel node_texel(v))."""
+        return layout_uniforms(self.size[0])
 
     def run(self, positions: moderngl.Texture) -> None:
         """Map every vertex with node positions from ``positions`` (texture units 0-2 are left

@@ -1,7 +1,7 @@
 """Count the nodes of a GPU state texture that satisfy a predicate, without reading the state back.
 
-A census is one fragment pass over ``row x rows`` fragments, fragment ``(i, j)`` being node
-``j * row + i``, into a small framebuffer of its own (an R8 renderbuffer). Fragments whose
+A census is one fragment pass over ``row x rows`` fragments, fragment ``(i, j)`` being the node at
+texel ``(i, j)`` of the node layout (``shaders/lib/node_texel.glsl``, node ``j * row + i``), into a small framebuffer of its own (an R8 renderbuffer). Fragments whose
 predicate is false are discarded, those past the last node too, and an occlusion query counts
 the survivors: the only thing that crosses to the CPU is that one integer per query. OpenGL ES
 counts no samples (``GL_SAMPLES_PASSED`` is desktop only): there the query is
@@ -9,7 +9,7 @@ counts no samples (``GL_SAMPLES_PASSED`` is desktop only): there the query is
 or 1 ("at least one"), which is all the convergence stop and the blow-up guard ask (``== 0``).
 
 State textures are RGBA32F, read with ``texelFetch``; slot ``s`` of node ``n`` is texel
-``(slots * (n % row) + s, n / row)``: ``slots = 1, row = layout.width`` for
+``(slots * (n % row) + s, n / row)`` (``node_slot_texel``; ``row`` a power of two): ``slots = 1, row = layout.width`` for
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, ``slots = 2, row = node_row`` for
 the ``tex_state`` of :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (``slots = 1`` for its
 Verlet ``tex_x``). Only xyz is looked at; w (mass, a packed normal) is ignored.
@@ -25,6 +25,7 @@ import moderngl
 from deformgl.gl.es_context import AnySamplesQuery
 from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, is_released
+from deformgl.grid.nodes import layout_uniforms
 
 __all__ = ["NodeCensus"]
 
@@ -35,13 +36,15 @@ class NodeCensus(GLOwner):
     Args:
         ctx: the GL context.
         count: nodes (>= 1); texels of node number ``count`` and beyond are never counted.
-        row: nodes per texture row (>= 1).
+        row: nodes per texture row (a power of two, the layout's width).
         slots: texels per node in the textures passed as ``now`` / ``state`` (>= 1).
     """
 
     def __init__(self, ctx: moderngl.Context, *, count: int, row: int, slots: int = 1) -> None:
         if count < 1 or row < 1 or slots < 1:
             raise ValueError(f"NodeCensus: count {count}, row {row}, slots {slots}: need >= 1")
+        if row & (row - 1):
+            raise ValueError(f"NodeCensus: row {row}: the node layout's width is a power of two")
         self.ctx = ctx
         self.count, self.row, self.slots = int(count), int(row), int(slots)
         self.rows = -(-self.count // self.row)
@@ -78,7 +81,7 @@ class NodeCensus(GLOwner):
         for unit, (sampler, tex) in enumerate(textures.items()):
             tex.use(unit)
             uniforms[sampler] = unit
-        program.set(u_row=self.row, u_count=self.count, **uniforms)
+        program.set(**layout_uniforms(self.row), u_count=self.count, **uniforms)
         previous = self.ctx.fbo
         if previous is None or is_released(previous):
             # the caller's framebuffer was released: leave framebuffer 0 bound afterwards

@@ -1,12 +1,13 @@
 #version 330 core
-// Node census: one fragment per node over a row x rows viewport, fragment (i, j) is node
-// j * row + i. Slot s of node n lives at texel (slots * (n % row) + s, n / row); only xyz is
-// looked at. COPY writes the slot out (a snapshot); MOVED and BAD keep a fragment only where
+// Node census: one fragment per node over a row x rows viewport, fragment (i, j) is the node at
+// texel (i, j) of the node layout (lib/node_texel.glsl: texel_node, row = 2^u_width_log2). Slot s
+// of that node lives at texel slot_texel((i, j), slots, s); only xyz is looked at. COPY writes the slot out (a snapshot); MOVED and BAD keep a fragment only where
 // the predicate holds, so an occlusion query over the pass counts the nodes. Without any of the
 // three the pass is BAD.
 
+#include "lib/node_texel.glsl"
+
 uniform sampler2D u_state;   // RGBA32F, NEAREST, read with texelFetch
-uniform int u_row;           // nodes per texture row
 uniform int u_count;         // nodes; texels past the last one are never counted
 uniform int u_slots;         // texels per node in u_state
 uniform int u_slot;          // which of them
@@ -35,13 +36,13 @@ bool non_finite(vec3 p) {
 
 void main() {
     ivec2 node = ivec2(gl_FragCoord.xy);
-    if (node.y * u_row + node.x >= u_count) discard;
-    vec4 x = texelFetch(u_state, ivec2(u_slots * node.x + u_slot, node.y), 0);
+    if (texel_node(node) >= u_count) discard;
+    vec4 x = texelFetch(u_state, slot_texel(node, u_slots, u_slot), 0);
 #if defined(COPY)
     o_value = x;
 #else
 #if defined(MOVED)
-    vec3 b = texelFetch(u_before, ivec2(u_before_slots * node.x + u_before_slot, node.y), 0).xyz;
+    vec3 b = texelFetch(u_before, slot_texel(node, u_before_slots, u_before_slot), 0).xyz;
     // a non-finite position on either side counts as moved (it is not at rest)
     bool keep = non_finite(x.xyz) || non_finite(b) || length(x.xyz - b) > u_threshold;
 #else

@@ -3,7 +3,7 @@
 // texture, the forces from lib/cell_forces.glsl (the float32 twin of deformgl/sim/volume.py
 // volume_forces()). Included by feedback/forces.glsl after the stage's eval_x hook.
 //
-//   u_cell_nodes (7 NODE_ROW x rows)  node n: texels (7 (n % NODE_ROW) + s, n / NODE_ROW),
+//   u_cell_nodes (7 NODE_ROW x rows)  node n: texels node_slot_texel(n, 7, s) (lib/node_texel.glsl),
 //                                     s = 0..6; integer m = 4 s + channel (m < 27) is the node at
 //                                     neighbourhood slot m = (dx + 1) + 3 (dy + 1) + 9 (dz + 1)
 //                                     (absent: the node itself), integer 27 (texel 6, w) the bit
@@ -19,10 +19,9 @@
 uniform isampler2D u_cell_nodes;
 
 vec3 node_cell_forces(int i, vec3 xi) {
-    ivec2 base = ivec2(7 * (i % NODE_ROW), i / NODE_ROW);
     ivec4 t[7];
     for (int s = 0; s < 7; ++s) {
-        t[s] = texelFetch(u_cell_nodes, base + ivec2(s, 0), 0);
+        t[s] = texelFetch(u_cell_nodes, node_slot_texel(i, 7, s), 0);
     }
     uint mask = uint(t[6].w);
     if (mask == 0u) {

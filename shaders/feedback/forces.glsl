@@ -28,6 +28,7 @@
 #ifndef SPRING_ROW
 #define SPRING_ROW 4096
 #endif
+#include "lib/node_texel.glsl"
 
 uniform isampler2D u_nodes;
 uniform isampler2D u_other;
@@ -39,7 +40,7 @@ uniform sampler2D u_springs;
 #endif
 
 ivec4 node_info(int n) {
-    return texelFetch(u_nodes, ivec2(n % NODE_ROW, n / NODE_ROW), 0);
+    return texelFetch(u_nodes, node_texel(n), 0);
 }
 
 vec3 list_acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
@@ -48,7 +49,7 @@ vec3 list_acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
     }
     vec3 f = vec3(0.0);
     for (int e = info.x; e < info.x + info.y; ++e) {
-        ivec2 st = ivec2(e % SPRING_ROW, e / SPRING_ROW);
+        ivec2 st = row_texel(e, SPRING_ROW);
         int j = texelFetch(u_other, st, 0).r;
         vec4 s = texelFetch(u_springs, st, 0);
 #ifdef SPRING_DAMPING

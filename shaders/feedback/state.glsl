@@ -2,14 +2,15 @@
 // and velocities that transform feedback writes, read back by the next pass on the GPU).
 // Transform feedback writes a pass's outputs interleaved (K vec4 per node, in varying order);
 // the same bytes are then copied, GPU to GPU, into an RGBA32F texture of K * NODE_ROW x rows
-// texels, so slot s of node n lies at texel (K * (n % NODE_ROW) + s, n / NODE_ROW) and every node
-// can fetch its neighbours' state.
+// texels, so slot s of node n lies at lib/node_texel.glsl's node_slot_texel(n, K, s) and every
+// node can fetch its neighbours' state.
 // Positions: xyz, w = mass (kg). Velocities: xyz, w unused.
 // NODE_ROW: nodes per texture row (deformgl: a power of two; default 1024, the largest it uses).
 #ifndef NODE_ROW
 #define NODE_ROW 1024
 #endif
+#include "lib/node_texel.glsl"
 
 vec4 slot(sampler2D tex, int k, int node, int s) {
-    return texelFetch(tex, ivec2(k * (node % NODE_ROW) + s, node / NODE_ROW), 0);
+    return texelFetch(tex, node_slot_texel(node, k, s), 0);
 }

@@ -1,20 +1,66 @@
-// Node number <-> texel of the node-numbered layouts (deformgl/grid/nodes.py CompactLayout; the
-// fragment-pass integrators' textures): node n sits at texel (n % w, n / w) of a texture whose
-// width w = 2^u_width_log2 is a power of two. Shared by lib/springs.glsl (COMPACT layouts),
-// sim/integrators/forces.glsl and profile/step_ablation.frag.
+// The node layout: where node n's state lives in a node-numbered texture (deformgl/grid/nodes.py
+// CompactLayout, the layout every pass reads and writes; docs/ARCHITECTURE.md "Textures: channel
+// layouts"). Every pass goes from a node number to a texel, and back, through these functions
+// only; none computes a texel itself (tests/test_node_layout.py).
+//
+// Node n sits at texel (n % w, n / w) of a texture w nodes wide, w a power of two: the uniform
+// w = 2^u_width_log2 (set by deformgl/grid/nodes.py layout_uniforms), or, where a pass fixes it at
+// compile time (the transform-feedback backend, deformgl/sim/backends/feedback.py), the define
+// NODE_ROW. A texture of K texels per node (the transform-feedback state, K vec4 outputs per node
+// interleaved; its cell table) holds slot s of node n at texel (K (n % w) + s, n / w):
+// node_slot_texel. Tables of other items laid out row by row (the feedback backend's spring
+// entries, a multigrid level read from a finer or coarser one) use row_texel / width_texel.
+// Integer arithmetic only: the same texels whichever form computes them.
+//
 // BLOCKED layouts (deformgl/grid/blocks.py BlockedLayout) number blocks the same way: block b is
 // texel node_texel(b) of every member's texture, and block_place gives the block and member
 // (render target) of a node at a block-local grid position.
 
+// Item i of a row-major table 2^width_log2 items wide.
+ivec2 width_texel(int i, int width_log2) {
+    return ivec2(i & ((1 << width_log2) - 1), i >> width_log2);
+}
+
+// Item i of a row-major table `row` items wide (a row fixed at compile time; i >= 0).
+ivec2 row_texel(int i, int row) {
+    return ivec2(i % row, i / row);
+}
+
+#ifndef NODE_ROW
 uniform int u_width_log2;  // log2 of the texture width
+#endif
 
 ivec2 node_texel(int n) {
-    return ivec2(n & ((1 << u_width_log2) - 1), n >> u_width_log2);
+#ifdef NODE_ROW
+    return row_texel(n, NODE_ROW);
+#else
+    return width_texel(n, u_width_log2);
+#endif
 }
 
 // The node number of a texel (the inverse of node_texel).
 int texel_node(ivec2 texel) {
+#ifdef NODE_ROW
+    return texel.y * NODE_ROW + texel.x;
+#else
     return (texel.y << u_width_log2) | texel.x;
+#endif
+}
+
+// Slot `slot` of the node whose one-texel-per-node texel is `node` (node_texel(n), or the
+// fragment of a pass drawn over the node grid), in a texture of `slots` texels per node.
+ivec2 slot_texel(ivec2 node, int slots, int slot) {
+    return ivec2(slots * node.x + slot, node.y);
+}
+
+// Slot `slot` of node n in a texture of `slots` texels per node.
+ivec2 node_slot_texel(int n, int slots, int slot) {
+    return slot_texel(node_texel(n), slots, slot);
+}
+
+// A texel the host packed into one int as x | y << 16 (deformgl/render/premap.py).
+ivec2 packed_texel(int code) {
+    return ivec2(code & 0xffff, code >> 16);
 }
 
 #ifdef BLOCKED

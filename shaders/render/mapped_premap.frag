@@ -1,11 +1,12 @@
 #version 330 core
 // First stage of the fragment two-stage mapping: one fragment per detailed-mesh vertex (vertex v
-// at texel (v % w, v / w), w = 2^u_width_log2, lib/node_texel.glsl) maps it from its three nodes
+// at node_texel(v), lib/node_texel.glsl) maps it from its three nodes
 // (lib/map_vertex.glsl: Mosegaard & Sorensen 2005, eq. 4, 6, 8, 9) into RGBA32F targets, which
 // render/mapped_premapped.vert then draws. The same function as render/mapped_mesh.vert, once
 // per vertex and in the renderer's parallel fragment threads (on llvmpipe, vertex shading runs
 // on one thread, once per index it meets). Variants: CURVATURE, NORMAL_MAP (as mapped_mesh.vert).
 #include "lib/map_vertex.glsl"
+#include "lib/node_texel.glsl"
 
 uniform sampler2D u_position;          // RGBA32F state: xyz position, w packed normal
 uniform isampler2D u_vertex_texels;    // RGBA32I: state texels of the three nodes as x | y << 16; A 0
@@ -19,17 +20,13 @@ layout(location = 2) out vec4 o_tangent;   // xyz mapped tangent, w handedness
 layout(location = 3) out vec4 o_uv;        // xy
 #endif
 
-ivec2 unpack_texel(int code) {
-    return ivec2(code & 0xffff, code >> 16);
-}
-
 void main() {
     ivec2 t = ivec2(gl_FragCoord.xy);
     ivec4 nodes = texelFetch(u_vertex_texels, t, 0);
     vec4 w = texelFetch(u_vertex_data, ivec3(t, 0), 0);
-    vec4 n1 = texelFetch(u_position, unpack_texel(nodes.x), 0);
-    vec4 n2 = texelFetch(u_position, unpack_texel(nodes.y), 0);
-    vec4 n3 = texelFetch(u_position, unpack_texel(nodes.z), 0);
+    vec4 n1 = texelFetch(u_position, packed_texel(nodes.x), 0);
+    vec4 n2 = texelFetch(u_position, packed_texel(nodes.y), 0);
+    vec4 n3 = texelFetch(u_position, packed_texel(nodes.z), 0);
 #ifdef NORMAL_MAP
     vec4 tangent = texelFetch(u_vertex_data, ivec3(t, 5), 0);
     vec3 tangent_world = texelFetch(u_vertex_data, ivec3(t, 6), 0).xyz;

@@ -1,7 +1,7 @@
 #version 330 core
 // Second stage of the fragment two-stage mapping: each index fetches its vertex's mapped
 // position and normal (and tangent, uv) from the targets render/mapped_premap.frag wrote
-// (vertex v at texel (v % w, v / w), lib/node_texel.glsl). Outputs as render/mapped_mesh.vert,
+// (vertex v at lib/node_texel.glsl's node_texel(v)). Outputs as render/mapped_mesh.vert,
 // for render/mapped_mesh.frag.
 #include "lib/node_texel.glsl"
 

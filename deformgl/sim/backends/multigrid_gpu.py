@@ -32,6 +32,7 @@ import scipy.sparse as sp
 from deformgl.errors import GLError
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
+from deformgl.grid.nodes import layout_uniforms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.multigrid import SWEEPS, Hierarchy, diagonal_blocks
 
@@ -177,14 +178,10 @@ class GpuMultigrid:
         self._fbo(*targets).use()
         vao.render(moderngl.TRIANGLES, vertices=3)
 
-    @staticmethod
-    def _log2(width: int) -> int:
-        return int(width).bit_length() - 1
-
     def _level_cycle(self, l: int) -> None:
         """The cycle on coarse level ``l`` (1-based) from its ``rhs``: its result in ``x``."""
         lv = self.levels[l - 1]
-        base = {"u_count": lv["count"], "u_width_log2": self._log2(lv["width"])}
+        base = {"u_count": lv["count"], **layout_uniforms(lv["width"])}
         if "inverse" in lv:
             self._draw("COARSEST", base, {"u_rhs": lv["rhs"], "u_inverse": lv["inverse"]}, lv["x"])
             return
@@ -195,7 +192,7 @@ class GpuMultigrid:
         self._draw("LEVEL_RESIDUAL", base, {**stencil, "u_vec": lv["x"]}, lv["res"])
         self._descend(l, lv["res"], lv["width"])
         below = self.levels[l]
-        self._draw("PROLONG", {**base, "u_src_width_log2": self._log2(below["width"])},
+        self._draw("PROLONG", {**base, **layout_uniforms(below["width"], prefix="u_src_")},
                    {"u_vec": lv["x"], "u_src": below["x"], "u_transfer_nb": below["prolong"][0],
                     "u_transfer_w": below["prolong"][1]}, lv["x_out"])
         lv["x"], lv["x_out"] = lv["x_out"], lv["x"]
@@ -209,8 +206,8 @@ class GpuMultigrid:
     def _descend(self, l: int, residual: moderngl.Texture, width: int) -> None:
         """Restrict level ``l``'s residual into level ``l + 1``'s rhs and cycle there."""
         below = self.levels[l]
-        self._draw("RESTRICT", {"u_count": below["count"], "u_width_log2": self._log2(below["width"]),
-                                "u_src_width_log2": self._log2(width)},
+        self._draw("RESTRICT", {"u_count": below["count"], **layout_uniforms(below["width"]),
+                                **layout_uniforms(width, prefix="u_src_")},
                    {"u_src": residual, "u_transfer_nb": below["restrict"][0], "u_transfer_w": below["restrict"][1]},
                    below["rhs"])
         self._level_cycle(l + 1)
@@ -226,8 +223,8 @@ class GpuMultigrid:
         fine_pass("MG_RESIDUAL", r, x, res)
         self._descend(0, res, self.fine_width)
         below = self.levels[0]
-        self._draw("PROLONG", {"u_count": self.fine_count, "u_width_log2": self._log2(self.fine_width),
-                               "u_src_width_log2": self._log2(below["width"])},
+        self._draw("PROLONG", {"u_count": self.fine_count, **layout_uniforms(self.fine_width),
+                               **layout_uniforms(below["width"], prefix="u_src_")},
                    {"u_vec": x, "u_src": below["x"], "u_transfer_nb": below["prolong"][0],
                     "u_transfer_w": below["prolong"][1]}, x_out)
         x, x_out = x_out, x
@@ -239,7 +236,7 @@ class GpuMultigrid:
     def rz(self, r: moderngl.Texture, z: moderngl.Texture, prod: moderngl.Texture,
            p: moderngl.Texture | None = None) -> None:
         """Per texel ``r . z`` and ``r . r`` into ``prod``; with ``p``, also ``p = z``."""
-        uniforms: dict[str, object] = {"u_count": self.fine_count, "u_width_log2": self._log2(self.fine_width)}
+        uniforms: dict[str, object] = {"u_count": self.fine_count, **layout_uniforms(self.fine_width)}
         if p is None:
             self._draw("RZ", uniforms, {"u_r": r, "u_z": z}, prod)
         else:

@@ -36,7 +36,7 @@ from deformgl.errors import GLError
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import NodeGrid
+from deformgl.grid.nodes import NodeGrid, layout_uniforms
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.xpbd_cells_gpu import CELL_SAMPLERS, XpbdCells
 from deformgl.sim.backends.uniforms import uniform_array
@@ -51,7 +51,7 @@ from deformgl.sim.xpbd import (
     OMEGA,
     XpbdSettings,
     _check_drags,
-    check_bending,
+    check_terms,
     cell_constraints,
     constraint_counts,
     node_terms,
@@ -106,7 +106,7 @@ class XpbdFragment(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"xpbd: dt must be > 0, got {dt}")
         self.settings = XpbdSettings(iterations, substeps, omega)
-        check_bending(system)
+        check_terms(system)
         _check_drags(tuple(drags), system.count)
         self.ctx, self.system, self.grid = ctx, system, grid
         self._start_clock(dt, t0)
@@ -187,7 +187,7 @@ class XpbdFragment(SimulationBase, GLOwner):
         for p in passes:
             p.set(**{s: u for s, u in _SAMPLERS.items() if s in p.members}, u_h=h_sub)
             if "u_width_log2" in p.members:
-                p.set(u_width_log2=int(self.layout.width).bit_length() - 1)
+                p.set(**layout_uniforms(self.layout.width))
         self.p_predict.set(u_gravity=tuple(float(g) for g in system.gravity),
                            u_mass_damping=system.mass_damping, u_velocity_damping=system.velocity_damping)
         if system.wind_drag > 0:

@@ -2,7 +2,7 @@
 // The coarse levels of the multigrid V-cycle that preconditions the implicit step's CG
 // (docs/EQUATIONS.md "Multigrid"; float64 reference deformgl/sim/multigrid.py; host
 // deformgl/sim/backends/multigrid_gpu.py). Each coarse level is its own compact node texture
-// (node n at texel (n % w, n / w), w = 2^u_width_log2) holding the Galerkin operator
+// (lib/node_texel.glsl: node n at node_texel(n), w = 2^u_width_log2) holding the Galerkin operator
 // A_l = P^T A_{l-1} P of the step's start state as its row's 3x3 blocks (STENCIL_COUNT at most:
 // 27 on a body of the 18-neighbour lattice, 25 on a sheet); the finest level's
 // smoothing and residual are implicit.frag's MG_SMOOTH and MG_RESIDUAL (its matrix-free A).
@@ -92,7 +92,7 @@ vec3 stencil_product(ivec2 texel) {
 
 #if defined(RESTRICT) || defined(PROLONG)
 ivec2 source_texel(int n) {
-    return ivec2(n & ((1 << u_src_width_log2) - 1), n >> u_src_width_log2);
+    return width_texel(n, u_src_width_log2);
 }
 
 vec3 transfer(ivec2 texel) {
