@@ -1,4 +1,4 @@
-"""Anti-aliasing in ``bench render``: the heart frame's budget split (steps, mapping draw, AA,
+"""Anti-aliasing in ``studies.render_speed``: the heart frame's budget split (steps, mapping draw, AA,
 read-back) without AA, with MSAA and with the FXAA pass (:class:`deformgl.render.fxaa.FxaaPass`),
 and each one's image against a reference as a pixel difference: 8x MSAA where the renderer has it;
 llvmpipe stops at 4x (``GL_MAX_SAMPLES``), and there the reference is 4x MSAA at twice the size in
@@ -135,7 +135,7 @@ def frame_budgets(ctx: moderngl.Context, step: Callable[[], None], draw: Callabl
 
 
 def format_budgets(budgets: dict[str, FrameBudget], info: dict) -> list[str]:
-    """The ``bench render`` lines of the frame budget split and the AA image differences
+    """The ``studies.render_speed`` lines of the frame budget split and the AA image differences
     (``info["reference"]``: :func:`reference_name`)."""
     lines = [f"frame budget at {info['frame_size']}x{info['frame_size']}, {info['frame_steps']} steps + one "
              "curvature-corrected draw + AA + read-back (median ms per stage); image of the same state against "

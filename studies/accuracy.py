@@ -1,4 +1,4 @@
-"""``deformgl bench accuracy``: the calibrated lattice against converged finite elements
+"""``python -m studies.accuracy``: the calibrated lattice against converged finite elements
 (issue 12, item 3).
 
 For each workload of :mod:`deformgl.bench.fem` (cantilever under gravity, block under a

@@ -1,4 +1,4 @@
-"""``deformgl bench animation``: what a frame of an animation costs against a still, in one process.
+"""``python -m studies.animation_frames``: what a frame of an animation costs against a still, in one process.
 
 Three timings of the same scene (default: the shipped dragon_motion.toml, the README's GIF), after
 one warm-up render that fills the binding cache: the still at step 0 (build, bind, draw: what

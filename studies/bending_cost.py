@@ -1,4 +1,4 @@
-"""What a sheet's bending stiffness costs per step: ``deformgl bench sim --bending``.
+"""What a sheet's bending stiffness costs per step: ``python -m studies.bending_cost``.
 
 The same cloth (a square sheet, Y = 50 N/m, rho_A = 0.2 kg/m^2, two corners pinned) on the
 fragment backend with its three ways to bend: the flexion springs of Movania & Feng 2012

@@ -1,5 +1,5 @@
 """Benchmark of :func:`deformgl.mapping.binding.bind`: the res3 dragon (and a 50,000-vertex
-version of it) bound to a grid of about 20,000 nodes (``deformgl bench binding``)."""
+version of it) bound to a grid of about 20,000 nodes (``python -m studies.binding_speed``)."""
 
 from __future__ import annotations
 

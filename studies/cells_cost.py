@@ -1,4 +1,4 @@
-"""What the cells' volumetric term costs per step: ``deformgl bench sim --poisson 0.45[,0.49]``.
+"""What the cells' volumetric term costs per step: ``python -m studies.cells_cost --poisson 0.45[,0.49]``.
 
 The same lattice block (E = 10 kPa, rho = 1000 kg/m^3, top layer fixed) on the fragment backend
 at nu = 1/4 (the baseline: the springs and the cells' corner barrier, what every scene without a

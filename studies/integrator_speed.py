@@ -1,6 +1,6 @@
 """Every explicit integrator on every backend (fragment, feedback, NumPy) on 64^2 ... 2048^2
 cloths and 20k / 131k-node volumes, against the fragment Verlet baseline (docs/PERFORMANCE.md,
-"Integrators"): ``python -m studies.integrator_speed``."""
+"Integrators on every backend"): ``python -m studies.integrator_speed``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``deformgl bench mappings``: how well each mapping (Mosegaard & Sørensen 2005, 3.2-3.3)
+"""``python -m studies.mapping_accuracy``: how well each mapping (Mosegaard & Sørensen 2005, 3.2-3.3)
 follows a known deformation, and what it costs to draw.
 
 A bend or twist (:class:`~deformgl.mapping.node_drivers.Motion`) is applied analytically to the rest
@@ -53,7 +53,7 @@ from deformgl.scene.schema import Scene, load_scene
 from deformgl.grid.surface import grid_surface
 
 MODES = ("one-to-one", "constant", "curvature", "auto")
-#: The dragon of the paper's figure 6 (relative to the working directory, like ``bench render``'s
+#: The dragon of the paper's figure 6 (relative to the working directory, like ``studies.render_speed``'s
 #: scene: the scenes are in the repository, not the wheel).
 DEFAULT_SCENE = packaged_scene("dragon_bend_constant")
 DEFAULT_GRIDS = (4, 8, 16)
@@ -319,7 +319,7 @@ def conclusions(rows: list[MappingRow]) -> list[str]:
 
 
 def format_mapping_accuracy(rows: list[MappingRow], machine: str) -> str:
-    """The ``bench mappings`` table, then the conclusions in words."""
+    """The ``studies.mapping_accuracy`` table, then the conclusions in words."""
     lines = [machine,
              "error in grid spacings against the same analytic motion applied to the mesh (float64); "
              "Mosegaard & Sørensen 2005, eq. 9 modes: per-vertex |v' - truth|; one-to-one (*): distance from the true vertex to the "

@@ -3,7 +3,7 @@
 manifold3d; tetgen and pymeshfix wrap AGPL code, TetGen and MeshFix, which is why they stay in
 an optional extra).
 
-`bench accuracy` measures boxes, whose grids it builds directly. A real mesh goes through the
+`python -m studies.accuracy` measures boxes, whose grids it builds directly. A real mesh goes through the
 cells' fill (:mod:`deformgl.grid.fill`: each cell carries the part of the mesh inside it, issue
 28). This measures what the lattice then gives, as the issue defines it: the mesh made one
 watertight solid once (pymeshfix; the finned bar's intersecting shells merged by manifold3d's

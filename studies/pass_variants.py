@@ -1,6 +1,6 @@
 """The fragment Verlet pass in its variants — compact, indexed, with the branch, blocked 1x2x2,
 and the 3D-atlas layout drawn as rectangles, one quad or points — against the float64 NumPy
-reference on 4k to 131k nodes (docs/PERFORMANCE.md, "The simulation step"):
+reference on 4k to 131k nodes (docs/PERFORMANCE.md, "Simulation step"):
 ``python -m studies.pass_variants``. The variants other than compact and blocked are options of
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` that only this study uses."""
 

@@ -1,6 +1,6 @@
-"""A scene in real time (docs/PERFORMANCE.md, "Implicit Euler"): frames of 1/60 s simulated per
-wall second, implicit Euler at dt = 1/60 s (one step a frame, 10 and 20 CG iterations) against the
-scene's own explicit integrator at its dt, on the fragment backend:
+"""A scene in real time (docs/PERFORMANCE.md, "Implicit Euler on stiff materials"): frames of
+1/60 s simulated per wall second, implicit Euler at dt = 1/60 s (one step a frame, 10 and 20 CG
+iterations) against the scene's own explicit integrator at its dt, on the fragment backend:
 ``python -m studies.realtime [--scene FILE]`` (default the shipped dragon_heart_scale.toml)."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The draw paths of a mapped scene against the static mesh, and a simulate + draw frame
-(docs/PERFORMANCE.md, "Rendering"): ``python -m studies.render_speed [--scene FILE]`` (default the
-shipped dragon_heart_scale.toml).
+(docs/PERFORMANCE.md, "Drawing the heart-scale mesh"): ``python -m studies.render_speed
+[--scene FILE]`` (default the shipped dragon_heart_scale.toml).
 
 Timings include a ``ctx.finish()``; each figure is the median of several repeats."""
 
@@ -18,7 +18,7 @@ from studies.common import gl_context, parse, parser, run_main
 
 @dataclass
 class RenderRow:
-    """One draw path of ``bench render``."""
+    """One draw path of ``studies.render_speed``."""
 
     name: str
     ms: float

@@ -1,4 +1,4 @@
-"""``deformgl bench scaling``: time per step from about 4k to 1M nodes, and its power-law fit.
+"""``python -m studies.scaling``: time per step from about 4k to 1M nodes, and its power-law fit.
 
 Every backend steps full blocks (structural + shear springs, top layer fixed: the same
 18-neighbour workload). ms/step: median over rounds, each timing k ~ ``node_steps / nodes``
@@ -31,7 +31,7 @@ __all__ = ["BACKENDS", "DEFAULT_SIZES", "QUICK_SIZES", "UPPER_NODES", "PowerFit"
 
 #: Cube edges of the default study: 4096, 19683, 64000, 262144 and 1000000 nodes.
 DEFAULT_SIZES: tuple[int, ...] = (16, 27, 40, 64, 100)
-#: ``bench scaling --quick``: 4096 to 262144 nodes (about 1 GB instead of 4.7 GB held).
+#: ``python -m studies.scaling --quick``: 4096 to 262144 nodes (about 1 GB instead of 4.7 GB held).
 QUICK_SIZES: tuple[int, ...] = (16, 27, 40, 64)
 BACKENDS = ("foundation", "fragment", "feedback")
 #: The upper fit uses sizes with at least this many nodes.

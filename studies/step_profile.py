@@ -1,4 +1,4 @@
-"""``deformgl bench profile``: where the foundation's step pass spends its time.
+"""``python -m studies.step_profile``: where the foundation's step pass spends its time.
 
 The pass of ``shaders/sim/verlet.frag`` is rebuilt stage by stage
 (``shaders/profile/step_ablation.frag``): one fetch of the node's own position, then its
@@ -192,7 +192,7 @@ def format_lattice_weights(rows: list[tuple[str, int, float, float]]) -> list[st
 
 
 def profile_report(ctx: moderngl.Context) -> str:
-    """``bench profile``: the table for the 20k and 131k-node blocks, and the material lattice's
+    """``studies.step_profile``: the table for the 20k and 131k-node blocks, and the material lattice's
     weight texture against its levels code."""
     return "\n".join([format_profile(profile_step(ctx), machine_line(ctx)),
                       *format_lattice_weights(lattice_weights(ctx))])

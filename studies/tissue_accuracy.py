@@ -19,7 +19,7 @@ lattice of nu = 1/4 (``cells=None``: what deformgl was before), and a fourth tab
   the nonlinear lattice (:func:`static_equilibrium`), against the inextensible elastica
   (:func:`studies.fem_tissue.elastica_tip`) and the neo-Hookean FEM
   (:func:`studies.fem_nonlinear.neo_hookean_cantilever_tip`, :data:`NEO_HOOKEAN_FEM`).
-* **the plan's errors at nu** (:func:`workload_errors`): ``bench accuracy``'s block in
+* **the plan's errors at nu** (:func:`workload_errors`): ``studies.accuracy``'s block in
   compression and bar in torsion at nu 0.3, 0.45, 0.49, the lattice against the displacement FEM
   computed here (the ``fem`` extra; without it the table is skipped with a line saying so):
   :data:`deformgl.plan.planner.MEASURED_NU`.
@@ -238,7 +238,7 @@ def tip_row(across: int, youngs_modulus: float, nu: float, *, cells: bool = True
 
 
 def workload_errors(name: str, nu: float, across: Sequence[int]) -> tuple[float, dict[int, float]]:
-    """``bench accuracy``'s workload ``name`` ("block" or "twist") at Poisson's ratio ``nu``: the
+    """``studies.accuracy``'s workload ``name`` ("block" or "twist") at Poisson's ratio ``nu``: the
     displacement FEM's estimated relative error, and the lattice's |lattice / FEM - 1| (springs and
     cells at ``nu``) at each of ``across`` (:data:`deformgl.plan.planner.MEASURED_NU` holds them at 5,
     9 and 17). Needs the 'fem' extra."""
@@ -288,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  E={e:>8.0f} nu={nu:<4} {'cells' if cells else 'springs':<7} {n:>2} across: "
                   f"({r.tip[0]:+.6f}, {r.tip[1]:+.6f}); elastica {_errors(r.tip, ELASTICA[e])}; "
                   f"neo-Hookean FEM {_errors(r.tip, NEO_HOOKEAN_FEM[(e, nu)])}  [{r.seconds:.1f} s]", flush=True)
-    print("\n4. bench accuracy's block (compression) and bar (torsion) at the body's nu: |lattice / FEM - 1| "
+    print("\n4. studies.accuracy's block (compression) and bar (torsion) at the body's nu: |lattice / FEM - 1| "
           "(displacement Q2 FEM at that nu, Richardson-extrapolated; the plan's MEASURED_NU)")
     try:
         require_skfem()

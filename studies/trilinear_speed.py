@@ -1,4 +1,4 @@
-"""``deformgl bench trilinear``: the benchmark of Knuth, Kohlhammer & Kuijper, section 6 (linear
+"""``python -m studies.trilinear_speed``: the benchmark of Knuth, Kohlhammer & Kuijper, section 6 (linear
 against trilinear scene graphs, and the cost of depth), on the scenes of
 :mod:`deformgl.trilinear.scenes`.
 """
@@ -167,7 +167,7 @@ def bench_depth(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), re
 
 def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machine: str, *,
                      size: tuple[int, int], repeats: int) -> str:
-    """The ``bench trilinear`` report."""
+    """The ``studies.trilinear_speed`` report."""
     lines = [machine,
              f"trilinear scene graph (Knuth et al., section 6): {size[0]}x{size[1]} offscreen, no MSAA, "
              f"median of {repeats} frames; a frame = CPU composition (cached: only what changed since the "
@@ -203,7 +203,7 @@ def format_trilinear(rows: list[TrilinearRow], depth_rows: list[DepthRow], machi
 
 def trilinear_bench_report(ctx: moderngl.Context, *, size: tuple[int, int] = (512, 512), repeats: int = 16,
                            progress: Callable[[str], None] | None = None) -> str:
-    """``deformgl bench trilinear``: run both benchmarks and format the report."""
+    """``python -m studies.trilinear_speed``: run both benchmarks and format the report."""
     if progress:
         progress("linear vs trilinear, three set-ups")
     rows = bench_trilinear(ctx, size=size, repeats=repeats)

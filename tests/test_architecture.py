@@ -66,10 +66,42 @@ def test_cycle_finder_finds_a_cycle():
     assert _cycle(graph) == ["p.a", "p.b", "p.c", "p.a"]
 
 
-@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")), ids=lambda p: str(p.relative_to(PACKAGE)))
+STUDIES = ROOT / "studies"
+#: What the wheel may hold of benchmark code (issue 43, item 5): ``deformgl bench sim|trade``.
+#: The FEM references of ``bench trade``'s accuracy rows (``bench/fem.py``, the 'fem' extra's
+#: module) are counted apart.
+BENCH_BUDGET = 2500
+
+
+@pytest.mark.parametrize("path", sorted(PACKAGE.rglob("*.py")) + sorted(STUDIES.rglob("*.py")),
+                         ids=lambda p: str(p.relative_to(ROOT)))
 def test_module_size(path: Path):
     lines = len(path.read_text(encoding="utf-8").splitlines())
     assert lines <= MAX_LINES, f"{path.relative_to(ROOT)} has {lines} lines; split it by what it does"
+
+
+def test_no_benchmark_or_study_module_shares_a_name():
+    """A module's name says what it does, once: no module of the studies or of deformgl/bench has
+    the basename of another module in the package or the studies (issue 43, item 4)."""
+    every = [p for p in sorted(PACKAGE.rglob("*.py")) + sorted(STUDIES.rglob("*.py"))
+             if p.name not in ("__init__.py", "__main__.py")]
+    names = [p.name for p in every]
+    ours = [p for p in every if STUDIES in p.parents or PACKAGE / "bench" in p.parents]
+    twice = sorted(str(p.relative_to(ROOT)) for p in ours if names.count(p.name) > 1)
+    assert not twice, twice
+
+
+def test_the_wheel_holds_at_most_its_budget_of_benchmark_code():
+    """deformgl/bench (but its FEM references), the bench CLI and the trade's Dask tasks: the
+    studies live in the repository's studies/, outside the package."""
+    files = [p for p in PACKAGE.joinpath("bench").rglob("*.py") if p.name != "fem.py"]
+    files += [PACKAGE / "cli_bench.py", PACKAGE / "sweep" / "trade_tasks.py"]
+    lines = sum(len(p.read_text(encoding="utf-8").splitlines()) for p in files)
+    assert lines <= BENCH_BUDGET, f"the wheel's benchmark code is {lines} lines (budget {BENCH_BUDGET})"
+    import tomllib
+
+    packages = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]["packages"]
+    assert all(p == "deformgl" or p.startswith("deformgl.") for p in packages), packages
 
 
 def test_subpackages_mirror_the_shaders():
@@ -81,14 +113,14 @@ def test_subpackages_mirror_the_shaders():
 
 
 def test_every_dotted_reference_in_the_docstrings_resolves():
-    """``:func:`deformgl.x.y``` names in code comments and docstrings follow the modules when they
-    move (the flat modules' old paths such as ``deformgl.springs.forces`` fail)."""
+    """``:func:`deformgl.x.y``` (and ``studies.x.y``) names in code comments and docstrings follow
+    the modules when they move (the flat modules' old paths such as ``deformgl.springs.forces`` fail)."""
     import importlib
     import re
 
     missing = set()
-    for path in sorted((ROOT / "deformgl").rglob("*.py")):
-        for m in re.finditer(r"`~?(deformgl(?:\.\w+)+)`", path.read_text(encoding="utf-8")):
+    for path in sorted((ROOT / "deformgl").rglob("*.py")) + sorted(STUDIES.rglob("*.py")):
+        for m in re.finditer(r"`~?((?:deformgl|studies)(?:\.\w+)+)`", path.read_text(encoding="utf-8")):
             parts = m.group(1).split(".")
             for i in range(len(parts), 0, -1):
                 try:

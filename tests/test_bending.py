@@ -268,7 +268,7 @@ def test_flap_scene_refuses_xpbd_and_a_large_explicit_dt(tmp_path) -> None:
 
 @pytest.mark.gl
 def test_bench_sim_bending_prints_the_cost_ratios(ctx) -> None:
-    """``deformgl bench sim --bending``'s table: the flexion springs' ratio is 1 in every round,
+    """``python -m studies.bending_cost``'s table: the flexion springs' ratio is 1 in every round,
     every variant of both integrators has a row (timings are for the benchmark, not asserted)."""
     from studies.bending_cost import INTEGRATORS, VARIANTS, bench_bending, format_bending
 

@@ -182,7 +182,7 @@ def test_the_dt_check_predicts_the_limit_at_high_nu(tmp_path):
 
 @pytest.mark.gl
 def test_bench_sim_poisson_prints_the_cost_ratios(ctx):
-    """``deformgl bench sim --poisson``'s table: the baseline's ratio is 1 in every round, every
+    """``python -m studies.cells_cost``'s table: the baseline's ratio is 1 in every round, every
     variant of every integrator has a row (timings are for the benchmark, not asserted)."""
     from studies.cells_cost import bench_poisson, format_poisson
 

@@ -1,4 +1,4 @@
-"""PNG charts of the benchmark reports (``bench trade``, ``bench mappings``, ``bench scaling``)
+"""PNG charts of the benchmark reports (``bench trade``, and the studies' mappings and scaling)
 with matplotlib, the optional ``plot`` extra: its object API and the Agg canvas only (no pyplot
 state), written atomically."""
 

@@ -46,7 +46,7 @@ FRACTIONS = (0.25, 0.5, 0.9)
 QUICK_FRACTIONS = (0.5, 0.9)
 REFERENCE_DIVISOR = 16.0
 ROUNDS, BATCH = 5, 40
-#: The converged FEM tip deflection of the cantilever in m (``deformgl bench accuracy``:
+#: The converged FEM tip deflection of the cantilever in m (``python -m studies.accuracy``:
 #: ElementHex2 on 1, 2, 4 elements across, Richardson-extrapolated), used without scikit-fem.
 FEM_TIP = 1.477008e-02
 
@@ -116,7 +116,7 @@ class ResolutionReport:
                          "ms per simulated second")
             above = r.error
         lines.append(f"  nothing measured is more accurate than {above:.1e}: a finer grid "
-                     "(bench accuracy: the error falls about as h^1.7)")
+                     "(python -m studies.accuracy: the error falls about as h^1.7)")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:
@@ -207,7 +207,7 @@ def fem_tip() -> tuple[float, str]:
     try:
         import skfem  # type: ignore[import-untyped,import-not-found,unused-ignore]  # noqa: F401
     except ImportError:
-        return FEM_TIP, "bench accuracy's value; scikit-fem not installed"
+        return FEM_TIP, "studies.accuracy's value; scikit-fem not installed"
     from deformgl.bench.fem import fem_reference
 
     value, _, _ = fem_reference(WORKLOADS["cantilever"], (1, 2, 4))
@@ -237,7 +237,7 @@ def resolution_study(ctx: moderngl.Context, *, quick: bool = False,
     rounds, batch = (2, 10) if quick else (ROUNDS, BATCH)
     material = ElasticMaterial(MATERIAL.youngs_modulus, MATERIAL.density, mass_damping=ALPHA)
     w = WORKLOADS["cantilever"]
-    fem, source = (FEM_TIP, "bench accuracy's value") if quick else fem_tip()
+    fem, source = (FEM_TIP, "studies.accuracy's value") if quick else fem_tip()
     pending: list[dict[str, Any]] = []
     for n in across:
         if progress:

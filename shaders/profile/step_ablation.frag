@@ -1,5 +1,5 @@
 #version 330 core
-// Ablation of the foundation's step pass (sim/verlet.frag) for `deformgl bench profile`: the
+// Ablation of the foundation's step pass (sim/verlet.frag) for `python -m studies.step_profile`: the
 // same fetches in the same order, cut off after stage STAGE, to measure what a step costs:
 //   0  one fetch of the node's own position (the floor of a pass)
 //   1  + previous position and node data (the step's own texels)
