@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from deformgl.grid.nodes import CompactLayout, layout_uniforms
+from deformgl.sim.census import NodeCensus
 
 ROOT = Path(__file__).resolve().parent.parent
 SHADERS = ROOT / "shaders"
@@ -115,3 +116,22 @@ def test_layout_uniforms_is_the_log2_of_the_compact_layouts_width():
 def test_layout_uniforms_refuses_a_width_not_a_power_of_two(width):
     with pytest.raises(ValueError, match=f"layout_uniforms: a node texture {width} texels wide"):
         layout_uniforms(width)
+
+
+def test_the_census_reads_the_node_layout_and_refuses_another_row(ctx):
+    with pytest.raises(ValueError, match="NodeCensus: row 12: the node layout's width is a power of two"):
+        NodeCensus(ctx, count=30, row=12)
+
+
+def test_the_copy_study_reports_the_gain_and_the_steps_a_copy_costs():
+    from studies.layout_copy import format_rows
+
+    row = {"grid": "heart", "nodes": 24537, "block": (2, 2, 1),
+           "times": {"compact": [5.0, 4.0, 6.0], "blocked": [3.0, 3.0, 4.0], "copy": [0.5, 0.4, 0.6],
+                     "census": [0.2, 0.3, 0.25], "draw": [14.0, 15.0, 16.0]}}
+    text = format_rows([row], "machine", 3)
+    assert text.splitlines()[0] == "machine"
+    line = text.splitlines()[2]
+    # gains 2, 1, 2 ms/step; copies 0.5, 0.4, 0.6 ms: 0.25, 0.4, 0.3 steps' gain
+    assert "blocks 2x2x1" in line and "gain 2.000 (1.000-2.000)" in line
+    assert "copy 0.500 (0.400-0.600) = 0.3 steps' gain" in line and "mapped draw 15.000 (14.000-16.000)" in line

@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms, node_strides, texture_width
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms, node_strides, node_texels, texture_width
 
 __all__ = ["BLOCK_SHAPES", "CORNER_OFFSETS", "BlockedLayout", "parse_block"]
 
@@ -156,7 +156,7 @@ class BlockedLayout:
         blocks = self.block_index[tuple((ijk // b).T)]
         local = ijk % b
         member = (local[:, 0] * b[1] + local[:, 1]) * b[2] + local[:, 2]
-        return member, np.stack([blocks % self.width, blocks // self.width], axis=-1)
+        return member, node_texels(blocks, self.width)
 
     def scatter(self, ijk: np.ndarray, values: np.ndarray, fill: float = 0.0) -> np.ndarray:
         """Per-node ``values`` (N, C) as (members, height, width, C) float32 images."""

@@ -262,6 +262,13 @@ def layout_uniforms(width: int, *, prefix: str = "u_") -> dict[str, int]:
     return {f"{prefix}width_log2": width.bit_length() - 1}
 
 
+def node_texels(numbers: np.ndarray, width: int) -> np.ndarray:
+    """(N, 2) int64 texel of node (or block) ``numbers`` in a texture ``width`` texels wide: the
+    host side of ``shaders/lib/node_texel.glsl`` ``node_texel``, ``(n % width, n // width)``."""
+    numbers = np.asarray(numbers)
+    return np.stack([numbers % width, numbers // width], axis=-1)
+
+
 @dataclass(frozen=True, eq=False)
 class CompactLayout(TexelImages):
     """Existing nodes packed densely in node order: node n is texel (n % width, n // width).
@@ -318,8 +325,7 @@ class CompactLayout(TexelImages):
 
     def node_texel(self, nodes: np.ndarray) -> np.ndarray:
         """(N, 2) int64 texel of node numbers."""
-        nodes = np.asarray(nodes)
-        return np.stack([nodes % self.width, nodes // self.width], axis=-1)
+        return node_texels(nodes, self.width)
 
     def texel(self, ijk: np.ndarray) -> np.ndarray:
         """(N, 2) int64 texel of existing nodes at grid indices ``ijk`` (N, 3)."""

@@ -4,10 +4,11 @@
 corner barrier (no inversion) to the springs. The feedback backend gathers them per node in the
 vertex shader of every stage (``shaders/feedback/cells.glsl`` calling
 ``shaders/lib/cell_forces.glsl``), from one RGBA32I texture of :data:`CELL_SLOTS` texels per node:
-node n's texels are ``(CELL_SLOTS * (n % NODE_ROW) + s, n / NODE_ROW)``, s = 0..6, whose 28
-integers are the 27 node numbers of its 3x3x3 neighbourhood (integer ``m = 4 s + channel`` holds
-slot m of :func:`deformgl.sim.backends.cell_tables.neighbourhood`) and, last (texel 6, ``w``), the
-bit mask of its full incident cells (:func:`deformgl.sim.backends.cell_tables.incident_cells`).
+node n's texels are its slots s = 0..6 in the node layout (``shaders/lib/node_texel.glsl``
+``node_slot_texel(n, CELL_SLOTS, s)``), whose 28 integers are the 27 node numbers of its 3x3x3
+neighbourhood (integer ``m = 4 s + channel`` holds slot m of
+:func:`deformgl.sim.backends.cell_tables.neighbourhood`) and, last (texel 6, ``w``), the bit mask
+of its full incident cells (:func:`deformgl.sim.backends.cell_tables.incident_cells`).
 
 Only grid bodies have cells; the tables assume the system's cells are cells of its node grid, as
 :func:`deformgl.sim.materials.lattice_system` builds them, and :func:`check_system_cells` refuses any
