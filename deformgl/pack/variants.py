@@ -134,17 +134,28 @@ CELL_SWITCHES: tuple[dict[str, object], ...] = ({}, {"CELLS": True, "CELL_BARRIE
                                                {"CELLS": True, "CELL_CENTRE": True, "CELL_BARRIER": True})
 
 
+def _term_sets(count: int, implicit: bool = False) -> Iterator[dict[str, object]]:
+    """The physics terms' defines (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`): none, or one
+    shipped term (:data:`deformgl.sim.terms.registry.SHIPPED`) whose grid neighbours the table of
+    ``count`` neighbours holds."""
+    from deformgl.sim.terms.glsl import PassTerms
+    from deformgl.sim.terms.registry import SHIPPED
+
+    yield {}
+    for form in SHIPPED:
+        if form.neighbours <= count and (form.implicit or not implicit):
+            yield PassTerms((form,), implicit).defines()
+
+
 def fragment_backend() -> Iterator[Variant]:
     """``FragmentIntegrator``: each integrator's stages (``_build``)."""
+    shapes = [(layers, count, terms) for layers, count in ((5, 18), (6, 24)) for terms in _term_sets(count)]
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for (layers, count), dense, weights, forces, cells, bending in itertools.product(
-                ((5, 18), (6, 24)), (False, True), (False, True), list(_forces()), CELL_SWITCHES, (False, True)):
-            if bending and (count != 24 or cells):  # a sheet's bending: flexion neighbours, no cells
-                continue
+        for (layers, count, terms), dense, weights, forces, cells in itertools.product(
+                shapes, (False, True), (False, True), list(_forces()), CELL_SWITCHES):
             common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "DENSE": dense,
-                                         "SPRING_WEIGHTS": weights, "BENDING": bending, "SPHERES": 0,
-                                         **forces, **cells}
+                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces, **cells, **terms}
             if sp.velocity:
                 common["VELOCITY"] = True
             for stage in sp.stages:
@@ -266,7 +277,7 @@ def trilinear() -> Iterator[Variant]:
 
 
 #: The ablation stages of ``profile/step_ablation.frag`` (its STAGE define; their names are
-#: ``deformgl.bench.profile.STAGES``, which the pack does not import: tests/test_bench.py checks
+#: ``studies.step_profile.STAGES``, which the pack does not import: tests/test_bench.py checks
 #: the two agree).
 PROFILE_STAGES = 5
 
@@ -293,13 +304,11 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
-                                                    PRECONDITIONED_PASSES, PRODUCT_PASSES)
+    from deformgl.sim.backends.implicit_passes import (CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
+                                                    PRECONDITIONED_PASSES, PRODUCT_PASSES, TERM_PASSES)
 
-    for (layers, count), weights, forces, bending in itertools.product(((5, 18), (6, 24)), (False, True),
-                                                                        list(_forces()), (False, True)):
-        if bending and count != 24:  # a sheet's bending reads the flexion neighbours
-            continue
+    shapes = [(layers, count, terms) for layers, count in ((5, 18), (6, 24)) for terms in _term_sets(count, True)]
+    for (layers, count, terms), weights, forces in itertools.product(shapes, (False, True), list(_forces())):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_WEIGHTS": weights,
                                      "SPHERES": 0, **forces}
         nb: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "SPHERES": 0}
@@ -307,10 +316,10 @@ def implicit() -> Iterator[Variant]:
             if name in (*PRODUCT_PASSES, *MG_PASSES) and forces["LOADS"]:
                 continue
             defines = common if name in ("SETUP", *PRODUCT_PASSES, *MG_PASSES) else nb
-            if bending and name in BENDING_PASSES:
-                defines = {**defines, "BENDING": True}
-            elif bending:
-                continue  # (the passes without BENDING are the variants above)
+            if terms and name in TERM_PASSES:
+                defines = {**defines, **terms}
+            elif terms:
+                continue  # (the passes without the terms are the variants above)
             # block-Jacobi (PRECOND_BLOCK) in the passes that apply the preconditioner, the
             # scaled warm start (WARM_SCALED) in INIT
             # multigrid (pass_defines' multigrid): MULTIGRID in the CG passes, PRECOND_BLOCK in
@@ -326,7 +335,7 @@ def implicit() -> Iterator[Variant]:
             warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
             # the cells' terms (pass_defines' cells): none, or a (centre, barrier) pair
             cells: list[dict[str, object]] = [{}]
-            if name in CELL_PASSES and not bending:  # (a sheet has no cells)
+            if name in CELL_PASSES:
                 cells += [{"IMPLICIT_CELLS": True, "CELL_CENTRE": centre, "CELL_BARRIER": barrier}
                           for centre, barrier in CELL_TERMS]
             for c, block, scaled, cell in itertools.product(_constraints() if name == "FINAL" else [{}], blocks,
@@ -373,7 +382,7 @@ def held_tuples(group: list[Variant], strength: int = 3) -> set[int]:
 def covering_set(variants: list[Variant], strength: int = 3) -> list[Variant]:
     """A subset of ``variants`` that, for each pair of shader files, holds every combination of
     values of any ``strength`` of its defines that the full set holds (every triple by default:
-    a pass with both cell terms, a preconditioner with bending, ...; a greedy covering array,
+    a pass with both cell terms, a preconditioner with a term, ...; a greedy covering array,
     in enumeration order: deterministic). The full product of a stage's switches runs to tens of
     thousands of sources (the integrators' step.frag alone 34,272); a fault needs four switches
     together to escape the triples. What :mod:`deformgl.pack.glslang` runs in CI;

@@ -38,7 +38,7 @@ from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.scene.material_table import _BODY_MATERIAL, _MATERIAL_KEYS  # noqa: F401
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
-from deformgl.sim.xpbd import BENDING_REFUSAL
+from deformgl.sim.bending import BENDING_REFUSAL
 
 __all__ = ["Animation", "BACKENDS", "CameraKey", "apply_overrides", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
            "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",

@@ -18,7 +18,7 @@ from deformgl.sim.equilibrium import ConvergeRule
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
 from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
-from deformgl.sim.xpbd import BENDING_REFUSAL
+from deformgl.sim.bending import BENDING_REFUSAL
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384

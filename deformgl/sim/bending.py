@@ -47,32 +47,51 @@ as h^2, the plate's dispersion (docs/EQUATIONS.md, "Cloth bending").
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
+from deformgl.grid.neighbours import grid_neighbours
 from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
 
-__all__ = ["SHEET_BENDING_POISSON", "SheetBending", "node_weights", "sheet_bending"]
+__all__ = ["BENDING_REFUSAL", "SHEET_BENDING_POISSON", "SheetBending", "node_weights", "sheet_bending"]
 
 #: the plate Poisson's ratio of the bending term: the membrane lattice's (2D Lamé lambda = mu)
 SHEET_BENDING_POISSON = 1.0 / 3.0
 
 
+#: Why XPBD refuses a sheet's bending stiffness, and what to do (every refusal says it). (The plate
+#: stencils couple 3 to 5 nodes each, about 15 per node; the Jacobi sweep keeps one multiplier per
+#: constraint end, so the GPU sweep would store 45 more floats per node.)
+BENDING_REFUSAL = ("has no XPBD constraint: run it with an explicit integrator or implicit-euler, or use "
+                   "flexion_ratio with xpbd")
+
+#: The term's GLSL form (``shaders/terms/bending.glsl``): ``f -= c_j (x_i - x_j)`` over the 24 grid
+#: neighbours, c_j from its table (:meth:`SheetBending.neighbour_coefficients`).
+GLSL = GlslTerm("bending", file="terms/bending.glsl", implicit=True, neighbours=24)
+
+
 @dataclass(frozen=True, eq=False)
-class SheetBending:
+class SheetBending(Term):
     """The bending term of a sheet: ``E = 1/2 sum_c x_c^T B x_c`` over the coordinates c.
 
     Attributes:
         matrix: (N, N) float64 CSR, B in N/m: symmetric positive semi-definite, rows summing to 0.
         bending_stiffness: the plate's D in N·m.
         stencils: the count of stencils of each kind ("triplet", "laplacian", "twist").
+        grid: the sheet's node grid (the GPU gathers read B through its neighbour table), or None.
     """
 
     matrix: sp.csr_matrix
     bending_stiffness: float
     stencils: dict[str, int] = field(default_factory=dict)
+    grid: NodeGrid | None = field(default=None, repr=False)
+
+    name = "a sheet's bending"
+    neighbours = 24
 
     @property
     def count(self) -> int:
@@ -84,13 +103,46 @@ class SheetBending:
         out -= self.matrix @ x
         return out
 
+    def add_forces(self, x: np.ndarray, v: np.ndarray, t: float, out: np.ndarray) -> None:
+        """``f = -B x`` (:meth:`forces`)."""
+        self.forces(x, out)
+
     def energy(self, x: np.ndarray) -> float:
         """The bending energy in J at positions x (N, 3)."""
         return 0.5 * float(np.einsum("nc,nc->", x, self.matrix @ x))
 
-    def frequency_terms(self) -> np.ndarray:
+    def stiffness(self, x: np.ndarray) -> sp.csr_matrix:
+        """B on each coordinate (the blocks ``B_ij I``), the same at every x."""
+        return sp.kron(self.matrix, sp.identity(3), format="csr")
+
+    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``B y`` (N, 3)."""
+        return self.matrix @ np.asarray(y, np.float64)
+
+    def frequency_terms(self, x_rest: np.ndarray | None = None, *, barrier: bool = False) -> np.ndarray:
         """(N,) ``sum_j |B_nj|`` in N/m: its bound on the node's ``m w^2`` (Gershgorin)."""
         return np.asarray(abs(self.matrix).sum(axis=1)).ravel()
+
+    def describe(self) -> str:
+        return f"a sheet's bending, D = {self.bending_stiffness:.4g} N*m"
+
+    def feedback_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """B's off-diagonal entries as ``f_i = -sum_j c_ij (x_i - x_j)``, ``c_ij = -B_ij`` (rows sum to 0)."""
+        b = self.matrix.tocoo()
+        off = b.row != b.col
+        return b.row[off], b.col[off], -b.data[off]
+
+    def refusal(self, backend: str) -> str | None:
+        if backend == "xpbd":
+            return f"a sheet's bending_stiffness {BENDING_REFUSAL}"
+        return super().refusal(backend)
+
+    def glsl(self) -> GlslTerm:
+        """:data:`GLSL` with the coefficients of the 24-neighbour table as its node table."""
+        if self.grid is None:
+            raise ValueError("SheetBending: the GPU gathers need the sheet's grid (sheet_bending(grid, ...))")
+        coefficients = self.neighbour_coefficients(grid_neighbours(self.grid, True))
+        return dataclasses.replace(GLSL, tables=(NodeTable("u_bending_c", coefficients),))
 
     def neighbour_coefficients(self, neighbours: np.ndarray) -> np.ndarray:
         """(N, K) float64 ``c_nj = -B[n, neighbours[n, j]]`` (0 where the neighbour is absent,
@@ -189,4 +241,4 @@ def sheet_bending(grid: NodeGrid, bending_stiffness: float, *,
     matrix.eliminate_zeros()
     stencils = {"triplet": int(has_a.sum() + has_b.sum()), "laplacian": int(both.sum()) if nu > 0 else 0,
                 "twist": int(len(corners))}
-    return SheetBending(matrix, float(bending_stiffness), stencils)
+    return SheetBending(matrix, float(bending_stiffness), stencils, grid)

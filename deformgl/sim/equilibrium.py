@@ -172,12 +172,12 @@ class EquilibriumMonitor:
         return float(np.max(f[self._free], initial=0.0))
 
     def elastic_energy(self, x: np.ndarray) -> float:
-        """The springs' elastic energy ``sum 1/2 k (|x_i - x_j| - L)^2`` at positions x (J), and a
-        sheet's bending energy (:meth:`deformgl.sim.bending.SheetBending.energy`)."""
+        """The springs' elastic energy ``sum 1/2 k (|x_i - x_j| - L)^2`` at positions x (J), and the
+        terms' (:meth:`deformgl.sim.terms.Term.energy`)."""
         s = self.system
         stretch = np.linalg.norm(x[s.i] - x[s.j], axis=1) - s.rest_length
         energy = 0.5 * float(np.sum(s.stiffness * stretch * stretch))
-        return energy + (s.bending.energy(x) if s.bending is not None else 0.0)
+        return energy + sum(term.energy(x) for term in s.terms)
 
     def observe(self, sim: Simulation) -> bool:
         """A check: read the positions, update the measures; True when converged."""

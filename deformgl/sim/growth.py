@@ -59,8 +59,8 @@ def _energies(system: SpringSystem, dx: np.ndarray, v: np.ndarray) -> np.ndarray
     u = _rest_directions(system)
     stretch = np.einsum("tsk,sk->ts", dx[:, system.i] - dx[:, system.j], u)
     kinetic = np.einsum("n,tnk,tnk->t", np.where(system.fixed, 0.0, system.mass), v, v)
-    bending = 0.0 if system.bending is None else np.array([2.0 * system.bending.energy(d) for d in dx])
-    return stretch ** 2 @ system.stiffness + kinetic + bending
+    terms = sum((np.array([2.0 * term.energy(d) for d in dx]) for term in system.terms), np.zeros(len(dx)))
+    return stretch ** 2 @ system.stiffness + kinetic + terms
 
 
 def _recurrence_rate(s: np.ndarray) -> float:

@@ -163,7 +163,7 @@ def residual_floor(system: SpringSystem, x: np.ndarray, dt: float, *, drags: tup
     ``x_j`` errs uniformly within half its ulp, at most ``eps |x_j|``: a standard deviation of
     ``s_j = eps |x_j| / sqrt(3)``. The force on the free nodes moves by ``H dx``, whose expected size
     for independent errors is ``sqrt(sum_j s_j^2 |H_j|^2)`` (``H_j`` the free nodes' rows of column
-    j of the stiffness H at ``x``: the springs', the volumetric cells', a sheet's bending and the
+    j of the stiffness H at ``x``: the springs', the volumetric cells', the physics terms' and the
     drags' terms alike). A right-hand side this size is rounding noise (a stiff body at rest in
     equilibrium, on the GPU): the solve counts a residual this small as solved, whatever its
     relative size, each backend at its own precision. (In float32 it can be a good part of a
@@ -242,11 +242,7 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
         cells_h = cell_matrix(system.cells, x, n, CELL_HESSIAN[geometric])
         hess = hess + cells_h
         a_full = a_full + dt * dt * cells_h
-    if system.bending is not None:  # a sheet's bending: the constant B on each coordinate
-        bending_h = sp.kron(system.bending.matrix, sp.identity(3), format="csr")
-        hess = hess + bending_h
-        a_full = a_full + dt * dt * bending_h
-    for term in system.terms:  # each physics term's K = -df/dx (deformgl.sim.terms)
+    for term in system.terms:  # each physics term's K = -df/dx
         term_h = term.stiffness(x)
         hess = hess + term_h
         a_full = a_full + dt * dt * term_h

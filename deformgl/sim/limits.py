@@ -188,8 +188,9 @@ class DtLimit:
             energy in the mode); -1 if none.
         stiffness: k of that spring, N/m.
         mass: m of that node, kg.
-        bending: a sheet's bending stiffness D in N*m where it is the larger part of the
-            node's stiffness, else 0.
+        term: the physics term (:attr:`~deformgl.sim.springs.SpringSystem.terms`) that is the
+            larger part of the node's stiffness, as :meth:`~deformgl.sim.terms.Term.describe`
+            words it, else "".
         barrier: the cells' barrier modulus kappa_b in Pa where its envelope is the larger
             part of the node's stiffness, else 0.
     """
@@ -203,16 +204,16 @@ class DtLimit:
     spring: int
     stiffness: float
     mass: float
-    bending: float = 0.0
+    term: str = ""
     barrier: float = 0.0
 
     def message(self, dt: float) -> str:
         """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s, w = 645
-        rad/s at node 17 (spring 40, k = 500 N/m, m = 0.01 kg; exact bound)``; a sheet whose
-        bending, or a body whose cells' barrier, is the larger part of the node's stiffness names
-        it instead of the spring (the limit's formula: :attr:`formula`)."""
-        if self.bending:
-            what = f"a sheet's bending, D = {self.bending:.4g} N*m"
+        rad/s at node 17 (spring 40, k = 500 N/m, m = 0.01 kg; exact bound)``; a body whose term
+        or whose cells' barrier is the larger part of the node's
+        stiffness names it instead of the spring (the limit's formula: :attr:`formula`)."""
+        if self.term:
+            what = self.term
         elif self.barrier:
             what = f"the cells' inversion barrier, kappa_b = {self.barrier:.4g} Pa"
         else:
@@ -261,18 +262,20 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
         omega, node, spring = top.omega, top.node, top.spring
     k = float(system.stiffness[spring]) if spring >= 0 else 0.0
     m = float(system.mass[node]) if node >= 0 else 0.0
-    bending = barrier = 0.0
-    if node >= 0:  # the node's Gershgorin terms: bending's or the barrier's against the springs'
+    term, barrier = "", 0.0
+    if node >= 0:  # the node's Gershgorin terms: a term's or the barrier's against the springs'
         springs = 2.0 * float(system.stiffness[(system.i == node) | (system.j == node)].sum())
-        if system.bending is not None and system.bending.frequency_terms()[node] > springs:
-            bending = system.bending.bending_stiffness
+        shares = [(float(t.frequency_terms(system.rest_positions, barrier=True)[node]), t) for t in system.terms]
+        largest = max(shares, key=lambda share: share[0], default=None)
+        if largest is not None and largest[0] > springs:
+            term = largest[1].describe()
         cells = system.cells
         if cells is not None and cells.barrier_modulus > 0:
             envelope = (frequency_terms(cells, system.count, barrier=True)
                         - frequency_terms(cells, system.count))[node]
             if envelope > springs:
                 barrier = cells.barrier_modulus
-    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, bending, barrier)
+    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, term, barrier)
 
 
 def _check_arguments(caller: str, system: object, integrator: object) -> None:

@@ -17,7 +17,7 @@ axis with more than one node; a sheet stays one node thick), down to a grid of a
   assembly): on a 27-point node stencil
   with trilinear transfers the coarse operator is again a 27-point stencil (3x3 blocks), and it
   holds every term of A whatever it is (springs with their geometric part, the volumetric
-  cells of tissue at any Poisson's ratio, a sheet's bending, drags, the mass and damping). We
+  cells of tissue at any Poisson's ratio, the physics terms, drags, the mass and damping). We
   measured it against rediscretising the lattice at 2h (the issue's prototype), which needs a
   coarse body (fill, regions, per-spring weights) for every level and misses on thin parts.
 * **Smoother.** Damped block-Jacobi (the inverse of each node's 3x3 diagonal block, the

@@ -65,8 +65,6 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
         out += rest_product(system.cells, dx)
         if barrier:
             out += barrier_envelope_product(system.cells, dx)
-    if system.bending is not None:  # a sheet's bending, linear: the same B at any state
-        out += system.bending.matrix @ dx
     for term in system.terms:
         out += (term.dt_stiffness(system.rest_positions, barrier=barrier) @ dx.reshape(-1)).reshape(-1, 3)
     return out
@@ -90,8 +88,6 @@ def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarr
         for rows, cols, values in [rest_stiffness_triplets(system.cells)] + (
                 [barrier_envelope_triplets(system.cells)] if barrier else []):
             np.add.at(k, (rows, cols), values)
-    if system.bending is not None:  # B on each coordinate: the blocks B_ij I
-        k += np.kron(system.bending.matrix.toarray(), np.eye(3))
     for term in system.terms:
         k += term.dt_stiffness(system.rest_positions, barrier=barrier).toarray()
     return k
@@ -276,6 +272,6 @@ def modal_damping(system: SpringSystem, *, barrier: bool = False) -> ModalDampin
     cells = system.cells
     if cells is not None and (cells.volume_modulus > 0 or (barrier and cells.barrier_modulus > 0)):
         b = np.append(b, 0.0)  # the cells' terms are stiffness that Rayleigh beta does not damp
-    if system.bending is not None or system.terms:
-        b = np.append(b, 0.0)  # nor a sheet's bending, nor a term's stiffness
+    if system.terms:
+        b = np.append(b, 0.0)  # nor the terms' stiffness
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

@@ -78,7 +78,7 @@ class SpringSystem:
         cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.volume`: any
             Poisson's ratio, the inversion barrier), or None (springs only).
         bending: a sheet's bending term (:mod:`deformgl.sim.bending`: the plate's D in N·m,
-            ``f = -B x``), or None.
+            ``f = -B x``), or None; it is the first of :attr:`terms` too.
         terms: further physics terms (:class:`deformgl.sim.terms.Term`), each one object that
             every backend runs through its declared forms (or refuses in one line naming it).
     """
@@ -134,7 +134,10 @@ class SpringSystem:
             raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
         if self.bending is not None and self.bending.count != n:
             raise ValueError(f"SpringSystem.bending: {self.bending.count} nodes, the system {n}")
-        object.__setattr__(self, "terms", tuple(self.terms))
+        # a sheet's bending is one of the terms (first: the backends sum in the terms' order); the
+        # field says which (dataclasses.replace(system, bending=None) drops it from the terms too)
+        terms = tuple(t for t in self.terms if not isinstance(t, SheetBending))
+        object.__setattr__(self, "terms", terms if self.bending is None else (self.bending, *terms))
         for k, term in enumerate(self.terms):
             if not isinstance(term, Term):
                 raise ValueError(f"SpringSystem.terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
@@ -397,7 +400,8 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per full cell (``system.cells``): the volumetric term and the corner barrier of
-    :func:`deformgl.sim.volume.volume_forces`; a sheet's bending ``-B x`` (``system.bending``);
+    :func:`deformgl.sim.volume.volume_forces`; each of ``system.terms`` (a sheet's bending ``-B x``
+    among them) :meth:`~deformgl.sim.terms.Term.add_forces`;
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
     (Movania & Feng 2012 eq. 1) and Rayleigh mass damping ``-alpha m v``, each drag's ``k_d (target(t) - x)`` and each load's
     ``force(t)`` on its nodes (per kg: times each node's mass).
@@ -441,8 +445,6 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     del ends, f, u
     if system.cells is not None:
         volume_forces(system.cells, x, out=total)
-    if system.bending is not None:
-        system.bending.forces(x, total)
     for term in system.terms:
         term.add_forces(x, v, t, total)
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
@@ -487,8 +489,6 @@ def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> Fre
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
             + np.bincount(system.j, weights=system.stiffness, minlength=n))
     cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n, barrier=barrier)
-    if system.bending is not None:
-        cell_terms = cell_terms + system.bending.frequency_terms()
     for term in system.terms:
         cell_terms = cell_terms + term.frequency_terms(system.rest_positions, barrier=barrier)
     bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)

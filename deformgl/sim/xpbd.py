@@ -67,8 +67,7 @@ __all__ = [
     "XpbdSettings",
     "XpbdSolver",
     "cell_constraints",
-    "BENDING_REFUSAL",
-    "check_bending",
+    "check_terms",
     "constraint_counts",
     "node_terms",
     "relative_residual",
@@ -134,19 +133,9 @@ def node_terms(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
     return w, g
 
 
-#: Why XPBD refuses a sheet's bending stiffness, and what to do (every refusal says it).
-BENDING_REFUSAL = ("has no XPBD constraint: run it with an explicit integrator or implicit-euler, or use "
-                   "flexion_ratio with xpbd")
-
-
-def check_bending(system: SpringSystem) -> None:
-    """ValueError (one line) for a sheet with a bending term (``system.bending``): XPBD has no
-    bending constraint. (The plate term's stencils couple 3 to 5 nodes each, about 15 per node;
-    the Jacobi sweep keeps one multiplier per constraint end, so the GPU sweep would store 45
-    more floats per node.) The same for each of ``system.terms`` without an XPBD form
-    (:meth:`deformgl.sim.terms.Term.refusal`)."""
-    if system.bending is not None:
-        raise ValueError(f"xpbd: a sheet's bending_stiffness {BENDING_REFUSAL}")
+def check_terms(system: SpringSystem) -> None:
+    """ValueError (one line) naming the first of ``system.terms`` without an XPBD form
+    (:meth:`deformgl.sim.terms.Term.refusal`, which says why)."""
     refuse_terms(system.terms, "xpbd", "xpbd")
 
 
@@ -173,7 +162,7 @@ class XpbdSolver:
     def __init__(self, system: SpringSystem, settings: XpbdSettings, *,
                  constraints: Constraints | None = None, drags: tuple[Drag, ...] = (),
                  loads: tuple[Load, ...] = ()) -> None:
-        check_bending(system)
+        check_terms(system)
         _check_drags(tuple(drags), system.count)
         self.system, self.settings = system, settings
         self.constraints, self.drags, self.loads = constraints, tuple(drags), tuple(loads)

@@ -1,5 +1,42 @@
-// The physics terms of a pass (deformgl/sim/terms): the host composes this file for a system that
-// holds terms (deformgl/sim/terms/glsl.py PassTerms.chunks: each term's chunk, then terms_force,
-// and with TERMS_IMPLICIT terms_product and terms_diagonal calling each term's function in turn).
-// This shipped file is the empty list: the shared passes include it only under #ifdef TERMS, which
-// the host defines only with terms.
+// The physics terms of a pass (deformgl/sim/terms). Composed by deformgl/sim/terms/glsl.py
+// compose(); do not edit: `python -m deformgl.sim.terms.registry` writes the shipped one.
+#include "lib/term_node.glsl"
+#ifdef TERM_BENDING
+#include "terms/bending.glsl"
+#endif
+void terms_force(inout vec3 f, TermNode n) {
+#ifdef TERM_BENDING
+    bending_force(f, n);
+#endif
+}
+#ifdef TERMS_NEIGHBOURS
+void terms_begin(TermNode n) {
+#ifdef TERM_BENDING
+    bending_begin(n);
+#endif
+}
+void terms_neighbour(inout vec3 f, TermNode n, int j, vec3 d) {
+#ifdef TERM_BENDING
+    bending_neighbour(f, n, j, d);
+#endif
+}
+#endif
+#ifdef TERMS_IMPLICIT
+void terms_product(inout vec3 q, TermNode n, vec3 y) {
+#ifdef TERM_BENDING
+    bending_product(q, n, y);
+#endif
+}
+void terms_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+#ifdef TERM_BENDING
+    bending_diagonal(d, off, n);
+#endif
+}
+#ifdef TERMS_NEIGHBOURS
+void terms_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, vec3 dy) {
+#ifdef TERM_BENDING
+    bending_neighbour_product(sk, dk, n, j, dy);
+#endif
+}
+#endif
+#endif

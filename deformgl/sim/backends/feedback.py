@@ -11,8 +11,8 @@ GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
 * Static: ``nodes`` RGBA32I (NODE_ROW x rows): first entry and count of the node's neighbour
   list, fixed flag, load-group bits; the neighbour list (CSR, each spring once per end) in
   ``other`` R32I (the other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
-  entries per row. A sheet's bending (``system.bending``, :mod:`deformgl.sim.bending`) joins the
-  lists as entries of rest length 0 and signed stiffness ``-B_ij``: the same shader, no define.
+  entries per row. A physics term's feedback form (``Term.feedback_pairs``) joins the lists as
+  entries of rest length 0 and signed stiffness c_ij: the same shader, no define.
 * Cells (grid bodies whose system has ``cells``, :mod:`deformgl.sim.volume`; define ``CELLS``):
   ``cell_nodes`` RGBA32I, 7 texels per node: the 27 node numbers of its 3x3x3 neighbourhood and
   the mask of its full incident cells (:mod:`deformgl.sim.backends.feedback_cells`); every stage
@@ -197,22 +197,25 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.rows = -(-n // self.node_row)
         texels = self.node_row * self.rows
 
-        # CSR neighbour lists: every spring once in the list of each of its ends; a sheet's bending
-        # f_i = -sum_j c_ij (x_i - x_j) (deformgl.sim.bending) as entries of rest length 0 and
-        # stiffness c_ij = -B_ij (signed), whose spring force k (0 - |d|) d / |d| is exactly -c_ij d.
+        # CSR neighbour lists: every spring once in the list of each of its ends; a physics term's
+        # feedback form f_i = -sum_j c_ij (x_i - x_j) (Term.feedback_pairs) as
+        # entries of rest length 0 and stiffness c_ij (signed), whose spring force k (0 - |d|) d / |d|
+        # is exactly -c_ij d.
         ends = np.concatenate([system.i, system.j])
         other = np.concatenate([system.j, system.i])
         rest = np.tile(system.rest_length, 2)
         stiffness = np.tile(system.stiffness, 2)
         damping = np.tile(system.damping, 2)
-        if system.bending is not None:
-            b = system.bending.matrix.tocoo()
-            off = b.row != b.col
-            ends = np.concatenate([ends, b.row[off]])
-            other = np.concatenate([other, b.col[off]])
-            rest = np.concatenate([rest, np.zeros(int(off.sum()))])
-            stiffness = np.concatenate([stiffness, -b.data[off]])
-            damping = np.concatenate([damping, np.zeros(int(off.sum()))])
+        for term in system.terms:
+            pairs = term.feedback_pairs()
+            if pairs is None:
+                continue  # (refused in __init__)
+            rows, cols, c = pairs
+            ends = np.concatenate([ends, rows])
+            other = np.concatenate([other, cols])
+            rest = np.concatenate([rest, np.zeros(len(rows))])
+            stiffness = np.concatenate([stiffness, c])
+            damping = np.concatenate([damping, np.zeros(len(rows))])
         order = np.argsort(ends, kind="stable")
         counts = np.bincount(ends, minlength=n)
         first = np.concatenate([[0], np.cumsum(counts)[:-1]])

@@ -121,14 +121,16 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
     The pass models: structural and shear springs at the grid's rest lengths (one stiffness per
     class, or per spring as weights of the class's largest), per-node mass, fixed nodes, global
     velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads, the volumetric term of
-    the full cells (``system.cells``). It does not model flexion springs, a sheet's bending, spring
+    the full cells (``system.cells``), the physics terms that act on the node alone
+(``system.terms``). It does not model flexion springs, terms that read the grid neighbours, spring
     damping, wind, drags or obstacles.
     """
     cls = system.spring_class
     if np.any(cls == FLEXION):
         return "flexion springs"
-    if system.bending is not None:
-        return "a sheet's bending"
+    for term in system.terms:
+        if term.neighbours:  # (the pass sums the springs in Mosegaard & Sørensen's grouped form)
+            return term.name
     if np.any(system.damping > 0):
         return "spring damping"
     if system.wind_drag > 0:

@@ -24,9 +24,10 @@ incident cells (``shaders/sim/cells/node_hood.glsl``, ``shaders/lib/cell_forces.
 stage's evaluation state, from the 18 neighbour positions its springs fetched and, for the
 centre term, the 8 body diagonals of its 3x3x3 neighbourhood
 (:mod:`~deformgl.sim.backends.cell_pass` says why in the pass and what it costs).
-A sheet's bending (``system.bending``, :mod:`deformgl.sim.bending`) is gathered in the same
-loop over the neighbours (define ``BENDING``): a coefficient texture array (the layers of the
-neighbour table, the flexion neighbours included) gives ``f -= c_j (x_i - x_j)``.
+The system's further physics terms (``system.terms``, :mod:`deformgl.sim.terms`) are
+compiled into the same passes (define ``TERMS``, their chunks composed by
+:mod:`deformgl.sim.terms.glsl`), their node tables bound on :data:`_TERM_UNITS`; a term that reads
+the grid neighbours is gathered in the same loop as the springs.
 
 GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texelFetch``):
 
@@ -66,7 +67,7 @@ from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.blocked import BlockedTextures
 from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, node_flags, verlet_terms
-from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, bending_coefficients, compact_layout,
+from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout,
                                                 grid_neighbours, grid_springs, spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
 from deformgl.sim.terms.glsl import pass_terms
@@ -84,10 +85,8 @@ _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, 
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
 #: texture unit of the cell term's body-diagonal table (its centre term on grids that are not dense)
 _CELL_DIAGONAL_UNIT = 9
-#: texture unit of a sheet's bending coefficients (BENDING, deformgl.sim.bending)
-_BENDING_UNIT = 10
 #: texture units of the physics terms' node tables (deformgl.sim.terms)
-_TERM_UNITS = (11, 12, 13, 14, 15)
+_TERM_UNITS = (10, 11, 12, 13, 14, 15)
 
 
 def _sampler(buffer: str) -> str:
@@ -281,11 +280,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
             self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
-        #: a sheet's bending coefficients per neighbour (define BENDING), or None
-        self.tex_bending: moderngl.TextureArray | None = None
-        bending = bending_coefficients(system, nb)
-        if bending is not None:
-            self.tex_bending = layer_texture(self, self.ctx, (w, h), bending, "f4", layers)
         #: the volumetric term's cells when they exert a force (define CELLS), else None
         self.cells = cells = active_cells(system.cells)
         #: the cell term's body diagonals (its centre term on grids that are not dense), or None
@@ -317,7 +311,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": nb.shape[1], "DENSE": self.dense,
                                      "SPRING_DAMPING": bool(np.any(system.damping > 0)),
                                      "SPRING_WEIGHTS": self.tex_weights is not None,
-                                     "BENDING": self.tex_bending is not None, "SPHERES": 0, "DRAGS": len(self.drags),
+                                     "SPHERES": 0, "DRAGS": len(self.drags),
                                      "LOADS": len(self.loads)}
         if system.wind_drag > 0:
             common["WIND"] = True
@@ -337,7 +331,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.state_bytes = len(self.pool) * w * h * _VEC4
         static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4) + \
             (0 if self.tex_weights is None else w * h * layers * _VEC4) + \
-            (0 if self.tex_bending is None else w * h * layers * _VEC4) + \
             (0 if self.tex_cell_diagonals is None else w * h * 2 * _VEC4)
         static += sum(w * h * t.layers * _VEC4 for t in self.terms.tables)
         self.bytes_allocated = self.state_bytes + static
@@ -366,8 +359,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("DENSE"):
             uniforms["u_offsets"] = self.neighbour_offsets
-        if defines.get("BENDING"):
-            uniforms["u_bending"] = _BENDING_UNIT
         if defines.get("CELLS") and self.cells is not None:
             uniforms.update(term_uniforms(self.cells))
             if self.tex_cell_diagonals is not None:
@@ -436,8 +427,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_weights.use(_SAMPLERS["u_weights"])
         if self.tex_cell_diagonals is not None:
             self.tex_cell_diagonals.use(_CELL_DIAGONAL_UNIT)
-        if self.tex_bending is not None:
-            self.tex_bending.use(_BENDING_UNIT)
         for tex, unit in zip(self.term_textures, _TERM_UNITS):
             tex.use(unit)
         try:

@@ -9,33 +9,12 @@ from __future__ import annotations
 import numpy as np
 
 from deformgl.errors import GLError
+from deformgl.grid.neighbours import FLEXION_OFFSETS, grid_neighbours
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
-__all__ = ["FLEXION_OFFSETS", "bending_coefficients", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
+__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
            "spring_weights", "weight_layers", "weight_levels"]
-
-#: Flexion neighbour offsets, after the 18 of grid.NEIGHBOUR_OFFSETS.
-FLEXION_OFFSETS = np.array([(2, 0, 0), (-2, 0, 0), (0, 2, 0), (0, -2, 0), (0, 0, 2), (0, 0, -2)],
-                           dtype=np.int64)
-def grid_neighbours(grid: NodeGrid, flexion: bool) -> np.ndarray:
-    """(N, 18 or 24) int64 node number of each neighbour, -1 where no spring can be.
-
-    Columns 0-17 are ``grid.neighbours``; with ``flexion`` columns 18-23 are the nodes at
-    ``FLEXION_OFFSETS``, present only where the node between exists too (as ``from_grid``).
-    """
-    nb = grid.neighbours
-    if not flexion:
-        return nb
-    padded = np.pad(grid.index, 2, constant_values=-1)
-    base = grid.ijk + 2
-    cols = []
-    for off in FLEXION_OFFSETS:
-        mid = padded[tuple((base + off // 2).T)]
-        far = padded[tuple((base + off).T)]
-        cols.append(np.where(mid >= 0, far, -1))
-    return np.concatenate([nb, np.stack(cols, axis=1)], axis=1)
-
 
 def class_values(system: SpringSystem, cls: int, name: str) -> tuple[float, float, float]:
     """(k, rest length, damping) of a class: the largest stiffness of the class, its one rest
@@ -110,23 +89,13 @@ def grid_springs(system: SpringSystem, grid: NodeGrid) -> tuple[bool, np.ndarray
     """(flexion, neighbour table, class values) of a system on its grid, as every fragment-pass
     solver reads them: whether it has flexion springs, :func:`grid_neighbours` (checked against
     the system's springs by :func:`check_topology`) and :func:`class_values` of the structural,
-    shear and flexion classes. A sheet's bending (``system.bending``) reads the flexion
-    neighbours too (:func:`bending_coefficients`), so they are in the table with it."""
-    flexion = bool(np.any(system.spring_class == FLEXION)) or system.bending is not None
+    shear and flexion classes. A physics term that reads the 24 neighbours (``Term.neighbours``) puts the flexion neighbours in the table too."""
+    flexion = bool(np.any(system.spring_class == FLEXION)) or any(t.neighbours == 24 for t in system.terms)
     nb = grid_neighbours(grid, flexion)
     check_topology(system, grid, nb)
     classes = [class_values(system, c, name) for c, name in
                ((STRUCTURAL, "structural"), (SHEAR, "shear"), (FLEXION, "flexion"))]
     return flexion, nb, classes
-
-
-def bending_coefficients(system: SpringSystem, nb: np.ndarray) -> np.ndarray | None:
-    """(N, 24) float64 coefficient of each neighbour in the sheet's bending gather
-    (:meth:`deformgl.sim.bending.SheetBending.neighbour_coefficients`: ``f_i = -sum_j c_ij (x_i -
-    x_j)``), or None without bending."""
-    if system.bending is None:
-        return None
-    return system.bending.neighbour_coefficients(nb)
 
 
 def compact_layout(grid: NodeGrid, max_texture_size: int) -> CompactLayout:

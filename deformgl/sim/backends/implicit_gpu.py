@@ -21,9 +21,10 @@ start, same stopping test), in float32. A step is (``shaders/sim/implicit/implic
 The matrix-vector product of a node is computed from its 18 (+6 flexion) grid neighbours
 (Mosegaard & Sørensen 2005, section 3.1: the neighbour-index texture of
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, with the per-spring weight texture of
-the calibrated lattice). A sheet's bending (``system.bending``, :mod:`deformgl.sim.bending`)
-adds its constant B in the same loop (define BENDING, :data:`BENDING_PASSES`: a coefficient
-texture array of the 24 neighbours, on the unit of ``u_r``). A system with full cells (``system.cells``: the volumetric term and
+the calibrated lattice). The system's further physics terms (``system.terms``,
+:mod:`deformgl.sim.terms`) add their K y and diagonal blocks in
+:data:`~deformgl.sim.backends.implicit_passes.TERM_PASSES` (define TERMS; those that read the grid
+neighbours in the same loop as the springs), their forces in SETUP. A system with full cells (``system.cells``: the volumetric term and
 corner barriers of :mod:`deformgl.sim.volume`) adds, in SETUP, WARM, INIT and MATVEC (define
 IMPLICIT_CELLS, with CELL_CENTRE and CELL_BARRIER for the terms whose modulus is > 0), the
 cells' forces (``shaders/lib/cell_forces.glsl``, in b) and the Gauss-Newton part of their
@@ -70,10 +71,10 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
-from deformgl.sim.backends.grid_springs import bending_coefficients, compact_layout, grid_springs, spring_weights
+from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
-from deformgl.sim.backends.implicit_passes import (BENDING_PASSES, CELL_PASSES, REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
+from deformgl.sim.backends.implicit_passes import (CELL_PASSES, REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
                                                    UNITS, pass_defines)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.terms.glsl import pass_terms
@@ -182,8 +183,6 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.tex_neighbours = self._array_texture(table, "i4")
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         self.tex_weights = None if weights is None else self._array_texture(weights.astype(np.float32), "f4")
-        bending = bending_coefficients(system, nb)
-        self.tex_bending = None if bending is None else self._array_texture(bending.astype(np.float32), "f4")
         mask = np.zeros(n) if self.cells is None else incident_cells(self.grid, self.cells)
         node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), mask], axis=1)
         self.tex_node = self._texture(size, self._image(node))
@@ -214,7 +213,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
                                block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None,
-                               bending=self.tex_bending is not None, multigrid=self.multigrid,
+                               multigrid=self.multigrid,
                                term_defines=self.terms.defines())
         self.passes = {name: self._program(d) for name, d in defines.items()}
         self.reduce = self.own(Program(self.ctx, "sim/fullscreen.vert", "sim/implicit/reduce.frag"))
@@ -222,10 +221,11 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self._reduce_vao = self.own(self.ctx.vertex_array(self.reduce.gl, []))
         self.reduce.set(u_src=_REDUCE_UNIT)
         texels = size[0] * size[1]
-        self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 + (weights is not None)
-                                                                             + (bending is not None))
+        self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 + (weights is not None))
                                      + sum(a * b for _, (a, b) in self.levels) + len(self.scalars)
                                      + (0 if self.cells is None else 7 * texels))
+        if self.term_tables is not None:
+            self.bytes_allocated += self.term_tables.bytes_allocated
         if self.multigrid:
             self.mg = self._build_multigrid(s)
 
@@ -290,8 +290,6 @@ class ImplicitFragment(SimulationBase, GLOwner):
             tex.use(_UNITS[sampler])
         if self.tex_cells is not None and name in CELL_PASSES:
             self.tex_cells.use(_UNITS["u_cell_nb"])
-        if self.tex_bending is not None and name in BENDING_PASSES:
-            self.tex_bending.use(_UNITS["u_bending"])
         if self.term_tables is not None and name in TERM_PASSES:
             self.term_tables.bind()
         self._fbo(*(self.tex[w] if isinstance(w, str) else w for w in writes)).use()

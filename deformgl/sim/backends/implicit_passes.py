@@ -1,5 +1,5 @@
 """The passes of ``shaders/sim/implicit/implicit.frag`` and their defines: which pass evaluates
-what (cells, bending, the preconditioner), the texture units they read on, and
+what (cells, the physics terms, the preconditioner), the texture units they read on, and
 :func:`pass_defines`, what :class:`~deformgl.sim.backends.implicit_gpu.ImplicitFragment` compiles
 and :mod:`deformgl.pack.variants` enumerates."""
 
@@ -11,11 +11,11 @@ from deformgl.sim.integrators import Constraints
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["TERM_PASSES", "TERM_UNITS", "PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES",
-           "BENDING_PASSES", "UNITS", "REDUCE_UNIT", "pass_defines"]
+           "UNITS", "REDUCE_UNIT", "pass_defines"]
 
 #: The passes of ``implicit.frag`` (one define each).
 PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL", "TRUE_RESIDUAL")
-#: The passes that evaluate A's product (the spring, node, cell and bending terms).
+#: The passes that evaluate A's product (the spring, node, cell and the physics terms).
 PRODUCT_PASSES = ("WARM", "INIT", "MATVEC", "TRUE_RESIDUAL")
 #: Its multigrid passes on the finest level (MG_SMOOTH_ZERO: MG_SMOOTH with FROM_ZERO).
 MG_PASSES = ("MG_SMOOTH_ZERO", "MG_SMOOTH", "MG_RESIDUAL")
@@ -38,11 +38,6 @@ CELL_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
 UNITS["u_cell_nb"] = UNITS["u_rz"]
 #: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
 UNITS["u_mg_rhs"] = UNITS["u_z"] = UNITS["u_q"]
-#: The passes that read a sheet's bending coefficients (define BENDING: forces in SETUP, B y in
-#: the product passes, ``sim/implicit/system.glsl``), on the unit of ``u_r``, which only UPDATE and
-#: DIRECTION read.
-BENDING_PASSES = CELL_PASSES
-UNITS["u_bending"] = UNITS["u_r"]
 #: The passes that evaluate the physics terms (deformgl.sim.terms: forces in SETUP, K y in the
 #: product passes), and the units their node tables use there: those of dv, p and rz_new, which
 #: only UPDATE, DIRECTION and FINAL read.
@@ -52,13 +47,12 @@ TERM_UNITS = (UNITS["u_dv"], UNITS["u_p"], UNITS["u_rz_new"])
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
-                 scaled: bool = True, cells: bool = False, bending: bool = False,
+                 scaled: bool = True, cells: bool = False,
                  multigrid: bool = False, term_defines: dict[str, object] | None = None) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
     ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
     :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
-    kappa_b > 0 (none of the three if both are 0); ``bending``: a sheet's bending term
-    (``system.bending``): BENDING in :data:`BENDING_PASSES`; ``term_defines``: the physics terms' defines
+    kappa_b > 0 (none of the three if both are 0); ``term_defines``: the physics terms' defines
     (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`) in :data:`TERM_PASSES`; ``multigrid``: the V-cycle's passes
     (:data:`MG_PASSES`, with PRECOND_BLOCK in MG_SMOOTH's) and MULTIGRID in
     :data:`MG_CG_PASSES` (``block`` then puts PRECOND_BLOCK in SETUP only)."""
@@ -94,9 +88,6 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     if any(terms.values()):
         for name in (n for n in CELL_PASSES if n in out):
             out[name].update(IMPLICIT_CELLS=True, **{k: True for k, on in terms.items() if on})
-    if bending:
-        for name in (n for n in BENDING_PASSES if n in out):
-            out[name]["BENDING"] = True
     for name in (n for n in TERM_PASSES if n in out):
         out[name].update(term_defines or {})
     return out

@@ -72,7 +72,17 @@ class GlslTerm:
         void PREFIX_diagonal(inout vec3 d, inout vec3 off, TermNode n);
             // adds K's 3x3 diagonal block of the node: d its diagonal, off (xy, xz, yz)
 
-    ``PREFIX_product`` and ``PREFIX_diagonal`` only where ``implicit`` is True. A ``TermNode`` holds
+    ``PREFIX_product`` and ``PREFIX_diagonal`` only where ``implicit`` is True. A term that couples a
+    node to its grid neighbours (``neighbours`` 18: the 6 axis and 12 face-diagonal neighbours of
+    ``deformgl.grid.nodes.NEIGHBOUR_OFFSETS``; 24: and the 6 at 2h along the axes) defines besides::
+
+        void PREFIX_begin(TermNode n);                                    // once per node, first
+        void PREFIX_neighbour(inout vec3 f, TermNode n, int j, vec3 d);  // d = x_n - x_j
+        void PREFIX_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, vec3 dy);
+            // (implicit) adds its (K y)_n share of neighbour j, dy = y_n - y_j, and its diagonal
+
+    which the explicit gather calls with the springs, for each neighbour j in order (an absent one
+    is the node itself: d = 0), and the implicit product with the springs' sums. A ``TermNode`` holds
     the node's position ``x`` and velocity ``v`` at the evaluation state, its mass ``m`` and where its
     tables are. ``uniforms`` are set on every pass that compiles the chunk; their names, the
     tables' samplers and every function must start with ``prefix`` (or ``u_`` + prefix).
@@ -82,6 +92,7 @@ class GlslTerm:
     source: str | None = None
     file: str | None = None
     implicit: bool = False
+    neighbours: int = 0
     uniforms: dict[str, object] = field(default_factory=dict)
     tables: tuple[NodeTable, ...] = ()
 
@@ -90,6 +101,8 @@ class GlslTerm:
             raise ValueError(f"GlslTerm {self.prefix}: give the chunk as source or as file, not both")
         if not self.prefix.isidentifier():
             raise ValueError(f"GlslTerm: prefix {self.prefix!r} is not a GLSL identifier")
+        if self.neighbours not in (0, 18, 24):
+            raise ValueError(f"GlslTerm {self.prefix}: neighbours must be 0, 18 or 24, got {self.neighbours}")
         for name in (*self.uniforms, *(t.sampler for t in self.tables)):
             if not name.startswith(f"u_{self.prefix}"):
                 raise ValueError(f"GlslTerm {self.prefix}: uniform {name!r} must start with u_{self.prefix}")
@@ -105,6 +118,8 @@ class Term(ABC):
 
     #: what the term is, in a user's words (messages name it: "rest anchors")
     name: str = "term"
+    #: the grid neighbours its GLSL form reads (:attr:`GlslTerm.neighbours`): 0, 18 or 24
+    neighbours: int = 0
 
     @abstractmethod
     def add_forces(self, x: np.ndarray, v: np.ndarray, t: float, out: np.ndarray) -> None:
@@ -137,8 +152,18 @@ class Term(ABC):
         rows = np.asarray(k.sum(axis=1)).reshape(-1, 3)
         return rows.max(axis=1)
 
+    def describe(self) -> str:
+        """The term as messages name it, with its constants ("rest anchors, k = 30 N/m")."""
+        return self.name
+
     def glsl(self) -> GlslTerm | None:
         """The term's GLSL form, or None where it has none (the GPU backends refuse it)."""
+        return None
+
+    def feedback_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The transform-feedback form of a term linear in the positions, ``f_i = -sum_j c_ij (x_i
+        - x_j)``: (rows, cols, c) with c in N/m, each pair in the list of its row (the backend
+        stores them as springs of rest length 0); None where the term has none."""
         return None
 
     def refusal(self, backend: str) -> str | None:
@@ -146,6 +171,8 @@ class Term(ABC):
         phrase, or None. The default: the fragment backends run it where it has a GLSL form (and
         implicit Euler where that form has its product); transform feedback and XPBD do not."""
         form = self.glsl()
+        if backend == "feedback" and self.feedback_pairs() is not None:
+            return None
         if backend in ("feedback", "xpbd"):
             return f"{self.name} have no {'transform-feedback' if backend == 'feedback' else 'XPBD'} form"
         if form is None:

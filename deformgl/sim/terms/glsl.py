@@ -18,7 +18,7 @@ import numpy as np
 
 from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
 
-__all__ = ["ACTIVE", "PassTerms", "pass_terms", "refuse_terms"]
+__all__ = ["ACTIVE", "PassTerms", "compose", "pass_terms", "refuse_terms"]
 
 #: The include name of the composed term list.
 ACTIVE = "terms/active.glsl"
@@ -44,29 +44,20 @@ class PassTerms:
         return bool(self.forms)
 
     def defines(self) -> dict[str, object]:
-        """``TERMS`` (and ``TERMS_IMPLICIT``) where the pass has terms."""
+        """``TERMS``, ``TERM_<PREFIX>`` per term, ``TERMS_NEIGHBOURS`` where a term reads the grid
+        neighbours and ``TERMS_IMPLICIT`` in implicit passes; none without terms."""
         if not self.forms:
             return {}
-        return {"TERMS": True, "TERMS_IMPLICIT": self.implicit}
+        out: dict[str, object] = {"TERMS": True, "TERMS_IMPLICIT": self.implicit,
+                                  "TERMS_NEIGHBOURS": any(f.neighbours for f in self.forms)}
+        out.update({f"TERM_{f.prefix.upper()}": True for f in self.forms})
+        return out
 
     def chunks(self) -> dict[str, str]:
         """The include files given as text: each inline chunk, and ``terms/active.glsl``."""
         if not self.forms:
             return {}
-        lines = ["// The physics terms of this pass (composed by deformgl/sim/terms/glsl.py)",
-                 f'#include "{_NODE}"']
-        lines += [f'#include "{form.include}"' for form in self.forms]
-        lines.append("void terms_force(inout vec3 f, TermNode n) {")
-        lines += [f"    {form.prefix}_force(f, n);" for form in self.forms]
-        lines.append("}")
-        if self.implicit:
-            lines.append("void terms_product(inout vec3 q, TermNode n, vec3 y) {")
-            lines += [f"    {form.prefix}_product(q, n, y);" for form in self.forms]
-            lines.append("}")
-            lines.append("void terms_diagonal(inout vec3 d, inout vec3 off, TermNode n) {")
-            lines += [f"    {form.prefix}_diagonal(d, off, n);" for form in self.forms]
-            lines.append("}")
-        out = {ACTIVE: "\n".join(lines) + "\n"}
+        out = {ACTIVE: compose(self.forms)}
         for form in self.forms:
             if form.source is not None:
                 out[form.include] = form.source
@@ -93,6 +84,51 @@ class PassTerms:
     def textures(self, make: Callable[[NodeTable], moderngl.TextureArray]) -> list[moderngl.TextureArray]:
         """One texture array per table, made by the backend in its node layout."""
         return [make(t) for t in self.tables]
+
+
+def compose(forms: Sequence[GlslTerm], *, guarded: bool = False) -> str:
+    """``terms/active.glsl`` of ``forms``: each chunk's include, then ``terms_force`` (and
+    ``terms_begin``, ``terms_neighbour``; under TERMS_IMPLICIT ``terms_product``,
+    ``terms_diagonal``, ``terms_neighbour_product``) calling each term's function in turn.
+    ``guarded``: each term under ``#ifdef TERM_<PREFIX>`` (the shipped file of every shipped term,
+    which the shader pack compiles with the defines alone)."""
+    lines = ["// The physics terms of a pass (deformgl/sim/terms). Composed by deformgl/sim/terms/glsl.py",
+             "// compose(); do not edit: `python -m deformgl.sim.terms.registry` writes the shipped one.",
+             f'#include "{_NODE}"']
+
+    def each(form: GlslTerm, text: str) -> None:
+        lines.extend([f"#ifdef TERM_{form.prefix.upper()}", text, "#endif"] if guarded else [text])
+
+    for form in forms:
+        each(form, f'#include "{form.include}"')
+
+    def function(signature: str, call: str, which: Sequence[GlslTerm]) -> None:
+        lines.append(signature + " {")
+        for form in which:
+            each(form, "    " + call.replace("PREFIX", form.prefix))
+        lines.append("}")
+
+    function("void terms_force(inout vec3 f, TermNode n)", "PREFIX_force(f, n);", forms)
+    near = [f for f in forms if f.neighbours]
+    if near:
+        lines.append("#ifdef TERMS_NEIGHBOURS")
+        function("void terms_begin(TermNode n)", "PREFIX_begin(n);", near)
+        function("void terms_neighbour(inout vec3 f, TermNode n, int j, vec3 d)", "PREFIX_neighbour(f, n, j, d);", near)
+        lines.append("#endif")
+    implicit = [f for f in forms if f.implicit]
+    if implicit:
+        lines.append("#ifdef TERMS_IMPLICIT")
+        function("void terms_product(inout vec3 q, TermNode n, vec3 y)", "PREFIX_product(q, n, y);", implicit)
+        function("void terms_diagonal(inout vec3 d, inout vec3 off, TermNode n)", "PREFIX_diagonal(d, off, n);",
+                 implicit)
+        near_implicit = [f for f in implicit if f.neighbours]
+        if near_implicit:
+            lines.append("#ifdef TERMS_NEIGHBOURS")
+            function("void terms_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, vec3 dy)",
+                     "PREFIX_neighbour_product(sk, dk, n, j, dy);", near_implicit)
+            lines.append("#endif")
+        lines.append("#endif")
+    return "\n".join(lines) + "\n"
 
 
 def pass_terms(terms: Sequence[Term], backend: str, caller: str, *, implicit: bool = False) -> PassTerms:

@@ -162,7 +162,7 @@ void main() {
 #if defined(SETUP)
     vec3 vi = texelFetch(u_v, texel, 0).xyz;
     vec3 sk, sc, dk, dc, ok, oc;
-    spring_sums(texel, xi, vi, sk, sc, dk, dc, ok, oc);   // u_vec is v: sk = H_springs v
+    spring_sums(texel, xi, vi, m, sk, sc, dk, dc, ok, oc);   // u_vec is v: sk = H_springs v
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
     vec3 f = m * grid_acceleration(texel, xi, vi, m, int(node.b));

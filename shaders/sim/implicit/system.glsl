@@ -10,11 +10,10 @@
 // Every CG vector is 0 at fixed nodes and padding texels, so the rows and columns of the fixed
 // nodes drop out (the solve is over the free nodes).
 // NB_LAYERS and NB_COUNT as sim/integrators/forces.glsl (default 5 and 18).
-// BENDING: a sheet's bending, the constant B of deformgl/sim/bending.py on each coordinate:
-// (B y)_i = sum_j c_j (y_i - y_j), diagonal sum_j c_j (c_j from u_bending, as forces.glsl reads it).
 // IMPLICIT_CELLS: the full cells' volumetric term and corner barriers add their (Gauss-Newton)
 // block, dt^2 H_cells (sim/implicit/cells.glsl). TERMS (with TERMS_IMPLICIT): the system's further
-// physics terms add dt^2 K y (terms_product, terms/active.glsl, which forces.glsl includes).
+// physics terms add dt^2 K y (terms_product, terms/active.glsl, which forces.glsl includes), those
+// that read the grid neighbours (TERMS_NEIGHBOURS) with the springs' sums.
 #include "lib/neighbour_count.glsl"
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
 #ifdef IMPLICIT_CELLS
@@ -25,18 +24,18 @@ uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the nei
 // diagonals dk = sum diag(H_s), dc = sum diag(C_s) and the off-diagonals (xy, xz, yz) of the
 // node's 3x3 block, ok of sum H_s and oc of sum C_s (the block-Jacobi preconditioner's; the
 // passes that do not use them leave them to the compiler to drop).
-void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out vec3 dk, out vec3 dc,
+void spring_sums(ivec2 texel, vec3 xi, vec3 yi, float m, out vec3 sk, out vec3 sc, out vec3 dk, out vec3 dc,
                  out vec3 ok, out vec3 oc) {
     sk = vec3(0.0); sc = vec3(0.0); dk = vec3(0.0); dc = vec3(0.0); ok = vec3(0.0); oc = vec3(0.0);
+#ifdef TERMS_NEIGHBOURS
+    TermNode term_node = TermNode(ivec3(texel, 0), xi, vec3(0.0), m);
+#endif
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
 #ifdef SPRING_WEIGHTS
         vec4 w = texelFetch(u_weights, ivec3(texel, layer), 0);
 #else
         vec4 w = vec4(1.0);
-#endif
-#ifdef BENDING
-        vec4 bc = texelFetch(u_bending, ivec3(texel, layer), 0);
 #endif
         for (int c = 0; c < 4; ++c) {
             int j = 4 * layer + c;
@@ -56,9 +55,8 @@ void spring_sums(ivec2 texel, vec3 xi, vec3 yi, out vec3 sk, out vec3 sc, out ve
             dk += k * (u * u + g * (vec3(1.0) - u * u));
             vec3 uu = u.xxy * u.yzz;   // u_x u_y, u_x u_z, u_y u_z
             ok += k * (1.0 - g) * uu;
-#ifdef BENDING
-            sk += bc[c] * dy;
-            dk += vec3(bc[c]);
+#ifdef TERMS_NEIGHBOURS
+            terms_neighbour_product(sk, dk, term_node, j, dy);
 #endif
 #ifdef SPRING_DAMPING
             float cs = w[c] * u_c[cls];
@@ -94,7 +92,7 @@ float node_drag_stiffness(int node) {
 // A y at this node (y_i = yi).
 vec3 apply_system(ivec2 texel, vec3 xi, vec3 yi, float m) {
     vec3 sk, sc, dk, dc, ok, oc;
-    spring_sums(texel, xi, yi, sk, sc, dk, dc, ok, oc);
+    spring_sums(texel, xi, yi, m, sk, sc, dk, dc, ok, oc);
     float dt = u_dt;
     float own = m + dt * node_damping(m) + dt * dt * node_drag_stiffness(texel_node(texel));
     vec3 q = own * yi + (dt * dt) * sk + dt * sc;

@@ -24,9 +24,9 @@
 // The including stage defines EVAL_X(T) and EVAL_V(T): position and velocity of the node at
 // texel T in the state at which forces are evaluated, and declares u_node.
 // NB_LAYERS and NB_COUNT: 5 and 18 (the default: structural and shear) or 6 and 24 (+ flexion).
-// BENDING: a sheet's bending term f = -B x (deformgl/sim/bending.py, the plate's D in N*m), gathered
-// through the same neighbours (NB_COUNT 24: B couples a node to its axis neighbours at h and 2h and
-// its face diagonals): f -= c_j (x_i - x_j) per neighbour j, c_j from u_bending.
+// TERMS: the system's further physics terms (deformgl/sim/terms; terms/active.glsl, composed by the
+// host): each node's terms_force after the cells'; with TERMS_NEIGHBOURS, terms_begin before the
+// neighbours and terms_neighbour(f, n, j, d) after each neighbour's spring, d = x_i - x_j.
 // CELLS (with CELL_CENTRE and/or CELL_BARRIER): the lattice's volumetric term of
 // deformgl/sim/volume.py volume_forces, gathered from the node's full incident cells at the same
 // evaluation state (sim/cells/node_hood.glsl; the incident-cell mask in u_node's G, bits 6-13).
@@ -47,11 +47,6 @@ uniform vec3 u_c;           // spring damping of each class, N*s/m
 // order): its stiffness is w_j u_k[class] and its damping w_j u_c[class] (the calibrated
 // lattice of deformgl/sim/materials.py: the share of full cells that contain the spring).
 uniform sampler2DArray u_weights;
-#endif
-#ifdef BENDING
-// NB_LAYERS layers RGBA32F: the bending coefficient c_j of neighbour j (4 per layer, in neighbour
-// order; SheetBending.neighbour_coefficients, 0 where B does not couple the two).
-uniform sampler2DArray u_bending;
 #endif
 #include "lib/node_forces.glsl"
 #include "lib/node_texel.glsl"
@@ -99,13 +94,13 @@ vec3 class_spring_force(vec3 d, ivec2 tj, vec3 vi, int cls) {
 #else
 #define CELL_KEEP(SLOT, D)
 #endif
-#ifdef BENDING
-#define BEND_TERM(J, D) f -= bl[(J) / 4][(J) % 4] * (D);
+#ifdef TERMS_NEIGHBOURS
+#define TERMS_NB(J, D) terms_neighbour(f, term_node, J, D);
 #else
-#define BEND_TERM(J, D)
+#define TERMS_NB(J, D)
 #endif
-#define GRID_SPRING(J, SLOT) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); CELL_KEEP(SLOT, d) f += NB_SPRING(J, d, tj); BEND_TERM(J, d) }
-#define GRID_FLEXION(J) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); f += NB_SPRING(J, d, tj); BEND_TERM(J, d) }
+#define GRID_SPRING(J, SLOT) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); CELL_KEEP(SLOT, d) f += NB_SPRING(J, d, tj); TERMS_NB(J, d) }
+#define GRID_FLEXION(J) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); f += NB_SPRING(J, d, tj); TERMS_NB(J, d) }
 
 vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     vec3 f = vec3(0.0);
@@ -134,15 +129,10 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     wl[5] = texelFetch(u_weights, ivec3(texel, 5), 0);
 #endif
 #endif
-#ifdef BENDING
-    vec4 bl[NB_LAYERS];
-    bl[0] = texelFetch(u_bending, ivec3(texel, 0), 0);
-    bl[1] = texelFetch(u_bending, ivec3(texel, 1), 0);
-    bl[2] = texelFetch(u_bending, ivec3(texel, 2), 0);
-    bl[3] = texelFetch(u_bending, ivec3(texel, 3), 0);
-    bl[4] = texelFetch(u_bending, ivec3(texel, 4), 0);
-#if NB_LAYERS > 5
-    bl[5] = texelFetch(u_bending, ivec3(texel, 5), 0);
+#ifdef TERMS
+    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m);
+#ifdef TERMS_NEIGHBOURS
+    terms_begin(term_node);
 #endif
 #endif
     // the 18 of deformgl/grid/nodes.py NEIGHBOUR_OFFSETS; slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1)
@@ -176,7 +166,7 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     f += hood_cell_force(texel, xi, cell_bits(int(texelFetch(u_node, texel, 0).g)));
 #endif
 #ifdef TERMS
-    terms_force(f, TermNode(ivec3(texel, 0), xi, vi, m));
+    terms_force(f, term_node);
 #endif
     add_node_forces(f, texel_node(texel), groups, xi, vi, m);
     return f / m;
