@@ -280,9 +280,13 @@ def test_bench_sim_bending_prints_the_cost_ratios(ctx) -> None:
 
 
 def test_bench_bending_flag_is_for_bench_sim_only(tmp_path) -> None:
+    """The bending cost moved to ``python -m studies.bending_cost`` (issue 43): the flag, with
+    ``bench sim`` or elsewhere, ends in one line naming the study's command, no traceback."""
     for args in (["bench", "render", "--bending"], ["bench", "sim", "--bending", "--poisson", "0.45"]):
         done = _cli(*args, cwd=tmp_path)
-        assert done.returncode != 0 and "--bending: only for bench sim" in done.stderr and "Traceback" not in done.stderr
+        assert done.returncode != 0 and "python -m studies." in done.stderr and "Traceback" not in done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "python -m studies.bending_cost" in _cli("bench", "sim", "--bending", cwd=tmp_path).stderr
 
 
 def test_dt_message_names_the_bending_where_it_sets_the_limit() -> None:

@@ -313,7 +313,7 @@ def test_the_multigrid_bench_prints_its_iteration_table(capsys) -> None:
 
 
 def test_the_stiff_studys_preconditioner_table_has_multigrid() -> None:
-    """``bench trade --stiff``'s CG table (float64) has a multigrid column beside Jacobi and
+    """``python -m studies.preconditioners --only trade``'s CG table (float64) has a multigrid column beside Jacobi and
     block-Jacobi, and on the FEM-checked cantilever multigrid needs a fraction of their iterations."""
     from studies.preconditioners import format_preconditioners, preconditioner_bodies, preconditioner_iterations
 

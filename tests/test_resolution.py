@@ -36,7 +36,7 @@ def test_the_three_errors_are_kept_apart(report):
             assert large.time_stepping > 1.3 * small.time_stepping
     coarse = [r.discretisation for r in report.rows if r.across == 2]
     fine = [r.discretisation for r in report.rows if r.across == 3]
-    assert min(coarse) > 2 * max(fine) > 0.2   # 46 % and 19 % short of FEM (bench accuracy)
+    assert min(coarse) > 2 * max(fine) > 0.2   # 46 % and 19 % short of FEM (python -m studies.accuracy)
 
 
 def test_the_front_names_the_cheapest_grid_for_an_accuracy(report):

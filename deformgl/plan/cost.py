@@ -17,7 +17,7 @@ against a force's one spring), so each kind has its own rate. ``reductions`` are
 product texture down to one texel (a chain of 4 x 4 reduction passes, ``implicit/reduce.frag``: its
 passes and fetches are in ``reduction_s``) and ``reads`` the GPU-to-CPU scalar reads of a solve
 with a tolerance (each a pipeline stall). :data:`RATES` are those rates fitted on a renderer by
-``python -m deformgl.bench.plan_rates`` (non-negative least squares over explicit and implicit
+``python -m studies.plan_rates`` (non-negative least squares over explicit and implicit
 steps of several sizes; the read timed apart), which prints the fit's error per configuration.
 
 The passes are those the backends draw: explicit Verlet one pass a step (the foundation pass),
@@ -99,7 +99,7 @@ class Rates:
     renderer: str = ""
 
 
-#: Fitted by ``python -m deformgl.bench.plan_rates`` (2-core AMD EPYC, llvmpipe (LLVM 15.0.6),
+#: Fitted by ``python -m studies.plan_rates`` (2-core AMD EPYC, llvmpipe (LLVM 15.0.6),
 #: Mesa 22.3.6, 2026-12-06, 5 rounds: the model within 0.77-1.21 of the measured median on all 23
 #: configurations, within 10 % on 18; docs/PERFORMANCE.md "Pricing the plan").
 RATES = Rates(pass_s=200.5e-6, fetch_s=(4.499e-9, 1.746e-9, 14.94e-9), reduction_s=602.2e-6, read_s=96.97e-6,

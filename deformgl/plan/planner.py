@@ -1,6 +1,6 @@
 """``deformgl plan SCENE --tolerance X``: model only what a scene requires (issue 12, item 5).
 
-From the measurements of ``deformgl bench accuracy`` and ``deformgl bench trade --resolution``
+From the measurements of ``python -m studies.accuracy`` and ``deformgl bench trade --resolution``
 (docs/ACCURACY.md), pick the coarsest grid, the integrator and the largest dt whose predicted
 relative error of the body's deflection is below the tolerance, and say why:
 
@@ -52,7 +52,7 @@ __all__ = ["MEASURED", "MEASURED_NU", "measured_errors", "LOADS", "MAX_FRACTION"
            "MULTIGRID_MEASURED_ALONG", "multigrid_iterations", "poisson_iteration_factor",
            "fit", "make_plan", "lowest_mode_estimate", "plan_scene", "planned_scene", "add_parser", "run"]
 
-#: Lattice-vs-FEM relative errors measured by ``deformgl bench accuracy`` (nodes across the
+#: Lattice-vs-FEM relative errors measured by ``python -m studies.accuracy`` (nodes across the
 #: thickness -> |deformgl / FEM - 1|; 2-core AMD EPYC; docs/ACCURACY.md).
 MEASURED: dict[str, dict[int, float]] = {
     "bending": {2: 0.459, 3: 0.192, 4: 0.0992, 5: 0.0596, 8: 0.0211, 9: 0.0164, 17: 0.00430},
@@ -62,9 +62,9 @@ MEASURED: dict[str, dict[int, float]] = {
 LOADS = tuple(MEASURED)
 #: The same at the body's Poisson's ratio (the lattice with its cells' volumetric term), at 3, 5,
 #: 9 and 17 nodes across (the finest four, as :func:`fit` takes at 1/4) (2-core Intel Xeon, 2026-12-05): compression and torsion against
-#: ``bench accuracy``'s displacement FEM at that nu (Richardson-extrapolated; its own estimated
+#: ``studies.accuracy``'s displacement FEM at that nu (Richardson-extrapolated; its own estimated
 #: error on the block grows to 0.4 % at 0.45 and 0.9 % at 0.49, the locking of displacement
-#: elements; ``python -m deformgl.bench.tissue_accuracy``, table 4), bending against the
+#: elements; ``python -m studies.tissue_accuracy``, table 4), bending against the
 #: locking-free mixed FEM (the same command's table 1, ``--across 3,5,9,17``; docs/ACCURACY.md
 #: sections 3 and 5). Torsion is shear and does not move with nu; compression
 #: does: 3.7x the 1/4 error at 0.45 and 4.6x at 0.49 (9 across).
@@ -101,7 +101,7 @@ IMPLICIT_MEASURED_ALONG = 33
 #: Multigrid CG iterations per step at nu = 1/4 (times :func:`poisson_iteration_factor` above):
 #: on the 1 MPa block at dt = 1/60 s, 3 iterations a step left 2.0e-4 of the sag (float32, 9 and
 #: 17 across) and 5.0e-4 at 33 across, where 10 Jacobi iterations left 5.6 % (``python -m
-#: deformgl.bench.multigrid``; its iterations to a residual of 1e-4 stay 6 to 8 from 9 to 65
+#: studies.preconditioners``; its iterations to a residual of 1e-4 stay 6 to 8 from 9 to 65
 #: across, 13 to 18 at nu = 0.45).
 MULTIGRID_ITERATIONS = 3
 #: The largest grid the multigrid's static residue at :data:`MULTIGRID_ITERATIONS` was measured
@@ -109,7 +109,7 @@ MULTIGRID_ITERATIONS = 3
 MULTIGRID_MEASURED_ALONG = 33
 #: CG iterations at Poisson's ratio nu over those at 1/4 (the cells' lambda - mu): the mean CG
 #: iterations per step to a relative residual of 1e-4 on a 9-across liver block in float64
-#: (``bench sim --poisson``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
+#: (``python -m studies.cells_cost``: 17.3, 42.4 and 90.3 at nu 0.25, 0.45, 0.49). On the 6 x 12 x 23 rubber
 #: beam the static residue reached 6e-4 of the sag at 30 iterations at 1/4, 60 at 0.45 (30 left
 #: 0.59 %) and 150 at 0.49 (100 left 0.15 %): within these factors (74 and 157).
 POISSON_CG_FACTOR = {0.25: 1.0, 0.45: 42.4 / 17.3, 0.49: 90.3 / 17.3}
@@ -194,7 +194,7 @@ class Plan:
             f"grid: {self.across} nodes across the thickness, spacing {self.spacing:.4g} m, "
             f"nodes_along_longest = {self.nodes_along_longest}: the coarsest grid whose predicted "
             f"discretisation error {self.discretisation:.2%} (e = {c:.3g} (h/t)^{p:.2f}, fitted to "
-            f"bench accuracy's {self.load} workload) leaves room for the time stepping and float32",
+            f"the FEM study's {self.load} workload, docs/ACCURACY.md) leaves room for the time stepping and float32",
             (f"integrator: implicit-euler at dt = {self.dt:.3g} s with {self.iterations} {self.preconditioner} CG "
              f"iterations "
              f"(stable at any dt; the explicit integrators' critical dt on their grid is {self.critical:.3g} s): its "
@@ -460,7 +460,7 @@ def add_parser(sub: Any) -> None:
     """The ``plan`` subcommand on the CLI's subparsers."""
     pl = sub.add_parser("plan", help="pick the coarsest grid, integrator and dt for an accuracy",
                         description="Model only what a scene requires: from the measured lattice-vs-FEM errors "
-                                    "(bench accuracy) and time-stepping errors (bench trade --resolution), the "
+                                    "(docs/ACCURACY.md) and time-stepping errors (bench trade --resolution), the "
                                     "coarsest grid, the integrator and the largest dt whose predicted relative "
                                     "deflection error is below --tolerance, and why (docs/ACCURACY.md).")
     pl.add_argument("scene", type=Path, help="scene file (.toml) with a [material] table, or a shipped scene's name")
