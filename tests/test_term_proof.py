@@ -221,3 +221,129 @@ def test_backends_without_its_form_refuse_it_in_one_line(ctx, integrator, backen
         make_simulation(system, integrator, backend, dt=1e-3, ctx=ctx)
     message = str(info.value)
     assert "rest anchors" in message and "\n" not in message
+
+
+# A term that couples two nodes: a zero-length tether between node i and its partner p(i) = i ^ 1
+# relative to their rest offset, f_i = -k ((x_i - x_p) - (r_i - r_p)); the chunk reads the
+# partner's state by node number (term_position, term_vector).
+TETHER_GLSL = """
+uniform sampler2DArray u_tether_table;  // xyz the rest offset r_i - r_p (m), w the partner (-1: none)
+uniform float u_tether_k;               // N/m
+void tether_force(inout vec3 f, TermNode n) {
+    vec4 t = term_table(u_tether_table, 1, 0, n);
+    if (t.w >= 0.0) {
+        f -= u_tether_k * ((n.x - term_position(int(t.w))) - t.xyz);
+    }
+}
+#ifdef TERMS_IMPLICIT
+void tether_product(inout vec3 q, TermNode n, vec3 y) {
+    vec4 t = term_table(u_tether_table, 1, 0, n);
+    if (t.w >= 0.0) {
+        q += u_tether_k * (y - term_vector(int(t.w)));
+    }
+}
+void tether_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+    d += vec3(term_table(u_tether_table, 1, 0, n).w >= 0.0 ? u_tether_k : 0.0);
+}
+#endif
+"""
+
+
+class Tethers(Term):
+    """Zero-length springs (N/m) between node pairs (2m, 2m + 1) about their rest offset."""
+
+    name = "tethers"
+
+    def __init__(self, rest: np.ndarray, k: float) -> None:
+        self.rest = np.asarray(rest, np.float64)
+        self.k = float(k)
+        n = len(self.rest)
+        self.partner = np.arange(n) ^ 1
+        self.partner[self.partner >= n] = -1
+
+    def add_forces(self, x, v, t, out):
+        has = self.partner >= 0
+        p = self.partner[has]
+        out[has] -= self.k * ((x[has] - x[p]) - (self.rest[has] - self.rest[p]))
+
+    def energy(self, x):
+        has = np.flatnonzero(self.partner > np.arange(len(x)))
+        d = (x[has] - x[self.partner[has]]) - (self.rest[has] - self.rest[self.partner[has]])
+        return 0.5 * self.k * float(np.sum(d * d))
+
+    def stiffness(self, x):
+        n = len(self.rest)
+        has = np.flatnonzero(self.partner >= 0)
+        rows = np.concatenate([3 * has[:, None] + np.arange(3)] * 2).ravel()
+        cols = np.concatenate([3 * has[:, None] + np.arange(3), 3 * self.partner[has][:, None] + np.arange(3)]).ravel()
+        vals = np.concatenate([np.full(3 * len(has), self.k), np.full(3 * len(has), -self.k)])
+        return sp.csr_matrix((vals, (rows, cols)), shape=(3 * n, 3 * n))
+
+    def glsl(self):
+        has = self.partner >= 0
+        offset = np.where(has[:, None], self.rest - self.rest[np.where(has, self.partner, 0)], 0.0)
+        table = np.concatenate([offset, self.partner[:, None].astype(np.float64)], axis=1)
+        return GlslTerm("tether", source=TETHER_GLSL, implicit=True, others=True, uniforms={"u_tether_k": self.k},
+                        tables=(NodeTable("u_tether_table", table),))
+
+
+def tethered(n=4, k=300.0):
+    system, grid = anchored(n)
+    return dataclasses.replace(system, terms=(*system.terms, Tethers(grid.rest_positions, k))), grid
+
+
+def test_the_tether_matrix_is_minus_the_force_derivative():
+    system, _ = tethered(3)
+    tethers = system.terms[1]
+    rng = np.random.default_rng(3)
+    x = system.rest_positions + rng.normal(size=(system.count, 3)) * 0.01
+    dx = rng.normal(size=x.shape) * 1e-6
+    f0, f1 = np.zeros_like(x), np.zeros_like(x)
+    tethers.add_forces(x, x, 0.0, f0)
+    tethers.add_forces(x + dx, x, 0.0, f1)
+    assert np.abs(f1 - f0 + (tethers.stiffness(x) @ dx.ravel()).reshape(-1, 3)).max() <= 1e-9 * np.abs(f1 - f0).max()
+
+
+@pytest.mark.parametrize("name", ["semi-implicit", "rk4", "verlet"])
+def test_a_coupling_term_runs_on_the_fragment_stages(ctx, name):
+    system, _ = tethered()
+    dt = 2e-3
+    state = start(system, dt)
+    ref = reference(system, name, dt, 100, state)
+    without = reference(dataclasses.replace(system, terms=system.terms[:1]), name, dt, 100, state)
+    assert np.abs(ref.x - without.x).max() > 0.05 * system.spacing
+    x, _ = gpu_run(ctx, system, name, dt, 100, state, path="general")
+    assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
+
+
+def test_a_coupling_term_takes_the_compact_layout_on_the_foundation_pass(ctx):
+    system, _ = tethered(13)  # (a grid the blocked layout would take by itself)
+    dt = 2e-3
+    state = start(system, dt)
+    sim = make_simulation(system, "verlet", "fragment", dt=dt, ctx=ctx, state=state, path="foundation")
+    try:
+        assert sim.block is None
+        sim.step(50)
+        x = sim.positions().astype(np.float64)
+    finally:
+        sim.release()
+    assert np.abs(x - reference(system, "verlet", dt, 50, state).x).max() <= 1e-3 * system.spacing
+    with pytest.raises(ValueError, match="blocked layout cannot read other nodes' state by number, as tether"):
+        make_simulation(system, "verlet", "fragment", dt=dt, ctx=ctx, path="foundation", layout="blocked",
+                        block=(1, 2, 2))
+
+
+def test_a_coupling_term_runs_with_implicit_euler(ctx):
+    system, _ = tethered(5)
+    dt = 1e-2
+    state = start(system, dt)
+    options = dict(cg_preconditioner="multigrid", cg_tolerance=1e-6, cg_iterations=200, state=state)
+    cpu = make_simulation(system, "implicit-euler", "numpy", dt=dt, **options)
+    cpu.step(20)
+    gpu = make_simulation(system, "implicit-euler", "fragment", dt=dt, ctx=ctx, **options)
+    try:
+        gpu.step(20)
+        x = gpu.positions().astype(np.float64)
+    finally:
+        gpu.release()
+    assert np.abs(x - cpu.positions()).max() <= 1e-3 * system.spacing

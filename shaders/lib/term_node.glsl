@@ -12,3 +12,11 @@ struct TermNode {
 vec4 term_table(sampler2DArray table, int layers, int l, TermNode n) {
     return texelFetch(table, ivec3(n.at.xy, n.at.z * layers + l), 0);
 }
+
+// Another node's state by node number, for a term that couples nodes (GlslTerm.others): its
+// position and velocity at the evaluation state (the explicit gathers) and, in the implicit
+// product's functions, the multiplied vector y at that node. Each pass that runs such terms
+// defines them (the compact layouts' passes; the blocked layout does not run them).
+vec3 term_position(int node);
+vec3 term_velocity(int node);
+vec3 term_vector(int node);

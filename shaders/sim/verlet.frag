@@ -24,6 +24,15 @@ uniform sampler2D u_node;       // RGBA32F static node data (node_flags.glsl)
 #include "sim/cells/node_hood.glsl"
 #endif
 #include "sim/verlet_node.glsl"
+#ifdef TERMS
+vec3 term_position(int node) {  // (lib/term_node.glsl: another node's state, compact layouts)
+    return texelFetch(u_position, node_texel(node), 0).xyz;
+}
+vec3 term_velocity(int node) {
+    ivec2 t = node_texel(node);
+    return (texelFetch(u_position, t, 0).xyz - texelFetch(u_previous, t, 0).xyz) / u_dt;
+}
+#endif
 
 layout(location = 0) out vec4 o_position;
 

@@ -450,6 +450,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
         if layout == "auto" and block is None and draw == "rects":  # (points, quad: one-node variants)
             block = default_block(grid)
         why = None if block is None else blocked_refusal(ctx.info, block)
+        if why is None and block is not None and terms.extra.others:
+            why = f"the blocked layout cannot read other nodes' state by number, as {terms.extra.others[0].prefix} does"
         if why is not None and layout == "blocked":
             raise ValueError(f"FoundationVerlet: {why}")
         if why is not None:  # ("auto": the one-node layout where the renderer cannot run the block)

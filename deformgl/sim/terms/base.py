@@ -82,7 +82,11 @@ class GlslTerm:
             // (implicit) adds its (K y)_n share of neighbour j, dy = y_n - y_j, and its diagonal
 
     which the explicit gather calls with the springs, for each neighbour j in order (an absent one
-    is the node itself: d = 0), and the implicit product with the springs' sums. A ``TermNode`` holds
+    is the node itself: d = 0), and the implicit product with the springs' sums. A term that couples
+    a node to any other (``others``) reads that node's state by its number: ``term_position(node)``,
+    ``term_velocity(node)`` and, in its implicit functions, ``term_vector(node)`` (the vector y
+    multiplied); the compact layouts' passes define them, the blocked layout does not run such a
+    term (the foundation pass takes the compact layout for it). A ``TermNode`` holds
     the node's position ``x`` and velocity ``v`` at the evaluation state, its mass ``m`` and where its
     tables are. ``uniforms`` are set on every pass that compiles the chunk; their names, the
     tables' samplers and every function must start with ``prefix`` (or ``u_`` + prefix).
@@ -93,6 +97,7 @@ class GlslTerm:
     file: str | None = None
     implicit: bool = False
     neighbours: int = 0
+    others: bool = False
     uniforms: dict[str, object] = field(default_factory=dict)
     tables: tuple[NodeTable, ...] = ()
 

@@ -64,6 +64,11 @@ class PassTerms:
         return out
 
     @property
+    def others(self) -> tuple[GlslTerm, ...]:
+        """The terms that read other nodes' state by number (the compact layouts only)."""
+        return tuple(f for f in self.forms if f.others)
+
+    @property
     def tables(self) -> tuple[NodeTable, ...]:
         """Every node table the pass samples, in order."""
         return tuple(t for form in self.forms for t in form.tables)

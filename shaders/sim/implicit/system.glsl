@@ -16,6 +16,11 @@
 // that read the grid neighbours (TERMS_NEIGHBOURS) with the springs' sums.
 #include "lib/neighbour_count.glsl"
 uniform sampler2D u_vec;    // the vector y multiplied (xyz), sampled at the neighbours
+#ifdef TERMS
+vec3 term_vector(int node) {  // (lib/term_node.glsl: y at another node, for the terms' products)
+    return texelFetch(u_vec, node_texel(node), 0).xyz;
+}
+#endif
 #ifdef IMPLICIT_CELLS
 #include "sim/implicit/cells.glsl"
 #endif

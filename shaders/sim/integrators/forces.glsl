@@ -55,6 +55,12 @@ uniform sampler2DArray u_weights;
 // the system's further physics terms (deformgl/sim/terms: each a chunk; terms/active.glsl, composed
 // by the host, calls them): their forces at the evaluation state, after the cells'
 #include "terms/active.glsl"
+vec3 term_position(int node) {
+    return EVAL_X(node_texel(node));
+}
+vec3 term_velocity(int node) {
+    return EVAL_V(node_texel(node));
+}
 #endif
 #ifdef CELLS
 // CELLS (the lattice's volumetric term, sim/cells/node_hood.glsl): the positions of the 18 grid
