@@ -39,7 +39,7 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
 from deformgl.sim.backends.cell_tables import cell_uniforms, check_cells, incident_cells, neighbourhood
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.volume import CellVolumes
@@ -129,7 +129,7 @@ class NodeCellForces(GLOwner):
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/cells/node_cells.frag",
                                             defines={"COMPACT_DENSE": self.layout.dense, **cell_terms(cells)}))
             uniforms: dict[str, object] = {**term_uniforms(cells), "u_x": 0, "u_node": 1,
-                                           "u_width_log2": int(self.layout.width).bit_length() - 1}
+                                           **layout_uniforms(self.layout.width)}
             uniforms.update({"u_strides": self.layout.strides} if self.layout.dense else {"u_cell_hood": 2})
             self.program.set(**uniforms)
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))

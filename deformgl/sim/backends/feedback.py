@@ -210,11 +210,11 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             pairs = term.feedback_pairs()
             if pairs is None:
                 continue  # (refused in __init__)
-            rows, cols, c = pairs
+            rows, cols, coefficients = pairs
             ends = np.concatenate([ends, rows])
             other = np.concatenate([other, cols])
             rest = np.concatenate([rest, np.zeros(len(rows))])
-            stiffness = np.concatenate([stiffness, c])
+            stiffness = np.concatenate([stiffness, coefficients])
             damping = np.concatenate([damping, np.zeros(len(rows))])
         order = np.argsort(ends, kind="stable")
         counts = np.bincount(ends, minlength=n)

@@ -1,11 +1,13 @@
-"""The fragment backend's position-Verlet fast path: Mosegaard & Sørensen 2005, section 3.1.
+"""The fragment backend's position-Verlet fast path (Mosegaard & Sørensen 2005, section 3.1): what
+the pass models of a system (:func:`verlet_terms`) and its node textures (:class:`NodeTextures`);
+the pass and the simulation are :mod:`deformgl.sim.backends.verlet_pass`.
 
 One fragment pass per step over RGBA32F textures, the spring force of Mosegaard & Sørensen 2005,
 eq. 1 (eq. 2 where the classes share one stiffness) and the packed eq. 3 node normal written
 with the new position, so a mapped mesh draws straight from the state texture.
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` picks it by itself for Verlet when
 the system uses nothing the pass does not model (:func:`verlet_terms`); nothing else builds a
-:class:`FoundationVerlet`. It computes the same function as the general Verlet stage
+:class:`~deformgl.sim.backends.verlet_pass.FoundationVerlet`. It computes the same function as the general Verlet stage
 (Movania & Feng 2012, section 3; :func:`deformgl.sim.integrators.step`) from the same state.
 
 Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
@@ -29,35 +31,26 @@ Texels outside the grid (padding, empty nodes) hold position 0 and are never cha
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import partial
 
 import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
 from deformgl.errors import GLError
-from deformgl.gl.programs import Program
-from deformgl.gl.resources import GLOwner, restore_framebuffer
+from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
-from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
-from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_kind, cell_terms, diagonal_table,
-                                             term_uniforms)
+from deformgl.sim.backends.cell_pass import active_cells, diagonal_table
 from deformgl.sim.backends.compact_textures import layer_texture
-from deformgl.sim.backends.term_tables import TermTables
-from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
-from deformgl.sim.base import SimulationBase
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
-from deformgl.sim.stages import spec
 from deformgl.sim.springs import (FLEXION, LOAD_PER_KG_BIT, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem,
                                   load_groups)
 from deformgl.sim.volume import CellVolumes
 from deformgl.sim.terms.glsl import PassTerms, pass_terms
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
-           "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures", "VerletPass",
-           "FoundationVerlet", "tile_rectangles"]
+           "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures", "tile_rectangles"]
 
 DRAW_MODES = ("rects", "points", "quad")
 LAYOUTS = ("compact", "indexed", "atlas")
@@ -106,10 +99,6 @@ class VerletTerms:
     cells: CellVolumes | None = field(default=None, compare=False, repr=False)
     #: the system's further physics terms as the pass compiles them (deformgl.sim.terms)
     extra: PassTerms = field(default=PassTerms(()), compare=False, repr=False)
-
-
-def _one_value(values: np.ndarray) -> float | None:
-    return float(values[0]) if len(values) and bool(np.all(values == values[0])) else None
 
 
 def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...] = (),
@@ -311,247 +300,3 @@ class NodeTextures(GLOwner):
         """Release every texture and framebuffer (idempotent)."""
         super().release()
         self.framebuffers, self.state = [], []
-
-
-class VerletPass(GLOwner):
-    """The position-Verlet fragment pass: one program, one draw per step.
-
-    Args:
-        ctx: GL context.
-        terms: the pass's uniforms (decide the compiled variant: pulls).
-        grid: the node grid.
-        textures: the textures it reads and writes.
-        draw: ``"rects"`` (default) draws, per z-slice tile, the rectangle around its existing
-            nodes and skips empty texels inside it with a test; ``"points"`` draws one point per
-            existing node (no test, but llvmpipe pays per primitive); ``"quad"`` covers the
-            whole atlas, padding included. ``python -m studies.pass_variants`` measures all three.
-        branch: test each neighbour's mask bit with a branch instead of weighting by it.
-    """
-
-    def __init__(self, ctx: moderngl.Context, terms: VerletTerms, grid: NodeGrid, textures: NodeTextures, *,
-                 draw: str = "rects", branch: bool = False) -> None:
-        if draw not in DRAW_MODES:
-            raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
-        super().__init__(ctx)
-        layout = textures.layout
-        cells = terms.cells
-        if cells is not None and not isinstance(layout, CompactLayout):
-            raise ValueError("VerletPass: the cell term needs a compact layout")
-        if terms.extra and not isinstance(layout, CompactLayout):
-            raise ValueError("VerletPass: the physics terms' tables need a compact layout, not the z-slice atlas")
-        if isinstance(layout, CompactLayout) and draw == "rects":
-            draw = "quad"  # a compact layout is one rectangle of existing nodes already
-        self.draw = draw
-        self.n_pulls = terms.n_pulls
-        vert = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert",
-                "quad": "sim/fullscreen.vert"}[draw]
-        self.vbo: moderngl.Buffer | None = None
-        with self.building():
-            self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
-                "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
-                "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
-                "SPRING_WEIGHT_LEVELS": textures.weight_levels, "CELLS": cells is not None,
-                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines(),
-                **terms.extra.defines()}, chunks=terms.extra.chunks()))
-            if cells is not None:
-                self.program.set(**term_uniforms(cells))
-            if textures.cell_diagonals is not None:
-                self.program.set(u_cell_diagonals=CELL_DIAGONAL_UNIT)
-            self.program.set(**layout.shader_uniforms(),
-                             u_spacing=terms.spacing, u_k_structural=terms.k_structural,
-                             u_k_shear=terms.k_shear, u_damping=terms.damping, u_mass_damping=terms.mass_damping,
-                             u_gravity=terms.gravity, u_position=0, u_previous=1, u_node=2)
-            if textures.weights is not None:
-                self.program.set(u_weights=WEIGHT_UNIT)
-            if draw == "points":
-                self.program.set(u_target_size=textures.size)
-                texels = layout.texel(grid.ijk).astype("i4")
-                self.vbo = self.own(ctx.buffer(texels.tobytes()))
-                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")]))
-                self.vertices = len(texels)
-                self.mode = moderngl.POINTS
-            elif draw == "rects" and isinstance(layout, AtlasLayout):  # (compact: "quad", above)
-                self.program.set(u_target_size=textures.size)
-                corners = tile_rectangles(layout, grid.ijk)
-                self.vbo = self.own(ctx.buffer(corners.astype("f4").tobytes()))
-                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")]))
-                self.vertices = len(corners)
-                self.mode = moderngl.TRIANGLES
-            else:
-                self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-                self.vertices = 3
-                self.mode = moderngl.TRIANGLES
-        self._dt: float | None = None
-
-    def run(self, textures: NodeTextures, current: int, previous: int, target: int, dt: float,
-            pull: np.ndarray | None) -> None:
-        """Draw one step: read state[current], state[previous], write state[target]."""
-        if dt != self._dt:
-            self.program.set(u_dt=dt)
-            self._dt = dt
-        self.program.set(**pull_uniforms(pull, self.n_pulls, "VerletPass.run"))
-        textures.state[current].use(0)
-        textures.state[previous].use(1)
-        textures.bind_static(2)
-        textures.framebuffers[target].use()
-        self.vao.render(self.mode, vertices=self.vertices)
-
-
-class FoundationVerlet(SimulationBase, GLOwner):
-    """Position Verlet of a grid :class:`SpringSystem` in one fragment pass per step, the packed
-    Mosegaard & Sørensen 2005, eq. 3 normal written with each position. Built by ``FragmentIntegrator`` (its Verlet fast
-    path), which checks the system first (:func:`verlet_terms`).
-
-    Args:
-        ctx: GL context.
-        system: the spring system; grid: its node grid; terms: :func:`verlet_terms` of both.
-        dt: time step (s).
-        state: the start state (x and x_prev are uploaded; fixed nodes get x_prev = x).
-        loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
-        t0: time of the start state.
-        draw, branch: pass variants, see :class:`VerletPass`; weight_texture: see :class:`NodeTextures`.
-        layout: "compact", "indexed", "atlas" (:class:`NodeTextures`), "blocked" (``block`` nodes per
-            fragment, :mod:`~deformgl.sim.backends.blocked`) or "auto" (``block`` if given, else
-            :func:`~deformgl.sim.backends.blocked.default_block`, where the renderer can run it;
-            else "compact").
-        block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`).
-
-    Raises:
-        ValueError: dt <= 0; the atlas layout with cells; "blocked" without a block, a block with
-            another layout or a draw other than "rects", a block the renderer cannot run
-            (:func:`~deformgl.sim.backends.blocked.blocked_refusal`).
-    """
-
-    backend = "fragment"
-    integrator = "verlet"
-    #: the integrator it implements, as the stage table describes it (one stage, x_prev state)
-    spec = spec("verlet")
-
-    def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, terms: VerletTerms,
-                 dt: float, state: State, *, loads: tuple[Load, ...] = (), t0: float = 0.0,
-                 draw: str = "rects", branch: bool = False, layout: str = "compact",
-                 weight_texture: bool = False, block: tuple[int, int, int] | None = None) -> None:
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0, got {dt}")
-        if layout == "blocked" and block is None:
-            raise ValueError("FoundationVerlet: the blocked layout takes a block shape")
-        if layout not in ("auto", "blocked") and block is not None:
-            raise ValueError(f"FoundationVerlet: layout {layout!r} takes no block shape")
-        if block is not None and draw != "rects":
-            raise ValueError(f"FoundationVerlet: draw {draw!r} is a variant of the one-node pass, not of a block")
-        GLOwner.__init__(self, ctx)
-        self.system, self.grid = system, grid
-        self._start_clock(dt, t0)
-        self.loads = tuple(loads)
-        self.count = grid.count
-        flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
-        x = np.asarray(state.x, np.float64)
-        x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
-        if layout == "auto" and block is None and draw == "rects":  # (points, quad: one-node variants)
-            block = default_block(grid)
-        why = None if block is None else blocked_refusal(ctx.info, block)
-        if why is None and block is not None and terms.extra.others:
-            why = f"the blocked layout cannot read other nodes' state by number, as {terms.extra.others[0].prefix} does"
-        if why is not None and layout == "blocked":
-            raise ValueError(f"FoundationVerlet: {why}")
-        if why is not None:  # ("auto": the one-node layout where the renderer cannot run the block)
-            block = None
-        if layout == "auto":
-            layout = "compact" if block is None else "blocked"
-        #: the nodes per fragment (x, y, z) of the blocked layout, None on the one-node layouts
-        self.block = block
-        self.textures: NodeTextures | BlockedTextures
-        self.verlet: VerletPass | BlockedVerletPass
-        #: the physics terms' node tables in the layout (deformgl.sim.terms), or None
-        self.term_tables: TermTables | None = None
-        with self.building():
-            if block is not None:
-                node, levels = node_data(grid, system.mass, flags, terms.weights, weight_texture)
-                blocked = self.own(BlockedTextures(ctx, grid, block, node, np.stack([x, x_prev, x]),
-                                                   weights=None if levels else terms.weights))
-                units = range(blocked.units["weights"] + 1, int(ctx.info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16)))
-                self.term_tables = self.own(TermTables(ctx, terms.extra, grid, blocked.blocks, units))
-                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels, branch=branch))
-                block_pass.program.set(**self.term_tables.uniforms)
-                self.textures, self.verlet = blocked, block_pass
-                #: one step: (current, previous, target, dt, pull forces)
-                self._draw_step = partial(block_pass.run, blocked)
-            else:
-                textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
-                                                 positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                 weight_texture=weight_texture, cells=cell_kind(terms.cells)))
-                one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
-                if terms.extra:
-                    self.term_tables = self.own(TermTables(ctx, terms.extra, grid, textures.layout, TERM_UNITS))
-                    one_pass.program.set(**self.term_tables.uniforms)
-                self.textures, self.verlet = textures, one_pass
-                self._draw_step = partial(one_pass.run, textures)
-        self.current, self.previous, self.spare = 0, 1, 2
-        self._pull = np.zeros((MAX_PULLS, 3))
-
-    @property
-    def position_texture(self) -> moderngl.Texture:
-        """The state texture holding the latest positions and packed normals (the blocked layout's
-        compact view)."""
-        return self.textures.view(self.current)
-
-    def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
-        """(texture, nodes per row, texels per node, slot) of the latest positions, for
-        :class:`~deformgl.sim.census.NodeCensus` (compact layouts only: node n is texel
-        (n % width, n // width); w, the packed normal, is not looked at)."""
-        if not isinstance(self.textures.layout, CompactLayout):
-            raise ValueError("position_slot: the atlas layout does not store node n at (n % width, n // width)")
-        return self.position_texture, self.textures.layout.width, 1, 0
-
-    def step(self, n: int = 1) -> None:
-        """Advance n steps on the GPU (no read-back)."""
-        if self.released:
-            raise RuntimeError("FoundationVerlet: released")
-        previous = self.ctx.fbo
-        try:
-            for _ in range(n):
-                if self.loads:
-                    t = self.t
-                    for g, load in enumerate(self.loads):
-                        self._pull[g] = np.asarray(load.force(t), dtype=np.float64)
-                if self.term_tables is not None:
-                    self.term_tables.bind()
-                self._draw_step(self.current, self.previous, self.spare, self.dt, self._pull)
-                self.current, self.previous, self.spare = self.spare, self.current, self.previous
-                self._tick()
-        finally:
-            restore_framebuffer(self.ctx, previous)  # the caller's framebuffer, as every backend
-
-    def read_state(self, which: int | None = None) -> np.ndarray:
-        """(N, 4) float32 texel of every node from a state texture (default: current)."""
-        if self.released:
-            raise RuntimeError("FoundationVerlet: released")
-        return self.textures.read(self.current if which is None else which)
-
-    def positions(self) -> np.ndarray:
-        """(N, 3) float32 current node positions (one read-back)."""
-        return self.read_state()[:, :3].copy()
-
-    def velocities(self) -> np.ndarray:
-        """(N, 3) backward difference (x - x_prev)/dt in float64 of the float32 positions, 0 at
-        fixed nodes (as the general Verlet stage and the reference)."""
-        x = self.read_state()[:, :3].astype(np.float64)
-        xp = self.read_state(self.previous)[:, :3].astype(np.float64)
-        return np.where(self.system.fixed[:, None], 0.0, (x - xp) / self.dt)
-
-    def normals(self) -> np.ndarray:
-        """(N,) float32 packed Mosegaard & Sørensen 2005, eq. 3 normals stored with the current positions (one read-back)."""
-        return self.read_state()[:, 3].copy()
-
-    @property
-    def bytes_per_node(self) -> float:
-        """GPU bytes of all textures per node."""
-        return self.textures.bytes_allocated / self.count
-
-    def release(self) -> None:
-        """Release every GL object (idempotent); the context's default framebuffer is bound if
-        one of the state framebuffers was."""
-        textures = getattr(self, "textures", None)  # (None when the constructor failed before it)
-        if not self.released and textures is not None and any(self.ctx.fbo is f for f in textures.framebuffers):
-            self.ctx.detect_framebuffer(0).use()
-        GLOwner.release(self)

@@ -60,13 +60,14 @@ from deformgl.gl.es_context import read_texture
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.base import SimulationBase
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.blocked import BlockedTextures
-from deformgl.sim.backends.foundation import FoundationVerlet, NodeTextures, VerletTerms, node_flags, verlet_terms
+from deformgl.sim.backends.foundation import NodeTextures, VerletTerms, node_flags, verlet_terms
+from deformgl.sim.backends.verlet_pass import FoundationVerlet
 from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout,
                                                 grid_neighbours, grid_springs, spring_weights)
 from deformgl.sim.stages import BUFFERS, Stage, spec
@@ -344,7 +345,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         members = program.members
         uniforms: dict[str, object] = {
             **{s: u for s, u in _SAMPLERS.items() if s in members},
-            "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
+            **layout_uniforms(self.layout.width), "u_dt": self.dt,
             "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3),
             "u_gravity": tuple(float(g) for g in system.gravity),
             "u_velocity_damping": system.velocity_damping,

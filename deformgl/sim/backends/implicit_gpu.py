@@ -69,7 +69,7 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import NodeGrid
+from deformgl.grid.nodes import NodeGrid, layout_uniforms
 from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
@@ -248,7 +248,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         (k1, l1, c1), (k2, l2, c2), (k3, l3, c3) = self.classes
         system = self.system
         values: dict[str, object] = {
-            **_UNITS, "u_width_log2": int(self.layout.width).bit_length() - 1, "u_dt": self.dt,
+            **_UNITS, **layout_uniforms(self.layout.width), "u_dt": self.dt,
             "u_k": (k1, k2, k3), "u_rest": (l1, l2, l3), "u_c": (c1, c2, c3),
             "u_gravity": tuple(float(g) for g in system.gravity), "u_velocity_damping": system.velocity_damping,
             "u_mass_damping": system.mass_damping, "u_wind": tuple(float(g) for g in system.wind),
