@@ -13,8 +13,10 @@ starts no GL context and loads neither moderngl nor trimesh::
         dg.write_png("out.png", body.render(sim))
 
 Scenes: :func:`load_scene`, :func:`render_scene`, :func:`render_to_png`. Lower levels: the spring
-system builders, :func:`make_simulation` (a :class:`GuardedSimulation`, which implements the
-:class:`Simulation` protocol of every backend), the trilinear scene graph, the error types.
+system builders, :func:`make_simulation` (the one constructor of a backend's :class:`Simulation`),
+:class:`GuardedSimulation` (one that :func:`run` restarts at a smaller step, with a context of its
+own), :func:`run` (the one run: dt check, blow-up census, convergence stop, subdivision), the
+trilinear scene graph, the error types.
 """
 
 from __future__ import annotations
@@ -32,10 +34,10 @@ _EXPORTS: dict[str, str] = {
     "above": "deformgl.scene.body",
     "inside": "deformgl.scene.body",
     "write_png": "deformgl.scene.body",
-    "make_simulation": "deformgl.scene.stepping",
-    "GuardedSimulation": "deformgl.scene.stepping",
+    "make_simulation": "deformgl.sim.simulation",
+    "GuardedSimulation": "deformgl.sim.restartable",
     "Simulation": "deformgl.sim.simulation",
-    "run": "deformgl.scene.stepping",
+    "run": "deformgl.sim.run",
     "RunResult": "deformgl.sim.run",
     "ConvergeRule": "deformgl.sim.equilibrium",
     # scenes
@@ -151,12 +153,12 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
     from deformgl.scene.schema import load_scene
     from deformgl.scene.spec import BACKENDS, Region, Scene
-    from deformgl.scene.stepping import GuardedSimulation, make_simulation, run
     from deformgl.sim.guards import BlowUp
     from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, INTEGRATORS, Constraints, Sphere
-    from deformgl.sim.run import RunResult
+    from deformgl.sim.restartable import GuardedSimulation
+    from deformgl.sim.run import RunResult, run
     from deformgl.sim.equilibrium import ConvergeRule
-    from deformgl.sim.simulation import Simulation, SimulationSetupError
+    from deformgl.sim.simulation import Simulation, SimulationSetupError, make_simulation
     from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
     from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial, lattice_system, sheet_system
     from deformgl.sim.limits import check_dt, dt_limit

@@ -355,8 +355,8 @@ def test_an_animation_camera_that_misses_the_body_is_refused_before_the_run(tmp_
     out = tmp_path / "away.gif"
     import deformgl.scene.animation as animation
     runs = []
-    real_run = animation.run_scene
-    monkeypatch.setattr(animation, "run_scene", lambda *a, **k: runs.append(1) or real_run(*a, **k))
+    real_run = animation.simulate_scene
+    monkeypatch.setattr(animation, "simulate_scene", lambda *a, **k: runs.append(1) or real_run(*a, **k))
     outcome = run_cli(["render", scene, "-o", out], watch=tmp_path)
     assert outcome.code == 2 and not runs, outcome.describe()
     assert "the body lies wholly outside the view" in outcome.stderr and "steps of dt" not in outcome.stderr

@@ -67,7 +67,7 @@ def test_the_integrators_are_what_the_cli_takes():
     import argparse
 
     from deformgl.cli import _parser
-    from deformgl.scene.stepping import make_simulation
+    from deformgl.sim.restartable import GuardedSimulation
     from deformgl.sim import integrators, stages
 
     commands = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
@@ -79,7 +79,7 @@ def test_the_integrators_are_what_the_cli_takes():
     assert dg.INTEGRATORS is integrators.INTEGRATORS and dg.EXPLICIT_INTEGRATORS is integrators.EXPLICIT_INTEGRATORS
     system = dg.cloth(3, 3, 0.1, k_structural=50.0, k_shear=20.0)
     for name in dg.INTEGRATORS:  # every name is one a simulation takes
-        with make_simulation(system, name, "numpy", dt=1e-4) as sim:
+        with GuardedSimulation(system, name, "numpy", dt=1e-4) as sim:
             sim.step(1)
 
 
@@ -89,7 +89,7 @@ def test_import_is_lazy():
 
 
 def test_one_simulation_protocol_and_one_run_result(ctx):
-    from deformgl.scene import stepping
+    from deformgl.sim import restartable as stepping
     from deformgl.sim import run as sim_run
     from deformgl.sim import simulation
 

@@ -189,15 +189,15 @@ def test_the_jellys_pushed_corner_keeps_its_cells(ctx):
     scene's pull is spread over its material (a load per kilogram): at the end of the scene every
     cell of the grid (full or partly filled) keeps a volume ratio of at least 0.5."""
     from deformgl.scene.pipeline import build_scene_model
-    from deformgl.scene.stepping import make_simulation
+    from deformgl.sim.restartable import GuardedSimulation
     from deformgl.sim.volume import CellVolumes, cell_state, grid_cells
 
     scene = load_scene(SCENE_DIR / "jelly.toml")
     built = build_scene_model(scene)
     physics = scene.physics
     assert all(load.per_kg for load in built.loads) and built.loads
-    with make_simulation(built.system, physics.integrator, "fragment", dt=physics.dt, ctx=ctx, grid=built.grid,
-                         loads=built.loads) as sim:
+    with GuardedSimulation(built.system, physics.integrator, "fragment", dt=physics.dt, ctx=ctx, grid=built.grid,
+                           loads=built.loads) as sim:
         sim.step(physics.steps)
         x = np.asarray(sim.positions(), np.float64)
     every = CellVolumes(grid_cells(built.grid.occupied, built.grid.index), built.system.spacing, 0.0, 0.0)

@@ -134,10 +134,10 @@ KILLER = textwrap.dedent("""
         os.kill(os.getpid(), sig)
         raise AssertionError("the signal did not stop the run")
     if phase == "simulate":          # while the nodes are stepped
-        real = node_state.run_scene
-        def run_scene(*a, **k):
+        real = node_state.simulate_scene
+        def simulate_scene(*a, **k):
             kill()
-        node_state.run_scene = run_scene
+        node_state.simulate_scene = simulate_scene
     elif phase == "draw":            # simulated, drawing
         pipeline.make_draw_pass = kill
     elif phase == "write":           # the PNG is written (staged), the mesh is next

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import deformgl as dg
-from deformgl.bench.convergence import BOX, FACES, RUNS, cantilever, stop_row, tip_sag
+from studies.convergence import BOX, FACES, RUNS, cantilever, stop_row, tip_sag
 from deformgl.errors import SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.equilibrium import DEFAULT_INTERVAL, ConvergeRule, EquilibriumMonitor
@@ -33,7 +33,7 @@ FAST = {("verlet", 1e-4), ("rk4", 1e-4), ("semi-implicit", 1e-4)}
 #: of CI, at 1e-5 7.5); XPBD at 2e-4 and 1e-4 s (at 1e-3 s its 10 sweeps leave the beam 29 times
 #: softer than the lattice, at 2e-4 3.4 times, still stopping within 0.3 % of its own 1 s sag in
 #: 27 s where 5e-5 took 79 s of CI; at 1e-5 s the float32 fragment backend never settles: its
-#: corrections fall below the positions' resolution, deformgl.bench.convergence)
+#: corrections fall below the positions' resolution, studies.convergence)
 STEPS = {"implicit-euler": (1e-2, 1e-3), "xpbd": (2e-4, 1e-4)}
 CASES = [pytest.param(integrator, dt, marks=() if (integrator, dt) in FAST else pytest.mark.slow)
          for integrator in RUNS for dt in STEPS.get(integrator, (1e-4, 5e-5))]
@@ -122,7 +122,7 @@ def test_a_body_at_rest_with_nothing_applied_converges_after_the_checks():
     sim = NumpySimulation(system, "semi-implicit", 1e-3)
     monitor = ConvergeRule().monitor(system, dt=1e-3)
     assert monitor.every == round(DEFAULT_INTERVAL / 1e-3)
-    result = run(sim, 1000, converge=monitor)
+    result = run(sim, 1000, unstable=None, converge=monitor)
     # the force needs three samples: the first check measures the energy only
     assert result.converged and result.steps == (monitor.checks + 1) * monitor.every
 
@@ -171,15 +171,15 @@ def test_a_pulled_body_is_not_done_before_its_pull_and_settles_against_it():
     load = Load(top, lambda t: (0.0, 0.05 if t >= 0.1 else 0.0, 0.0))
     sim = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
     monitor = ConvergeRule().monitor(system, dt=1e-3, loads=(load,), hold_until=0.1)
-    result = run(sim, 40000, converge=monitor)
+    result = run(sim, 40000, unstable=None, converge=monitor)
     assert result.converged and sim.time > 0.1 + 3 * DEFAULT_INTERVAL, sim.time
     moved = sim.positions()[top, 1] - system.rest_positions[top, 1]
     assert np.all(moved > 1e-5)
     assert monitor.force_ratio < 0.01
     early = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
-    assert run(early, 40000, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,))).steps == 80
+    assert run(early, 40000, unstable=None, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,))).steps == 80
     waiting = NumpySimulation(system, "semi-implicit", 1e-3, loads=(load,))
-    capped = run(waiting, 90, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,), hold_until=0.1))
+    capped = run(waiting, 90, unstable=None, converge=ConvergeRule().monitor(system, dt=1e-3, loads=(load,), hold_until=0.1))
     assert capped.converged is False and capped.convergence.startswith("waiting for the last scripted change at t = 0.1 s")
 
 

@@ -341,7 +341,8 @@ def test_realtime_frames(ctx):
 
 def test_guarded_run_notes_the_solver_and_the_census_catches_nan(ctx):
     from deformgl.errors import SimulationError
-    from deformgl.scene.stepping import make_simulation as guarded, run
+    from deformgl.sim.restartable import GuardedSimulation as guarded
+    from deformgl.sim.run import run
     from deformgl.sim.integrators import State
 
     s = _case(MATERIAL).system

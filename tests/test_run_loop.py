@@ -1,4 +1,4 @@
-"""The one guarded run (deformgl.sim.run.run_guarded): the dt check, a simulation built for the
+"""The one run (deformgl.sim.run.run): the dt check, a simulation built for the
 plan's step, the run loop with the blow-up watch and the convergence stop, the restarts of
 "subdivide"; one RunResult; messages worded for the caller (scene keys or API arguments)."""
 
@@ -12,10 +12,10 @@ import pytest
 from deformgl.errors import SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import springs
-from deformgl.sim.guards import API_WORDING, MAX_SUBSTEPS, SCENE_WORDING, BlowUp, StepPlan
-from deformgl.sim.run import RunResult, run_guarded, run_with_retries
+from deformgl.sim.guards import API_WORDING, MAX_SUBSTEPS, SCENE_WORDING, BlowUp, StepPlan, retry_with_substeps
+from deformgl.sim.run import RunResult, run
 from deformgl.sim.simulation import BACKENDS, Simulation, make_simulation
-from deformgl.sim.stability import dt_limit
+from deformgl.sim.limits import dt_limit
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ def small(gravity=(0.0, -9.81, 0.0)):
 
 class Maker:
     """``make(dt)`` that records the steps asked for and every simulation it made; the test
-    releases them (run_guarded releases none)."""
+    releases them (run releases none)."""
 
     def __init__(self, ctx, system, grid, backend, integrator="semi-implicit"):
         self.ctx, self.system, self.grid, self.backend, self.integrator = ctx, system, grid, backend, integrator
@@ -67,8 +67,9 @@ def guarded(maker, settings, **kw):
     kw.setdefault("source", "t.toml")
     kw.setdefault("limit", 10.0)
     kw.setdefault("check_every", 20)
-    return run_guarded(maker.system, settings, maker, ctx=None if maker.backend == "numpy" else maker.ctx,
-                       grid=maker.grid, **kw)
+    kw.setdefault("wording", SCENE_WORDING)
+    return run(maker, settings=settings, system=maker.system, ctx=None if maker.backend == "numpy" else maker.ctx,
+               grid=maker.grid, **kw)
 
 
 def test_one_run_result_whose_old_constructions_still_work():
@@ -174,19 +175,19 @@ def test_retries_stop_at_the_cap_in_the_callers_words():
                            (API_WORDING, 'the most unstable="subdivide" uses')):
         notes: list[str] = []
         with pytest.raises(SimulationError, match=f"still at {MAX_SUBSTEPS} substeps per step, {words}"):
-            run_with_retries(StepPlan(0.01, 10), "subdivide", boom, notes, wording=wording)
+            retry_with_substeps(StepPlan(0.01, 10), "subdivide", boom, notes, wording=wording)
         assert len(notes) == 4  # 1 -> 2 -> 4 -> 8 -> 16
     with pytest.raises(SimulationError, match="the most --subdivide uses"):
-        run_with_retries(StepPlan(0.01, 10), "subdivide", boom, [])  # the scene's words by default
+        retry_with_substeps(StepPlan(0.01, 10), "subdivide", boom, [])  # the scene's words by default
 
 
-def test_the_api_wrapper_is_a_simulation_and_runs_on_run_guarded():
-    from deformgl.scene import stepping
+def test_the_api_wrapper_is_a_simulation_and_runs_on_the_one_run():
+    from deformgl.sim import restartable as stepping
 
     system, grid = small()
-    with stepping.make_simulation(system, "semi-implicit", "numpy", dt=1e-3) as sim:
+    with stepping.GuardedSimulation(system, "semi-implicit", "numpy", dt=1e-3) as sim:
         assert isinstance(sim, stepping.GuardedSimulation) and isinstance(sim, Simulation)
         assert not hasattr(stepping, "Simulation")  # one class of that name: the protocol
-        result = stepping.run(sim, 25, check_every=10)
+        result = run(sim, 25, check_every=10)
         assert type(result) is RunResult and (result.steps, result.dt, result.substeps) == (25, 1e-3, 1)
         assert result.time == pytest.approx(0.025) == sim.time

@@ -13,10 +13,9 @@ import pytest
 from deformgl.errors import SceneError, SimulationError
 from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
 from deformgl.sim.guards import (API_WORDING, MAX_SUBSTEPS, SAFETY_MARGIN, SCENE_WORDING, BlowUp, StepPlan,
-                                 describe_bad_node, plan_steps)
+                                 describe_bad_node, plan_steps, retry_with_substeps)
 from deformgl.scene.schema import Safety, load_scene
-from deformgl.scene.physics import SceneBox, run_scene, scene_system
-from deformgl.sim.run import run_with_retries
+from deformgl.scene.physics import SceneBox, simulate_scene, scene_system
 from deformgl.sim.stability import check_dt, dt_limit
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
@@ -124,13 +123,13 @@ def test_retries_double_the_substeps_up_to_the_cap():
         return plan.substeps
 
     notes: list[str] = []
-    result, plan = run_with_retries(StepPlan(0.01, 10), "subdivide", attempt, notes)
+    result, plan = retry_with_substeps(StepPlan(0.01, 10), "subdivide", attempt, notes)
     assert result == 4 and plans == [1, 2, 4] and plan.step_count == 40
     assert len(notes) == 2 and "restarted with 4 substeps per step (dt 0.0025 s)" in notes[1]
     with pytest.raises(BlowUp):
-        run_with_retries(StepPlan(0.01, 10), "run", attempt, [])
+        retry_with_substeps(StepPlan(0.01, 10), "run", attempt, [])
     with pytest.raises(SimulationError, match=f"still at {MAX_SUBSTEPS} substeps"):
-        run_with_retries(StepPlan(0.01, 10), "subdivide",
+        retry_with_substeps(StepPlan(0.01, 10), "subdivide",
                          lambda p: (_ for _ in ()).throw(BlowUp("boom", 1, 1)), [])
 
 
@@ -143,7 +142,7 @@ def test_a_blow_up_the_dt_check_missed_restarts_with_smaller_steps(ctx, jelly, b
     scene = with_physics(scene, dt=4 * limit, steps=60, integrator="semi-implicit", backend=backend,
                          safety=Safety("subdivide", check_every=20))
     notes: list[str] = []
-    out = run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
+    out = simulate_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
                     SceneBox(*built.bbox), progress=False, plan=StepPlan(scene.physics.dt, 60), notes=notes)
     k = len(notes)  # at 4x the (conservative) Gershgorin limit: 2 restarts, maybe 3
     assert 2 <= k <= 3, notes
@@ -181,7 +180,7 @@ def test_a_far_away_finite_node_counts_as_blown_up(ctx, jelly):
     scene = with_physics(scene, drag=(drag,), steps=200, backend="feedback",
                          safety=Safety("run", check_every=50, bad_distance=10.0))
     with pytest.raises(BlowUp) as err:
-        run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
+        simulate_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox), built.loads,
                   SceneBox(*built.bbox), progress=False)
     assert "beyond 10 from the centre" not in str(err.value)  # box lengths, not world units
     assert "beyond" in str(err.value) and "nan" not in str(err.value) and "inf" not in str(err.value)

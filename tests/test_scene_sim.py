@@ -13,7 +13,7 @@ from deformgl.errors import SimulationError
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.scene.pipeline import NodeState, build_scene_model
 from deformgl.scene.schema import Converge, Safety, load_scene
-from deformgl.scene.physics import SceneBox, run_scene, scene_constraints, scene_drags, scene_loads, scene_system
+from deformgl.scene.physics import SceneBox, simulate_scene, scene_constraints, scene_drags, scene_loads, scene_system
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -57,7 +57,7 @@ def run(ctx, scene, built, **physics):
     set to run anyway (test_safety.py tests the check)."""
     physics.setdefault("safety", Safety(unstable="run"))
     scene = dataclasses.replace(scene, physics=dataclasses.replace(scene.physics, **physics))
-    return run_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox),
+    return simulate_scene(ctx, scene, built.grid, scene_system(built.grid, scene.physics, built.bbox),
                      scene_loads(built.grid, scene.physics, built.bbox), SceneBox(*built.bbox), progress=False)
 
 

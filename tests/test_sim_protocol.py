@@ -1,5 +1,5 @@
 """One Simulation interface: all three backends implement it, make_simulation builds them, the
-one run loop (deformgl.sim.run.run) guards and stops each of them the same way."""
+one run (deformgl.sim.run.run) guards and stops each of them the same way."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.guards import BlowUp
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
-from deformgl.sim.run import RunResult, make_watch, run
+from deformgl.sim.run import RunResult, run
 from deformgl.sim.simulation import (BACKENDS, NumpySimulation, Simulation, SimulationSetupError,
                                      make_simulation)
 
@@ -89,14 +89,12 @@ def test_the_run_loop_watches_every_backend_and_names_the_step(ctx, backend):
     system, grid = small_system()
     stiff = springs.from_grid(grid, k_structural=5e4, k_shear=5e4, mass=0.1, fixed=system.fixed)
     sim = make_simulation(stiff, "euler", backend, dt=0.05, ctx=ctx, grid=grid)
-    watch = make_watch(ctx, sim, every=10, limit=10.0, grid=grid, source="test.toml")
     try:
-        with pytest.raises(BlowUp) as info:
-            run(sim, 400, watch=watch)
+        with pytest.raises(BlowUp) as info:  # (unstable=None: no dt check, the watch alone)
+            run(sim, 400, unstable=None, check_every=10, limit=10.0, grid=grid, source="test.toml")
         assert info.value.step % 10 == 0 or backend == "numpy"
         assert "test.toml" in str(info.value)
     finally:
-        watch.release()
         sim.release()
 
 
@@ -107,14 +105,10 @@ def test_the_run_loop_stops_each_backend_at_the_same_converged_step(ctx, backend
     quiet = springs.from_grid(grid, k_structural=50.0, k_shear=20.0, mass=0.1, fixed=system.fixed,
                               gravity=(0.0, 0.0, 0.0))
     with make_simulation(quiet, "semi-implicit", backend, dt=1e-3, ctx=ctx, grid=grid) as sim:
-        watch = make_watch(ctx, sim, every=0, limit=10.0, grid=grid)
-        try:
-            done = run(sim, 100, watch=watch, converge=(1e-9, 20))
-            assert (done.steps, done.converged) == (20, True)
-        finally:
-            watch.release()
+        done = run(sim, 100, unstable=None, check_every=0, limit=10.0, grid=grid, converge=(1e-9, 20))
+        assert (done.steps, done.converged) == (20, True)
     with make_simulation(system, "semi-implicit", backend, dt=1e-3, ctx=ctx, grid=grid) as sim:
-        done = run(sim, 40, converge=(0.0, 20))
+        done = run(sim, 40, unstable=None, converge=(0.0, 20))
         assert (done.steps, done.converged) == (40, False)
         assert sim.time == pytest.approx(0.04)
 

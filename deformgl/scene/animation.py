@@ -34,7 +34,7 @@ from deformgl.scene.obstacles import draw_obstacles
 from deformgl.scene.pipeline import (NodeState, SceneModel, build_scene_model, check_gl_limits, check_texture_limit,
                                      draw_attachments, make_draw_pass, scene_lighting, scene_view)
 from deformgl.scene.record import run_record
-from deformgl.scene.physics import SceneBox, SceneRun, run_scene, scene_constraints
+from deformgl.scene.physics import SceneBox, SceneRun, simulate_scene, scene_constraints
 from deformgl.scene.spec import Camera, Scene
 
 __all__ = ["FramePlan", "Frames", "View3", "compose_grid", "frame_plan", "render_frames"]
@@ -348,7 +348,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
                                                    np.asarray(sim.velocities(), np.float64), float(sim.dt))
                         bar.update(k + 1)
 
-                run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
+                run = simulate_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
                                 progress=False, notes=notes, keep=True, frame_every=plan.steps_per_frame,
                                 on_frame=on_frame)
                 if run.sim is not None:

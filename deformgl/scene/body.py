@@ -49,7 +49,7 @@ from deformgl.sim.materials import PRESETS, ElasticMaterial, LatticeReport, Shee
 from deformgl.scene.physics import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, MAX_SIZE, MIN_SIZE, Physics, Region, Scene
-from deformgl.scene.stepping import GuardedSimulation, make_simulation
+from deformgl.sim.restartable import GuardedSimulation
 from deformgl.sim.backends.foundation import NodeTextures
 from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import SpringSystem
@@ -332,8 +332,9 @@ class Body:
 
     def simulate(self, integrator: str = "verlet", backend: str = "fragment", *, dt: float,
                  ctx: moderngl.Context | None = None, **options: Any) -> GuardedSimulation:
-        """A simulation of the body's spring system (:func:`deformgl.make_simulation`), owned by
-        the body; step it with :func:`deformgl.run` (guards on) or ``sim.step(n)``.
+        """A restartable simulation of the body's spring system (:class:`deformgl.GuardedSimulation`
+        on :func:`deformgl.make_simulation`'s backend), owned by the body; step it with
+        :func:`deformgl.run` (guards on) or ``sim.step(n)``.
 
         Args:
             integrator: "euler", "semi-implicit", "midpoint", "rk4" or "verlet".
@@ -343,7 +344,7 @@ class Body:
             options: passed on (constraints, drags, loads, ...).
         """
         gl_ctx = None if backend == "numpy" else (ctx or self.ctx)
-        sim = make_simulation(self.system, integrator, backend, dt=dt, ctx=gl_ctx, grid=self.grid, **options)
+        sim = GuardedSimulation(self.system, integrator, backend, dt=dt, ctx=gl_ctx, grid=self.grid, **options)
         sim.source = self.source
         if backend != "numpy":
             self.own(sim)

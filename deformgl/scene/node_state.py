@@ -11,7 +11,7 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
-from deformgl.scene.physics import SceneBox, SceneRun, run_scene
+from deformgl.scene.physics import SceneBox, SceneRun, simulate_scene
 from deformgl.scene.schema import Scene
 from deformgl.sim.backends.foundation import NodeTextures
 
@@ -35,14 +35,14 @@ class NodeState:
         self.notes: list[str] = []  # what the step plan and restarts changed, for the log
         self.textures: NodeTextures
         if nodes.source == "simulate":
-            self.run = run_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
+            self.run = simulate_scene(ctx, scene, built.grid, built.system, built.loads, SceneBox(*built.bbox),
                                  progress=progress, notes=self.notes, keep=True, velocities=velocities)
             if self.run.sim is not None:
                 self.sim = self.run.sim
                 self.textures = self.sim.textures
                 return
             if self.run.positions is None:
-                raise RuntimeError("run_scene returned neither positions nor a simulation")  # never
+                raise RuntimeError("simulate_scene returned neither positions nor a simulation")  # never
             positions = self.run.positions
         if nodes.source == "file":
             if nodes.file is None:

@@ -11,7 +11,7 @@ units of its longest side. Every scene runs here, on its integrator and backend:
 * ``numpy``: the float64 reference, :class:`~deformgl.sim.simulation.NumpySimulation`.
 
 All three are built by :func:`~deformgl.sim.simulation.make_simulation` and run by the one run
-loop :func:`deformgl.sim.run.run`.
+:func:`deformgl.sim.run.run` (:func:`simulate_scene`).
 
 The convergence stop (``[physics.converge]``, :mod:`deformgl.sim.equilibrium`) is by default
 the equilibrium criterion: every ``interval`` simulated seconds the positions are read back and
@@ -37,7 +37,8 @@ from deformgl.grid.blocks import parse_block
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.guards import StepPlan
-from deformgl.sim.run import run_guarded
+from deformgl.sim.guards import SCENE_WORDING
+from deformgl.sim.run import run
 from deformgl.sim.integrators import IMPLICIT_INTEGRATORS
 from deformgl.sim.simulation import make_simulation
 from deformgl.errors import SceneError
@@ -45,7 +46,7 @@ from deformgl.scene.schema import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 
-__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "check_layout", "SceneBox", "SceneRun", "bad_limit", "run_scene", "scene_constraints", "scene_drags", "scene_loads",
+__all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "check_layout", "SceneBox", "SceneRun", "bad_limit", "simulate_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]
 
 @dataclass(frozen=True)
@@ -199,7 +200,7 @@ class SceneRun:
     """What a run produced: final positions (N, 3) float64 (None when the simulation is kept),
     steps taken (of dt / substeps),
     whether the convergence stop ended it (None without one), GPU bytes per node (0 for numpy),
-    the end time, the substeps per scene step, and (``run_scene(keep=True)``) the simulation
+    the end time, the substeps per scene step, and (``simulate_scene(keep=True)``) the simulation
     itself, which the caller then releases."""
 
     positions: np.ndarray | None
@@ -216,7 +217,7 @@ class SceneRun:
     inverted: str = ""
     #: an implicit integrator's linear solves (:attr:`deformgl.sim.run.RunResult.solver`)
     solver: dict | None = None
-    #: on request (``run_scene(velocities=True)``) and when the simulation is not kept: the final
+    #: on request (``simulate_scene(velocities=True)``) and when the simulation is not kept: the final
     #: velocities (N, 3) float64 in m/s and the simulation's step in s (for exported fields)
     velocities: np.ndarray | None = None
     sim_dt: float = 0.0
@@ -253,13 +254,13 @@ def bad_limit(physics: Physics, box: SceneBox) -> float:
     return physics.safety.bad_distance * box.longest
 
 
-def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: SpringSystem,
+def simulate_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: SpringSystem,
               loads: tuple[Load, ...], box: SceneBox, *, progress: bool, plan: StepPlan | None = None,
               notes: list[str] | None = None, keep: bool = False, frame_every: int = 0,
               on_frame: Callable[[int, Any], None] | None = None, velocities: bool = False) -> SceneRun:
-    """Simulate a scene's nodes with its integrator on its backend through the one guarded run
-    (:func:`deformgl.sim.run.run_guarded`: dt check, blow-up census, convergence stop,
-    subdivision); positions are read once.
+    """Simulate a scene's nodes with its integrator on its backend through the one run
+    (:func:`deformgl.sim.run.run`: dt check, blow-up census, convergence stop, subdivision);
+    positions are read once.
 
     Args:
         system, loads: the scene's :func:`scene_system` and :func:`scene_loads`.
@@ -271,7 +272,7 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
             backend's Verlet fast path), return it in :attr:`SceneRun.sim` for drawing, unreleased
             and unread (``positions`` None); otherwise it is read once and released.
         frame_every, on_frame: ``on_frame(step, sim)`` at step 0 and every ``frame_every`` scene
-            steps (:func:`deformgl.sim.run.run_guarded`): where an animation draws its frames.
+            steps (:func:`deformgl.sim.run.run`): where an animation draws its frames.
     """
     physics = scene.physics
     drags = scene_drags(grid, physics, box)
@@ -290,11 +291,10 @@ def run_scene(ctx: moderngl.Context, scene: Scene, grid: NodeGrid, system: Sprin
 
     try:
         # every run ends with a blow-up check (census or NumPy), so its positions are finite
-        result = run_guarded(system, physics, make, source=scene.source, limit=bad_limit(physics, box),
-                             check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=physics.converge,
-                             loads=loads, drags=drags, hold_until=scripted_until(physics),
-                             progress=progress, plan=plan, notes=notes, frame_every=frame_every,
-                             on_frame=on_frame)
+        result = run(make, settings=physics, system=system, source=scene.source, limit=bad_limit(physics, box),
+                     check_every=physics.safety.check_every, ctx=ctx, grid=grid, converge=physics.converge,
+                     loads=loads, drags=drags, hold_until=scripted_until(physics), progress=progress, plan=plan,
+                     notes=notes, wording=SCENE_WORDING, frame_every=frame_every, on_frame=on_frame)
         sim = made[-1]
         # a kept simulation is drawn from its state texture: nothing is read back
         kept = keep and bool(getattr(sim, "packed_normals", False))

@@ -15,9 +15,11 @@ import numpy as np
 from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.checks import Check, _existing, _fail, _int, _str, _vec
 from deformgl.sim.equilibrium import ConvergeRule
+from deformgl.sim.guards import UNSTABLE_POLICIES
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
 from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
+from deformgl.sim.simulation import BACKENDS  # where a scene's simulation runs
 from deformgl.sim.bending import BENDING_REFUSAL
 
 Vec3 = tuple[float, float, float]
@@ -31,11 +33,8 @@ MIN_SIZE = 16
 MIN_EXTENT = 1e-30
 MSAA_CHOICES = (0, 1, 2, 4, 8, 16)
 AXES = ("x", "y", "z")
-#: Where a scene's simulation runs: fragment passes, transform feedback, or the float64 NumPy reference.
-BACKENDS = ("fragment", "feedback", "numpy")
 MAX_SPHERES = 8
 MAX_DRAGS = 8
-UNSTABLE_POLICIES = ("refuse", "run", "subdivide")
 MAPPING_MODES = ("one-to-one", "constant", "curvature", "auto")
 #: Sanity limits of scene sizes (docs/SCENE_LIMITS.md): steps of a run, nodes along a grid's
 #: longest side, points of a keyframed path.

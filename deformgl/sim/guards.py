@@ -2,7 +2,7 @@
 a GPU census of blown-up nodes during it.
 
 Before the run (:func:`plan_steps`), the scene's dt is checked against the limit of its
-integrator on its spring system (:func:`deformgl.sim.stability.check_dt`: the Gershgorin bound
+integrator on its spring system (:func:`deformgl.sim.limits.check_dt`: the Gershgorin bound
 ``w_max^2 <= max_i 2 sum_j k_ij / m_i``, the exact spectrum on small systems). Above it the
 scene is refused with the bound and the node and spring that set it, unless
 ``physics.safety.unstable`` (``--allow-unstable``, ``--subdivide``) says to run it anyway or to
@@ -16,14 +16,15 @@ During the run (:class:`BlowUpWatch`), every ``check_every`` steps a census pass
 count stops the run with :class:`BlowUp` (the step, a node, how many); on that error path the
 state is read back once to name the node. With ``subdivide`` the run is restarted from the start
 with half the step (twice the steps, the same simulated time), up to ``MAX_SUBSTEPS`` substeps
-per scene step (:func:`deformgl.sim.run.run_with_retries`, :func:`deformgl.sim.run.run_guarded`).
+per scene step (:func:`retry_with_substeps`, under the one run :func:`deformgl.sim.run.run`).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, TypeVar
 
 import moderngl
 import numpy as np
@@ -32,11 +33,17 @@ from deformgl.sim.materials import ElasticMaterial
 from deformgl.errors import RefusedStepError, SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.stability import check_dt
+from deformgl.sim.limits import check_dt
 
 __all__ = ["API_WORDING", "MAX_SUBSTEPS", "SAFETY_MARGIN", "SCENE_WORDING", "BlowUp", "BlowUpWatch", "StepPlan",
-           "StepSettings", "Watch", "Wording", "bad_nodes", "describe_bad_node", "plan_steps"]
+           "StepSettings", "UNSTABLE_POLICIES", "Watch", "Wording", "bad_nodes", "describe_bad_node", "plan_steps", "retry_with_substeps"]
 
+T = TypeVar("T")
+
+#: What a run does with a dt above the integrator's stability limit (``physics.safety.unstable``,
+#: ``run(..., unstable=)``): refuse it, run it anyway, or split each step into substeps (and
+#: restart after a blow-up with twice as many).
+UNSTABLE_POLICIES = ("refuse", "run", "subdivide")
 #: The most substeps per scene step that ``subdivide`` uses (before the run and after a blow-up).
 MAX_SUBSTEPS = 16
 #: ``subdivide`` aims at this fraction of the limit (the limit itself is marginally stable).
@@ -169,6 +176,30 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
     return StepPlan(dt, physics.steps, substeps,
                     f"dt {dt:.4g} s is above the {physics.integrator} limit {limit:.4g} s: "
                     f"{substeps} substeps of {dt / substeps:.4g} s per step")
+
+
+def retry_with_substeps(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T], notes: list[str], *,
+                        wording: Wording = SCENE_WORDING) -> tuple[T, StepPlan]:
+    """The retry policy of a run: ``attempt(plan)``; under "subdivide" a :class:`BlowUp` restarts
+    it with twice the substeps (up to :data:`MAX_SUBSTEPS`), each restart noted in ``notes``.
+    Returns what the last attempt returned and its plan.
+
+    Raises:
+        BlowUp: under any other policy.
+        SimulationError: a blow-up at :data:`MAX_SUBSTEPS` substeps.
+    """
+    while True:
+        try:
+            return attempt(plan), plan
+        except BlowUp as exc:
+            if policy != "subdivide":
+                raise
+            finer = plan.halved()
+            if finer is None:
+                raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "
+                                      f"{wording.subdivide} uses)") from None
+            notes.append(f"{exc}; {finer.note}")
+            plan = finer
 
 
 def material_terms(system: SpringSystem, material: object, limit: float) -> str:

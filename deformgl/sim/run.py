@@ -1,50 +1,47 @@
-"""The one run loop: any :class:`~deformgl.sim.simulation.Simulation`, any backend.
+"""The one run: any :class:`~deformgl.sim.simulation.Simulation`, any backend, with its guards.
 
-:func:`run` steps in chunks (the progress bar moves between them), checks for blown-up nodes
-every ``watch.every`` steps and once at the end, and stops early when the run has converged
-(:mod:`deformgl.sim.equilibrium`): by default at equilibrium (the net force on every free node
-and the kinetic energy small against the applied force and the run's peak, checked on positions
-read back every ``interval`` simulated seconds), or with the paper's displacement criterion
-when no node moved more than a threshold in one step (Movania & Feng 2012, section 4). On the
-GPU backends the blow-up checks and the displacement test are census queries
+:func:`run` checks the dt against the integrator's stability limit first
+(:func:`~deformgl.sim.guards.plan_steps`, the ``unstable`` policy: refuse, run anyway, or
+subdivide each step into substeps), steps in chunks (the progress bar moves between them),
+checks for blown-up nodes every ``check_every`` steps and once at the end, and stops early when
+the run has converged (:mod:`deformgl.sim.equilibrium`): by default at equilibrium (the net force
+on every free node and the kinetic energy small against the applied force and the run's peak,
+checked on positions read back every ``interval`` simulated seconds), or with the paper's
+displacement criterion when no node moved more than a threshold in one step (Movania & Feng
+2012, section 4). Under "subdivide" a :class:`~deformgl.sim.guards.BlowUp` restarts the run
+with twice the substeps (:func:`~deformgl.sim.guards.retry_with_substeps`). On the GPU backends
+the blow-up checks and the displacement test are census queries
 (:class:`~deformgl.sim.guards.BlowUpWatch`, :class:`~deformgl.sim.census.NodeCensus`), nothing
 is read back unless a check fails; on the NumPy backend they are the same tests on the float64
-arrays. Converged means the same on every backend.
-
-:func:`run_guarded` is the whole guarded run on top of it, the one the CLI's scenes and the Python
-API (:func:`deformgl.run`) both use: the dt against the integrator's stability limit first
-(:func:`~deformgl.sim.guards.plan_steps`: refuse, run anyway, or subdivide), a simulation built
-for the plan's step, :func:`run` with the blow-up watch and the convergence stop, and under the
-"subdivide" policy a restart with twice the substeps after a :class:`~deformgl.sim.guards.BlowUp`
-(:func:`run_with_retries`). Both return the one :class:`RunResult`.
+arrays. Converged means the same on every backend. The CLI's scenes
+(:func:`deformgl.scene.physics.simulate_scene`) and the Python API (``dg.run``) both run here;
+the result is one :class:`RunResult`.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TypeVar
 
 import numpy as np
 
-from deformgl.errors import SimulationError
+from deformgl.errors import ArgumentError, InputError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.progress import Progress
 from deformgl.sim.equilibrium import ConvergeRule, DisplacementMonitor, EquilibriumMonitor
-from deformgl.sim.guards import (SCENE_WORDING, BlowUp, BlowUpWatch, StepPlan, StepSettings, Watch, Wording,
-                                 plan_steps)
+from deformgl.sim.guards import (API_WORDING, SCENE_WORDING, UNSTABLE_POLICIES, BlowUpWatch, StepPlan, StepSettings, Watch, Wording,
+                                 plan_steps, retry_with_substeps)
 from deformgl.sim.simulation import Simulation
 from deformgl.sim.springs import Drag, Load, SpringSystem
 from deformgl.sim.volume import describe_inverted
 
-__all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run", "run_guarded", "run_with_retries"]
-
-T = TypeVar("T")
+__all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run"]
 
 
 @dataclass(frozen=True)
 class RunResult:
-    """What :func:`run` or :func:`run_guarded` did.
+    """What :func:`run` did.
 
     Attributes:
         steps: steps done, each of ``dt`` (under a plan of ``substeps`` substeps, ``substeps``
@@ -52,8 +49,7 @@ class RunResult:
         converged: True/False: whether the run stopped converged (at equilibrium, by default;
             :mod:`deformgl.sim.equilibrium`); None without a convergence stop.
         substeps: substeps per step asked for that the run used (1 unless subdivided).
-        dt: the step the simulation ran (s); None when not recorded (:func:`run` leaves it to
-            its caller).
+        dt: the step the simulation ran (s); None when not recorded.
         time: the simulation's clock at the end (s); None when not recorded.
         notes: what the plan and the restarts changed, for a log.
         convergence: the convergence stop's last measures (its ``describe()``), None without one.
@@ -121,10 +117,11 @@ class _NoBar:
         pass
 
 
-def run(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = None,
-        progress=None, chunk: int = 25, frame_every: int = 0,
-        on_frame: Callable[[int, object], None] | None = None) -> RunResult:
-    """``steps`` steps of ``sim`` with the guards and the convergence stop.
+def _loop(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = None,
+          progress=None, chunk: int = 25, frame_every: int = 0,
+          on_frame: Callable[[int, object], None] | None = None) -> RunResult:
+    """``steps`` steps of one simulation with the blow-up watch and the convergence stop (one
+    attempt of :func:`run`).
 
     Args:
         sim: a :class:`~deformgl.sim.simulation.Simulation`.
@@ -212,117 +209,186 @@ def run(sim, steps: int, *, ctx=None, watch=None, converge: Converge | None = No
             census.release()
 
 
-def run_with_retries(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T],
-                     notes: list[str], *, wording: Wording = SCENE_WORDING) -> tuple[T, StepPlan]:
-    """``attempt(plan)``; with the "subdivide" policy a :class:`~deformgl.sim.guards.BlowUp`
-    restarts it with twice the substeps (up to :data:`~deformgl.sim.guards.MAX_SUBSTEPS`), each
-    restart noted in ``notes``. Returns what the last attempt returned and its plan.
+@dataclass(frozen=True)
+class _Settings:
+    """The :class:`~deformgl.sim.guards.StepSettings` of a run given as arguments."""
 
-    Raises:
-        BlowUp: under any other policy.
-        SimulationError: a blow-up at :data:`~deformgl.sim.guards.MAX_SUBSTEPS` substeps.
-    """
-    while True:
-        try:
-            return attempt(plan), plan
-        except BlowUp as exc:
-            if policy != "subdivide":
-                raise
-            finer = plan.halved()
-            if finer is None:
-                raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "
-                                      f"{wording.subdivide} uses)") from None
-            notes.append(f"{exc}; {finer.note}")
-            plan = finer
+    dt: float
+    steps: int
+    integrator: str
+    safety: _Policy
 
 
-def run_guarded(system: SpringSystem, settings: StepSettings, make: Callable[[float], Simulation], *,
-                source: object, limit: float, check_every: int, ctx=None, grid: NodeGrid | None = None,
-                converge: ConvergeRule | tuple[float, int] | None = None, loads: tuple[Load, ...] = (),
-                drags: tuple[Drag, ...] = (), hold_until: float = 0.0, progress: bool = False,
-                plan: StepPlan | None = None,
-                notes: list[str] | None = None, wording: Wording = SCENE_WORDING, frame_every: int = 0,
-                on_frame: Callable[[int, object], None] | None = None) -> RunResult:
-    """The guarded run of ``settings.steps`` steps of ``settings.dt`` of ``system``.
+@dataclass(frozen=True)
+class _Policy:
+    unstable: str
 
-    1. ``plan``, or :func:`~deformgl.sim.guards.plan_steps` of ``settings`` (refuses a dt above
-       the integrator's limit unless ``settings.safety.unstable`` is "run" or "subdivide");
-    2. ``make(plan.step_dt)``: the simulation to run at that step;
-    3. :func:`run` of ``plan.step_count`` steps with a :func:`make_watch` watch every
-       ``check_every`` steps (and at the end) and the convergence stop;
+
+def run(sim, steps: int | None = None, *, unstable: str | None = "refuse", check_every: int = 100,
+        bad_distance: float = 1000.0, limit: float | None = None,
+        converge: ConvergeRule | Converge | None = None, hold_until: float = 0.0, source: object = None,
+        progress: bool = False, settings: StepSettings | None = None, system: SpringSystem | None = None,
+        loads: tuple[Load, ...] | None = None, drags: tuple[Drag, ...] | None = None, plan: StepPlan | None = None,
+        notes: list[str] | None = None, wording: Wording = API_WORDING, ctx=None, grid: NodeGrid | None = None,
+        frame_every: int = 0, on_frame: Callable[[int, object], None] | None = None) -> RunResult:
+    """``steps`` steps of ``sim`` with the guards and the convergence stop: the one run.
+
+    1. ``plan``, or :func:`~deformgl.sim.guards.plan_steps`: the dt against the integrator's
+       stability limit under the ``unstable`` policy;
+    2. the simulation for the plan's step (``sim`` itself when its step is the plan's);
+    3. the steps, with a blow-up check every ``check_every`` steps and at the end, and the
+       convergence stop;
     4. under "subdivide", a :class:`~deformgl.sim.guards.BlowUp` starts again at 2. with twice the
-       substeps (:func:`run_with_retries`).
+       substeps (:func:`~deformgl.sim.guards.retry_with_substeps`).
+
+    A run at the step ``sim`` has goes on from where it is; a subdivided one (or a restart after a
+    blow-up) starts again from the rest state with the smaller step.
 
     Args:
-        make: ``make(dt) -> Simulation``, called once per attempt, at the start state (a retry
-            needs a fresh one). What it returns stays the caller's: ``run_guarded`` releases none
-            of them (``make`` may release the previous one, and the caller the last).
-        source: the name messages start with (a scene file, ``"<arrays>"``).
-        limit: a node farther than this from the origin (world units) counts as blown up.
+        sim: a :class:`~deformgl.sim.simulation.Simulation`; one from
+            a :class:`~deformgl.sim.restartable.GuardedSimulation` (``dg.Body.simulate``'s, which a
+            smaller step restarts; its ``dt`` is then the substep); or ``make(dt) -> Simulation``, called once per attempt
+            for a fresh simulation at the start state, which stays the caller's to release (with
+            ``settings`` and ``system``).
+        steps: steps asked for (default ``settings.steps``).
+        unstable: a dt above the stability limit is refused ("refuse"), run anyway ("run") or split
+            into substeps ("subdivide", which also restarts after a blow-up with twice the
+            substeps, up to 16); None: no dt check and no restart (a blow-up raises).
         check_every: steps between blow-up checks (0: at the end only).
-        ctx: the GL context of the watch and the loop (default: the simulation's ``ctx``).
-        grid: names a blown-up node's grid index in the message, if given.
-        converge: the convergence stop: a :class:`~deformgl.sim.equilibrium.ConvergeRule` (a
-            fresh monitor per attempt, at the attempt's step and substeps), or the displacement
-            criterion's ``(threshold, every)`` per step asked for: stop when no node moved more than
-            ``threshold`` in a step ending at a multiple of ``every`` steps (Movania & Feng 2012,
-            section 4); with substeps, ``threshold / substeps`` per substep every
-            ``every * substeps`` substeps.
-        loads, drags: the run's scripted loads and drags (the equilibrium stop counts their
-            forces among the applied ones).
-        hold_until: no convergence stop before this simulated time (s): the last scripted change.
+        bad_distance: a node farther than this many rest-box lengths from the origin has blown up.
+        limit: the same as a distance in world units (replaces ``bad_distance``).
+        converge: stop early once converged: a :class:`~deformgl.sim.equilibrium.ConvergeRule`
+            (``dg.ConvergeRule()``: at equilibrium, the net force on every free node and the
+            kinetic energy below 1 % of the applied force and of the run's peak at 3 checks 0.02 s
+            apart; the loads and drags count as applied forces; a fresh monitor per attempt), the
+            displacement criterion's ``(threshold, every)`` per step asked for (with k substeps,
+            ``threshold / k`` every ``every * k`` substeps), or a monitor of one attempt;
+            ``steps`` is the limit.
+        hold_until: no convergence stop before this simulated time (s): give the time of the last
+            scripted change (a load that starts or stops, a drag target's last move).
+        source: the name error messages start with (default ``sim.source`` or "<simulation>").
         progress: show a progress bar on stderr.
+        settings: the dt, steps, integrator and ``safety.unstable`` (a scene's ``Physics``;
+            replaces ``unstable``); default: ``sim``'s and the arguments.
+        system: the spring system (default ``sim.system``).
+        loads, drags: the run's scripted loads and drags (default: ``sim``'s).
         plan: a plan checked already (its note is noted, as :func:`plan_steps`' would be).
         notes: receives the plan's note and each restart's as they happen, if given (the result
             carries them too).
-        wording: how the messages name the dt and the policy
-            (:data:`~deformgl.sim.guards.SCENE_WORDING` or :data:`~deformgl.sim.guards.API_WORDING`).
+        wording: how the messages name the dt and the policy (:data:`~deformgl.sim.guards.API_WORDING`,
+            the default, or the scene keys' :data:`~deformgl.sim.guards.SCENE_WORDING`).
+        ctx: the GL context of the watch and the loop (default: the simulation's ``ctx``).
+        grid: names a blown-up node's grid index in the message, if given.
         frame_every, on_frame: ``on_frame(step, sim)`` at step 0 and every ``frame_every`` steps
-            asked for (:func:`run`; with substeps, every ``frame_every * substeps`` substeps, the
-            step counted in steps asked for); a restart calls it again from step 0.
+            asked for (with substeps, every ``frame_every * substeps`` substeps, the step counted
+            in steps asked for); a restart calls it again from step 0.
 
     Returns:
-        :class:`RunResult`: steps done (of ``dt``), converged, the substeps used, the step ``dt``,
-        the simulation's ``time`` at the end and the notes.
+        :class:`RunResult`: the steps done (of ``result.dt``: ``substeps`` per step asked for),
+        whether it converged and the last check's measures, the substeps, the step, the
+        simulation's ``time`` at the end, the notes, the inversion census and the solver's stats.
 
     Raises:
-        SimulationError: the dt is refused, or a blow-up at the most substeps.
-        BlowUp: a blow-up under "refuse" or "run".
+        SimulationError: the dt is above the limit (and ``unstable`` is "refuse"), or a blow-up at
+            the most substeps.
+        BlowUp: a blow-up under "refuse", "run" or None.
+        ArgumentError: a bad argument, or a restart a plain simulation cannot do.
     """
-    plan = plan_steps(system, settings, source, wording=wording) if plan is None else plan
+    make = _maker(sim, source)
+    if settings is None:
+        if callable(sim) and not hasattr(sim, "step"):
+            raise ArgumentError("run: a maker make(dt) needs settings= (dt, steps, integrator, safety) and system=")
+        if unstable is not None and unstable not in UNSTABLE_POLICIES:
+            raise InputError(f"unstable must be one of {', '.join(UNSTABLE_POLICIES)}, got {unstable!r}")
+        _check_counts(steps, check_every)
+        settings = _Settings(float(getattr(sim, "base_dt", sim.dt)), int(steps or 0), sim.integrator,
+                             _Policy(unstable or "run"))
+    steps = settings.steps if steps is None else steps
+    _check_counts(steps, check_every)
+    system = sim.system if system is None else system
+    if limit is None:
+        if isinstance(bad_distance, bool) or not (isinstance(bad_distance, (int, float, np.number))
+                                                  and math.isfinite(bad_distance) and bad_distance > 0):
+            raise ArgumentError(f"run: bad_distance must be a finite number > 0 (rest-box lengths), "
+                                f"got {bad_distance!r}")
+        rest = system.rest_positions
+        limit = bad_distance * float(np.max(rest.max(axis=0) - rest.min(axis=0), initial=0.0) or system.spacing)
+    source = getattr(sim, "source", "<simulation>") if source is None else source
+    loads = tuple(getattr(sim, "loads", ())) if loads is None else loads
+    drags = tuple(getattr(sim, "drags", ())) if drags is None else drags
+    if plan is None:  # (unstable None, no settings: no dt check)
+        checked = not (unstable is None and isinstance(settings, _Settings))
+        plan = plan_steps(system, settings, source, wording=wording) if checked else StepPlan(settings.dt, steps)
     noted: list[str] = [] if notes is None else notes
     first = len(noted)
     if plan.note:
         noted.append(plan.note)
 
     def attempt(p: StepPlan) -> tuple[RunResult, Simulation]:
-        sim = make(p.step_dt)
-        gl = getattr(sim, "ctx", None) if ctx is None else ctx
-        stop: Converge | None = None
+        current = make(p.step_dt)
+        gl = getattr(current, "ctx", None) if ctx is None else ctx
+        stop: Converge | None
         if isinstance(converge, ConvergeRule):
             stop = converge.monitor(system, dt=p.step_dt, substeps=p.substeps, loads=loads, drags=drags,
                                     hold_until=hold_until)
-        elif converge is not None:
+        elif isinstance(converge, tuple):
             stop = DisplacementMonitor(converge[0] / p.substeps, converge[1] * p.substeps, hold_until)
-        watch = make_watch(gl, sim, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
+        else:
+            stop = converge
+        watch = make_watch(gl, current, every=check_every, limit=limit, grid=grid, source=source, dt=p.step_dt,
                            wording=wording)
         hook = None if on_frame is None else (lambda done, s: on_frame(done // p.substeps, s))
         try:
             with Progress(p.step_count, "steps", enabled=progress) as bar:
-                return run(sim, p.step_count, ctx=gl, watch=watch, converge=stop, progress=bar,
-                           frame_every=frame_every * p.substeps, on_frame=hook), sim
+                return _loop(current, p.step_count, ctx=gl, watch=watch, converge=stop, progress=bar,
+                             frame_every=frame_every * p.substeps, on_frame=hook), current
         finally:
             watch.release()
 
-    (result, sim), used = run_with_retries(plan, settings.safety.unstable, attempt, noted, wording=wording)
-    solver_note = getattr(sim, "solver_note", None)  # an implicit integrator's unconverged solves
+    (result, used_sim), used = retry_with_substeps(plan, settings.safety.unstable, attempt, noted, wording=wording)
+    solver_note = getattr(used_sim, "solver_note", None)  # an implicit integrator's unconverged solves
     note = solver_note() if callable(solver_note) else None
     if note:
         noted.append(note)
-    residual_note(sim, noted)
-    stats = getattr(sim, "solver_stats", None)
-    return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(sim.time), notes=tuple(noted[first:]),
-                   solver=stats() if callable(stats) else None)
+    residual_note(used_sim, noted)
+    stats = getattr(used_sim, "solver_stats", None)
+    return replace(result, substeps=used.substeps, dt=used.step_dt, time=float(used_sim.time),
+                   notes=tuple(noted[first:]), solver=stats() if callable(stats) else None)
+
+
+def _check_counts(steps, check_every) -> None:
+    for name, value in (("steps", steps), ("check_every", check_every)):  # (-1 steps would run none, silently)
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ArgumentError(f"run: {name} must be an integer >= 0, got {value!r}")
+
+
+def _maker(sim, source: object) -> Callable[[float], Simulation]:
+    """``make(dt)``: the simulation of an attempt at step ``dt``: a restartable simulation
+    restarted, a caller's maker called, a plain simulation itself (no restart)."""
+    if hasattr(sim, "restart") and hasattr(sim, "backend_simulation"):
+        attempts = [0]
+
+        def again(dt: float) -> Simulation:
+            # the first attempt at the step sim has goes on; any other starts from the rest state
+            if dt != sim.dt or (attempts[0] > 0 and sim.time > 0):
+                sim.restart(dt)
+            attempts[0] += 1
+            return sim.backend_simulation
+
+        return again
+    if callable(sim) and not hasattr(sim, "step"):
+        return sim
+    used = [False]
+
+    def same(dt: float) -> Simulation:
+        if dt != sim.dt or used[0]:
+            name = getattr(sim, "source", None) if source is None else source
+            raise ArgumentError(f"run: {name or '<simulation>'}: a restart at a step of {dt:.4g} s needs a "
+                                f"restartable simulation: deformgl.GuardedSimulation(...)")
+        used[0] = True
+        return sim
+
+    return same
 
 
 def residual_note(sim: Simulation, notes: list[str]) -> None:

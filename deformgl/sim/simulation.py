@@ -1,20 +1,28 @@
 """One interface for every simulation backend, and one constructor.
 
-:class:`Simulation` is what the run loop (:func:`deformgl.sim.run.run`), the renderers and the
+:class:`Simulation` is what the one run (:func:`deformgl.sim.run.run`), the renderers and the
 benchmarks use; the fragment backend (:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`,
 Mosegaard & Sørensen 2005, section 3.1), the transform-feedback backend
 (:class:`~deformgl.sim.backends.feedback.FeedbackSimulation`) and the float64 NumPy reference
 (:class:`NumpySimulation`, Movania & Feng 2012, eq. 3-9) all implement it. Positions and
 velocities cross to the CPU only when asked for.
+
+:func:`make_simulation` is the one constructor: it picks the class of an integrator on a backend
+(:data:`CLASSES`) and checks the options against the keyword arguments that class takes, so each
+backend × integrator states its own options in its signature. The public API's
+:class:`~deformgl.sim.restartable.GuardedSimulation` holds one it makes here (a context of its
+own, and restarts at a smaller step under ``run(..., unstable="subdivide")``).
 """
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from deformgl.errors import InputError
+from deformgl.errors import ArgumentError
 from deformgl.sim import integrators
 from deformgl.sim.base import CpuSimulationBase
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
@@ -23,17 +31,30 @@ from deformgl.sim.springs import Drag, Load, SpringSystem
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
 
 BACKENDS = ("fragment", "feedback", "numpy")
-#: Options only the fragment backend takes (its Verlet fast path and the pass variants).
-FRAGMENT_OPTIONS = ("path", "draw", "branch", "layout", "block")
-#: Options of the implicit integrators (:mod:`deformgl.sim.implicit`); the NumPy backend also
-#: takes ``solver`` ("cg", "direct") and ``geometric`` ("projected", "full", "none").
-IMPLICIT_OPTIONS = ("cg_iterations", "cg_tolerance", "cg_check_every", "cg_preconditioner", "cg_warm_start")
-#: Options only XPBD takes (:class:`deformgl.sim.xpbd.XpbdSettings`).
-XPBD_OPTIONS = ("iterations", "substeps", "omega")
+#: The class of each (integrator kind, backend): module and class name, imported on use. The
+#: kind is "explicit" (the five of :data:`~deformgl.sim.integrators.EXPLICIT_INTEGRATORS`, whose
+#: classes take the integrator's name), "implicit-euler" or "xpbd".
+CLASSES: dict[tuple[str, str], tuple[str, str]] = {
+    ("explicit", "fragment"): ("deformgl.sim.backends.fragment", "FragmentIntegrator"),
+    ("explicit", "feedback"): ("deformgl.sim.backends.feedback", "FeedbackSimulation"),
+    ("explicit", "numpy"): ("deformgl.sim.simulation", "NumpySimulation"),
+    ("implicit-euler", "fragment"): ("deformgl.sim.backends.implicit_gpu", "ImplicitFragment"),
+    ("implicit-euler", "numpy"): ("deformgl.sim.implicit", "ImplicitNumpySimulation"),
+    ("xpbd", "fragment"): ("deformgl.sim.backends.xpbd_gpu", "XpbdFragment"),
+    ("xpbd", "numpy"): ("deformgl.sim.xpbd", "XpbdNumpy"),
+}
+#: Why an integrator has no class on a backend.
+NOT_ON = {
+    ("implicit-euler", "feedback"): "implicit-euler runs on the fragment and numpy backends, not on feedback (its "
+                                    "matrix-free product needs the node grid)",
+    ("xpbd", "feedback"): "xpbd runs on the fragment and numpy backends, not feedback (its Jacobi sweep gathers "
+                          "per-node neighbour multipliers from textures)",
+}
 
 
-class SimulationSetupError(InputError, ValueError):
-    """An unknown integrator or backend, or options a backend does not take."""
+class SimulationSetupError(ArgumentError):
+    """An unknown integrator or backend, or options a backend does not take (an
+    :class:`~deformgl.errors.ArgumentError`: an ``InputError`` and a ``ValueError``)."""
 
 
 @runtime_checkable
@@ -105,53 +126,85 @@ class NumpySimulation(CpuSimulationBase):
                                            constraints=self.constraints, drags=self.drags, loads=self.loads))
 
 
-def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *,
-                    dt: float, ctx=None, grid=None, **options) -> Simulation:
-    """The one constructor of a :class:`Simulation`.
-
-    Args:
-        system: the spring system.
-        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS` ("implicit-euler":
-            backward Euler with conjugate gradients, :mod:`deformgl.sim.implicit`; fragment and
-            numpy backends).
-        backend: "fragment" (a system with a node grid: :func:`~deformgl.sim.springs.from_grid`,
-            :func:`~deformgl.sim.springs.cloth`), "feedback" or "numpy".
-        dt: step in s, > 0.
-        ctx: the GL context (the GPU backends).
-        grid: the node grid (the fragment backend; default ``system.grid``).
-        options: ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; with "xpbd" also
-            ``iterations``, ``substeps``, ``omega`` (:mod:`deformgl.sim.xpbd`); on the fragment
-            backend also ``path`` ("auto": the foundation pass for Verlet where it models the
-            system, "general", "foundation") and the foundation pass's ``draw``, ``branch``,
-            ``layout`` and ``block`` (several nodes per fragment; see
-            :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
-            "implicit-euler" takes ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
-            ``cg_preconditioner`` ("jacobi", "block-jacobi", "multigrid"), ``cg_warm_start`` ("scaled",
-            "previous", "zero") (:data:`IMPLICIT_OPTIONS`) and on
-            numpy ``solver`` and ``geometric``.
+def check_kind(integrator: str, backend: str, dt: float) -> None:
+    """Refuse an unknown integrator or backend, or a dt that is not > 0 (before anything is built).
 
     Raises:
-        SimulationSetupError: unknown integrator or backend, a GPU backend without ``ctx``, the
-            fragment backend without a grid, or an unknown option.
+        SimulationSetupError: naming the argument.
     """
     if integrator not in INTEGRATORS:
         raise SimulationSetupError(f"unknown integrator {integrator!r}; expected one of {', '.join(INTEGRATORS)}")
     if backend not in BACKENDS:
         raise SimulationSetupError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
-    if integrator in IMPLICIT_INTEGRATORS:
-        return _make_implicit(system, backend, dt=dt, ctx=ctx, grid=grid, **options)
-    known = {"constraints", "drags", "loads", "state", "t0"}
-    if integrator == "xpbd":
-        return _make_xpbd(system, backend, dt, ctx, grid, known, options)
-    if backend == "fragment":
-        known |= set(FRAGMENT_OPTIONS)
-    unknown = set(options) - known
+    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.number)) or not dt > 0.0:
+        raise SimulationSetupError(f"make_simulation: dt must be a number > 0 (s), got {dt!r}")
+
+
+def backend_class(integrator: str, backend: str) -> type:
+    """The class that runs ``integrator`` on ``backend`` (:data:`CLASSES`).
+
+    Raises:
+        SimulationSetupError: an unknown integrator or backend, or a pair with no class (:data:`NOT_ON`).
+    """
+    check_kind(integrator, backend, 1.0)
+    kind = "explicit" if integrator in EXPLICIT_INTEGRATORS else integrator
+    if (kind, backend) in NOT_ON:
+        raise SimulationSetupError(NOT_ON[kind, backend])
+    module, name = CLASSES[kind, backend]
+    cls: type = getattr(importlib.import_module(module), name)
+    return cls
+
+
+def options_taken(cls: type) -> tuple[str, ...]:
+    """The options a backend class takes: the keyword-only arguments of its constructor."""
+    parameters = inspect.signature(cls.__init__).parameters.values()  # type: ignore[misc]
+    return tuple(p.name for p in parameters if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+
+def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: str = "fragment", *,
+                    dt: float, ctx: Any = None, grid: Any = None, **options: Any) -> Simulation:
+    """The one constructor of a :class:`Simulation`: ``integrator`` on ``backend``.
+
+    Args:
+        system: the spring system.
+        integrator: one of :data:`~deformgl.sim.integrators.INTEGRATORS` ("implicit-euler":
+            backward Euler with conjugate gradients, :mod:`deformgl.sim.implicit`; "xpbd",
+            :mod:`deformgl.sim.xpbd`; both on the fragment and numpy backends).
+        backend: "fragment" (a system with a node grid: :func:`~deformgl.sim.springs.from_grid`,
+            :func:`~deformgl.sim.springs.cloth`), "feedback" or "numpy".
+        dt: step in s, > 0.
+        ctx: the GL context (the GPU backends).
+        grid: the node grid (the fragment backend; default ``system.grid``).
+        options: the keyword arguments of the backend class (:data:`CLASSES`, :func:`options_taken`):
+            every one takes ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; the fragment
+            backend's explicit integrators also ``path`` ("auto", "general", "foundation"),
+            ``layout`` and ``block`` (several nodes per fragment) and the foundation pass's
+            variants (:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
+            "implicit-euler" ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
+            ``cg_preconditioner`` ("jacobi", "block-jacobi", "multigrid"), ``cg_warm_start``
+            ("scaled", "previous", "zero") and on numpy ``solver`` and ``geometric``; "xpbd"
+            ``iterations``, ``substeps``, ``omega``.
+
+    Raises:
+        SimulationSetupError: unknown integrator or backend, a pair with no class, a GPU backend
+            without ``ctx``, the fragment backend without a grid, an option the backend class does
+            not take (naming the option, the integrator and the backend), or an option value its
+            class refuses.
+    """
+    check_kind(integrator, backend, dt)
+    cls = backend_class(integrator, backend)
+    taken = options_taken(cls)
+    unknown = sorted(set(options) - set(taken))
     if unknown:
-        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))}")
+        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(map(repr, unknown))} for "
+                                   f"{integrator} on the {backend} backend, which takes {', '.join(taken)}")
     if backend == "numpy":
-        return NumpySimulation(system, integrator, dt, **options)
-    if ctx is None:
-        raise SimulationSetupError(f"the {backend} backend needs a GL context (ctx=...)")
+        args: tuple = (system,)
+    else:
+        if ctx is None:
+            raise SimulationSetupError(f"the {backend} backend needs a GL context (ctx=...); "
+                                       f"deformgl.GuardedSimulation(...) makes one of its own")
+        args = (ctx, system)
     if backend == "fragment":
         if options.get("layout") == "atlas":
             raise SimulationSetupError("layout 'atlas' is a benchmark variant of the foundation pass: the run "
@@ -160,76 +213,13 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
         if grid is None:
             raise SimulationSetupError("the fragment backend needs a system built on a node grid "
                                        "(springs.from_grid or springs.cloth) or grid=...")
-        from deformgl.sim.backends.fragment import FragmentIntegrator
-
-        return FragmentIntegrator(ctx, system, grid, integrator, dt, **options)
-    from deformgl.sim.backends.feedback import FeedbackSimulation
-
-    return FeedbackSimulation(ctx, system, integrator, dt, **options)
-
-
-def _make_implicit(system: SpringSystem, backend: str, *, dt: float, ctx, grid, **options) -> Simulation:
-    """Backward Euler on the fragment or the NumPy backend (:func:`make_simulation`)."""
-    known = {"constraints", "drags", "loads", "state", "t0", *IMPLICIT_OPTIONS}
-    if backend == "numpy":
-        known |= {"solver", "geometric"}
-    unknown = set(options) - known
-    if unknown:
-        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))} "
-                                   f"for implicit-euler on {backend}")
+        args += (grid,)
+    if integrator in EXPLICIT_INTEGRATORS:
+        args += (integrator,)
     try:
-        if backend == "numpy":
-            from deformgl.sim.implicit import ImplicitNumpySimulation
-
-            return ImplicitNumpySimulation(system, dt, **options)
-        if backend == "feedback":
-            raise SimulationSetupError("implicit-euler runs on the fragment and numpy backends, not on "
-                                       "feedback (its matrix-free product needs the node grid)")
-        grid = _fragment_grid(ctx, system, grid)
-        from deformgl.sim.backends.implicit_gpu import ImplicitFragment
-
-        return ImplicitFragment(ctx, system, grid, dt, **options)
-    except SimulationSetupError:
-        raise
-    except ValueError as exc:
-        if "cg_" in str(exc):
-            raise SimulationSetupError(str(exc)) from None
-        raise
-
-
-def _make_xpbd(system: SpringSystem, backend: str, dt: float, ctx, grid, known: set[str],
-               options: dict) -> Simulation:
-    """XPBD (:mod:`deformgl.sim.xpbd`) on the fragment or NumPy backend."""
-    unknown = set(options) - known - set(XPBD_OPTIONS)
-    if unknown:
-        raise SimulationSetupError(f"make_simulation: unknown option(s) {', '.join(sorted(unknown))} for xpbd")
-    if backend == "feedback":
-        raise SimulationSetupError("xpbd runs on the fragment and numpy backends, not feedback (its Jacobi sweep "
-                                   "gathers per-node neighbour multipliers from textures)")
-    try:
-        if backend == "numpy":
-            from deformgl.sim.xpbd import XpbdNumpy
-
-            return XpbdNumpy(system, dt, **options)
-        grid = _fragment_grid(ctx, system, grid)
-        from deformgl.sim.backends.xpbd_gpu import XpbdFragment
-
-        return XpbdFragment(ctx, system, grid, dt, **options)
-    except SimulationSetupError:
-        raise
-    except ValueError as exc:
-        if str(exc).startswith("xpbd:"):
-            raise SimulationSetupError(str(exc)) from None
-        raise
-
-
-def _fragment_grid(ctx, system: SpringSystem, grid):
-    """The node grid a fragment-backend solver runs on (``grid`` or the system's); a context and
-    a grid are required."""
-    if ctx is None:
-        raise SimulationSetupError("the fragment backend needs a GL context (ctx=...)")
-    grid = system.grid if grid is None else grid
-    if grid is None:
-        raise SimulationSetupError("the fragment backend needs a system built on a node grid "
-                                   "(springs.from_grid or springs.cloth) or grid=...")
-    return grid
+        made: Simulation = cls(*args, dt, **options)
+        return made
+    except ValueError as exc:  # an option value the class refuses ("cg_...", "xpbd: ..."): a setup error
+        if isinstance(exc, SimulationSetupError) or not ("cg_" in str(exc) or str(exc).startswith("xpbd:")):
+            raise
+        raise SimulationSetupError(str(exc)) from None
