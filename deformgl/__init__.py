@@ -54,7 +54,7 @@ _EXPORTS: dict[str, str] = {
     "AnimationWriter": "deformgl.render.video",
     "sweep_scene": "deformgl.sweep.runner",
     "run_sweep": "deformgl.sweep.runner",
-    "load_sweep": "deformgl.sweep.spec",
+    "load_sweep": "deformgl.sweep.sweepfile",
     # meshes and grids
     "load_mesh": "deformgl.grid.meshio",
     "voxelize": "deformgl.grid.voxelize",
@@ -92,11 +92,11 @@ _EXPORTS: dict[str, str] = {
     "Bend": "deformgl.trilinear.deformations",
     "Helix": "deformgl.trilinear.deformations",
     "TorusWrap": "deformgl.trilinear.deformations",
-    "Geometry": "deformgl.trilinear.nodes",
-    "Node": "deformgl.trilinear.nodes",
-    "GroupNode": "deformgl.trilinear.nodes",
-    "TransformNode": "deformgl.trilinear.nodes",
-    "GeometryNode": "deformgl.trilinear.nodes",
+    "Geometry": "deformgl.trilinear.graph_nodes",
+    "Node": "deformgl.trilinear.graph_nodes",
+    "GroupNode": "deformgl.trilinear.graph_nodes",
+    "TransformNode": "deformgl.trilinear.graph_nodes",
+    "GeometryNode": "deformgl.trilinear.graph_nodes",
     "ComposedScene": "deformgl.trilinear.batches",
     "compose_scene": "deformgl.trilinear.scenegraph",
     "SceneComposer": "deformgl.trilinear.scenegraph",
@@ -149,7 +149,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.scene.animation import frame_plan, render_frames
     from deformgl.scene.outputs import render_animation
     from deformgl.sweep.runner import run_sweep, sweep_scene
-    from deformgl.sweep.spec import load_sweep
+    from deformgl.sweep.sweepfile import load_sweep
     from deformgl.scene.body import Body, above, below, inside, render_scene, render_to_png, write_png
     from deformgl.scene.schema import load_scene
     from deformgl.scene.spec import BACKENDS, Region, Scene
@@ -174,7 +174,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
         Deformation, GraphBody, GraphMesh, GraphTransform, GraphView, Keyframe, NodeSpec, SceneGraph,
     )
     from deformgl.trilinear.grid import Trilinear, compose, composition_bound
-    from deformgl.trilinear.nodes import Geometry, GeometryNode, GroupNode, Node, TransformNode
+    from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, GroupNode, Node, TransformNode
     from deformgl.trilinear.renderer import TrilinearRenderer
     from deformgl.trilinear.scenegraph import compose_scene
     from deformgl.trilinear.shapes import tube, uv_sphere

@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     export_web.add_parser(sub)
     _add_render_parser(sub, MAX_SUBSTEPS)
 
-    from deformgl.sweep import cli as sweep_cli
+    from deformgl.sweep import command as sweep_cli
 
     sweep_cli.add_parser(sub)
 
@@ -452,7 +452,7 @@ def _main(argv: list[str] | None) -> int:
 
     from deformgl import cli_bench
     from deformgl.pack import export_shaders, export_web
-    from deformgl.sweep import cli as sweep_cli
+    from deformgl.sweep import command as sweep_cli
 
     commands = {"render": _render, "trilinear": _trilinear, "info": _info, "bench": cli_bench.run, "diff": diff_cli.run,
                 "plan": _plan, "export-shaders": export_shaders.run, "export-web": export_web.run,

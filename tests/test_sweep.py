@@ -38,7 +38,7 @@ def write_sweep(tmp_path: Path, body: str) -> Path:
 
 
 def test_sweep_files_give_the_product_and_the_listed_variants(jelly, tmp_path):
-    from deformgl.sweep.spec import load_sweep
+    from deformgl.sweep.sweepfile import load_sweep
 
     spec = load_sweep(write_sweep(tmp_path, '[set]\n"physics.steps" = 10\n[product]\n"physics.integrator" = '
                                   '["verlet", "rk4"]\n"grid.nodes_along_longest" = [5, 6, 7]\n[[variant]]\n'

@@ -35,7 +35,7 @@ from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import MAX_LOADS
 from deformgl.sim.stages import spec
 from deformgl.trilinear.batches import PATHS
-from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.normal_transform import NORMAL_MODES
 from deformgl.trilinear.renderer import shader_defines as trilinear_defines
 
 __all__ = ["COUNT_LIMITS", "ROW_LIMITS", "Variant", "all_variants", "covering_set", "held_tuples", "variant_key"]

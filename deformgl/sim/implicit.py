@@ -60,7 +60,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from deformgl.sim.base import CpuSimulationBase
+from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels

@@ -24,7 +24,7 @@ import numpy as np
 
 from deformgl.errors import ArgumentError
 from deformgl.sim import integrators
-from deformgl.sim.base import CpuSimulationBase
+from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
 from deformgl.sim.springs import Drag, Load, SpringSystem
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from deformgl.sim.base import CpuSimulationBase
+from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.xpbd_cells import CellConstraints

@@ -19,7 +19,7 @@ from typing import Any
 
 from deformgl.errors import InputError
 from deformgl.files import remove_stale_temporaries
-from deformgl.sweep.spec import SweepSpec, Variant
+from deformgl.sweep.sweepfile import SweepSpec, Variant
 from deformgl.sweep.task import run_variant
 
 __all__ = ["SweepResult", "detect_gpus", "run_sweep", "sweep_client", "sweep_scene"]
@@ -171,7 +171,7 @@ def sweep_scene(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, p
     contact sheet written into ``out``. Returns the :class:`SweepResult` (its records are dicts)."""
     import itertools
 
-    from deformgl.sweep.spec import OUTPUT_KINDS, _label
+    from deformgl.sweep.sweepfile import OUTPUT_KINDS, _label
 
     if not all(o in OUTPUT_KINDS for o in outputs):
         raise InputError(f"outputs: must be among {', '.join(OUTPUT_KINDS)}, got {list(outputs)}")

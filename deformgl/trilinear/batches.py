@@ -9,10 +9,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deformgl.errors import InputError
-from deformgl.trilinear.nodes import Geometry, GeometryNode
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode
 from deformgl.trilinear.cuboid import Box
 from deformgl.trilinear.grid import Trilinear
-from deformgl.trilinear.normals import transform_normals
+from deformgl.trilinear.normal_transform import transform_normals
 
 #: Draw paths, in the order of ``TRANSFORM_PATH`` in ``shaders/trilinear/transform.vert``.
 PATHS = ("affine", "cuboid", "grid")

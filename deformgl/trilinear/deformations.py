@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.trilinear.cuboid import Function
-from deformgl.trilinear.normals import finite_difference_jacobian
+from deformgl.trilinear.normal_transform import finite_difference_jacobian
 
 @dataclass(frozen=True)
 class TorusWrap:

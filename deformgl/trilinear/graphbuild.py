@@ -1,5 +1,5 @@
 """A :class:`~deformgl.trilinear.graphspec.SceneGraph` made into runtime nodes
-(:mod:`deformgl.trilinear.nodes`), composed (section 4.1) and drawn, as stills, as frames at given
+(:mod:`deformgl.trilinear.graph_nodes`), composed (section 4.1) and drawn, as stills, as frames at given
 times (keyframed deformations), or exported as one deformed mesh captured from the GPU.
 
 Each node spec referenced by several parents is built once per inherited colour and shared; an
@@ -28,7 +28,7 @@ from deformgl.trilinear.deformations import tangent_affine
 from deformgl.trilinear.graphspec import NodeSpec, SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
 from deformgl.trilinear.latticefile import read_lattice
-from deformgl.trilinear.nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
+from deformgl.trilinear.graph_nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.renderer import TrilinearRenderer
 from deformgl.trilinear.scenegraph import compose_scene
 from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere

@@ -26,7 +26,7 @@ from deformgl.trilinear.graphspec import (
     DEFORMATIONS, SHAPE_INTEGERS, SHAPES, Deformation, GraphBody, GraphMesh, GraphTransform, GraphView, Keyframe, NodeSpec,
     SceneGraph,
 )
-from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.normal_transform import NORMAL_MODES
 
 MAX_GRAPH_BYTES = 1 << 20
 _TOP = ("graph", "view", "body", "meshes", "deformations", "nodes")

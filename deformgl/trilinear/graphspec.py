@@ -1,7 +1,7 @@
 """A trilinear scene graph as plain data (Knuth, Kohlhammer & Kuijper, section 4): what a
 scene-graph file holds (:mod:`deformgl.trilinear.graphfile` reads and writes it, one to one) and
 what the Python API builds. :mod:`deformgl.trilinear.graphbuild` turns it into the runtime nodes
-of :mod:`deformgl.trilinear.nodes` and renders it.
+of :mod:`deformgl.trilinear.graph_nodes` and renders it.
 
 A :class:`SceneGraph` names its meshes (:class:`GraphMesh`), its deformations (:class:`Deformation`,
 with optional keyframes of their parameters) and its nodes (:class:`NodeSpec`); a node lists its

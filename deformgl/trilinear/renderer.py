@@ -25,9 +25,9 @@ from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.render.camera import View
 from deformgl.render.passes import Lighting
 from deformgl.trilinear.batches import PATHS, Batch, ComposedScene
-from deformgl.trilinear.nodes import Geometry
+from deformgl.trilinear.graph_nodes import Geometry
 from deformgl.trilinear.cuboid import coefficient_matrix
-from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.normal_transform import NORMAL_MODES
 _INSTANCE_ATTRIBUTES = {
     "affine": ("i_row0", "i_row1", "i_row2"),
     "cuboid": ("i_box_lo", "i_box_scale", "i_xa", "i_xb", "i_ya", "i_yb", "i_za", "i_zb"),

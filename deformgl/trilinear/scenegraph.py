@@ -15,7 +15,7 @@ affine path, one-cuboid ones by Knuth, Kohlhammer & Kuijper, eq. 4, the rest thr
 (``shaders/trilinear/transform.vert``). :class:`~deformgl.trilinear.renderer.TrilinearRenderer` draws
 every batch of leaves sharing mesh, path, normal mode and colour with one instanced draw.
 
-This module holds the composition; the nodes are in :mod:`deformgl.trilinear.nodes`, the batches
+This module holds the composition; the nodes are in :mod:`deformgl.trilinear.graph_nodes`, the batches
 in :mod:`deformgl.trilinear.batches`, the GPU renderer in :mod:`deformgl.trilinear.renderer`, all
 re-exported here.
 """
@@ -27,7 +27,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from deformgl.trilinear.batches import PATHS, Batch, ComposedScene
-from deformgl.trilinear.nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
+from deformgl.trilinear.graph_nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.renderer import TrilinearRenderer, atlas_image, instance_data, pack_atlas, shader_defines
 from deformgl.trilinear.cuboid import (
     LINEAR_RTOL, Box, coefficient_matrix, corner_weights, grid_corners, is_linear_coefficients, unit_lattice,

@@ -34,7 +34,7 @@ from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
 from deformgl.trilinear.cuboid import Box, Function
 from deformgl.trilinear.deformations import Helix, Taper, TorusWrap, Twist, tangent_affine
 from deformgl.trilinear.grid import Trilinear
-from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.normal_transform import NORMAL_MODES
 
 __all__ = ["BACKGROUND", "COLOURS", "LIGHT", "MODES", "SCENES", "Z_UP_TO_Y_UP", "BuiltScene", "demo_graph_file",
            "depth_scene", "helix_scene", "render_composed", "render_trilinear_scene", "scene_view",

@@ -7,7 +7,7 @@ one import site for the pieces, which live in
   composition (section 4.1) with the bound of its error;
 * :mod:`deformgl.trilinear.errorbound`: that bound explained, and composition refined until a
   requested error is met;
-* :mod:`deformgl.trilinear.normals`: normals under a transformation (section 4.2);
+* :mod:`deformgl.trilinear.normal_transform`: normals under a transformation (section 4.2);
 * :mod:`deformgl.trilinear.deformations`: the deformations the paper approximates (section 3.3).
 """
 
@@ -24,7 +24,7 @@ from deformgl.trilinear.grid import (
     crossed_cells, lattice_matches, sample_lattice,
 )
 from deformgl.trilinear.errorbound import compose_within, composition_bound, lipschitz_bound
-from deformgl.trilinear.normals import NORMAL_MODES, finite_difference_jacobian, tangent_frame, transform_normals
+from deformgl.trilinear.normal_transform import NORMAL_MODES, finite_difference_jacobian, tangent_frame, transform_normals
 
 __all__ = [
     "CORNERS", "EQ2", "LINEAR_RTOL", "MAX_COMPOSED_CELLS", "NORMAL_MODES", "Bend", "Box", "Function", "Helix",

@@ -56,7 +56,7 @@ from deformgl.sim.backends.cell_tables import cell_uniforms
 from deformgl.sim.terms.glsl import refuse_terms
 from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit, has_cells
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.clock import SimulationBase
 
 from deformgl.errors import GLError
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state

@@ -58,7 +58,7 @@ import numpy as np
 
 from deformgl.gl.es_context import read_texture
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.clock import SimulationBase
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state

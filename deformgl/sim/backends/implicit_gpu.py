@@ -73,7 +73,7 @@ from deformgl.grid.nodes import NodeGrid, layout_uniforms
 from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.clock import SimulationBase
 from deformgl.sim.backends.implicit_passes import (CELL_PASSES, REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
                                                    UNITS, pass_defines)
 from deformgl.sim.backends.term_tables import TermTables

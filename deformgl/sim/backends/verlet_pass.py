@@ -23,7 +23,7 @@ from deformgl.sim.backends.foundation import (CELL_DIAGONAL_UNIT, DRAW_MODES, MA
                                               NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.clock import SimulationBase
 from deformgl.sim.integrators import State
 from deformgl.sim.stages import spec
 from deformgl.sim.springs import Load, SpringSystem, load_groups

@@ -40,7 +40,7 @@ from deformgl.grid.nodes import NodeGrid, layout_uniforms
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.xpbd_cells_gpu import CELL_SAMPLERS, XpbdCells
 from deformgl.sim.backends.uniforms import uniform_array
-from deformgl.sim.base import SimulationBase
+from deformgl.sim.clock import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, load_groups

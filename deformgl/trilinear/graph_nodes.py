@@ -13,7 +13,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.trilinear.cuboid import Box
 from deformgl.trilinear.grid import Trilinear, check_affine
-from deformgl.trilinear.normals import NORMAL_MODES
+from deformgl.trilinear.normal_transform import NORMAL_MODES
 
 DEFAULT_COLOUR = (0.85, 0.6, 0.35)
 

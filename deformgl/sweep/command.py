@@ -40,7 +40,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from deformgl.sweep.runner import run_sweep
     from deformgl.sweep.sheet import write_tables
-    from deformgl.sweep.spec import load_sweep
+    from deformgl.sweep.sweepfile import load_sweep
 
     spec = load_sweep(args.sweep)
     if args.workers < 0:
