@@ -222,7 +222,8 @@ def _render(args: argparse.Namespace) -> int:
     from deformgl.scene.overrides import (blame_flag, camera_overrides, flag_keys, parse_modes, parse_set, parse_view,
                                           parse_views)
     from deformgl.scene.record import summary_line
-    from deformgl.scene.schema import load_scene, parse_size
+    from deformgl.scene.schema import load_scene
+    from deformgl.scene.spec import parse_size
 
     source = _scene_file(args.scene)
     from deformgl.trilinear.graphfile import is_graph_file
@@ -291,7 +292,7 @@ def _render_graph(args: argparse.Namespace, source: Path) -> int:
     from deformgl.files import check_writable
     from deformgl.gl.context import create_context
     from deformgl.scene.graphs import graph_animation, graph_output, graph_to_png
-    from deformgl.scene.schema import parse_size
+    from deformgl.scene.spec import parse_size
 
     refused = {"--steps": args.steps, "--mesh": args.mesh, "--mapping": args.mapping, "--integrator": args.integrator,
                "--backend": args.backend, "--allow-unstable/--subdivide": args.unstable,
@@ -328,7 +329,7 @@ def _render_graph(args: argparse.Namespace, source: Path) -> int:
 def _trilinear(args: argparse.Namespace) -> int:
     from deformgl.files import check_writable
     from deformgl.gl.context import create_context
-    from deformgl.scene.schema import parse_size
+    from deformgl.scene.spec import parse_size
     from deformgl.trilinear.scenes import write_trilinear_scene
 
     try:

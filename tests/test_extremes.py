@@ -27,7 +27,8 @@ from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.scene.pipeline import build_scene_model, render_scene
 from deformgl.scene.schema import load_scene
 from deformgl.sim.springs import SpringSystem, cloth, from_grid
-from deformgl.sim.stability import check_dt, dt_limit, exact_frequency, spectral_radius
+from deformgl.sim.limits import check_dt, dt_limit, spectral_radius
+from deformgl.sim.spectrum import exact_frequency
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 ZETA = 0.1  # damping ratio of the top mode

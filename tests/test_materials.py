@@ -206,7 +206,7 @@ def test_critical_dt_falls_as_h_sqrt_rho_over_e():
     assert critical_dt(GEL, 0.005) == pytest.approx(base / 2)
     assert critical_dt(dataclasses.replace(GEL, youngs_modulus=4 * GEL.youngs_modulus), 0.01) == pytest.approx(base / 2)
     # and it is a true bound of the built system's limit
-    from deformgl.sim.stability import dt_limit
+    from deformgl.sim.limits import dt_limit
     system, _ = lattice_system(block((5, 5, 5), h=0.01), GEL, fixed=block((5, 5, 5)).ijk[:, 1] == 0)
     assert base <= dt_limit(system, "verlet").dt
 

@@ -14,9 +14,10 @@ from deformgl.errors import SceneError, SimulationError
 from deformgl.scene.pipeline import NodeState, build_scene_model, render_to_png
 from deformgl.sim.guards import (API_WORDING, MAX_SUBSTEPS, SAFETY_MARGIN, SCENE_WORDING, BlowUp, StepPlan,
                                  describe_bad_node, plan_steps, retry_with_substeps)
-from deformgl.scene.schema import Safety, load_scene
+from deformgl.scene.schema import load_scene
+from deformgl.scene.spec import Safety
 from deformgl.scene.physics import SceneBox, simulate_scene, scene_system
-from deformgl.sim.stability import check_dt, dt_limit
+from deformgl.sim.limits import check_dt, dt_limit
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -172,7 +173,7 @@ def test_the_foundation_pass_is_watched_too_and_reads_nothing_back(ctx, jelly, m
 def test_a_far_away_finite_node_counts_as_blown_up(ctx, jelly):
     """A node flung beyond bad_distance box lengths is caught before it overflows: a drag pulls
     one node 50 box lengths away, with bad_distance 10."""
-    from deformgl.scene.schema import DragSpec, Keyframes
+    from deformgl.scene.spec import DragSpec, Keyframes
 
     scene, built, _ = jelly
 

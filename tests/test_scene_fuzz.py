@@ -21,7 +21,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from deformgl.errors import InputError, SceneError
-from deformgl.scene.schema import MAX_DEPTH, Scene, load_scene
+from deformgl.scene.schema import load_scene
+from deformgl.scene.spec import Scene
+from deformgl.scene.tomltext import MAX_DEPTH
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = Path(__file__).resolve().parent / "fuzz_corpus"

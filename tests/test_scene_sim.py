@@ -12,7 +12,8 @@ from deformgl.sim import integrators as I
 from deformgl.errors import SimulationError
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.scene.pipeline import NodeState, build_scene_model
-from deformgl.scene.schema import Converge, Safety, load_scene
+from deformgl.scene.schema import load_scene
+from deformgl.scene.spec import Converge, Safety
 from deformgl.scene.physics import SceneBox, simulate_scene, scene_constraints, scene_drags, scene_loads, scene_system
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"

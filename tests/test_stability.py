@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from deformgl.sim import stability as st
+from deformgl.sim import growth, integrators, limits, spectrum
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import acceleration, initial_state, step
 from deformgl.sim.springs import SpringSystem, cloth, from_grid, max_angular_frequency
@@ -30,8 +30,8 @@ def small() -> SpringSystem:
 
 
 @pytest.fixture(scope="module")
-def small_top(small: SpringSystem) -> st.ExactFrequency:
-    return st.exact_frequency(small)
+def small_top(small: SpringSystem) -> spectrum.ExactFrequency:
+    return spectrum.exact_frequency(small)
 
 
 def _damped(c: float) -> SpringSystem:
@@ -64,10 +64,10 @@ def test_exact_frequency_matches_a_brute_force_eigen_solve() -> None:
     fixed[[0, 5]] = True
     s = from_grid(NodeGrid(np.zeros(3), 0.2, np.ones((2, 2, 2), bool)), k_structural=70.0,
                   k_shear=30.0, mass=rng.uniform(0.5, 2.0, 8), fixed=fixed, gravity=NO_GRAVITY)
-    top = st.exact_frequency(s, method="dense")
+    top = spectrum.exact_frequency(s, method="dense")
     assert top.omega == pytest.approx(_jacobian_omega(s), rel=1e-6)
     # the returned mode is an eigenvector: K phi = w^2 M phi on the free nodes, 0 at fixed ones
-    k_phi = st.stiffness_product(s, top.mode)[~fixed]
+    k_phi = spectrum.stiffness_product(s, top.mode)[~fixed]
     m_phi = s.mass[~fixed, None] * top.mode[~fixed]
     np.testing.assert_allclose(k_phi, top.omega ** 2 * m_phi, atol=1e-9 * np.abs(k_phi).max())
     assert np.all(top.mode[fixed] == 0.0)
@@ -80,8 +80,8 @@ def test_lanczos_matches_the_dense_solve_on_a_medium_system() -> None:
     fixed = np.zeros(216, bool)
     fixed[:6] = True
     s = _block(6, mass=rng.uniform(0.005, 0.02, 216), fixed=fixed)
-    dense = st.exact_frequency(s, method="dense")
-    lanczos = st.exact_frequency(s, method="lanczos", tol=1e-10)
+    dense = spectrum.exact_frequency(s, method="dense")
+    lanczos = spectrum.exact_frequency(s, method="lanczos", tol=1e-10)
     assert lanczos.method == "lanczos" and lanczos.tolerance <= 1e-10
     assert lanczos.omega == pytest.approx(dense.omega, rel=1e-9)
     assert lanczos.omega <= dense.omega * (1 + 1e-12)  # a Rayleigh quotient: never above
@@ -91,65 +91,65 @@ def test_lanczos_matches_the_dense_solve_on_a_medium_system() -> None:
 @pytest.mark.parametrize("name, factor", [("verlet", 2.0), ("semi-implicit", 2.0),
                                           ("rk4", 2.0 * math.sqrt(2.0))])
 def test_undamped_analytic_limits_are_the_closed_forms(small: SpringSystem,
-                                                       small_top: st.ExactFrequency,
+                                                       small_top: spectrum.ExactFrequency,
                                                        name: str, factor: float) -> None:
-    exact, _ = st.exact_limit(small, name)
+    exact, _ = limits.exact_limit(small, name)
     assert exact.dt * small_top.omega == pytest.approx(factor, rel=1e-10)
-    gersh = st.gershgorin_limit(small, name)
+    gersh = limits.gershgorin_limit(small, name)
     assert gersh.dt * max_angular_frequency(small).omega == pytest.approx(factor, rel=1e-10)
 
 
 def test_damped_forward_euler_limit_is_g_over_w_squared() -> None:
     # |1 + z|^2 = 1 - g dt + w^2 dt^2 <= 1  <=>  dt <= g / w^2 (underdamped mode)
-    assert st.mode_limit("euler", 300.0, 60.0)[0] == pytest.approx(60.0 / 300.0 ** 2, rel=1e-10)
+    assert limits.mode_limit("euler", 300.0, 60.0)[0] == pytest.approx(60.0 / 300.0 ** 2, rel=1e-10)
 
 
 @pytest.mark.parametrize("name", ["verlet", "semi-implicit", "rk4"])
 def test_measured_limit_is_within_two_percent_of_the_exact_one(
-        small: SpringSystem, small_top: st.ExactFrequency, name: str) -> None:
-    exact, _ = st.exact_limit(small, name)
-    measured = st.measured_limit(small, name, exact.dt, steps=1000, mode=small_top.mode)
+        small: SpringSystem, small_top: spectrum.ExactFrequency, name: str) -> None:
+    exact, _ = limits.exact_limit(small, name)
+    measured = growth.measured_limit(small, name, exact.dt, steps=1000, mode=small_top.mode)
     assert measured.unstable_dt / measured.stable_dt <= 1.002
     assert measured.dt == pytest.approx(exact.dt, rel=0.02)
 
 
 @pytest.mark.parametrize("name", ["euler", "midpoint"])
 def test_euler_and_midpoint_undamped_grow_even_at_small_dt(
-        small: SpringSystem, small_top: st.ExactFrequency, name: str) -> None:
+        small: SpringSystem, small_top: spectrum.ExactFrequency, name: str) -> None:
     dt = 0.05 / small_top.omega
-    assert st.exact_limit(small, name)[0].dt == 0.0
-    fit = st.growth_rate(small, name, dt, steps=1000, mode=small_top.mode)
+    assert limits.exact_limit(small, name)[0].dt == 0.0
+    fit = growth.growth_rate(small, name, dt, steps=1000, mode=small_top.mode)
     # growth per step |R(i 0.05)|: sqrt(1 + 0.05^2) (Euler), sqrt(1 + 0.05^4 / 4) (midpoint)
     y = 0.05
     expected = math.sqrt(1 + y * y) if name == "euler" else math.sqrt(1 + y ** 4 / 4)
     assert not fit.stable
     assert fit.factor == pytest.approx(expected, rel=1e-8)
     # the same run with rk4 is stable: the classifier is not biased to "unstable"
-    assert st.growth_rate(small, "rk4", dt, steps=1000, mode=small_top.mode).stable
+    assert growth.growth_rate(small, "rk4", dt, steps=1000, mode=small_top.mode).stable
 
 
 @pytest.mark.parametrize("name", ["euler", "midpoint"])
 def test_damped_euler_and_midpoint_measured_limit_matches_the_damped_bound(
-        small_top: st.ExactFrequency, name: str) -> None:
+        small_top: spectrum.ExactFrequency, name: str) -> None:
     s = _damped(2 * 0.1 * 0.01 * small_top.omega)  # zeta 0.1 on the top mode
-    exact, _ = st.exact_limit(s, name)
+    exact, _ = limits.exact_limit(s, name)
     assert exact.dt > 0 and exact.formula.startswith("damped")
-    measured = st.measured_limit(s, name, exact.dt, steps=1000, mode=small_top.mode)
+    measured = growth.measured_limit(s, name, exact.dt, steps=1000, mode=small_top.mode)
     assert measured.dt == pytest.approx(exact.dt, rel=0.02)
 
 
 @pytest.mark.parametrize("name", ["verlet", "semi-implicit", "rk4"])
 def test_half_the_limit_stays_bounded_and_one_and_a_half_grows(
-        small: SpringSystem, small_top: st.ExactFrequency, name: str) -> None:
-    limit = st.exact_limit(small, name)[0].dt
-    calm = st.growth_rate(small, name, 0.5 * limit, steps=2000, mode=small_top.mode)
+        small: SpringSystem, small_top: spectrum.ExactFrequency, name: str) -> None:
+    limit = limits.exact_limit(small, name)[0].dt
+    calm = growth.growth_rate(small, name, 0.5 * limit, steps=2000, mode=small_top.mode)
     assert calm.stable and calm.steps == 2000 and not calm.blew_up and calm.peak < 3.0
-    wild = st.growth_rate(small, name, 1.5 * limit, steps=2000, mode=small_top.mode)
+    wild = growth.growth_rate(small, name, 1.5 * limit, steps=2000, mode=small_top.mode)
     assert not wild.stable and wild.blew_up and wild.factor > 1.1
 
 
 def test_semi_implicit_energy_oscillates_but_is_judged_stable(
-        small: SpringSystem, small_top: st.ExactFrequency) -> None:
+        small: SpringSystem, small_top: spectrum.ExactFrequency) -> None:
     """An energy threshold would refuse this run (energy swings by ~100x); its spectral radius
     is 1 to 1e-7, and 0.3 % above 2/w it grows by more than 1.1 per step."""
     dt = 0.995 * 2.0 / small_top.omega
@@ -158,20 +158,20 @@ def test_semi_implicit_energy_oscillates_but_is_judged_stable(
     energies = []
     for n in range(200):
         state = step(small, "semi-implicit", state, dt, n * dt)
-        energies.append(st._energies(small, (state.x - x0)[None], state.v[None])[0])
+        energies.append(growth._energies(small, (state.x - x0)[None], state.v[None])[0])
     assert max(energies) / min(energies) > 10.0
-    fit = st.growth_rate(small, "semi-implicit", dt, steps=1000, mode=small_top.mode)
+    fit = growth.growth_rate(small, "semi-implicit", dt, steps=1000, mode=small_top.mode)
     assert fit.stable and abs(fit.rate) < 1e-7
-    above = st.growth_rate(small, "semi-implicit", 1.003 * 2.0 / small_top.omega, steps=1000,
+    above = growth.growth_rate(small, "semi-implicit", 1.003 * 2.0 / small_top.omega, steps=1000,
                            mode=small_top.mode)
     assert not above.stable and above.factor > 1.1
 
 
 def test_check_dt_refuses_above_and_accepts_below(small: SpringSystem,
-                                                  small_top: st.ExactFrequency) -> None:
+                                                  small_top: spectrum.ExactFrequency) -> None:
     limit = 2.0 / small_top.omega
-    assert st.check_dt(small, "verlet", 0.99 * limit) is None   # above Gershgorin, below exact
-    refusal = st.check_dt(small, "verlet", 1.01 * limit)
+    assert limits.check_dt(small, "verlet", 0.99 * limit) is None   # above Gershgorin, below exact
+    refusal = limits.check_dt(small, "verlet", 1.01 * limit)
     assert refusal is not None and refusal.limit.bound == "exact"
     assert refusal.limit.dt == pytest.approx(limit, rel=1e-10)
     msg = refusal.message
@@ -181,15 +181,15 @@ def test_check_dt_refuses_above_and_accepts_below(small: SpringSystem,
     assert "k = 100 N/m" in msg or "k = 50 N/m" in msg or "k = 20 N/m" in msg
     assert "m = 0.01 kg" in msg
     with pytest.raises(Exception, match="above the verlet limit"):
-        st.require_stable_dt(small, "verlet", 1.01 * limit)
+        limits.require_stable_dt(small, "verlet", 1.01 * limit)
 
 
 def test_check_dt_uses_the_conservative_gershgorin_bound_for_large_systems(
         small: SpringSystem) -> None:
     bound = max_angular_frequency(small)
     g_limit = 2.0 / bound.omega
-    assert st.check_dt(small, "semi-implicit", 0.999 * g_limit, exact_up_to=0, lanczos_up_to=0) is None
-    refusal = st.check_dt(small, "semi-implicit", 1.001 * g_limit, exact_up_to=0, lanczos_up_to=0)
+    assert limits.check_dt(small, "semi-implicit", 0.999 * g_limit, exact_up_to=0, lanczos_up_to=0) is None
+    refusal = limits.check_dt(small, "semi-implicit", 1.001 * g_limit, exact_up_to=0, lanczos_up_to=0)
     assert refusal is not None and refusal.limit.bound == "gershgorin"
     assert refusal.limit.node == bound.node and refusal.limit.spring == bound.spring
     assert f"node {bound.node} (spring {bound.spring}," in refusal.message
@@ -197,31 +197,31 @@ def test_check_dt_uses_the_conservative_gershgorin_bound_for_large_systems(
 
 
 def test_check_dt_uses_a_lanczos_estimate_between_dense_and_gershgorin(
-        small: SpringSystem, small_top: st.ExactFrequency) -> None:
+        small: SpringSystem, small_top: spectrum.ExactFrequency) -> None:
     """Above exact_up_to free nodes the top frequency is estimated by Lanczos (a Rayleigh
     quotient: never above w_max); the dt must stay LANCZOS_MARGIN below its limit, so nothing
     above the true limit is accepted, and dts between the Gershgorin and the true limit are."""
     limit = 2.0 / small_top.omega
     g_limit = 2.0 / max_angular_frequency(small).omega
     assert g_limit < 0.7 * limit
-    assert st.check_dt(small, "verlet", 0.99 * limit, exact_up_to=0) is None
-    refusal = st.check_dt(small, "verlet", (1.0 - st.LANCZOS_MARGIN / 2) * limit, exact_up_to=0)
+    assert limits.check_dt(small, "verlet", 0.99 * limit, exact_up_to=0) is None
+    refusal = limits.check_dt(small, "verlet", (1.0 - limits.LANCZOS_MARGIN / 2) * limit, exact_up_to=0)
     assert refusal is not None and refusal.limit.bound == "lanczos" and "lanczos bound" in refusal.message
-    assert limit * (1 - 2 * st.LANCZOS_MARGIN) <= refusal.limit.dt <= limit * (1 - st.LANCZOS_MARGIN) * (1 + 1e-4)
+    assert limit * (1 - 2 * limits.LANCZOS_MARGIN) <= refusal.limit.dt <= limit * (1 - limits.LANCZOS_MARGIN) * (1 + 1e-4)
     assert refusal.limit.node == small_top.node
 
 
 def test_check_dt_refuses_undamped_euler_at_any_dt_and_uses_the_damped_limit(
-        small: SpringSystem, small_top: st.ExactFrequency) -> None:
+        small: SpringSystem, small_top: spectrum.ExactFrequency) -> None:
     for name in ("euler", "midpoint"):
-        refusal = st.check_dt(small, name, 1e-9)
+        refusal = limits.check_dt(small, name, 1e-9)
         assert refusal is not None and refusal.limit.dt == 0.0
         assert "damping" in refusal.message and "every dt" in refusal.message
     damped = _damped(2 * 0.1 * 0.01 * small_top.omega)
-    limit = st.exact_limit(damped, "euler")[0].dt
+    limit = limits.exact_limit(damped, "euler")[0].dt
     assert limit == pytest.approx(0.2 / small_top.omega, rel=1e-6)  # g / w^2, g = 0.2 w
-    assert st.check_dt(damped, "euler", 0.98 * limit) is None
-    assert st.check_dt(damped, "euler", 1.02 * limit) is not None
+    assert limits.check_dt(damped, "euler", 0.98 * limit) is None
+    assert limits.check_dt(damped, "euler", 1.02 * limit) is not None
 
 
 def _random_system(seed: int) -> SpringSystem:
@@ -244,19 +244,19 @@ def test_gershgorin_limit_is_never_above_the_exact_one(which: str) -> None:
                   gravity=NO_GRAVITY)
     else:
         s = _random_system(int(which.split()[1]))
-    top = st.exact_frequency(s)
+    top = spectrum.exact_frequency(s)
     assert max_angular_frequency(s).omega >= top.omega * (1 - 1e-12)
-    for name in st.EXPLICIT_INTEGRATORS:
-        gersh, exact = st.gershgorin_limit(s, name).dt, st.exact_limit(s, name)[0].dt
+    for name in integrators.EXPLICIT_INTEGRATORS:
+        gersh, exact = limits.gershgorin_limit(s, name).dt, limits.exact_limit(s, name)[0].dt
         assert gersh <= exact * (1 + 1e-9), name
 
 
 def test_stability_table_row_is_measured_and_formatted() -> None:
     s = _damped(1.0)
-    rows = st.stability_table({"tiny": s}, integrators=("verlet",), steps=300)
+    rows = growth.stability_table({"tiny": s}, integrators=("verlet",), steps=300)
     assert [r.integrator for r in rows] == ["verlet"]
     assert rows[0].ratio == pytest.approx(1.0, rel=0.02)
-    text = st.format_stability(rows)
+    text = growth.format_stability(rows)
     assert "Gershgorin" in text and "tiny" in text and "verlet" in text
 
 

@@ -21,7 +21,7 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import Constraints, Drag, Load, Sphere, State
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.simulation import SimulationSetupError, make_simulation
-from deformgl.sim.stability import check_dt
+from deformgl.sim.limits import check_dt
 from deformgl.sim.volume import inverted_cells
 from deformgl.sim.xpbd import XpbdNumpy, XpbdSettings
 

@@ -12,7 +12,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
 from deformgl.scene.physics import SceneBox, SceneRun, simulate_scene
-from deformgl.scene.schema import Scene
+from deformgl.scene.spec import Scene
 from deformgl.sim.backends.foundation import NodeTextures
 
 __all__ = ["NodeState"]

@@ -42,7 +42,7 @@ from deformgl.sim.run import run
 from deformgl.sim.integrators import IMPLICIT_INTEGRATORS
 from deformgl.sim.simulation import make_simulation
 from deformgl.errors import SceneError
-from deformgl.scene.schema import Keyframes, Physics, Region, Scene
+from deformgl.scene.spec import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
 from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
 

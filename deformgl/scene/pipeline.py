@@ -30,7 +30,7 @@ from deformgl.grid.meshio import load_mesh
 from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import Load, SpringSystem
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
-from deformgl.scene.schema import Scene
+from deformgl.scene.spec import Scene
 from deformgl.scene.spec import MIN_EXTENT, ClothSpec, MeshSpec, Vec3
 from deformgl.scene.node_state import NodeState
 from deformgl.scene.physics import SceneBox, scene_constraints, scene_loads, scene_system

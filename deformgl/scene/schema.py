@@ -7,8 +7,7 @@ default) and a builder that makes the dataclass. Positions are bounding-box frac
 
 This module is the loader: the tables' schemas, their builders and :func:`load_scene`. The
 dataclasses are in :mod:`deformgl.scene.spec` and the value checkers in
-:mod:`deformgl.scene.checks`; both are re-exported here, so every name is importable from
-``deformgl.scene.schema`` as before.
+:mod:`deformgl.scene.checks`; import them from there.
 """
 
 from __future__ import annotations
@@ -23,26 +22,23 @@ import numpy as np
 
 from deformgl.data import find_scene
 from deformgl.errors import SceneError
-from deformgl.scene.tomltext import MAX_DEPTH, MAX_SCENE_BYTES, check_depth, read_toml  # noqa: F401
-from deformgl.scene.checks import (REQUIRED, Build, Check, _array, _describe, _existing, _fail, _int, _join,  # noqa: F401
-                                   _num, _of, _one_line, _plain, _resolve, _short, _str, _table, _vec)
-from deformgl.scene.spec import (AA_CHOICES, AXES, BACKENDS, MAPPING_MODES, MAX_DRAGS, MAX_GRID_NODES,  # noqa: F401
-                                 MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES, MAX_STEPS, MSAA_CHOICES,
-                                 UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR, _LAYOUT, _MAPPING_MODE,
-                                 _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey, ClothSpec, Converge, DragSpec, GridSpec,
-                                 Keyframes, Light, Mapping, Material, MeshSpec, MotionSpec, Nodes, Output,
-                                 Physics, Pull, Region, Render, Safety, Scene, SphereSpec, SpringClass, Vec3, Xpbd,
-                                 parse_size)
+from deformgl.scene.tomltext import check_depth, read_toml
+from deformgl.scene.checks import (REQUIRED, Check, _array, _describe, _existing, _fail, _int, _join, _num, _of,
+                                   _one_line, _plain, _resolve, _short, _str, _table, _vec)
+from deformgl.scene.spec import (AA_CHOICES, AXES, MAX_DRAGS, MAX_GRID_NODES, MAX_KEYFRAMES, MAX_SIZE, MAX_SPHERES,
+                                 MAX_STEPS, MSAA_CHOICES, UNSTABLE_POLICIES, _BACKEND, _CHECK_EVERY, _INTEGRATOR,
+                                 _LAYOUT, _MAPPING_MODE, _SIZE, _STEPS, Animation, Attach, Implicit, Camera, CameraKey,
+                                 ClothSpec, Converge, DragSpec, GridSpec, Keyframes, Light, Mapping, Material, MeshSpec,
+                                 MotionSpec, Nodes, Output, Physics, Pull, Region, Render, Safety, Scene, SphereSpec,
+                                 SpringClass, Vec3, Xpbd)
 from deformgl.sim.equilibrium import CRITERIA as CONVERGE_CRITERIA
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
-from deformgl.scene.material_table import _BODY_MATERIAL, _MATERIAL_KEYS  # noqa: F401
-from deformgl.sim.materials import ElasticMaterial, SheetMaterial
+from deformgl.scene.material_table import _BODY_MATERIAL
+from deformgl.sim.materials import SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
 from deformgl.sim.bending import BENDING_REFUSAL
 
-__all__ = ["Animation", "BACKENDS", "CameraKey", "apply_overrides", "Camera", "ClothSpec", "Converge", "DragSpec", "GridSpec", "Keyframes", "Light", "Safety", "UNSTABLE_POLICIES",
-           "Material", "MeshSpec", "Output", "Physics", "Pull", "Region", "Render", "Scene", "SphereSpec",
-           "SpringClass", "load_scene", "parse_size"]
+__all__ = ["apply_overrides", "load_scene"]
 
 # --- schemas and builders ------------------------------------------------------------------------
 

@@ -1,5 +1,46 @@
-"""Measured stability: growth rate of long float64 runs, bisection on dt for the measured limit,
-and the stability table of the standard systems (Movania & Feng 2012, section 3)."""
+"""Stability limits of the five integrators: analytic bounds, exact frequency, measured limit;
+this module measures them and prints the table (``python -m deformgl.sim.growth``).
+
+Movania & Feng 2012 (section 3) compare explicit Euler, semi-implicit ("implicit") Euler,
+midpoint, RK4 and Verlet; their step-size limits follow from the highest angular frequency w of
+the linearised system (docs/EQUATIONS.md, "Stability"):
+
+* semi-implicit Euler and position Verlet: ``dt <= 2/w``;
+* RK4: ``dt <= 2 sqrt(2)/w`` (2.83/w; ``|R(iy)|^2 = 1 - y^6/72 + y^8/576 <= 1 <=> y^2 <= 8``);
+* forward Euler (``|1 + iy| > 1``) and midpoint (``|1 + iy - y^2/2|^2 = 1 + y^4/4 > 1``): no dt
+  at all without damping. With damping they have a finite limit (forward Euler with
+  ``x'' = -w^2 x - g x'``, g < 2w: ``dt <= g / w^2``).
+
+Three numbers per integrator:
+
+1. *Gershgorin limit*: from ``w_max^2 <= max_i 2 sum_j k_ij / m_i``
+   (:func:`deformgl.sim.springs.max_angular_frequency`). Costs one pass over the springs and is
+   conservative (never above the exact limit under the modal-damping model below), so it is what
+   :func:`~deformgl.sim.limits.check_dt` uses for large systems.
+2. *Exact limit*: from the spectrum of ``M^-1 K`` at rest (``K`` the 3N x 3N stiffness matrix,
+   one block ``k u u^T`` per spring, fixed nodes removed). Dense ``eigh`` up to
+   :data:`~deformgl.sim.spectrum.DENSE_MAX_NODES` free nodes; above, Lanczos on the sparse product (NumPy only).
+3. *Measured limit*: bisection on dt of long float64 runs of :func:`deformgl.sim.integrators.step`
+   (:func:`measured_limit`).
+
+Damping model. Each mode is the scalar test equation ``x'' = -w^2 x - g(w) x'`` with
+``g(w) = alpha + beta w^2``: ``alpha = (velocity_damping + wind_drag)/m + mass_damping`` (mass-proportional),
+``beta = c_s/k_s`` (spring damping, stiffness-proportional). That is exact (Rayleigh damping)
+when the free masses are equal and ``c_s/k_s`` is the same for every spring; otherwise the limit
+is the smallest over the corners of the (alpha, beta) ranges and flagged ``proportional=False``.
+The one-step map of each mode is the integrator's amplification: ``R(z)`` at the eigenvalues
+``z = dt lambda``, ``lambda = (-g +- sqrt(g^2 - 4 w^2))/2``, for the Runge-Kutta family
+(``1 + z``, ``1 + z + z^2/2``, ``1 + z + z^2/2 + z^3/6 + z^4/24``), and the 2x2 matrix with
+trace ``2 - w^2 dt^2 - g dt`` and determinant ``1 - g dt`` for semi-implicit Euler and for
+Verlet (whose damping sees the backward-difference velocity, as ``integrators.py``). A mode's
+limit is the smallest dt at which the spectral radius exceeds 1 (islands of stability at larger
+dt are ignored); limits below 1e-3 / max(w, g) are reported as 0 (unusable).
+
+The analysis is split by what it does: :mod:`deformgl.sim.spectrum` (the linearised system, its
+spectrum and the damping model), :mod:`deformgl.sim.limits` (the limits and the dt check) and
+this module (the growth rate of long float64 runs, the measured limit by bisection and the
+stability table of the standard systems).
+"""
 
 from __future__ import annotations
 
@@ -288,3 +329,7 @@ def format_stability(rows: list[StabilityRow]) -> str:
             for line in lines]
     text.insert(1, "-+-".join("-" * wd for wd in widths))
     return "\n".join(text)
+
+
+if __name__ == "__main__":  # python -m deformgl.sim.growth: the table of docs/PERFORMANCE.md
+    print(format_stability(stability_table()))

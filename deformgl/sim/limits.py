@@ -1,6 +1,6 @@
 """Step-size limits of the five integrators (Movania & Feng 2012, section 3): the spectral radius
 of each mode's one-step map, the analytic / Gershgorin / exact limits, and :func:`check_dt`.
-The model is described in :mod:`deformgl.sim.stability`."""
+The model is described in :mod:`deformgl.sim.growth`."""
 
 from __future__ import annotations
 

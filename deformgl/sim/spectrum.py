@@ -1,6 +1,6 @@
 """The linearised spring system at rest: the stiffness matrix ``K``, the spectrum of ``M^-1 K``
 (dense ``eigh`` or Lanczos) and the modal damping model; the stability analysis of
-:mod:`deformgl.sim.stability` (Movania & Feng 2012, section 3) builds on it."""
+:mod:`deformgl.sim.limits` and :mod:`deformgl.sim.growth` (Movania & Feng 2012, section 3) build on it."""
 
 from __future__ import annotations
 
