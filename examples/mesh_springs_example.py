@@ -23,7 +23,9 @@ from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.files import write_png_atomic
 from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.render.passes import Lighting, RenderTarget
-from deformgl.trilinear.scenegraph import Geometry, GeometryNode, TrilinearRenderer, compose_scene
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode
+from deformgl.trilinear.renderer import TrilinearRenderer
 from deformgl.sim.springs import from_triangle_mesh, max_angular_frequency
 
 

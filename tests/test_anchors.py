@@ -5,7 +5,8 @@ import pytest
 
 from deformgl.trilinear.anchors import Anchor, AnchorArray, anchor_frames, attachment_grid, locate_on_mesh
 from deformgl.errors import InputError
-from deformgl.trilinear.scenegraph import Geometry, GeometryNode, TransformNode, compose_scene
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, TransformNode
 from deformgl.trilinear.transforms import Bend, Box, Twist, unit_lattice
 
 LENGTH, WIDTH, RADIUS = 4.0, 2.0, 2.0

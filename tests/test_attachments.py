@@ -9,7 +9,7 @@ from deformgl.trilinear.attachments import TubeAttachment
 from deformgl.errors import SceneError
 from deformgl.mapping.node_drivers import Motion, rotate
 from deformgl.scene.schema import load_scene
-from deformgl.trilinear.scenegraph import TrilinearRenderer
+from deformgl.trilinear.renderer import TrilinearRenderer
 
 SCENES = Path(__file__).resolve().parent.parent / "scenes"
 

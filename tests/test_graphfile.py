@@ -17,7 +17,8 @@ from deformgl.trilinear.graphfile import is_graph_file, load_graph, save_graph
 from deformgl.trilinear.graphspec import (
     GraphBody, Deformation, Keyframe, GraphMesh, NodeSpec, SceneGraph, GraphTransform, GraphView,
 )
-from deformgl.trilinear.scenegraph import GeometryNode, TransformNode, compose_scene
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import GeometryNode, TransformNode
 from deformgl.trilinear.scenes import COLOURS, Z_UP_TO_Y_UP, helix_scene, tile_scene, tubes_scene
 from deformgl.trilinear.grid import Trilinear
 

@@ -118,7 +118,8 @@ def test_trilinear_renderer_releases_everything_it_made_and_binds_back_the_calle
     from deformgl.trilinear.deformations import Twist
     from deformgl.trilinear.grid import Trilinear
     from deformgl.trilinear.shapes import uv_sphere
-    from deformgl.trilinear.scenegraph import GeometryNode, GroupNode, TransformNode, compose_scene
+    from deformgl.trilinear.scenegraph import compose_scene
+    from deformgl.trilinear.graph_nodes import GeometryNode, GroupNode, TransformNode
 
     sphere = uv_sphere(0.4, 8, 6)
     box = Box(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))

@@ -3,7 +3,8 @@
 
 import numpy as np
 
-from deformgl.trilinear.scenegraph import GeometryNode, GroupNode, SceneComposer, TransformNode, compose_scene
+from deformgl.trilinear.scenegraph import SceneComposer, compose_scene
+from deformgl.trilinear.graph_nodes import GeometryNode, GroupNode, TransformNode
 from deformgl.trilinear.scenes import depth_scene, helix_scene
 from deformgl.trilinear.shapes import uv_sphere
 

@@ -4,10 +4,9 @@ import numpy as np
 import pytest
 
 from deformgl.errors import GLError, InputError
-from deformgl.trilinear.scenegraph import (
-    Geometry, GeometryNode, GroupNode, TransformNode, atlas_image, compose_scene, instance_data, pack_atlas,
-    shader_defines,
-)
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, GroupNode, TransformNode
+from deformgl.trilinear.renderer import atlas_image, instance_data, pack_atlas, shader_defines
 from deformgl.trilinear.transforms import (
     Bend, Box, Taper, Trilinear, Twist, apply_coefficients, coefficient_matrix, compose, trilinear_corners,
 )

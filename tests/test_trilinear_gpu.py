@@ -6,7 +6,9 @@ import pytest
 
 from deformgl.render.camera import frame_box
 from deformgl.render.passes import Lighting, RenderTarget
-from deformgl.trilinear.scenegraph import Geometry, GeometryNode, GroupNode, TransformNode, TrilinearRenderer, compose_scene
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, GroupNode, TransformNode
+from deformgl.trilinear.renderer import TrilinearRenderer
 from deformgl.trilinear.transforms import Box, Trilinear, Twist, finite_difference_jacobian, unit_lattice
 
 RNG = np.random.default_rng(99)

@@ -32,7 +32,7 @@ from deformgl.trilinear.graphbuild import ATTACH_BOX, compose_graph, draw_compos
 from deformgl.trilinear.graphfile import load_graph
 from deformgl.trilinear.graphspec import SceneGraph, GraphTransform
 from deformgl.trilinear.grid import Trilinear
-from deformgl.trilinear.scenegraph import TrilinearRenderer
+from deformgl.trilinear.renderer import TrilinearRenderer
 
 
 def attach_grid(built: SceneModel, deformed: np.ndarray, t: GraphTransform, name: str = "attach") -> Trilinear:

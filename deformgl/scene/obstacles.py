@@ -16,9 +16,9 @@ import trimesh
 from deformgl.render.camera import View
 from deformgl.sim.integrators import Constraints
 from deformgl.render.passes import Lighting
-from deformgl.trilinear.scenegraph import (
-    Geometry, GeometryNode, GroupNode, Node, TransformNode, TrilinearRenderer, compose_scene,
-)
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, GroupNode, Node, TransformNode
+from deformgl.trilinear.renderer import TrilinearRenderer
 
 __all__ = ["OBSTACLE_COLOUR", "obstacle_scene", "draw_obstacles"]
 

@@ -34,7 +34,7 @@ from deformgl.scene.spec import Scene
 from deformgl.scene.spec import MIN_EXTENT, ClothSpec, MeshSpec, Vec3
 from deformgl.scene.node_state import NodeState
 from deformgl.scene.physics import SceneBox, scene_constraints, scene_loads, scene_system
-from deformgl.trilinear.scenegraph import TrilinearRenderer
+from deformgl.trilinear.renderer import TrilinearRenderer
 from deformgl.render.shader_pack import pack_inputs, write_pack_inputs
 from deformgl.grid.surface import grid_surface
 from deformgl.grid.fill import fill_cells

@@ -17,7 +17,9 @@ from scipy.spatial import cKDTree
 
 from deformgl.trilinear.anchors import AnchorArray
 from deformgl.errors import InputError
-from deformgl.trilinear.scenegraph import ComposedScene, GeometryNode, TransformNode, compose_scene
+from deformgl.trilinear.scenegraph import compose_scene
+from deformgl.trilinear.batches import ComposedScene
+from deformgl.trilinear.graph_nodes import GeometryNode, TransformNode
 from deformgl.trilinear.cuboid import Box
 from deformgl.trilinear.shapes import tube
 

@@ -20,7 +20,6 @@ import numpy as np
 from deformgl.errors import DeformglError, InputError, SceneError
 from deformgl.grid.meshio import load_mesh
 from deformgl.render.camera import View, frame_box
-from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.passes import Lighting, RenderTarget
 from deformgl.trilinear.batches import ComposedScene
 from deformgl.trilinear.cuboid import CORNERS, Box, apply_coefficients
@@ -391,10 +390,3 @@ def graph_mesh(ctx: moderngl.Context, scenes: list[ComposedScene]) -> tuple[np.n
     if not verts:
         raise InputError("the scene graph has no geometry to export")
     return np.concatenate(verts), np.concatenate(norms), np.concatenate(faces)
-
-
-def export_graph_mesh(ctx: moderngl.Context, scenes: list[ComposedScene], path: str | Path) -> Path:
-    """Write :func:`graph_mesh` to ``path`` (.ply, .obj, .glb) atomically; returns it."""
-    out = Path(path)
-    export_mesh(out, *graph_mesh(ctx, scenes))
-    return out

@@ -16,8 +16,7 @@ affine path, one-cuboid ones by Knuth, Kohlhammer & Kuijper, eq. 4, the rest thr
 every batch of leaves sharing mesh, path, normal mode and colour with one instanced draw.
 
 This module holds the composition; the nodes are in :mod:`deformgl.trilinear.graph_nodes`, the batches
-in :mod:`deformgl.trilinear.batches`, the GPU renderer in :mod:`deformgl.trilinear.renderer`, all
-re-exported here.
+in :mod:`deformgl.trilinear.batches`, the GPU renderer in :mod:`deformgl.trilinear.renderer`.
 """
 
 from __future__ import annotations
@@ -26,19 +25,14 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from deformgl.trilinear.batches import PATHS, Batch, ComposedScene
-from deformgl.trilinear.graph_nodes import DEFAULT_COLOUR, Geometry, GeometryNode, GroupNode, Node, TransformNode
-from deformgl.trilinear.renderer import TrilinearRenderer, atlas_image, instance_data, pack_atlas, shader_defines
+from deformgl.trilinear.batches import Batch, ComposedScene
+from deformgl.trilinear.graph_nodes import Geometry, GeometryNode, Node, TransformNode
 from deformgl.trilinear.cuboid import (
     LINEAR_RTOL, Box, coefficient_matrix, corner_weights, grid_corners, is_linear_coefficients, unit_lattice,
 )
 from deformgl.trilinear.grid import Trilinear, compose, lattice_matches
 
-__all__ = [
-    "PATHS", "DEFAULT_COLOUR", "Batch", "ComposedScene", "Geometry", "GeometryNode", "GroupNode", "Node",
-    "TransformNode", "TrilinearRenderer", "atlas_image", "instance_data", "pack_atlas", "shader_defines",
-    "compose_scene", "SceneComposer",
-]
+__all__ = ["compose_scene", "SceneComposer"]
 
 _IDENTITY = np.identity(4)
 _IDENTITY.flags.writeable = False

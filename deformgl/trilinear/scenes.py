@@ -1,5 +1,5 @@
 """The scenes of Knuth, Kohlhammer & Kuijper built with the trilinear scene graph, their
-rendering (the benchmark of section 6 is :mod:`deformgl.bench.trilinear`).
+rendering (the benchmark of section 6 is ``python -m studies.trilinear_speed``).
 
 Scenes (:data:`SCENES`):
 
@@ -12,8 +12,8 @@ Scenes (:data:`SCENES`):
 
 The three are shipped as scene-graph files (``scenes/trilinear_<name>.toml``, docs/SCENEGRAPH.md),
 which :func:`render_trilinear_scene` renders; the builders here make the same graphs in Python
-(the benchmark's variants: linear transforms, other counts); ``scene_view``, ``render_composed``
-and ``LIGHT`` are re-exported from :mod:`deformgl.trilinear.graphbuild`.
+(the benchmark's variants: linear transforms, other counts); the view and the light they are
+drawn with are :mod:`deformgl.trilinear.graphbuild`'s (``scene_view``, ``LIGHT``).
 """
 
 from __future__ import annotations
@@ -27,18 +27,18 @@ import numpy as np
 from deformgl.data import packaged_scene
 from deformgl.errors import InputError
 from deformgl.files import write_png_atomic
-from deformgl.trilinear.graphbuild import LIGHT, render_composed, render_graph, scene_view
+from deformgl.trilinear.graphbuild import render_graph
 from deformgl.trilinear.graphfile import load_graph
-from deformgl.trilinear.scenegraph import GeometryNode, GroupNode, Node, TransformNode
+from deformgl.trilinear.graph_nodes import GeometryNode, GroupNode, Node, TransformNode
 from deformgl.trilinear.shapes import hall_tile, tube, uv_sphere
 from deformgl.trilinear.cuboid import Box, Function
 from deformgl.trilinear.deformations import Helix, Taper, TorusWrap, Twist, tangent_affine
 from deformgl.trilinear.grid import Trilinear
 from deformgl.trilinear.normal_transform import NORMAL_MODES
 
-__all__ = ["BACKGROUND", "COLOURS", "LIGHT", "MODES", "SCENES", "Z_UP_TO_Y_UP", "BuiltScene", "demo_graph_file",
-           "depth_scene", "helix_scene", "render_composed", "render_trilinear_scene", "scene_view",
-           "spheres_scene", "tile_scene", "tubes_scene", "write_trilinear_scene"]
+__all__ = ["BACKGROUND", "COLOURS", "MODES", "SCENES", "Z_UP_TO_Y_UP", "BuiltScene", "demo_graph_file", "depth_scene",
+           "helix_scene", "render_trilinear_scene", "spheres_scene", "tile_scene", "tubes_scene",
+           "write_trilinear_scene"]
 
 MODES = ("linear", "trilinear")
 BACKGROUND = (1.0, 1.0, 1.0)

@@ -1,6 +1,6 @@
 """Meshes the trilinear scenes are built from (trimesh): a UV sphere, a tube along x and the
 grooved hall tile of Knuth, Kohlhammer & Kuijper, figure 9, each as a scene-graph
-:class:`~deformgl.trilinear.scenegraph.Geometry`.
+:class:`~deformgl.trilinear.graph_nodes.Geometry`.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import trimesh
 
-from deformgl.trilinear.scenegraph import Geometry
+from deformgl.trilinear.graph_nodes import Geometry
 
 
 def uv_sphere(radius: float, segments: int, rings: int, name: str = "sphere") -> Geometry:
