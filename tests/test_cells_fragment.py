@@ -1,5 +1,5 @@
 """The lattice's volumetric term (deformgl.sim.volume: any Poisson's ratio, the inversion barrier)
-on the fragment backend against the float64 reference: shaders/lib/cell_forces.glsl alone
+on the fragment backend against the float64 reference: shaders/terms/cell_forces.glsl alone
 (NodeCellForces), then every integrator and the Verlet fast path on lattices at nu = 0.45,
 dense and with holes, and with corners inside the barrier."""
 
@@ -157,7 +157,7 @@ def test_foundation_pass_variants_carry_the_cells(ctx, variant):
     for kwargs in ({}, variant):
         sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
         try:
-            assert sim.fast.textures.cell_diagonals is None or kwargs.get("layout") == "indexed"
+            assert sim.fast.textures.hood_diagonals is None or kwargs.get("layout") == "indexed"
             sim.step(50)
             out.append(sim.positions())
         finally:
@@ -181,11 +181,11 @@ def test_generated_source_and_tables_follow_the_terms(ctx):
                 try:
                     program = sim.fast.verlet.program if sim.fast else sim.passes["step"]
                     text = program.fragment_source.text.split("#line")[0]  # the injected defines
-                    assert "#define CELLS" in text and "#define CELL_BARRIER" in text
+                    assert "#define TERM_CELL" in text and "#define CELL_BARRIER" in text
                     assert ("#define CELL_CENTRE" in text) == (nu > 0.25)
                     members = set(program.members)
                     assert ("u_cell_kappa" in members) == (nu > 0.25)
-                    assert ("u_cell_diagonals" in members) == (nu > 0.25 and bool(holes))
+                    assert ("u_hood_diagonals" in members) == (nu > 0.25 and bool(holes))
                 finally:
                     sim.release()
             plain = FragmentIntegrator(ctx, dataclasses.replace(system, cells=None), grid, "verlet", 1e-4)
@@ -198,7 +198,7 @@ def test_generated_source_and_tables_follow_the_terms(ctx):
 
 def test_refusals(ctx):
     system, grid = lattice(())
-    with pytest.raises(ValueError, match="atlas layout has no cell term"):
+    with pytest.raises(ValueError, match="atlas layout keeps no neighbourhood"):
         FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="foundation", layout="atlas")
     shifted = CellVolumes(system.cells.corners[:, [1, 0, 2, 3, 4, 5, 6, 7]], H, 1.0, 1.0)
     with pytest.raises(ValueError, match="is not a unit cell of the system's node grid"):

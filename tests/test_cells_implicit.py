@@ -196,15 +196,22 @@ def test_springs_only_systems_have_no_cell_passes(ctx):
     s = from_grid(grid, k_structural=10.0, k_shear=5.0, fixed=grid.ijk[:, 1] == 0)
     assert s.cells is None
     with make_simulation(s, "implicit-euler", "fragment", ctx=ctx, dt=1 / 60, cg_iterations=5) as gpu:
-        assert gpu.tex_cells is None
+        assert gpu.tex_hood is None
         gpu.step(2)
         ref = make_simulation(s, "implicit-euler", "numpy", dt=1 / 60, cg_iterations=5)
         ref.step(2)
         assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-6
-    defines = pass_defines(s, flexion=False, weights=False, drags=0, loads=0, constraints=None, cells=True)
-    assert not any("IMPLICIT_CELLS" in d for d in defines.values())
+    from deformgl.sim.terms.glsl import pass_terms
+
+    def term_defines(system):
+        return pass_terms(system.terms, "implicit", "test", grid, implicit=True).defines()
+
+    defines = pass_defines(s, flexion=False, weights=False, drags=0, loads=0, constraints=None,
+                           term_defines=term_defines(s))
+    assert not any("TERM_CELL" in d for d in defines.values())
     for nu, terms in ((0.25, {"CELL_BARRIER"}), (0.45, {"CELL_CENTRE", "CELL_BARRIER"})):
         lattice, _ = lattice_system(grid, _material(nu))
-        with_cells = pass_defines(lattice, flexion=False, weights=False, drags=0, loads=0, constraints=None, cells=True)
-        assert [name for name, d in with_cells.items() if "IMPLICIT_CELLS" in d] == ["SETUP", "WARM", "INIT", "MATVEC", "TRUE_RESIDUAL"]
-        assert {k for k in ("CELL_CENTRE", "CELL_BARRIER") if k in with_cells["MATVEC"]} == terms
+        with_cells = pass_defines(lattice, flexion=False, weights=False, drags=0, loads=0, constraints=None,
+                                  term_defines=term_defines(lattice))
+        assert [name for name, d in with_cells.items() if "TERM_CELL" in d] == ["SETUP", "WARM", "INIT", "MATVEC", "TRUE_RESIDUAL"]
+        assert {k for k in ("CELL_CENTRE", "CELL_BARRIER") if with_cells["MATVEC"].get(k)} == terms

@@ -11,7 +11,7 @@ import pytest
 from deformgl.gl import preprocessor
 from deformgl.pack import glslang
 from deformgl.pack.variants import GROUPS, all_variants, covering_set, held_tuples, variant_key
-from deformgl.sim.backends.implicit_passes import CELL_PASSES, PASSES
+from deformgl.sim.backends.implicit_passes import PASSES, TERM_PASSES
 
 #: the tests that run glslangValidator: skipped with the reason where it is missing (tests/conftest.py)
 needs_glslang = pytest.mark.glslang
@@ -80,7 +80,7 @@ def test_the_covering_set_holds_every_value_triple_of_the_full_product():
     # the pass with both cell terms (the nu = 0.45 programs), each pass
     both = {tuple(k for k, on in v.defines if on is True and k in PASSES) for v in implicit
             if v.define_map.get("CELL_CENTRE") and v.define_map.get("CELL_BARRIER")}
-    assert {p for p in PASSES if p in CELL_PASSES} <= {k for t in both for k in t}
+    assert {p for p in PASSES if p in TERM_PASSES} <= {k for t in both for k in t}
     assert held_tuples(implicit[1:]) != held_tuples(implicit)
 
 

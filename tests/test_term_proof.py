@@ -34,7 +34,7 @@ void anchor_force(inout vec3 f, TermNode n) {
 void anchor_product(inout vec3 q, TermNode n, vec3 y) {
     q += (term_table(u_anchor_table, 1, 0, n).w * u_anchor_k) * y;
 }
-void anchor_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+void anchor_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n) {
     d += vec3(term_table(u_anchor_table, 1, 0, n).w * u_anchor_k);
 }
 """
@@ -59,7 +59,7 @@ class RestAnchors(Term):
     def stiffness(self, x):
         return block_diagonal((self.k * self.weight)[:, None, None] * np.eye(3))
 
-    def glsl(self):
+    def glsl(self, grid):
         table = np.concatenate([self.rest, self.weight[:, None]], axis=1)
         return GlslTerm("anchor", source=ANCHOR_GLSL, implicit=True, uniforms={"u_anchor_k": self.k},
                         tables=(NodeTable("u_anchor_table", table),))
@@ -242,7 +242,7 @@ void tether_product(inout vec3 q, TermNode n, vec3 y) {
         q += u_tether_k * (y - term_vector(int(t.w)));
     }
 }
-void tether_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+void tether_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n) {
     d += vec3(term_table(u_tether_table, 1, 0, n).w >= 0.0 ? u_tether_k : 0.0);
 }
 #endif
@@ -279,7 +279,7 @@ class Tethers(Term):
         vals = np.concatenate([np.full(3 * len(has), self.k), np.full(3 * len(has), -self.k)])
         return sp.csr_matrix((vals, (rows, cols)), shape=(3 * n, 3 * n))
 
-    def glsl(self):
+    def glsl(self, grid):
         has = self.partner >= 0
         offset = np.where(has[:, None], self.rest - self.rest[np.where(has, self.partner, 0)], 0.0)
         table = np.concatenate([offset, self.partner[:, None].astype(np.float64)], axis=1)

@@ -28,11 +28,19 @@ def test_the_shipped_term_list_is_the_registrys():
         assert f"#ifdef TERM_{form.prefix.upper()}" in shipped_active()
 
 
+#: The cells' forms that are not term chunks yet: transform feedback's and XPBD's own (their
+#: backends name the term), and the term alone in a pass of its own (its check against float64).
+OWN_FORMS = {"feedback/cells.glsl", "feedback/forces.glsl", "sim/xpbd/cells.frag", "sim/xpbd/cell_constraints.glsl",
+             "sim/xpbd/iterate.frag", "sim/cells/node_cells.frag"}
+
+
 def test_no_shared_pass_shader_names_a_shipped_term():
     """The passes know the hooks (terms_force, terms_neighbour, ...), not the terms: no shader
-    outside shaders/terms/ holds a shipped term's prefix, define or uniform."""
+    outside shaders/terms/ (and the cells' own transform-feedback and XPBD forms) holds a shipped
+    term's prefix, define or uniform."""
     for path in (ROOT / "shaders").rglob("*"):
-        if path.suffix not in (".glsl", ".frag", ".vert") or path.parent.name == "terms":
+        rel = path.relative_to(ROOT / "shaders").as_posix()
+        if path.suffix not in (".glsl", ".frag", ".vert") or path.parent.name == "terms" or rel in OWN_FORMS:
             continue
         text = path.read_text(encoding="utf-8")
         for form in SHIPPED:
@@ -49,9 +57,9 @@ def test_compose_calls_each_term_in_order():
     assert "first_product(q, n, y)" in text and "second_product" not in text
     chunks = PassTerms((a, b)).chunks()
     assert set(chunks) == {ACTIVE, "terms/first.glsl", "terms/second.glsl"}
-    assert PassTerms((a, b), implicit=True).defines() == {"TERMS": True, "TERMS_IMPLICIT": True,
-                                                          "TERMS_NEIGHBOURS": True, "TERM_FIRST": True,
-                                                          "TERM_SECOND": True}
+    defines = PassTerms((a, b), implicit=True).defines()
+    assert {k for k, v in defines.items() if v} == {"TERMS", "TERMS_IMPLICIT", "TERMS_NEIGHBOURS", "TERM_FIRST",
+                                                    "TERM_SECOND"}
     assert PassTerms(()).defines() == {} and PassTerms(()).chunks() == {}
 
 
@@ -90,19 +98,21 @@ class _Plain(Term):
 
 def test_a_term_without_a_glsl_form_is_refused_by_the_gpu_backends_in_one_line():
     with pytest.raises(ValueError, match="^FragmentIntegrator: plain things have no GLSL form$"):
-        pass_terms((_Plain(),), "fragment", "FragmentIntegrator")
+        pass_terms((_Plain(),), "fragment", "FragmentIntegrator", None)
     with pytest.raises(ValueError, match="^x: plain things have no transform-feedback form$"):
-        pass_terms((_Plain(),), "feedback", "x")
+        pass_terms((_Plain(),), "feedback", "x", None)
     two = GlslTerm("same", source="")
     with pytest.raises(ValueError, match="share a GLSL prefix"):
-        pass_terms((_Glsl(two), _Glsl(two)), "fragment", "x")
+        pass_terms((_Glsl(two), _Glsl(two)), "fragment", "x", None)
+    with pytest.raises(ValueError, match="^x: plain things have no implicit product in GLSL$"):
+        pass_terms((_Glsl(two),), "implicit", "x", None, implicit=True)
 
 
 class _Glsl(_Plain):
     def __init__(self, form):
         self.form = form
 
-    def glsl(self):
+    def glsl(self, grid):
         return self.form
 
 
@@ -116,5 +126,5 @@ def test_a_sheets_bending_is_one_of_its_terms():
     again = dataclasses.replace(plain, bending=sheet.bending, terms=(sheet.bending,))
     assert again.terms == (sheet.bending,)  # (once)
     # the fragment backend's form: its coefficients on the 24-neighbour table
-    form = sheet.bending.glsl()
+    form = sheet.bending.glsl(sheet.grid)
     assert form.neighbours == 24 and form.tables[0].values.shape == (sheet.count, 24)

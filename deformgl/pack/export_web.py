@@ -43,7 +43,6 @@ from deformgl.scene.pipeline import build_scene_model, make_draw_pass, scene_lig
 from deformgl.scene.physics import SceneBox, scene_constraints, scene_drags
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import Scene
-from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms
 from deformgl.sim.backends.foundation import verlet_terms
 from deformgl.sim.guards import plan_steps
 from deformgl.sim.simulation import make_simulation
@@ -210,14 +209,13 @@ def _collect(ctx, scene: Scene, built, sim, plan) -> tuple[dict[str, np.ndarray]
         defines["SPRING_WEIGHTS"] = True
     if textures.weight_levels:  # the weights are the node texture's alpha (node.f32)
         defines["SPRING_WEIGHT_LEVELS"] = True
-    cell_uniforms: dict[str, float] = {}
-    if terms.cells is not None:  # a material's volumetric term: the incident-cell bits travel in node.f32's G
-        if textures.cell_diagonals is not None:
-            raise InputError(f"{scene.source}: material: the volumetric term's centre term (poissons_ratio > 0.25) "
-                             f"on a grid that is not dense needs the cell-diagonal texture, which the web page "
-                             f"does not bind: export-web cannot run it")
-        defines.update({"CELLS": True, **{k: v for k, v in cell_terms(terms.cells).items() if v}})
-        cell_uniforms = term_uniforms(terms.cells)
+    # the physics terms (a material's volumetric term: its node bits travel in node.f32's G)
+    if textures.hood_diagonals is not None:
+        raise InputError(f"{scene.source}: material: the volumetric term's centre term (poissons_ratio > 0.25) "
+                         f"on a grid that is not dense needs the hood-diagonal texture, which the web page "
+                         f"does not bind: export-web cannot run it")
+    defines.update({k: v for k, v in terms.extra.defines().items() if v})
+    cell_uniforms = terms.extra.uniforms(())  # (no term tables: the page binds none)
     uniforms = {"u_spacing": terms.spacing, "u_k_structural": terms.k_structural, "u_k_shear": terms.k_shear,
                 "u_damping": terms.damping, "u_mass_damping": terms.mass_damping, "u_gravity": list(terms.gravity),
                 "u_dt": dt, **cell_uniforms,

@@ -128,23 +128,27 @@ def _forces() -> Iterator[dict[str, object]]:
         yield d
 
 
-#: The volumetric term's switches (``deformgl.sim.backends.cell_pass.cell_terms``): none, the
-#: barrier alone (kappa = 0: nu = 1/4), both terms.
-CELL_SWITCHES: tuple[dict[str, object], ...] = ({}, {"CELLS": True, "CELL_BARRIER": True},
-                                               {"CELLS": True, "CELL_CENTRE": True, "CELL_BARRIER": True})
 
 
-def _term_sets(count: int, implicit: bool = False) -> Iterator[dict[str, object]]:
+def _term_sets(count: int, implicit: bool = False, *, neighbours: bool = True,
+               hood: bool = True) -> Iterator[dict[str, object]]:
     """The physics terms' defines (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`): none, or one
-    shipped term (:data:`deformgl.sim.terms.registry.SHIPPED`) whose grid neighbours the table of
-    ``count`` neighbours holds."""
+    shipped term in each of its forms (:data:`deformgl.sim.terms.registry.VARIANTS`) whose grid
+    neighbours the table of ``count`` neighbours holds; ``neighbours`` False: none that is called
+    per neighbour (the foundation pass), ``hood`` False: none that reads the node's neighbourhood
+    (the z-slice atlas, a sheet)."""
     from deformgl.sim.terms.glsl import PassTerms
-    from deformgl.sim.terms.registry import SHIPPED
+    from deformgl.sim.terms.registry import VARIANTS
 
     yield {}
-    for form in SHIPPED:
-        if form.neighbours <= count and (form.implicit or not implicit):
-            yield PassTerms((form,), implicit).defines()
+    for form in VARIANTS:
+        if form.neighbours > count or (implicit and not form.implicit) or (form.neighbours and not neighbours) \
+                or (form.hood and not hood):
+            continue
+        defines = PassTerms((form,), implicit).defines()
+        if implicit and form.hood:
+            defines["HOOD_NODES"] = True  # (implicit_passes.pass_defines)
+        yield {k: v for k, v in defines.items() if v is not False}
 
 
 def fragment_backend() -> Iterator[Variant]:
@@ -152,10 +156,10 @@ def fragment_backend() -> Iterator[Variant]:
     shapes = [(layers, count, terms) for layers, count in ((5, 18), (6, 24)) for terms in _term_sets(count)]
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for (layers, count, terms), dense, weights, forces, cells in itertools.product(
-                shapes, (False, True), (False, True), list(_forces()), CELL_SWITCHES):
+        for (layers, count, terms), dense, weights, forces in itertools.product(
+                shapes, (False, True), (False, True), list(_forces())):
             common: dict[str, object] = {"NB_LAYERS": layers, "NB_COUNT": count, "DENSE": dense,
-                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces, **cells, **terms}
+                                         "SPRING_WEIGHTS": weights, "SPHERES": 0, **forces, **terms}
             if sp.velocity:
                 common["VELOCITY"] = True
             for stage in sp.stages:
@@ -203,19 +207,20 @@ _LAYOUTS: tuple[dict[str, object], ...] = ({}, {"COMPACT": True, "COMPACT_DENSE"
 
 
 def foundation() -> Iterator[Variant]:
-    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad"; the cell term on
+    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad"; the physics terms on
     compact layouts only) and ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
     verts = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert", "quad": "sim/fullscreen.vert"}
     # weights: none, the weight texture, the levels code (SPRING_WEIGHT_LEVELS)
-    for draw, branch, pulls, layout, weights, cells in itertools.product(
-            DRAW_MODES, (False, True), _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"), CELL_SWITCHES):
+    for draw, branch, pulls, layout, weights, terms in itertools.product(
+            DRAW_MODES, (False, True), _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"),
+            list(_term_sets(18, neighbours=False))):
         if layout and draw == "rects":
             continue  # built as "quad"
-        if cells and not layout:
-            continue  # the atlas has no cell term
+        if terms and not layout:
+            continue  # the atlas has no terms
         yield _v(verts[draw], "sim/verlet.frag", {"NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points",
                                                   "PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
-                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **cells})
+                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **terms})
     for layout in _LAYOUTS:
         yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
 
@@ -223,25 +228,28 @@ def foundation() -> Iterator[Variant]:
 def blocked() -> Iterator[Variant]:
     """``BlockedVerletPass`` and the compact view's copy (``deformgl.sim.backends.blocked``):
     every block shape, its blocks by strides or from the table, the foundation's switches."""
-    for shape, dense, branch, pulls, weights, cells, flat in itertools.product(
-            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"), CELL_SWITCHES,
-            itertools.product((False, True), repeat=3)):  # (the axes a grid is one node thick along)
-        if cells and any(flat):
-            continue  # a grid one node thick has no full cell: no cell term
+    for shape, dense, branch, pulls, weights, terms, flat in itertools.product(
+            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"),
+            list(_term_sets(18, neighbours=False)), itertools.product((False, True), repeat=3)):
+        # (flat: the axes a grid is one node thick along; it has no full cell, no term that reads the neighbourhood)
+        if any(flat) and terms.get("TERMS_HOOD"):
+            continue
         block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2],
                  **{f"BLOCK_FLAT_{a}": f for a, f in zip("XYZ", flat)}}
         yield _v("sim/fullscreen.vert", "sim/verlet_block.frag", {
             **block, "BLOCKED_DENSE": dense, "NEIGHBOUR_BRANCH": branch, "PULLS": pulls,
-            "SPRING_WEIGHTS": weights is not None, "SPRING_WEIGHT_LEVELS": weights == "levels", **cells})
+            "SPRING_WEIGHTS": weights is not None, "SPRING_WEIGHT_LEVELS": weights == "levels", **terms})
     for shape in BLOCK_SHAPES:
         yield _v("sim/fullscreen.vert", "sim/unblock.frag", {"BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2]})
 
 
 def cells() -> Iterator[Variant]:
     """``NodeCellForces`` (``deformgl.sim.backends.cell_pass``): the volumetric term alone, per node."""
-    for dense, terms in itertools.product((False, True), CELL_SWITCHES[1:]):
+    from deformgl.sim.volume_glsl import CELL_FORMS
+
+    for dense, form in itertools.product((False, True), CELL_FORMS):
         yield _v("sim/fullscreen.vert", "sim/cells/node_cells.frag",
-                 {"COMPACT_DENSE": dense, **{k: v for k, v in terms.items() if k != "CELLS"}})
+                 {"COMPACT_DENSE": dense, **{k: v for k, v in form.defines.items() if v}})
 
 
 def census() -> Iterator[Variant]:
@@ -304,7 +312,7 @@ def all_variants() -> list[Variant]:
 
 def implicit() -> Iterator[Variant]:
     """``ImplicitFragment`` (``deformgl.sim.backends.implicit_gpu``): its passes and the sum."""
-    from deformgl.sim.backends.implicit_passes import (CELL_PASSES, MG_CG_PASSES, MG_PASSES, PASSES,
+    from deformgl.sim.backends.implicit_passes import (MG_CG_PASSES, MG_PASSES, PASSES,
                                                     PRECONDITIONED_PASSES, PRODUCT_PASSES, TERM_PASSES)
 
     shapes = [(layers, count, terms) for layers, count in ((5, 18), (6, 24)) for terms in _term_sets(count, True)]
@@ -333,15 +341,9 @@ def implicit() -> Iterator[Variant]:
             pass_name: dict[str, object] = ({"MG_SMOOTH": True, "FROM_ZERO": True} if name == "MG_SMOOTH_ZERO"
                                             else {name: True})
             warm = ({}, {"WARM_SCALED": True}) if name == "INIT" else ({},)
-            # the cells' terms (pass_defines' cells): none, or a (centre, barrier) pair
-            cells: list[dict[str, object]] = [{}]
-            if name in CELL_PASSES:
-                cells += [{"IMPLICIT_CELLS": True, "CELL_CENTRE": centre, "CELL_BARRIER": barrier}
-                          for centre, barrier in CELL_TERMS]
-            for c, block, scaled, cell in itertools.product(_constraints() if name == "FINAL" else [{}], blocks,
-                                                            warm, cells):
+            for c, block, scaled in itertools.product(_constraints() if name == "FINAL" else [{}], blocks, warm):
                 yield _v("sim/fullscreen.vert", "sim/implicit/implicit.frag",
-                         {**defines, **c, **block, **scaled, **cell, **pass_name})
+                         {**defines, **c, **block, **scaled, **pass_name})
     yield _v("sim/fullscreen.vert", "sim/implicit/reduce.frag", {})
     # the multigrid's coarse levels (deformgl.sim.backends.multigrid_gpu)
     for level_pass in ({"LEVEL_SMOOTH": True}, {"LEVEL_SMOOTH": True, "FROM_ZERO": True}, {"LEVEL_RESIDUAL": True},

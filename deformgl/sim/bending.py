@@ -82,13 +82,11 @@ class SheetBending(Term):
         matrix: (N, N) float64 CSR, B in N/m: symmetric positive semi-definite, rows summing to 0.
         bending_stiffness: the plate's D in N·m.
         stencils: the count of stencils of each kind ("triplet", "laplacian", "twist").
-        grid: the sheet's node grid (the GPU gathers read B through its neighbour table), or None.
     """
 
     matrix: sp.csr_matrix
     bending_stiffness: float
     stencils: dict[str, int] = field(default_factory=dict)
-    grid: NodeGrid | None = field(default=None, repr=False)
 
     name = "a sheet's bending"
     neighbours = 24
@@ -119,6 +117,10 @@ class SheetBending(Term):
         """``B y`` (N, 3)."""
         return self.matrix @ np.asarray(y, np.float64)
 
+    def dt_product(self, x_rest: np.ndarray, dx: np.ndarray, *, barrier: bool = False) -> np.ndarray:
+        """``B dx`` (linear: the same B at any state)."""
+        return self.matrix @ np.asarray(dx, np.float64)
+
     def frequency_terms(self, x_rest: np.ndarray | None = None, *, barrier: bool = False) -> np.ndarray:
         """(N,) ``sum_j |B_nj|`` in N/m: its bound on the node's ``m w^2`` (Gershgorin)."""
         return np.asarray(abs(self.matrix).sum(axis=1)).ravel()
@@ -137,11 +139,11 @@ class SheetBending(Term):
             return f"a sheet's bending_stiffness {BENDING_REFUSAL}"
         return super().refusal(backend)
 
-    def glsl(self) -> GlslTerm:
-        """:data:`GLSL` with the coefficients of the 24-neighbour table as its node table."""
-        if self.grid is None:
-            raise ValueError("SheetBending: the GPU gathers need the sheet's grid (sheet_bending(grid, ...))")
-        coefficients = self.neighbour_coefficients(grid_neighbours(self.grid, True))
+    def glsl(self, grid: NodeGrid | None) -> GlslTerm:
+        """:data:`GLSL` with the coefficients of ``grid``'s 24-neighbour table as its node table."""
+        if grid is None:
+            raise ValueError("a sheet's bending needs the sheet's node grid on the GPU")
+        coefficients = self.neighbour_coefficients(grid_neighbours(grid, True))
         return dataclasses.replace(GLSL, tables=(NodeTable("u_bending_c", coefficients),))
 
     def neighbour_coefficients(self, neighbours: np.ndarray) -> np.ndarray:
@@ -241,4 +243,4 @@ def sheet_bending(grid: NodeGrid, bending_stiffness: float, *,
     matrix.eliminate_zeros()
     stencils = {"triplet": int(has_a.sum() + has_b.sum()), "laplacian": int(both.sum()) if nu > 0 else 0,
                 "twist": int(len(corners))}
-    return SheetBending(matrix, float(bending_stiffness), stencils, grid)
+    return SheetBending(matrix, float(bending_stiffness), stencils)

@@ -100,7 +100,8 @@ def _energies(system: SpringSystem, dx: np.ndarray, v: np.ndarray) -> np.ndarray
     u = _rest_directions(system)
     stretch = np.einsum("tsk,sk->ts", dx[:, system.i] - dx[:, system.j], u)
     kinetic = np.einsum("n,tnk,tnk->t", np.where(system.fixed, 0.0, system.mass), v, v)
-    terms = sum((np.array([2.0 * term.energy(d) for d in dx]) for term in system.terms), np.zeros(len(dx)))
+    terms = sum((np.array([float(np.einsum("nk,nk->", d, term.dt_product(system.rest_positions, d))) for d in dx])
+                 for term in system.terms), np.zeros(len(dx)))
     return stretch ** 2 @ system.stiffness + kinetic + terms
 
 

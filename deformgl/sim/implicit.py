@@ -61,7 +61,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from deformgl.sim.clock import CpuSimulationBase
-from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
+from deformgl.sim.implicit_cells import CELL_HESSIAN
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces
@@ -238,12 +238,8 @@ def assemble(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float, dt: f
     node_c = system.velocity_damping + system.mass_damping * system.mass + system.wind_drag
     a_full = (_spread(system, dt * dt * h_blocks + dt * c_blocks)
               + sp.diags(np.repeat(system.mass + dt * node_c + dt * dt * node_h, 3)))
-    if system.cells is not None and system.cells.count:
-        cells_h = cell_matrix(system.cells, x, n, CELL_HESSIAN[geometric])
-        hess = hess + cells_h
-        a_full = a_full + dt * dt * cells_h
-    for term in system.terms:  # each physics term's K = -df/dx
-        term_h = term.stiffness(x)
+    for term in system.terms:  # each physics term's share of H (the cells': CELL_HESSIAN[geometric])
+        term_h = term.hessian(x, geometric)
         hess = hess + term_h
         a_full = a_full + dt * dt * term_h
     f = forces(system, x, v, t + dt, drags, loads)

@@ -16,7 +16,6 @@ from deformgl.sim.spectrum import (
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
 from deformgl.sim.stages import spec
 from deformgl.errors import ArgumentError
-from deformgl.sim.volume import frequency_terms
 
 
 
@@ -189,10 +188,9 @@ class DtLimit:
         stiffness: k of that spring, N/m.
         mass: m of that node, kg.
         term: the physics term (:attr:`~deformgl.sim.springs.SpringSystem.terms`) that is the
-            larger part of the node's stiffness, as :meth:`~deformgl.sim.terms.Term.describe`
-            words it, else "".
-        barrier: the cells' barrier modulus kappa_b in Pa where its envelope is the larger
-            part of the node's stiffness, else 0.
+            larger part of the node's stiffness, as its
+            :meth:`~deformgl.sim.terms.Term.limit_share` words it (the cells' barrier: "the
+            cells' inversion barrier, kappa_b = 2.4e+04 Pa"), else "".
     """
 
     integrator: str
@@ -205,17 +203,14 @@ class DtLimit:
     stiffness: float
     mass: float
     term: str = ""
-    barrier: float = 0.0
 
     def message(self, dt: float) -> str:
         """Why ``dt`` is refused, e.g. ``dt 0.004 s is above the verlet limit 0.0031 s, w = 645
-        rad/s at node 17 (spring 40, k = 500 N/m, m = 0.01 kg; exact bound)``; a body whose term
-        or whose cells' barrier is the larger part of the node's
-        stiffness names it instead of the spring (the limit's formula: :attr:`formula`)."""
+        rad/s at node 17 (spring 40, k = 500 N/m, m = 0.01 kg; exact bound)``; a body whose physics
+        term is the larger part of the node's stiffness names it instead of the spring (the
+        limit's formula: :attr:`formula`)."""
         if self.term:
             what = self.term
-        elif self.barrier:
-            what = f"the cells' inversion barrier, kappa_b = {self.barrier:.4g} Pa"
         else:
             what = f"spring {self.spring}, k = {self.stiffness:.4g} N/m"
         where = f"w = {self.omega:.4g} rad/s at node {self.node} ({what}, m = {self.mass:.4g} kg; {self.bound} bound)"
@@ -262,20 +257,11 @@ def _dt_limit(system: SpringSystem, integrator: str, bound: str) -> DtLimit:
         omega, node, spring = top.omega, top.node, top.spring
     k = float(system.stiffness[spring]) if spring >= 0 else 0.0
     m = float(system.mass[node]) if node >= 0 else 0.0
-    term, barrier = "", 0.0
-    if node >= 0:  # the node's Gershgorin terms: a term's or the barrier's against the springs'
+    term = ""
+    if node >= 0:  # the node's Gershgorin terms: a physics term's against the springs'
         springs = 2.0 * float(system.stiffness[(system.i == node) | (system.j == node)].sum())
-        shares = [(float(t.frequency_terms(system.rest_positions, barrier=True)[node]), t) for t in system.terms]
-        largest = max(shares, key=lambda share: share[0], default=None)
-        if largest is not None and largest[0] > springs:
-            term = largest[1].describe()
-        cells = system.cells
-        if cells is not None and cells.barrier_modulus > 0:
-            envelope = (frequency_terms(cells, system.count, barrier=True)
-                        - frequency_terms(cells, system.count))[node]
-            if envelope > springs:
-                barrier = cells.barrier_modulus
-    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, term, barrier)
+        term = next((w for w in (t.limit_share(system.rest_positions, node, springs) for t in system.terms) if w), "")
+    return DtLimit(integrator, lim.dt, omega, bound, lim.formula, node, spring, k, m, term)
 
 
 def _check_arguments(caller: str, system: object, integrator: object) -> None:

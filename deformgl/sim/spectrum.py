@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.volume import barrier_envelope_product, barrier_envelope_triplets, rest_product, rest_stiffness_triplets
 from deformgl.sim.stages import SPECS
 
 
@@ -49,10 +48,11 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
 
     K is the stiffness matrix at the rest state, where the geometric term ``k (1 - L/|d|)``
     vanishes, so each spring contributes the block ``k u u^T`` (the linearisation of Movania &
-    Feng 2012 eq. 2, ``F = k (L - |d|) d/|d|``). With ``barrier``, K also holds the cells'
-    inversion barrier where it is strongest (:func:`deformgl.sim.volume.barrier_envelope_product`;
-    inactive at rest): the stiffness the explicit dt bound must cover. Returns (N, 3); fixed
-    nodes are not masked.
+    Feng 2012 eq. 2, ``F = k (L - |d|) d/|d|``), and each physics term its
+    :meth:`~deformgl.sim.terms.Term.dt_product`: with ``barrier`` what the term stiffens to in a
+    run (the cells' inversion barrier where it is strongest,
+    :func:`deformgl.sim.volume.barrier_envelope_product`; inactive at rest), the stiffness the
+    explicit dt bound must cover. Returns (N, 3); fixed nodes are not masked.
     """
     u = _rest_directions(system)
     p = system.stiffness * np.einsum("sk,sk->s", dx[system.i] - dx[system.j], u)
@@ -61,20 +61,15 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
     ends = np.concatenate([system.i, system.j])
     signed = np.concatenate([f, -f])
     out = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)], axis=1)
-    if system.cells is not None:  # the cells' centre term (its barrier is inactive at rest)
-        out += rest_product(system.cells, dx)
-        if barrier:
-            out += barrier_envelope_product(system.cells, dx)
     for term in system.terms:
-        out += (term.dt_stiffness(system.rest_positions, barrier=barrier) @ dx.reshape(-1)).reshape(-1, 3)
+        out += term.dt_product(system.rest_positions, dx, barrier=barrier)
     return out
 
 
 def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarray:
-    """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``, and the cells' centre
-    term, :func:`deformgl.sim.volume.rest_stiffness_triplets`; with ``barrier`` the barrier's
-    envelope as :func:`stiffness_product`; each of ``system.terms`` its
-    :meth:`~deformgl.sim.terms.Term.dt_stiffness`), fixed nodes included."""
+    """Dense (3N, 3N) stiffness matrix K at rest (blocks ``+-k u u^T``, and each of
+    ``system.terms`` its :meth:`~deformgl.sim.terms.Term.dt_stiffness`, ``barrier`` as
+    :func:`stiffness_product`), fixed nodes included."""
     n = system.count
     u = _rest_directions(system)
     blocks = system.stiffness[:, None, None] * u[:, :, None] * u[:, None, :]   # (S, 3, 3)
@@ -84,10 +79,6 @@ def stiffness_matrix(system: SpringSystem, *, barrier: bool = False) -> np.ndarr
     np.add.at(k4, (system.i, system.j), -blocks)
     np.add.at(k4, (system.j, system.i), -blocks)
     k = k4.transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
-    if system.cells is not None:
-        for rows, cols, values in [rest_stiffness_triplets(system.cells)] + (
-                [barrier_envelope_triplets(system.cells)] if barrier else []):
-            np.add.at(k, (rows, cols), values)
     for term in system.terms:
         k += term.dt_stiffness(system.rest_positions, barrier=barrier).toarray()
     return k
@@ -263,15 +254,12 @@ class ModalDamping:
 
 def modal_damping(system: SpringSystem, *, barrier: bool = False) -> ModalDamping:
     """The (alpha, beta) ranges of ``system`` (see :class:`ModalDamping`); ``barrier``: of the
-    stiffness with the cells' barrier envelope (:func:`stiffness_product`), undamped as the centre term."""
+    stiffness with the terms' envelopes (:func:`stiffness_product`), which beta does not damp."""
     free = ~system.fixed
     a = ((system.velocity_damping + system.wind_drag) / system.mass[free] + system.mass_damping
          if free.any() else np.zeros(1))
     k = system.stiffness > 0
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
-    cells = system.cells
-    if cells is not None and (cells.volume_modulus > 0 or (barrier and cells.barrier_modulus > 0)):
-        b = np.append(b, 0.0)  # the cells' terms are stiffness that Rayleigh beta does not damp
-    if system.terms:
-        b = np.append(b, 0.0)  # nor the terms' stiffness
+    if any(t.frequency_terms(system.rest_positions, barrier=barrier).any() for t in system.terms):
+        b = np.append(b, 0.0)  # the terms' stiffness (the cells', a sheet's bending) Rayleigh beta does not damp
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))

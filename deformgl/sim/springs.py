@@ -25,7 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
-from deformgl.sim.volume import CellVolumes, frequency_terms, volume_forces
+from deformgl.sim.volume import CellVolumes
+from deformgl.sim.volume_term import VolumeTerm
 from deformgl.sim.bending import SheetBending
 from deformgl.sim.terms.base import Term
 
@@ -134,10 +135,13 @@ class SpringSystem:
             raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
         if self.bending is not None and self.bending.count != n:
             raise ValueError(f"SpringSystem.bending: {self.bending.count} nodes, the system {n}")
-        # a sheet's bending is one of the terms (first: the backends sum in the terms' order); the
-        # field says which (dataclasses.replace(system, bending=None) drops it from the terms too)
-        terms = tuple(t for t in self.terms if not isinstance(t, SheetBending))
-        object.__setattr__(self, "terms", terms if self.bending is None else (self.bending, *terms))
+        # the cells' volumetric term and a sheet's bending are terms too, first (the backends sum
+        # in the terms' order); their fields say which (dataclasses.replace(system, cells=None)
+        # drops them from the terms too)
+        terms = tuple(t for t in self.terms if not isinstance(t, (VolumeTerm, SheetBending)))
+        built_in = ((VolumeTerm(self.cells),) if self.cells is not None else ()) + (
+            (self.bending,) if self.bending is not None else ())
+        object.__setattr__(self, "terms", built_in + terms)
         for k, term in enumerate(self.terms):
             if not isinstance(term, Term):
                 raise ValueError(f"SpringSystem.terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
@@ -443,8 +447,6 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
         fc = f[:, c]
         total[:, c] = np.bincount(ends, weights=np.concatenate([fc, -fc]), minlength=n)
     del ends, f, u
-    if system.cells is not None:
-        volume_forces(system.cells, x, out=total)
     for term in system.terms:
         term.add_forces(x, v, t, total)
     total += (system.mass[:, None] * system.gravity + system.wind_drag * (system.wind - v)
@@ -478,20 +480,19 @@ def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> Fre
     and fixed nodes have x = 0, so the Rayleigh quotient ``x^T K x / x^T M x`` is at most the
     largest ``2 sum_j k_ij / m_i`` over free nodes. Stretched springs (L < |d|) keep it: their
     geometric stiffness ``k (1 - L/|d|)`` across the spring is below k. Drags are not included
-    (a drag of stiffness k_d adds ``2 k_d / m`` at its node). The cells' centre term adds
-    :func:`deformgl.sim.volume.frequency_terms` (``1.5 kappa h`` per cell at the node); their
-    inversion barrier, inactive at rest, only with ``barrier`` (its envelope, the explicit
-    integrators' dt bound: :func:`deformgl.sim.volume.barrier_envelope_product`). A sheet's bending adds its row sum
-    ``sum_j |B_ij|`` (:meth:`deformgl.sim.bending.SheetBending.frequency_terms`), each of
-    ``system.terms`` its :meth:`~deformgl.sim.terms.Term.frequency_terms`.
+    (a drag of stiffness k_d adds ``2 k_d / m`` at its node). Each of ``system.terms`` adds its
+    :meth:`~deformgl.sim.terms.Term.frequency_terms` (``barrier``: with the envelope of what it
+    stiffens to in a run): the cells' centre term ``1.5 kappa h`` per cell at the node and their
+    inversion barrier, inactive at rest, only with ``barrier``
+    (:func:`deformgl.sim.volume.frequency_terms`); a sheet's bending its row sum ``sum_j |B_ij|``.
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)
             + np.bincount(system.j, weights=system.stiffness, minlength=n))
-    cell_terms = 0.0 if system.cells is None else frequency_terms(system.cells, n, barrier=barrier)
+    term_rows: np.ndarray | float = 0.0
     for term in system.terms:
-        cell_terms = cell_terms + term.frequency_terms(system.rest_positions, barrier=barrier)
-    bound = np.where(system.fixed, -1.0, (2.0 * ksum + cell_terms) / system.mass)
+        term_rows = term_rows + term.frequency_terms(system.rest_positions, barrier=barrier)
+    bound = np.where(system.fixed, -1.0, (2.0 * ksum + term_rows) / system.mass)
     if n == 0 or bound.max() < 0:
         return FrequencyBound(0.0, -1, -1)
     node = int(np.argmax(bound))

@@ -63,7 +63,8 @@ _CORNER_TETS.setflags(write=False)  # (shared: corner_tets returns it, implicit_
 
 @dataclass(frozen=True, eq=False)
 class CellVolumes:
-    """The full cells of a grid body and their volumetric constants (immutable).
+    """The full cells of a grid body and their volumetric constants (immutable); as a physics term
+    :class:`deformgl.sim.volume_term.VolumeTerm`.
 
     Attributes:
         corners: (C, 8) int64 node numbers of each cell's corners, corner ``dx + 2 dy + 4 dz``.

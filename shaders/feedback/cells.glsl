@@ -1,6 +1,6 @@
 // The volumetric term and inversion barrier of a grid body on one node (compiled with CELLS):
 // the node's 3x3x3 neighbourhood and the mask of its full incident cells come from one RGBA32I
-// texture, the forces from lib/cell_forces.glsl (the float32 twin of deformgl/sim/volume.py
+// texture, the forces from terms/cell_forces.glsl (the float32 twin of deformgl/sim/volume.py
 // volume_forces()). Included by feedback/forces.glsl after the stage's eval_x hook.
 //
 //   u_cell_nodes (7 NODE_ROW x rows)  node n: texels node_slot_texel(n, 7, s) (lib/node_texel.glsl),
@@ -14,7 +14,7 @@
 // differences of positions only (the centre gradients G_c sum to zero), and differences of nearby
 // float32 positions are exact, so the cell's shape is not lost to the rounding of large
 // coordinates.
-#include "lib/cell_forces.glsl"
+#include "terms/cell_forces.glsl"
 
 uniform isampler2D u_cell_nodes;
 

@@ -62,24 +62,24 @@ uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neig
 // diagonal J >= 6 weighs (bit 12 + J - 6, + 1) / 2, both times mask bit J.
 // Unit vectors are d * inversesqrt(d.d): one reciprocal square root instead of a square root and a
 // division (it differs from d / |d| in the last bits, within GLSL's 2 ulp).
-// CELLS (the lattice's volumetric term, sim/cells/node_hood.glsl): every neighbour position
+// TERMS_HOOD (a physics term reads the node's 3x3x3 neighbourhood, lib/node_hood.glsl): every neighbour position
 // fetched is also kept, relative to the node, in its slot of the node's 3x3x3 neighbourhood
-// cell_hood (lib/cell_forces.glsl's layout), so the cell term fetches no neighbour twice.
-#ifdef CELLS
-vec3 cell_hood[27];
-#define CELL_KEEP(DX, DY, DZ, D) cell_hood[((DX) + 1) + 3 * ((DY) + 1) + 9 * ((DZ) + 1)] = -(D);
+// node_hood (lib/node_hood.glsl's layout), so the term fetches no neighbour twice.
+#ifdef TERMS_HOOD
+vec3 node_hood[27];
+#define HOOD_KEEP(DX, DY, DZ, D) node_hood[((DX) + 1) + 3 * ((DY) + 1) + 9 * ((DZ) + 1)] = -(D);
 #else
-#define CELL_KEEP(DX, DY, DZ, D)
+#define HOOD_KEEP(DX, DY, DZ, D)
 #endif
 #if defined(SPRING_WEIGHTS)
 #ifndef SPRING_WEIGHT_LEVELS
 uniform sampler2DArray u_weights;
 #endif
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
 #elif defined(NEIGHBOUR_BRANCH)
-#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
 #else
-#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - NB_POSITION(J, DX, DY, DZ); CELL_KEEP(DX, DY, DZ, d) S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
+#define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
 #endif
 
 #ifdef BLOCKED
@@ -107,9 +107,9 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask, uint l
     ivec2 origin[3] = ivec2[3](atlas_tile_origin(pz - 1), atlas_tile_origin(pz), atlas_tile_origin(pz + 1));
 #endif
     vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
-#ifdef CELLS
+#ifdef TERMS_HOOD
     for (int slot = 0; slot < 27; ++slot) {
-        cell_hood[slot] = vec3(0.0);  // (slots of absent neighbours: read by no full cell)
+        node_hood[slot] = vec3(0.0);  // (slots of absent neighbours: read by no full cell)
     }
 #endif
 #ifdef SPRING_WEIGHTS

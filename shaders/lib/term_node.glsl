@@ -1,12 +1,16 @@
 // What a physics term's chunk gets of the node it evaluates (deformgl/sim/terms/base.py GlslTerm):
-// x and v at the pass's evaluation state (m, m/s), the mass m (kg), and at: where the node's row of
+// x and v at the pass's evaluation state (m, m/s), the mass m (kg), at: where the node's row of
 // every term table is, in the pass's node layout (xy the texel, z the member of a block: 0 in the
-// compact layout). A term's table has `layers` RGBA32F layers per node; term_table reads layer l.
+// compact layout), bits: the terms' 8 node bits (lib/node_flags.glsl term_bits), held: in implicit
+// Euler's product passes the flag the terms set at the step's start (TERMS_HELD), else 1. A term's
+// table has `layers` RGBA32F layers per node; term_table reads layer l.
 struct TermNode {
     ivec3 at;
     vec3 x;
     vec3 v;
     float m;
+    uint bits;
+    float held;
 };
 
 vec4 term_table(sampler2DArray table, int layers, int l, TermNode n) {
@@ -17,6 +21,23 @@ vec4 term_table(sampler2DArray table, int layers, int l, TermNode n) {
 // position and velocity at the evaluation state (the explicit gathers) and, in the implicit
 // product's functions, the multiplied vector y at that node. Each pass that runs such terms
 // defines them (the compact layouts' passes; the blocked layout does not run them).
+#ifdef TERM_POSITION
+// (the pass defines TERM_POSITION(T) and TERM_VELOCITY(T): a node's state at texel T)
+vec3 term_position(int node) {
+    return TERM_POSITION(node_texel(node));
+}
+vec3 term_velocity(int node) {
+    return TERM_VELOCITY(node_texel(node));
+}
+#else
 vec3 term_position(int node);
 vec3 term_velocity(int node);
+#endif
 vec3 term_vector(int node);
+
+// A term that reads the node's 3x3x3 neighbourhood (GlslTerm.hood; TERMS_HOOD): in the explicit
+// gathers the pass keeps it in node_hood[27] (lib/node_hood.glsl: positions relative to the node,
+// slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1)); implicit Euler's passes gather it on request, the
+// positions relative to the node and the vector multiplied (sim/implicit/system.glsl).
+void hood_positions(TermNode n, out vec3 p[27]);
+void hood_vector(TermNode n, out vec3 y[27]);

@@ -4,10 +4,10 @@
 // the packed normal at x (Mosegaard & Sorensen 2005, eq. 3).
 // Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; with SPRING_WEIGHT_LEVELS from the node
 // texture's alpha; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
-// no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code), CELLS (compact layouts
-// only) with CELL_CENTRE and/or CELL_BARRIER: the lattice's volumetric term (deformgl/sim/volume.py) of the
-// node's full incident cells, from the neighbour positions the springs fetched and the 8 body diagonals
-// (sim/cells/node_hood.glsl, lib/cell_forces.glsl).
+// no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code), TERMS: the system's
+// physics terms (sim/verlet_node.glsl), with TERMS_HOOD (compact layouts only; HOOD_DIAGONALS) the
+// node's 3x3x3 neighbourhood kept for them from the neighbour positions the springs fetched and the 8
+// body diagonals (lib/node_hood.glsl).
 #include "lib/atlas.glsl"
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"
@@ -16,23 +16,17 @@
 uniform sampler2D u_position;   // RGBA32F: xyz position at t, w packed normal
 uniform sampler2D u_previous;   // RGBA32F: xyz position at t - dt
 uniform sampler2D u_node;       // RGBA32F static node data (node_flags.glsl)
-#ifdef CELLS
+#ifdef TERMS_HOOD
 #ifndef COMPACT
-#error "CELLS needs a compact layout (COMPACT): the z-slice atlas has no cell term"
+#error "TERMS_HOOD needs a compact layout (COMPACT): the z-slice atlas keeps no neighbourhood"
 #endif
-#define CELL_POSITION(T) texelFetch(u_position, T, 0).xyz
-#include "sim/cells/node_hood.glsl"
+#define HOOD_POSITION(T) texelFetch(u_position, T, 0).xyz
+#include "lib/node_hood.glsl"
 #endif
+// (lib/term_node.glsl: another node's state by number, for the terms that read it)
+#define TERM_POSITION(T) texelFetch(u_position, T, 0).xyz
+#define TERM_VELOCITY(T) ((texelFetch(u_position, T, 0).xyz - texelFetch(u_previous, T, 0).xyz) / u_dt)
 #include "sim/verlet_node.glsl"
-#ifdef TERMS
-vec3 term_position(int node) {  // (lib/term_node.glsl: another node's state, compact layouts)
-    return texelFetch(u_position, node_texel(node), 0).xyz;
-}
-vec3 term_velocity(int node) {
-    ivec2 t = node_texel(node);
-    return (texelFetch(u_position, t, 0).xyz - texelFetch(u_previous, t, 0).xyz) / u_dt;
-}
-#endif
 
 layout(location = 0) out vec4 o_position;
 

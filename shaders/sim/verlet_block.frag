@@ -6,8 +6,8 @@
 // to render target m. Every node's update is sim/verlet_node.glsl, as in sim/verlet.frag, so the
 // positions are bit for bit those of the one-node pass.
 // Variants: NEIGHBOUR_BRANCH, SPRING_WEIGHTS (u_weights: 5 layers per member, member m's at 5 m ..
-// 5 m + 4) or with SPRING_WEIGHT_LEVELS, PULLS, CELLS with CELL_CENTRE
-// and/or CELL_BARRIER (as sim/verlet.frag; the body diagonals come from the block's neighbourhood);
+// 5 m + 4) or with SPRING_WEIGHT_LEVELS, PULLS, TERMS with TERMS_HOOD
+// and HOOD_DIAGONALS (as sim/verlet.frag; the body diagonals come from the block's neighbourhood);
 // BLOCKED_DENSE: every block of the box exists, neighbour blocks by block strides, else from the
 // block-neighbour table. BLOCK_FLAT_X/Y/Z: the grid is one node thick along that axis (a sheet):
 // the neighbourhood off its plane is not fetched (every mask bit there is 0, p stands in).
@@ -38,7 +38,7 @@ uniform sampler2DArray u_node;  // static node data (node_flags.glsl), layer m: 
 uniform ivec3 u_block_strides;  // block-number step of +1 block along x, y, z
 #else
 uniform isampler2DArray u_block_neighbours;  // 7 layers RGBA32I: blocks at NEIGHBOUR_OFFSETS 0..17, corners 18..25
-#ifdef CELL_CENTRE
+#ifdef HOOD_DIAGONALS
 #define TABLE_LAYERS 7
 #else
 #define TABLE_LAYERS 5  // (springs reach no corner block)
@@ -64,7 +64,7 @@ vec3 previous_at(int m, ivec2 t) {
 
 ivec2 g_texel;  // this fragment's block texel
 int g_block;    // and block number
-ivec3 g_local;  // the block-local position of the member being computed (CELLS)
+ivec3 g_local;  // the block-local position of the member being computed (the terms)
 #ifndef BLOCKED_DENSE
 int g_neighbours[4 * TABLE_LAYERS];
 #endif
@@ -96,7 +96,7 @@ ivec2 neighbour_block(ivec3 o) {
 }
 
 // The block's union neighbourhood: every grid position within one of a member, but the 8 corners
-// of the box (no member's spring reaches them; CELL_CENTRE: with the corners, body diagonals), fetched once into hood[] (fill_hood) and read by
+// of the box (no member's spring reaches them; HOOD_DIAGONALS: with the corners, body diagonals), fetched once into hood[] (fill_hood) and read by
 // the members' spring sums (hood_position). Each position is written out below with a constant
 // test the compiler folds, so the array is indexed by constants only and lives in registers;
 // the largest box, 1x1x4 / 4x1x1 blocks, is 6 positions along its long side.
@@ -122,7 +122,7 @@ void hood_fill(ivec3 c) {
     if (c.z != 0) { g_hood[hood_slot(c)] = vec3(0.0); return; }
 #endif
     ivec4 q = block_place(c);
-#ifdef CELL_CENTRE
+#ifdef HOOD_DIAGONALS
     if (true) {  // (the corners are body diagonals of the corner members)
 #else
     if (q.x == 0 || q.y == 0 || q.z == 0) {
@@ -150,8 +150,8 @@ void fill_hood() {
 }
 
 #include "lib/springs.glsl"
-#ifdef CELLS
-#include "sim/cells/node_hood.glsl"
+#ifdef TERMS_HOOD
+#include "lib/node_hood.glsl"
 #endif
 #include "sim/verlet_node.glsl"
 

@@ -3,16 +3,13 @@
 // with the packed normal at x (Mosegaard & Sorensen 2005, eq. 3) in w. Shared by sim/verlet.frag
 // (one node per fragment) and sim/verlet_block.frag (a block of nodes per fragment), so both
 // compute every node bit for bit alike (where the driver contracts a * b + c alike in both: GLSL
-// 3.30 has no `precise`; tested on llvmpipe). PULLS = number of scripted pull groups; CELLS: the
-// volumetric term (sim/cells/node_hood.glsl: hood_cell_force, which both passes provide); TERMS:
+// 3.30 has no `precise`; tested on llvmpipe). PULLS = number of scripted pull groups; TERMS_HOOD:
+// the node's 3x3x3 neighbourhood for the terms (lib/node_hood.glsl: hood_diagonals, which both passes
+// provide); TERMS:
 // the system's further physics terms (lib/term_node.glsl: a term table's row of a blocked node is
 // its block's texel, member g_local's layers).
 #ifndef PULLS
 #define PULLS 0
-#endif
-#ifdef TERMS
-// the system's further physics terms (deformgl/sim/terms; terms/active.glsl, composed by the host)
-#include "terms/active.glsl"
 #endif
 
 uniform float u_dt;
@@ -22,9 +19,13 @@ uniform vec3 u_gravity;
 #if PULLS > 0
 uniform vec3 u_pull_force[PULLS];  // N per node, or N/kg on a FLAG_PULLS_PER_KG node, this step
 #endif
+#ifdef TERMS
+// the system's physics terms (deformgl/sim/terms; terms/active.glsl, composed by the host)
+#include "terms/active.glsl"
+#endif
 
 // x: state texel at t; x_prev: position at t - dt; node: static node data (lib/node_flags.glsl)
-// of an existing node; s: its spring sum; texel: its texel (CELLS).
+// of an existing node; s: its spring sum; texel: its texel (the terms).
 vec4 verlet_node(ivec2 texel, vec4 x, vec3 x_prev, vec4 node, SpringSum s) {
     int flags = int(node.g);
     float normal_code = pack_normal(s.unit_sum);  // Mosegaard & Sorensen 2005, eq. 3
@@ -33,8 +34,8 @@ vec4 verlet_node(ivec2 texel, vec4 x, vec3 x_prev, vec4 node, SpringSum s) {
     }
     float m = node.r;
     vec3 f = s.force + m * u_gravity - (u_damping + u_mass_damping * m) * (x.xyz - x_prev) / u_dt;
-#ifdef CELLS
-    f += hood_cell_force(texel, x.xyz, cell_bits(flags));
+#ifdef TERMS_HOOD
+    hood_diagonals(texel, x.xyz);
 #endif
 #ifdef TERMS
 #ifdef BLOCKED
@@ -42,7 +43,7 @@ vec4 verlet_node(ivec2 texel, vec4 x, vec3 x_prev, vec4 node, SpringSum s) {
 #else
     ivec3 term_at = ivec3(texel, 0);
 #endif
-    terms_force(f, TermNode(term_at, x.xyz, (x.xyz - x_prev) / u_dt, m));
+    terms_force(f, TermNode(term_at, x.xyz, (x.xyz - x_prev) / u_dt, m, term_bits(flags), 1.0));
 #endif
 #if PULLS > 0
     float per = (flags & FLAG_PULLS_PER_KG) != 0 ? m : 1.0;

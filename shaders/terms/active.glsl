@@ -1,10 +1,16 @@
 // The physics terms of a pass (deformgl/sim/terms). Composed by deformgl/sim/terms/glsl.py
 // compose(); do not edit: `python -m deformgl.sim.terms.registry` writes the shipped one.
 #include "lib/term_node.glsl"
+#ifdef TERM_CELL
+#include "terms/cell.glsl"
+#endif
 #ifdef TERM_BENDING
 #include "terms/bending.glsl"
 #endif
 void terms_force(inout vec3 f, TermNode n) {
+#ifdef TERM_CELL
+    cell_force(f, n);
+#endif
 #ifdef TERM_BENDING
     bending_force(f, n);
 #endif
@@ -23,13 +29,19 @@ void terms_neighbour(inout vec3 f, TermNode n, int j, vec3 d) {
 #endif
 #ifdef TERMS_IMPLICIT
 void terms_product(inout vec3 q, TermNode n, vec3 y) {
+#ifdef TERM_CELL
+    cell_product(q, n, y);
+#endif
 #ifdef TERM_BENDING
     bending_product(q, n, y);
 #endif
 }
-void terms_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+void terms_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n) {
+#ifdef TERM_CELL
+    cell_diagonal(d, off, held, n);
+#endif
 #ifdef TERM_BENDING
-    bending_diagonal(d, off, n);
+    bending_diagonal(d, off, held, n);
 #endif
 }
 #ifdef TERMS_NEIGHBOURS

@@ -34,5 +34,5 @@ void bending_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, 
 void bending_product(inout vec3 q, TermNode n, vec3 y) {
 }
 
-void bending_diagonal(inout vec3 d, inout vec3 off, TermNode n) {
+void bending_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n) {
 }

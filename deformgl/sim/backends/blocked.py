@@ -4,9 +4,9 @@
 One fragment owns a block of nodes: it fetches the block's union neighbourhood once and writes its
 members' new states through one render target each. Every node's update is the one-node pass's
 (``shaders/sim/verlet_node.glsl``), so the positions are bit for bit those of the compact layout.
-The pass models what :class:`~deformgl.sim.backends.foundation.VerletPass` models: springs with
+The pass models what :class:`~deformgl.sim.backends.verlet_pass.VerletPass` models: springs with
 per-spring weights (levels codes or a weight texture), fixed nodes, pulls, damping, and the
-volumetric term with the body diagonals from the block's neighbourhood. A block needs one render
+physics terms that act on the node or read its neighbourhood (the body diagonals from the block's). A block needs one render
 target per member (:func:`blocked_refusal`).
 
 Textures (channel layouts in docs/ARCHITECTURE.md, "Blocked layout"):
@@ -36,7 +36,6 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.blocks import BlockedLayout
 from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.cell_pass import cell_terms, term_uniforms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture
 from deformgl.sim.backends.grid_springs import weight_layers
 from deformgl.sim.backends.uniforms import pull_uniforms
@@ -220,7 +219,7 @@ class BlockedTextures(GLOwner):
 class BlockedVerletPass(GLOwner):
     """The position-Verlet fragment pass of a block per fragment (``shaders/sim/verlet_block.frag``):
     one program, one draw over the block texture per step; the run signature of
-    :class:`~deformgl.sim.backends.foundation.VerletPass`.
+    :class:`~deformgl.sim.backends.verlet_pass.VerletPass`.
 
     Args:
         ctx: GL context.
@@ -239,14 +238,10 @@ class BlockedVerletPass(GLOwner):
         self.n_pulls = terms.n_pulls
         layout = textures.blocks
         with self.building():
-            cells = terms.cells
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/verlet_block.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "PULLS": terms.n_pulls, "SPRING_WEIGHTS": weighted,
-                "SPRING_WEIGHT_LEVELS": weight_levels, "CELLS": cells is not None,
-                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines(),
+                "SPRING_WEIGHT_LEVELS": weight_levels, **layout.shader_defines(),
                 **terms.extra.defines()}, chunks=terms.extra.chunks()))
-            if cells is not None:
-                self.program.set(**term_uniforms(cells))
             units = {f"u_position{m}": m for m in range(layout.members)}
             units.update({f"u_previous{m}": textures.units["previous"] + m for m in range(layout.members)})
             # (the layout's uniforms are unused where no neighbour block is read: a single node)

@@ -1,34 +1,23 @@
-"""The lattice's volumetric term (:mod:`deformgl.sim.volume`: any Poisson's ratio, the inversion
-barrier) on the fragment backend: what its passes need besides the springs, and a per-node pass
-that evaluates the term alone.
+"""The cells' volumetric term (:mod:`deformgl.sim.volume`: any Poisson's ratio, the inversion
+barrier) alone, per node, in a pass of its own (:class:`NodeCellForces`), and the body-diagonal
+table of the node's neighbourhood (:func:`diagonal_table`) the passes keep for the physics terms
+that read it (``shaders/lib/node_hood.glsl``).
 
-The term is computed inside the pass that computes the springs, per node, gathered from the
-node's (up to 8) full incident cells (``shaders/lib/cell_forces.glsl`` ``cell_forces``, the
-float32 twin of :func:`~deformgl.sim.volume.volume_forces`): in the foundation's Verlet pass
-(``shaders/sim/verlet.frag``, define ``CELLS``) the 18 neighbour positions the springs fetched are
-kept and only the 8 body diagonals of the 3x3x3 neighbourhood are fetched besides
-(``shaders/sim/cells/node_hood.glsl``); the integrator stages (``shaders/sim/integrators``) do
-the same at the stage's evaluation state.
-Measured on a 30^3 block (27,000 nodes, nu = 0.45, llvmpipe on 2 cores, CPU time per Verlet
-step of the foundation pass, springs alone 2.0 ms): in the pass +0.56x (+0.21x at nu = 1/4,
-the barrier alone); a pass of its own per node writing a force texture that the spring pass
-adds, +1.4x (27 fetches per node and a second pass); a pass per cell (each cell once, the
-forces on its 8 corners into 8 render targets, 8 fetches per node to gather them) +1.2x, the
-gather from 8 distinct textures costing more than the cells themselves. The per-node function
-is unrolled over the 8 cells with literal indices: the looped form kept its arrays in memory
-on llvmpipe and cost 3.8x as much (9.9 against 2.6 ms for the 27,000 nodes).
-
-What travels (the node layout of :class:`~deformgl.grid.nodes.CompactLayout`):
-
-* the incident-cell mask in the caller's node data: bits ``CELL_SHIFT`` (6) to 13 of the flag
-  channel G (:func:`cell_flags`; ``shaders/lib/node_flags.glsl`` ``cell_bits``); bit q: the
-  cell whose corner 0 is the node at offset (qx - 1, qy - 1, qz - 1) is full.
-* for the centre term on grids that are not dense, the node numbers of the 8 body diagonals
-  (:func:`diagonal_table`, 2 RGBA32I layers); dense grids (every node of the box exists) compute
-  them from the node-number strides, and the barrier alone never reads them.
-* defines: ``CELLS``; ``CELL_BARRIER``, and ``CELL_CENTRE`` where kappa > 0 (:func:`cell_terms`):
-  a centre term of modulus 0 is not compiled, which at nu = 1/4 (the barrier alone) saves 0.4x
-  of the spring step (llvmpipe runs the body of a uniform branch anyway) and the diagonals.
+In a simulation the term is one of the system's physics terms (:mod:`deformgl.sim.volume_glsl`):
+computed inside the pass that computes the springs, per node, gathered from the node's (up to 8)
+full incident cells (``shaders/terms/cell_forces.glsl`` ``cell_forces``, the float32 twin of
+:func:`~deformgl.sim.volume.volume_forces`) from the 18 neighbour positions the springs fetched
+and, for the centre term, the 8 body diagonals of the 3x3x3 neighbourhood. Measured on a 30^3
+block (27,000 nodes, nu = 0.45, llvmpipe on 2 cores, CPU time per Verlet step of the foundation
+pass, springs alone 2.0 ms): in the pass +0.56x (+0.21x at nu = 1/4, the barrier alone); a pass
+of its own per node writing a force texture that the spring pass adds, +1.4x (27 fetches per
+node and a second pass); a pass per cell (each cell once, the forces on its 8 corners into 8
+render targets, 8 fetches per node to gather them) +1.2x, the gather from 8 distinct textures
+costing more than the cells themselves. The per-node function is unrolled over the 8 cells with
+literal indices: the looped form kept its arrays in memory on llvmpipe and cost 3.8x as much
+(9.9 against 2.6 ms for the 27,000 nodes). A centre term of modulus 0 is not compiled, which at
+nu = 1/4 (the barrier alone) saves 0.4x of the spring step (llvmpipe runs the body of a uniform
+branch anyway) and the diagonals.
 """
 
 from __future__ import annotations
@@ -40,66 +29,18 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
-from deformgl.sim.backends.cell_tables import cell_uniforms, check_cells, incident_cells, neighbourhood
+from deformgl.grid.neighbours import neighbourhood
+from deformgl.sim.backends.cell_tables import check_cells
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
+from deformgl.sim.terms.glsl import TERM_SHIFT
 from deformgl.sim.volume import CellVolumes
+from deformgl.sim.volume_glsl import volume_glsl
 
-__all__ = ["CELL_SHIFT", "DIAGONAL_SLOTS", "active_cells", "check_cells", "cell_flags", "cell_kind", "cell_terms",
-           "term_uniforms", "diagonal_table", "NodeCellForces"]
-
-#: Bit of incident cell q in the node data's flag channel is ``1 << (CELL_SHIFT + q)``
-#: (``shaders/lib/node_flags.glsl``).
-CELL_SHIFT = 6
-#: Neighbourhood slots of the body diagonals (2 qx - 1, 2 qy - 1, 2 qz - 1), in the order of q.
-DIAGONAL_SLOTS = (0, 2, 6, 8, 18, 20, 24, 26)
-
-
-def cell_kind(cells: CellVolumes | None) -> str:
-    """The ``cells`` argument of :class:`~deformgl.sim.backends.foundation.NodeTextures` for a
-    system's active cells: "none", "barrier" (the barrier alone) or "centre"."""
-    if cells is None:
-        return "none"
-    return "centre" if cells.volume_modulus > 0 else "barrier"
-
-
-def cell_flags(grid: NodeGrid, cells: CellVolumes | None) -> np.ndarray:
-    """(N,) int64 incident-cell bits of the node data's flag channel (0 without cells)."""
-    if cells is None:
-        return np.zeros(grid.count, np.int64)
-    return incident_cells(grid, cells).astype(np.int64) << CELL_SHIFT
-
-
-def active_cells(cells: CellVolumes | None) -> CellVolumes | None:
-    """``cells`` when they exert a force (at least one cell, a modulus > 0), else None."""
-    if cells is None or cells.count == 0 or (cells.volume_modulus == 0 and cells.barrier_modulus == 0):
-        return None
-    return cells
-
-
-def cell_terms(cells: CellVolumes) -> dict[str, bool]:
-    """The term defines of ``lib/cell_forces.glsl``: ``CELL_BARRIER`` always, ``CELL_CENTRE`` where
-    kappa > 0 (a lattice at nu = 1/4 has the barrier alone). A barrier of modulus 0 (never a
-    material's) is compiled and adds exact zeros: one variant fewer to build and check."""
-    return {"CELL_CENTRE": cells.volume_modulus > 0, "CELL_BARRIER": True}
-
-
-def term_uniforms(cells: CellVolumes) -> dict[str, float]:
-    """The uniforms of ``lib/cell_forces.glsl`` the compiled terms (:func:`cell_terms`) read."""
-    values = cell_uniforms(cells)
-    if cells.volume_modulus == 0:
-        del values["u_cell_kappa"]
-    return values
-
-
-def diagonal_table(grid: NodeGrid) -> np.ndarray:
-    """(N, 8) int32: column q the node at the body diagonal (2 qx - 1, 2 qy - 1, 2 qz - 1), the
-    node itself where absent (``shaders/sim/cells/node_hood.glsl``)."""
-    return np.ascontiguousarray(neighbourhood(grid)[:, list(DIAGONAL_SLOTS)])
-
+__all__ = ["check_cells", "NodeCellForces"]
 
 class NodeCellForces(GLOwner):
     """The volumetric term alone, per node, into a force texture (``shaders/sim/cells/node_cells.frag``):
-    ``lib/cell_forces.glsl`` checked against :func:`~deformgl.sim.volume.volume_forces` without
+    ``terms/cell_forces.glsl`` checked against :func:`~deformgl.sim.volume.volume_forces` without
     springs or an integrator, and the force field of the term at any positions.
 
     Args:
@@ -120,15 +61,17 @@ class NodeCellForces(GLOwner):
         size = self.layout.size
         n = grid.count
         with self.building():
-            node = np.stack([np.zeros(n), 1 + cell_flags(grid, cells), np.zeros(n), np.zeros(n)], axis=1)
+            form = volume_glsl(cells, grid)
+            node = np.stack([np.zeros(n), 1 + (np.asarray(form.node_bits, np.int64) << TERM_SHIFT), np.zeros(n),
+                             np.zeros(n)], axis=1)
             self.node = float_texture(self, ctx, size, compact_image(size, node))
             self.positions = float_texture(self, ctx, size, compact_image(size, grid.rest_positions))
             self.force = float_texture(self, ctx, size)
             self.fbo = self.own(ctx.framebuffer(color_attachments=[self.force]))
             self.hood = None if self.layout.dense else layer_texture(self, ctx, size, neighbourhood(grid), "i4", 7)
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/cells/node_cells.frag",
-                                            defines={"COMPACT_DENSE": self.layout.dense, **cell_terms(cells)}))
-            uniforms: dict[str, object] = {**term_uniforms(cells), "u_x": 0, "u_node": 1,
+                                            defines={"COMPACT_DENSE": self.layout.dense, **form.defines}))
+            uniforms: dict[str, object] = {**form.uniforms, "u_x": 0, "u_node": 1,
                                            **layout_uniforms(self.layout.width)}
             uniforms.update({"u_strides": self.layout.strides} if self.layout.dense else {"u_cell_hood": 2})
             self.program.set(**uniforms)

@@ -2,7 +2,7 @@
 each node's 3x3x3 neighbourhood and the mask of its full incident cells, in the node order of the
 system, ready for :func:`~deformgl.sim.backends.compact_textures.layer_texture` or a buffer.
 
-Conventions (those of ``shaders/lib/cell_forces.glsl``): neighbourhood slot
+Conventions (those of ``shaders/terms/cell_forces.glsl``): neighbourhood slot
 ``(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`` holds the node at offset (dx, dy, dz) (slot 13: the node
 itself; an absent node: the node itself, whose cells are then not full); incident cell
 ``q = qx + 2 qy + 4 qz`` is the cell whose lower corner is at offset (qx - 1, qy - 1, qz - 1), and
@@ -11,14 +11,12 @@ bit q of the mask is set when that cell is one of ``system.cells``.
 
 from __future__ import annotations
 
-from itertools import product
-
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.volume import CORNER_SIGNS, CellVolumes
 
-__all__ = ["check_cells", "neighbourhood", "incident_cells", "cell_uniforms"]
+__all__ = ["check_cells", "incident_cells", "cell_uniforms"]
 
 #: (8, 3) offset of corner c = dx + 2 dy + 4 dz from the cell's corner 0 (the volume's corner signs).
 _CORNER_OFFSETS = ((CORNER_SIGNS + 1.0) / 2.0).astype(np.int64)
@@ -48,19 +46,6 @@ def check_cells(grid: NodeGrid, cells: CellVolumes, who: str = "cells") -> None:
         raise ValueError(f"{who}: a grid cell is listed more than once")
 
 
-def neighbourhood(grid: NodeGrid) -> np.ndarray:
-    """(N, 27) int32 node numbers of every node's 3x3x3 neighbourhood (absent: the node itself)."""
-    padded = np.pad(grid.index, 1, constant_values=-1)
-    ijk = grid.ijk.astype(np.int64) + 1
-    own = np.arange(grid.count, dtype=np.int64)
-    table = np.empty((grid.count, 27), np.int32)
-    for dz, dy, dx in product((-1, 0, 1), repeat=3):
-        slot = (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1)
-        other = padded[ijk[:, 0] + dx, ijk[:, 1] + dy, ijk[:, 2] + dz].astype(np.int64)
-        table[:, slot] = np.where(other >= 0, other, own)
-    return table
-
-
 def incident_cells(grid: NodeGrid, cells: CellVolumes) -> np.ndarray:
     """(N,) int32 bit mask of each node's incident cells that are in ``cells`` (bit q: the cell
     whose lower corner is at offset (qx - 1, qy - 1, qz - 1), q = qx + 2 qy + 4 qz)."""
@@ -74,6 +59,6 @@ def incident_cells(grid: NodeGrid, cells: CellVolumes) -> np.ndarray:
 
 
 def cell_uniforms(cells: CellVolumes) -> dict[str, float]:
-    """The uniforms of ``shaders/lib/cell_forces.glsl``."""
+    """The uniforms of ``shaders/terms/cell_forces.glsl``."""
     return {"u_cell_h": cells.spacing, "u_cell_kappa": cells.volume_modulus,
             "u_cell_barrier": cells.barrier_modulus, "u_cell_jb": cells.barrier_j}

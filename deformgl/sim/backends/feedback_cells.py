@@ -3,11 +3,11 @@
 :mod:`deformgl.sim.volume` adds, per full grid cell, a centre term (any Poisson's ratio) and a
 corner barrier (no inversion) to the springs. The feedback backend gathers them per node in the
 vertex shader of every stage (``shaders/feedback/cells.glsl`` calling
-``shaders/lib/cell_forces.glsl``), from one RGBA32I texture of :data:`CELL_SLOTS` texels per node:
+``shaders/terms/cell_forces.glsl``), from one RGBA32I texture of :data:`CELL_SLOTS` texels per node:
 node n's texels are its slots s = 0..6 in the node layout (``shaders/lib/node_texel.glsl``
 ``node_slot_texel(n, CELL_SLOTS, s)``), whose 28 integers are the 27 node numbers of its 3x3x3
 neighbourhood (integer ``m = 4 s + channel`` holds slot m of
-:func:`deformgl.sim.backends.cell_tables.neighbourhood`) and, last (texel 6, ``w``), the bit mask
+:func:`deformgl.grid.neighbours.neighbourhood`) and, last (texel 6, ``w``), the bit mask
 of its full incident cells (:func:`deformgl.sim.backends.cell_tables.incident_cells`).
 
 Only grid bodies have cells; the tables assume the system's cells are cells of its node grid, as
@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from deformgl.sim.backends.cell_tables import check_cells, incident_cells, neighbourhood
+from deformgl.grid.neighbours import neighbourhood
+from deformgl.sim.backends.cell_tables import check_cells, incident_cells
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["CELL_SLOTS", "has_cells", "cell_node_row_limit", "cell_image"]

@@ -13,17 +13,17 @@ the system uses nothing the pass does not model (:func:`verlet_terms`); nothing 
 Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
 
 * node data, static, RGBA32F (H, W, 4): R mass kg, G flag bits (exists 1, fixed 2, load g 4<<g,
-  full incident cell q 64<<q), B neighbour mask (18 bits), A the spring-weight levels code
+  the terms' node bits 64<<b), B neighbour mask (18 bits), A the spring-weight levels code
   (:func:`~deformgl.sim.backends.grid_springs.weight_levels`) or 0.
 * state, three rotating RGBA32F (H, W, 4): xyz position, w packed Mosegaard & Sørensen 2005, eq. 3 normal. Position Verlet
   needs the current and previous positions; the pass writes the third, then the roles rotate.
-* with the volumetric term (``system.cells``, :mod:`deformgl.sim.volume`) on a grid that is not
-  dense: the cell diagonals, static, RGBA32I array of 2 layers: the node numbers of the 8 body
-  diagonals (±1, ±1, ±1) (:func:`~deformgl.sim.backends.cell_pass.diagonal_table`), the node itself
-  where absent. The pass computes the term with the springs (define ``CELLS``,
-  ``shaders/sim/cells/node_hood.glsl``: the 18 neighbours the springs fetched and the 8
-  diagonals). Compact layouts only: the z-slice atlas (a benchmark variant) refuses a system with
-  cells.
+* with a physics term that reads the body diagonals of the node's neighbourhood on a grid that
+  is not dense: the hood diagonals,
+  static, RGBA32I array of 2 layers: the node numbers of the 8 body diagonals (±1, ±1, ±1)
+  (:func:`~deformgl.grid.neighbours.diagonal_table`), the node itself where absent. The
+  pass computes the terms with the springs (define ``TERMS``, ``TERMS_HOOD``:
+  ``shaders/lib/node_hood.glsl``, the 18 neighbours the springs fetched and the 8 diagonals).
+  Compact layouts only: the z-slice atlas (a benchmark variant) refuses a system with terms.
 
 Texels outside the grid (padding, empty nodes) hold position 0 and are never changed.
 """
@@ -39,14 +39,14 @@ from deformgl.gl.es_context import read_texture
 from deformgl.errors import GLError
 from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
-from deformgl.sim.backends.cell_pass import active_cells, diagonal_table
+from deformgl.grid.neighbours import diagonal_table
 from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
 from deformgl.sim.springs import (FLEXION, LOAD_PER_KG_BIT, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem,
                                   load_groups)
-from deformgl.sim.volume import CellVolumes
+
 from deformgl.sim.terms.glsl import PassTerms, pass_terms
 
 __all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
@@ -59,13 +59,13 @@ FLAG_EXISTS = 1
 FLAG_FIXED = 2
 #: Bit of load (pull) group g is ``1 << (PULL_SHIFT + g)``.
 PULL_SHIFT = 2
-#: The node's pulls are per kilogram (after the cells' bits, lib/node_flags.glsl).
+#: The node's pulls are per kilogram (after the terms' node bits, lib/node_flags.glsl).
 FLAG_PULLS_PER_KG = 1 << 14
 MAX_PULLS = MAX_LOADS
 #: Texture unit of the spring-weight texture array (SPRING_WEIGHTS).
 WEIGHT_UNIT = 4
-#: Texture unit of the cell-diagonal table (CELLS on compact layouts that are not dense).
-CELL_DIAGONAL_UNIT = 5
+#: Texture unit of the hood-diagonal table (HOOD_DIAGONALS on compact layouts that are not dense).
+HOOD_DIAGONAL_UNIT = 5
 #: Texture units of the physics terms' node tables (deformgl.sim.terms) on the one-node pass.
 TERM_UNITS = (6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
 
@@ -84,8 +84,6 @@ class VerletTerms:
         gravity: (3,) m/s^2.
         spacing: grid spacing h (rest lengths are h and h*sqrt(2)).
         n_pulls: number of loads (pull groups).
-        cells: the volumetric term's full cells (``system.cells`` when they exert a force:
-            :func:`~deformgl.sim.backends.cell_pass.active_cells`), or None.
     """
 
     k_structural: float
@@ -96,7 +94,6 @@ class VerletTerms:
     n_pulls: int
     mass_damping: float = 0.0
     weights: np.ndarray | None = field(default=None, compare=False, repr=False)
-    cells: CellVolumes | None = field(default=None, compare=False, repr=False)
     #: the system's further physics terms as the pass compiles them (deformgl.sim.terms)
     extra: PassTerms = field(default=PassTerms(()), compare=False, repr=False)
 
@@ -109,10 +106,10 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
 
     The pass models: structural and shear springs at the grid's rest lengths (one stiffness per
     class, or per spring as weights of the class's largest), per-node mass, fixed nodes, global
-    velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads, the volumetric term of
-    the full cells (``system.cells``), the physics terms that act on the node alone
-(``system.terms``). It does not model flexion springs, terms that read the grid neighbours, spring
-    damping, wind, drags or obstacles.
+    velocity damping and Rayleigh mass damping, gravity, up to :data:`MAX_PULLS` loads, the physics
+    terms that act on the node or read its 3x3x3 neighbourhood (``system.terms``). It does not
+    model flexion springs, terms called per grid
+    neighbour, spring damping, wind, drags or obstacles.
     """
     cls = system.spring_class
     if np.any(cls == FLEXION):
@@ -140,8 +137,7 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
     return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
-                       weights=weights, cells=active_cells(system.cells),
-                       extra=pass_terms(system.terms, "fragment", "FragmentIntegrator"))
+                       weights=weights, extra=pass_terms(system.terms, "fragment", "FragmentIntegrator", grid))
 
 
 def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.ndarray | None,
@@ -197,16 +193,16 @@ class NodeTextures(GLOwner):
             5-layer RGBA32F texture array in the layout (bound to :data:`WEIGHT_UNIT`).
         weight_texture: store the weights in the texture array even where levels could hold
             them (to measure what the levels save, and test they match).
-        cells: "none", or the terms of the volumetric term the pass computes: "barrier" (the
-            barrier alone) or "centre" (the centre term, with or without the barrier), which on a
-            compact layout that is not dense needs the node numbers of the 8 body diagonals in
-            :attr:`cell_diagonals` (bound to :data:`CELL_DIAGONAL_UNIT`); the atlas refuses both.
+        hood: how much of the node's 3x3x3 neighbourhood the pass keeps for its terms
+            (:attr:`~deformgl.sim.terms.glsl.PassTerms.hood`): 0, 1 (the 18 neighbours) or 2 (and
+            the body diagonals, which on a compact layout that is not dense need their node numbers
+            in :attr:`hood_diagonals`, bound to :data:`HOOD_DIAGONAL_UNIT`); the atlas refuses 1 and 2.
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
                  flags: np.ndarray | None = None, n_state: int = 3, layout: str = "compact",
                  positions: np.ndarray | None = None, weights: np.ndarray | None = None,
-                 weight_texture: bool = False, cells: str = "none") -> None:
+                 weight_texture: bool = False, hood: int = 0) -> None:
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         super().__init__(ctx)
@@ -227,11 +223,11 @@ class NodeTextures(GLOwner):
         self.neighbours: moderngl.TextureArray | None = None
         self.weights: moderngl.TextureArray | None = None
         #: RGBA32I array, 2 layers: the node at body diagonal q (channel q % 4 of layer q // 4), or None
-        self.cell_diagonals: moderngl.TextureArray | None = None
-        if cells not in ("none", "barrier", "centre"):
-            raise ValueError(f"cells must be 'none', 'barrier' or 'centre', got {cells!r}")
-        if cells != "none" and not isinstance(self.layout, CompactLayout):
-            raise ValueError("NodeTextures: the atlas layout has no cell term (a system with cells runs on the compact "
+        self.hood_diagonals: moderngl.TextureArray | None = None
+        if hood not in (0, 1, 2):
+            raise ValueError(f"hood must be 0, 1 or 2, got {hood!r}")
+        if hood and not isinstance(self.layout, CompactLayout):
+            raise ValueError("NodeTextures: the atlas layout keeps no neighbourhood (a system whose terms read it runs on the compact "
                              "layout)")
         node, levels = node_data(grid, mass, flags, weights, weight_texture)
         #: the spring weights are the levels code in the node texture's alpha (SPRING_WEIGHT_LEVELS)
@@ -244,8 +240,8 @@ class NodeTextures(GLOwner):
                 w, h = self.layout.size
                 self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
                 self.neighbours.filter = (moderngl.NEAREST, moderngl.NEAREST)
-                if cells == "centre":
-                    self.cell_diagonals = layer_texture(self, ctx, self.layout.size, diagonal_table(grid), "i4", 2)
+                if hood > 1:
+                    self.hood_diagonals = layer_texture(self, ctx, self.layout.size, diagonal_table(grid), "i4", 2)
             if weights is not None and not levels:
                 w, h = self.layout.size
                 images = np.stack([self.layout.scatter(grid.ijk, layer) for layer in weight_layers(weights)])
@@ -273,7 +269,7 @@ class NodeTextures(GLOwner):
         """GPU bytes of every texture (padding texels included)."""
         w, h = self.size
         static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16) + \
-            (0 if self.weights is None else w * h * 5 * 16) + (0 if self.cell_diagonals is None else w * h * 2 * 16)
+            (0 if self.weights is None else w * h * 5 * 16) + (0 if self.hood_diagonals is None else w * h * 2 * 16)
         return static + len(self.state) * w * h * 16
 
     def view(self, current: int) -> moderngl.Texture:
@@ -293,8 +289,8 @@ class NodeTextures(GLOwner):
             self.neighbours.use(NEIGHBOUR_UNIT)
         if self.weights is not None:
             self.weights.use(WEIGHT_UNIT)
-        if self.cell_diagonals is not None:
-            self.cell_diagonals.use(CELL_DIAGONAL_UNIT)
+        if self.hood_diagonals is not None:
+            self.hood_diagonals.use(HOOD_DIAGONAL_UNIT)
 
     def release(self) -> None:
         """Release every texture and framebuffer (idempotent)."""

@@ -17,25 +17,20 @@ the class's times its weight;
 per-node mass and the fixed flag are a static RGBA32F texture. The constructor checks that the
 system's springs are exactly the grid's.
 
-The lattice's volumetric term (``system.cells``, :mod:`deformgl.sim.volume`: any Poisson's ratio,
-the inversion barrier) is computed in the same passes as the springs (define ``CELLS``, with
-``CELL_CENTRE`` where kappa > 0 and ``CELL_BARRIER``): each node gathers it from its full
-incident cells (``shaders/sim/cells/node_hood.glsl``, ``shaders/lib/cell_forces.glsl``) at the
-stage's evaluation state, from the 18 neighbour positions its springs fetched and, for the
-centre term, the 8 body diagonals of its 3x3x3 neighbourhood
-(:mod:`~deformgl.sim.backends.cell_pass` says why in the pass and what it costs).
-The system's further physics terms (``system.terms``, :mod:`deformgl.sim.terms`) are
-compiled into the same passes (define ``TERMS``, their chunks composed by
+The system's physics terms (``system.terms``, :mod:`deformgl.sim.terms`) are compiled into the
+same passes (define ``TERMS``, their chunks composed by
 :mod:`deformgl.sim.terms.glsl`), their node tables bound on :data:`_TERM_UNITS`; a term that reads
-the grid neighbours is gathered in the same loop as the springs.
+the grid neighbours is gathered in the same loop as the springs, and one that reads the node's
+3x3x3 neighbourhood from the 18 neighbour positions the springs fetched and, where it needs them,
+the 8 body diagonals (``shaders/lib/node_hood.glsl``).
 
 GPU textures (all ``width x rows`` texels of the compact layout, NEAREST, ``texelFetch``):
 
-* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, 64 << q full incident cell q,
+* static: node data RGBA32F (R mass, G flags: 1 exists, 2 fixed, 64 << b the terms' node bits,
   B load-group bits, A the neighbour mask on dense grids), neighbours RGBA32I array of 5 layers
-  (6 with flexion; not on dense grids); with the centre term on grids that are not dense, the
-  cell diagonals RGBA32I array of 2 layers (the nodes at (±1, ±1, ±1),
-  :func:`~deformgl.sim.backends.cell_pass.diagonal_table`);
+  (6 with flexion; not on dense grids); with a term that reads the body diagonals on grids that
+  are not dense, their table, RGBA32I array of 2 layers (the nodes at (±1, ±1, ±1),
+  :func:`~deformgl.grid.neighbours.diagonal_table`); the terms' node tables;
 * state (``state_bytes_per_node`` = 16 x the vec4s of :data:`integrators.GPU_BUFFERS`):
   euler / semi-implicit x, v, x', v'; midpoint x, v, x_m, v_m, x', v'; rk4 x, v and two stage
   sets (x_s, v_s, sum_x, sum_v) used ping-pong; verlet three rotating positions (no velocity).
@@ -73,8 +68,7 @@ from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout,
 from deformgl.sim.stages import BUFFERS, Stage, spec
 from deformgl.sim.terms.glsl import pass_terms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
-from deformgl.sim.backends.cell_pass import (active_cells, cell_flags, cell_terms, check_cells, diagonal_table,
-                                             term_uniforms)
+from deformgl.grid.neighbours import diagonal_table
 
 __all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
 
@@ -84,8 +78,8 @@ PATHS = ("auto", "general", "foundation")
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
-#: texture unit of the cell term's body-diagonal table (its centre term on grids that are not dense)
-_CELL_DIAGONAL_UNIT = 9
+#: texture unit of the neighbourhood's body-diagonal table (HOOD_DIAGONALS on grids that are not dense)
+_HOOD_DIAGONAL_UNIT = 9
 #: texture units of the physics terms' node tables (deformgl.sim.terms)
 _TERM_UNITS = (10, 11, 12, 13, 14, 15)
 
@@ -125,7 +119,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`): the
             blocked layout in that shape (node positions bit for bit those of "compact").
         draw, branch, layout other than "auto" and "compact", weight_texture, block: variants of the
-            foundation pass (:class:`~deformgl.sim.backends.foundation.VerletPass`,
+            foundation pass (:class:`~deformgl.sim.backends.verlet_pass.VerletPass`,
             :class:`~deformgl.sim.backends.foundation.NodeTextures`); other values than the
             defaults need ``path="foundation"``.
 
@@ -173,8 +167,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FragmentIntegrator: drag node {drag.node} outside the system")
         self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
-        if system.cells is not None:
-            check_cells(grid, system.cells)  # (a node finds its cells by grid offsets)
         #: the foundation pass when it runs this simulation (see ``path``), else None
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
@@ -281,17 +273,16 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
             self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
-        #: the volumetric term's cells when they exert a force (define CELLS), else None
-        self.cells = cells = active_cells(system.cells)
-        #: the cell term's body diagonals (its centre term on grids that are not dense), or None
-        self.tex_cell_diagonals: moderngl.TextureArray | None = None
-        if cells is not None and not self.dense and cells.volume_modulus > 0:
-            self.tex_cell_diagonals = layer_texture(self, self.ctx, (w, h), diagonal_table(self.grid), "i4", 2)
         #: the system's physics terms as this backend's passes compile them (deformgl.sim.terms)
-        self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator")
+        self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator", self.grid)
         self.term_textures = self.terms.textures(
             lambda t: layer_texture(self, self.ctx, (w, h), t.values, "f4", t.layers))
-        flags = node_flags(system.fixed) | cell_flags(self.grid, cells)
+        #: the body diagonals of the node's neighbourhood, for a term that reads them on a grid
+        #: that is not dense (HOOD_DIAGONALS, lib/node_hood.glsl), or None
+        self.tex_hood_diagonals: moderngl.TextureArray | None = None
+        if self.terms.hood > 1 and not self.dense:
+            self.tex_hood_diagonals = layer_texture(self, self.ctx, (w, h), diagonal_table(self.grid), "i4", 2)
+        flags = node_flags(system.fixed) | self.terms.node_bits(n)
         node = np.stack([system.mass, flags, self.load_bits, mask], axis=1)
         self.tex_node = self._texture(self._image(node))
 
@@ -316,8 +307,6 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                      "LOADS": len(self.loads)}
         if system.wind_drag > 0:
             common["WIND"] = True
-        if cells is not None:
-            common.update(CELLS=True, **cell_terms(cells))
         common.update(self.terms.defines())
         if sp.velocity:
             common["VELOCITY"] = True
@@ -332,7 +321,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.state_bytes = len(self.pool) * w * h * _VEC4
         static = w * h * _VEC4 + (0 if self.dense else w * h * layers * _VEC4) + \
             (0 if self.tex_weights is None else w * h * layers * _VEC4) + \
-            (0 if self.tex_cell_diagonals is None else w * h * 2 * _VEC4)
+            (0 if self.tex_hood_diagonals is None else w * h * 2 * _VEC4)
         static += sum(w * h * t.layers * _VEC4 for t in self.terms.tables)
         self.bytes_allocated = self.state_bytes + static
 
@@ -360,10 +349,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms["u_c"] = (c1, c2, c3)
         if defines.get("DENSE"):
             uniforms["u_offsets"] = self.neighbour_offsets
-        if defines.get("CELLS") and self.cells is not None:
-            uniforms.update(term_uniforms(self.cells))
-            if self.tex_cell_diagonals is not None:
-                uniforms["u_cell_diagonals"] = _CELL_DIAGONAL_UNIT
+        if self.tex_hood_diagonals is not None:
+            uniforms["u_hood_diagonals"] = _HOOD_DIAGONAL_UNIT
         if self.terms:
             uniforms.update(self.terms.uniforms(_TERM_UNITS))
         if defines.get("GROUND"):  # (set only with a ground plane)
@@ -426,8 +413,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
         if self.tex_weights is not None:
             self.tex_weights.use(_SAMPLERS["u_weights"])
-        if self.tex_cell_diagonals is not None:
-            self.tex_cell_diagonals.use(_CELL_DIAGONAL_UNIT)
+        if self.tex_hood_diagonals is not None:
+            self.tex_hood_diagonals.use(_HOOD_DIAGONAL_UNIT)
         for tex, unit in zip(self.term_textures, _TERM_UNITS):
             tex.use(unit)
         try:

@@ -24,14 +24,9 @@ The matrix-vector product of a node is computed from its 18 (+6 flexion) grid ne
 the calibrated lattice). The system's further physics terms (``system.terms``,
 :mod:`deformgl.sim.terms`) add their K y and diagonal blocks in
 :data:`~deformgl.sim.backends.implicit_passes.TERM_PASSES` (define TERMS; those that read the grid
-neighbours in the same loop as the springs), their forces in SETUP. A system with full cells (``system.cells``: the volumetric term and
-corner barriers of :mod:`deformgl.sim.volume`) adds, in SETUP, WARM, INIT and MATVEC (define
-IMPLICIT_CELLS, with CELL_CENTRE and CELL_BARRIER for the terms whose modulus is > 0), the
-cells' forces (``shaders/lib/cell_forces.glsl``, in b) and the Gauss-Newton part of their
-Hessian (``shaders/sim/implicit/cells.glsl``: in the product, in ``H v`` and in the
-preconditioner's blocks; the twin of :func:`deformgl.sim.implicit_cells.cell_product`, the
-NumPy backend's "projected" H), each node gathering its 8 incident cells from its 3x3x3
-neighbourhood; the barriers' products only at the nodes SETUP found a barrier term active at. Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
+neighbours in the same loop as the springs), their forces in SETUP; a term that reads the node's
+3x3x3 neighbourhood gathers it through the 27-node table, and the flag the terms set in SETUP
+travels in b's w. Every sum is a chain of 4x4 reduction passes down to a 1x1 texture
 (``shaders/sim/implicit/reduce.frag``) that the next pass samples: with a fixed iteration count
 (``cg_tolerance`` 0) nothing is read back while stepping; with a tolerance the CPU reads one
 scalar (``r . r``) every ``cg_check_every`` iterations, and ``b . b`` once per step, and stops at
@@ -42,15 +37,14 @@ product, one more read), which the step's report gives and judges; without one
 
 GPU textures (all ``width x rows`` texels of the compact layout, RGBA32F unless said, NEAREST):
 
-* static: node data (R mass, G flags, B load-group bits, A the bit mask of the node's full
-  incident cells, :func:`~deformgl.sim.backends.cell_tables.incident_cells`, 0 without cells),
-  neighbours RGBA32I array (5 or 6 layers), spring weights array (with SPRING_WEIGHTS), as the
-  fragment backend's; with cells the 3x3x3 neighbourhood, RGBA32I array of 7 layers (slot
-  4 l + c of :func:`~deformgl.sim.backends.cell_tables.neighbourhood`'s 27, the node itself
-  where absent);
+* static: node data (R mass, G flags: 1 exists, 2 fixed, the terms' node bits 6-13, B load-group
+  bits, A 0), neighbours RGBA32I array (5 or 6 layers), spring weights array (with
+  SPRING_WEIGHTS), as the fragment backend's; with a term that reads the node's neighbourhood its
+  27-node table, RGBA32I array of 7 layers (slot 4 l + c of
+  :func:`~deformgl.grid.neighbours.neighbourhood`'s 27, the node itself where absent);
+  the terms' node tables;
 * state: x, v and x', v' (xyz; the pairs swap after a step);
-* solver: b (xyz; w, with the cells' barrier, 1 where a barrier term holds the node, read by
-  the products), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
+* solver: b (xyz; w the terms' flag of SETUP, read by the products), P^-1 (xyz: Jacobi 1 / diag(A); block-Jacobi the diagonal of the block's
   inverse, and a second texture ``inv_off`` with its off-diagonal xy, xz, yz), dv (two,
   ping-pong; the latest is the next step's warm start), r (two), p (two), q (xyz), a per-texel
   product (after SETUP, INIT and UPDATE R the preconditioned, G the plain dot product; after
@@ -70,11 +64,11 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid, layout_uniforms
-from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
+from deformgl.grid.neighbours import neighbourhood
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.clock import SimulationBase
-from deformgl.sim.backends.implicit_passes import (CELL_PASSES, REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
+from deformgl.sim.backends.implicit_passes import (REDUCE_UNIT, TERM_PASSES, TERM_UNITS,
                                                    UNITS, pass_defines)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.terms.glsl import pass_terms
@@ -144,12 +138,10 @@ class ImplicitFragment(SimulationBase, GLOwner):
                 raise ValueError(f"ImplicitFragment: drag node {drag.node} outside the system")
         self.iterations, self.tolerance, self.check_every = int(cg_iterations), float(cg_tolerance), int(cg_check_every)
         self.flexion, self.neighbour_table, self.classes = grid_springs(system, grid)
-        cells = system.cells
-        self.cells = (cells if cells is not None and cells.count and max(cells.volume_modulus, cells.barrier_modulus) > 0
-                      else None)
-        self.barrier_flag = self.cells is not None and self.cells.barrier_modulus > 0
         #: the system's physics terms as the passes compile them (deformgl.sim.terms)
-        self.terms = pass_terms(system.terms, "implicit", "ImplicitFragment", implicit=True)
+        self.terms = pass_terms(system.terms, "implicit", "ImplicitFragment", grid, implicit=True)
+        #: the product passes read b's w, the flag the terms set in SETUP (TERMS_HELD)
+        self.held_flag = bool(self.terms.defines().get("TERMS_HELD"))
         self.term_tables: TermTables | None = None
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         self.last_report = SolveReport(0, 0.0, True)
@@ -183,12 +175,13 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.tex_neighbours = self._array_texture(table, "i4")
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         self.tex_weights = None if weights is None else self._array_texture(weights.astype(np.float32), "f4")
-        mask = np.zeros(n) if self.cells is None else incident_cells(self.grid, self.cells)
-        node = np.stack([system.mass, 1.0 + 2.0 * system.fixed, load_groups(self.loads, n), mask], axis=1)
+        flags = (1 + 2 * system.fixed.astype(np.int64)) | self.terms.node_bits(n)
+        node = np.stack([system.mass, flags, load_groups(self.loads, n), np.zeros(n)], axis=1)
         self.tex_node = self._texture(size, self._image(node))
         if self.terms:
             self.term_tables = self.own(TermTables(self.ctx, self.terms, self.grid, self.layout, TERM_UNITS))
-        self.tex_cells = None if self.cells is None else self._array_texture(neighbourhood(self.grid), "i4")
+        #: the 27-node neighbourhood table of the terms that read it (HOOD_NODES), or None
+        self.tex_hood = self._array_texture(neighbourhood(self.grid), "i4") if self.terms.hood else None
         s = initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads) if state is None else state
         x = np.asarray(s.x, np.float64)
         v = np.where(system.fixed[:, None], 0.0, np.asarray(s.v, np.float64))
@@ -212,7 +205,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         self.scalars = {name: self._texture((1, 1)) for name in ("bpb", "pq", "rz", "rz_new", "warm")}
         defines = pass_defines(system, flexion=self.flexion, weights=self.tex_weights is not None,
                                drags=len(self.drags), loads=len(self.loads), constraints=self.constraints,
-                               block=self.block, scaled=self.warm_start == "scaled", cells=self.cells is not None,
+                               block=self.block, scaled=self.warm_start == "scaled",
                                multigrid=self.multigrid,
                                term_defines=self.terms.defines())
         self.passes = {name: self._program(d) for name, d in defines.items()}
@@ -223,7 +216,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         texels = size[0] * size[1]
         self.bytes_allocated = 16 * (len(names) * texels + texels * layers * (1 + (weights is not None))
                                      + sum(a * b for _, (a, b) in self.levels) + len(self.scalars)
-                                     + (0 if self.cells is None else 7 * texels))
+                                     + (0 if self.tex_hood is None else 7 * texels))
         if self.term_tables is not None:
             self.bytes_allocated += self.term_tables.bytes_allocated
         if self.multigrid:
@@ -253,8 +246,6 @@ class ImplicitFragment(SimulationBase, GLOwner):
             "u_gravity": tuple(float(g) for g in system.gravity), "u_velocity_damping": system.velocity_damping,
             "u_mass_damping": system.mass_damping, "u_wind": tuple(float(g) for g in system.wind),
             "u_wind_drag": system.wind_drag}
-        if self.cells is not None:
-            values.update(cell_uniforms(self.cells))
         if self.term_tables is not None:
             values.update(self.term_tables.uniforms)
         if self.drags:
@@ -288,8 +279,8 @@ class ImplicitFragment(SimulationBase, GLOwner):
             if isinstance(tex, str):
                 tex = self.scalars[tex[1:]] if tex.startswith("$") else self.tex[tex]
             tex.use(_UNITS[sampler])
-        if self.tex_cells is not None and name in CELL_PASSES:
-            self.tex_cells.use(_UNITS["u_cell_nb"])
+        if self.tex_hood is not None and name in TERM_PASSES:
+            self.tex_hood.use(_UNITS["u_hood_nodes"])
         if self.term_tables is not None and name in TERM_PASSES:
             self.term_tables.bind()
         self._fbo(*(self.tex[w] if isinstance(w, str) else w for w in writes)).use()
@@ -313,7 +304,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
             reads["u_vec"] = x
         if name != "MG_RESIDUAL":
             reads["u_inv"] = "inv"
-        if self.barrier_flag:
+        if self.held_flag:
             reads["u_b"] = "b"
         self._draw(name, reads, (out,))
 
@@ -382,7 +373,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
         for k in range(self.iterations):
             if tol and k % self.check_every == 0 and float(np.sqrt(max(self._scalar("rz", 1), 0.0))) <= stop:
                 break
-            self._draw("MATVEC", {"u_vec": "p", **({"u_b": "b"} if self.barrier_flag else {})}, ("q", "prod"))
+            self._draw("MATVEC", {"u_vec": "p", **({"u_b": "b"} if self.held_flag else {})}, ("q", "prod"))
             self._sum("pq")
             self._draw("UPDATE", {"u_dv": "dv", "u_r": "r", "u_p": "p", "u_q": "q", "u_inv": "inv", "u_rz": "$rz",
                                   "u_pq": "$pq"}, ("dv_out", "r_out", "prod"))

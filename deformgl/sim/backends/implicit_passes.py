@@ -1,5 +1,5 @@
 """The passes of ``shaders/sim/implicit/implicit.frag`` and their defines: which pass evaluates
-what (cells, the physics terms, the preconditioner), the texture units they read on, and
+what (the physics terms, the preconditioner), the texture units they read on, and
 :func:`pass_defines`, what :class:`~deformgl.sim.backends.implicit_gpu.ImplicitFragment` compiles
 and :mod:`deformgl.pack.variants` enumerates."""
 
@@ -10,12 +10,12 @@ import numpy as np
 from deformgl.sim.integrators import Constraints
 from deformgl.sim.springs import SpringSystem
 
-__all__ = ["TERM_PASSES", "TERM_UNITS", "PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES", "CELL_PASSES",
+__all__ = ["TERM_PASSES", "TERM_UNITS", "PASSES", "PRODUCT_PASSES", "MG_PASSES", "MG_CG_PASSES", "PRECONDITIONED_PASSES",
            "UNITS", "REDUCE_UNIT", "pass_defines"]
 
 #: The passes of ``implicit.frag`` (one define each).
 PASSES = ("SETUP", "WARM", "INIT", "MATVEC", "UPDATE", "DIRECTION", "FINAL", "TRUE_RESIDUAL")
-#: The passes that evaluate A's product (the spring, node, cell and the physics terms).
+#: The passes that evaluate A's product (the springs, the node terms and the physics terms).
 PRODUCT_PASSES = ("WARM", "INIT", "MATVEC", "TRUE_RESIDUAL")
 #: Its multigrid passes on the finest level (MG_SMOOTH_ZERO: MG_SMOOTH with FROM_ZERO).
 MG_PASSES = ("MG_SMOOTH_ZERO", "MG_SMOOTH", "MG_RESIDUAL")
@@ -30,29 +30,25 @@ REDUCE_UNIT = 15
 UNITS["u_inv_off"] = REDUCE_UNIT
 #: The passes that apply P^-1 (block-Jacobi: they read ``inv_off`` too).
 PRECONDITIONED_PASSES = ("SETUP", "INIT", "UPDATE", "DIRECTION")
-#: The passes that evaluate the cells' terms (define IMPLICIT_CELLS, not the explicit stages'
-#: CELLS of ``sim/integrators/forces.glsl``: forces in SETUP, the Hessian's product in
-#: :data:`PRODUCT_PASSES` and the multigrid's fine passes); they read the neighbourhood texture
-#: on the unit of ``u_rz``, which only UPDATE and DIRECTION read.
-CELL_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
-UNITS["u_cell_nb"] = UNITS["u_rz"]
+#: The passes that evaluate the physics terms (deformgl.sim.terms: forces in SETUP, K y in
+#: :data:`PRODUCT_PASSES` and the multigrid's fine passes); a term that reads the node's 3x3x3
+#: neighbourhood (HOOD_NODES) reads its 27-node table on the unit of ``u_rz``, which only UPDATE and
+#: DIRECTION read.
+TERM_PASSES = ("SETUP", *PRODUCT_PASSES, *MG_PASSES)
+UNITS["u_hood_nodes"] = UNITS["u_rz"]
 #: The multigrid passes' right-hand side and DIRECTION's z, on the unit of ``u_q``, which neither reads.
 UNITS["u_mg_rhs"] = UNITS["u_z"] = UNITS["u_q"]
-#: The passes that evaluate the physics terms (deformgl.sim.terms: forces in SETUP, K y in the
-#: product passes), and the units their node tables use there: those of dv, p and rz_new, which
+#: The units the terms' node tables use in :data:`TERM_PASSES`: those of dv, p and rz_new, which
 #: only UPDATE, DIRECTION and FINAL read.
-TERM_PASSES = CELL_PASSES
 TERM_UNITS = (UNITS["u_dv"], UNITS["u_p"], UNITS["u_rz_new"])
 
 
 def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: int, loads: int,
                  constraints: Constraints | None, block: bool = False,
-                 scaled: bool = True, cells: bool = False,
+                 scaled: bool = True,
                  multigrid: bool = False, term_defines: dict[str, object] | None = None) -> dict[str, dict[str, object]]:
     """The defines of each pass of ``implicit.frag`` (what :mod:`deformgl.pack.variants` lists);
-    ``cells``: the system has full cells (``system.cells``): IMPLICIT_CELLS in
-    :data:`CELL_PASSES`, with CELL_CENTRE where its kappa > 0 and CELL_BARRIER where its
-    kappa_b > 0 (none of the three if both are 0); ``term_defines``: the physics terms' defines
+    ``term_defines``: the physics terms' defines
     (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`) in :data:`TERM_PASSES`; ``multigrid``: the V-cycle's passes
     (:data:`MG_PASSES`, with PRECOND_BLOCK in MG_SMOOTH's) and MULTIGRID in
     :data:`MG_CG_PASSES` (``block`` then puts PRECOND_BLOCK in SETUP only)."""
@@ -83,11 +79,7 @@ def pass_defines(system: SpringSystem, *, flexion: bool, weights: bool, drags: i
     if block:
         for name in ("SETUP",) if multigrid else PRECONDITIONED_PASSES:
             out[name]["PRECOND_BLOCK"] = True
-    terms = {"CELL_CENTRE": system.cells.volume_modulus > 0,
-             "CELL_BARRIER": system.cells.barrier_modulus > 0} if cells and system.cells is not None else {}
-    if any(terms.values()):
-        for name in (n for n in CELL_PASSES if n in out):
-            out[name].update(IMPLICIT_CELLS=True, **{k: True for k, on in terms.items() if on})
+    hood = {"HOOD_NODES": True} if (term_defines or {}).get("TERMS_HOOD") else {}
     for name in (n for n in TERM_PASSES if n in out):
-        out[name].update(term_defines or {})
+        out[name].update(term_defines or {}, **hood)
     return out

@@ -39,8 +39,9 @@ from deformgl.sim.multigrid import SWEEPS, Hierarchy, diagonal_blocks
 __all__ = ["GpuMultigrid", "MAX_STENCIL", "level_width"]
 
 #: The most blocks a coarse operator's row may hold (``STENCIL_COUNT`` of multigrid.frag): the
-#: 3x3x3 stencil of a body of the 18-neighbour lattice (with its cells), the 5x5 of a sheet with
-#: flexion springs or terms that read the flexion neighbours; a 3D body with flexion springs (a 5x5x5 coarse stencil) is refused.
+#: 3x3x3 stencil of a body of the 18-neighbour lattice (with its terms), the 5x5 of a sheet with
+#: flexion springs or terms that read the flexion neighbours; a 3D body with flexion springs (a
+#: 5x5x5 coarse stencil) is refused.
 MAX_STENCIL = 27
 _UNITS = {"u_stencil_nb": 0, "u_stencil": 1, "u_rhs": 2, "u_vec": 3, "u_smoother": 4, "u_src": 5,
           "u_transfer_nb": 6, "u_transfer_w": 7, "u_inverse": 8, "u_r": 9, "u_z": 10}

@@ -1,8 +1,8 @@
 """The fragment backend's position-Verlet fast path as passes and a simulation: Mosegaard &
 Sørensen 2005, section 3.1 — one fragment pass per step (:class:`VerletPass` on a one-node layout,
 :class:`~deformgl.sim.backends.blocked.BlockedVerletPass` on the blocked layout), the spring force
-of eq. 1 (eq. 2 where the classes share one stiffness) and the packed eq. 3 node normal written
-with the new position, so a mapped mesh draws straight from the state texture.
+of Mosegaard & Sørensen 2005, eq. 1 (Mosegaard & Sørensen 2005, eq. 2 where the classes share one
+stiffness) and the packed node normal (Mosegaard & Sørensen 2005, eq. 3) written with the new position, so a mapped mesh draws straight from the state texture.
 :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` builds a :class:`FoundationVerlet` by
 itself for Verlet when the pass models the system (:func:`~deformgl.sim.backends.foundation.verlet_terms`;
 the textures and their channels: :mod:`deformgl.sim.backends.foundation`)."""
@@ -18,8 +18,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
-from deformgl.sim.backends.cell_pass import cell_flags, cell_kind, cell_terms, term_uniforms
-from deformgl.sim.backends.foundation import (CELL_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
+from deformgl.sim.backends.foundation import (HOOD_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
                                               NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms
@@ -52,9 +51,6 @@ class VerletPass(GLOwner):
             raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
         super().__init__(ctx)
         layout = textures.layout
-        cells = terms.cells
-        if cells is not None and not isinstance(layout, CompactLayout):
-            raise ValueError("VerletPass: the cell term needs a compact layout")
         if terms.extra and not isinstance(layout, CompactLayout):
             raise ValueError("VerletPass: the physics terms' tables need a compact layout, not the z-slice atlas")
         if isinstance(layout, CompactLayout) and draw == "rects":
@@ -68,13 +64,10 @@ class VerletPass(GLOwner):
             self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
                 "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
                 "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
-                "SPRING_WEIGHT_LEVELS": textures.weight_levels, "CELLS": cells is not None,
-                **(cell_terms(cells) if cells is not None else {}), **layout.shader_defines(),
+                "SPRING_WEIGHT_LEVELS": textures.weight_levels, **layout.shader_defines(),
                 **terms.extra.defines()}, chunks=terms.extra.chunks()))
-            if cells is not None:
-                self.program.set(**term_uniforms(cells))
-            if textures.cell_diagonals is not None:
-                self.program.set(u_cell_diagonals=CELL_DIAGONAL_UNIT)
+            if textures.hood_diagonals is not None:
+                self.program.set(u_hood_diagonals=HOOD_DIAGONAL_UNIT)
             self.program.set(**layout.shader_uniforms(),
                              u_spacing=terms.spacing, u_k_structural=terms.k_structural,
                              u_k_shear=terms.k_shear, u_damping=terms.damping, u_mass_damping=terms.mass_damping,
@@ -135,7 +128,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`).
 
     Raises:
-        ValueError: dt <= 0; the atlas layout with cells; "blocked" without a block, a block with
+        ValueError: dt <= 0; the atlas layout with physics terms; "blocked" without a block, a block with
             another layout or a draw other than "rects", a block the renderer cannot run
             (:func:`~deformgl.sim.backends.blocked.blocked_refusal`).
     """
@@ -162,7 +155,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         self._start_clock(dt, t0)
         self.loads = tuple(loads)
         self.count = grid.count
-        flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | cell_flags(grid, terms.cells)
+        flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | terms.extra.node_bits(grid.count)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
         if layout == "auto" and block is None and draw == "rects":  # (points, quad: one-node variants)
@@ -197,7 +190,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
             else:
                 textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights,
-                                                 weight_texture=weight_texture, cells=cell_kind(terms.cells)))
+                                                 weight_texture=weight_texture, hood=terms.extra.hood))
                 one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
                 if terms.extra and isinstance(textures.layout, CompactLayout):  # (VerletPass refused the atlas)
                     self.term_tables = self.own(TermTables(ctx, terms.extra, grid, textures.layout, TERM_UNITS))

@@ -13,7 +13,7 @@ texel, 0 at every other texel; docs/ARCHITECTURE.md):
 
 * neighbourhood: RGBA32I array, 7 layers: column ``4 l + c`` the node at slot
   ``(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`` of the 3x3x3 neighbourhood
-  (:func:`~deformgl.sim.backends.cell_tables.neighbourhood`; the node itself where absent), column
+  (:func:`~deformgl.grid.neighbours.neighbourhood`; the node itself where absent), column
   27 0; static. A node's full incident cells are the flag bits ``64 << q`` of the XPBD node data;
 * lambda, 2 sets (ping-pong per sweep) of 2 RGBA32F: the barrier multipliers of corners 0..3 and
   4..7 (>= 0);
@@ -35,7 +35,8 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells, neighbourhood
+from deformgl.grid.neighbours import neighbourhood
+from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells
 from deformgl.sim.backends.compact_textures import float_texture, layer_texture
 from deformgl.sim.xpbd_cells import CellConstraints
 
@@ -107,7 +108,7 @@ class XpbdCells(GLOwner):
         return sweep_defines(self.constraints.volume, self.constraints.barrier)
 
     def uniforms(self, program: Program) -> dict[str, object]:
-        """The uniforms of ``lib/cell_forces.glsl`` that ``program`` uses (the caller sets the
+        """The uniforms of ``terms/cell_forces.glsl`` that ``program`` uses (the caller sets the
         samplers, ``u_h`` and ``u_width_log2`` of every pass)."""
         values = cell_uniforms(self.constraints.cells)
         return {k: v for k, v in values.items() if k in program.members}

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from deformgl.grid.nodes import NodeGrid
+
 __all__ = ["GlslTerm", "NodeTable", "Term", "block_diagonal"]
 
 
@@ -69,7 +71,7 @@ class GlslTerm:
 
         void PREFIX_force(inout vec3 f, TermNode n);            // adds the node's force, N
         void PREFIX_product(inout vec3 q, TermNode n, vec3 y);  // adds (K y)_i (implicit)
-        void PREFIX_diagonal(inout vec3 d, inout vec3 off, TermNode n);
+        void PREFIX_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n);
             // adds K's 3x3 diagonal block of the node: d its diagonal, off (xy, xz, yz)
 
     ``PREFIX_product`` and ``PREFIX_diagonal`` only where ``implicit`` is True. A term that couples a
@@ -86,10 +88,21 @@ class GlslTerm:
     a node to any other (``others``) reads that node's state by its number: ``term_position(node)``,
     ``term_velocity(node)`` and, in its implicit functions, ``term_vector(node)`` (the vector y
     multiplied); the compact layouts' passes define them, the blocked layout does not run such a
-    term (the foundation pass takes the compact layout for it). A ``TermNode`` holds
-    the node's position ``x`` and velocity ``v`` at the evaluation state, its mass ``m`` and where its
-    tables are. ``uniforms`` are set on every pass that compiles the chunk; their names, the
-    tables' samplers and every function must start with ``prefix`` (or ``u_`` + prefix).
+    term (the foundation pass takes the compact layout for it). A term that reads the node's 3x3x3
+    neighbourhood (``hood`` 1: its 18 face and edge neighbours, 2: and the 8 body diagonals; a
+    per-cell term) finds the positions relative to the node in ``node_hood[27]`` (slot (dx + 1) +
+    3 (dy + 1) + 9 (dz + 1); the node itself 0) when its force runs, filled by the pass
+    (``shaders/lib/node_hood.glsl``, the springs' fetches kept); in its implicit functions
+    ``hood_positions(n, p)`` and ``hood_vector(n, y)`` gather them and the vector multiplied.
+
+    A ``TermNode`` holds the node's position ``x`` and velocity ``v`` at the evaluation state, its
+    mass ``m``, where its tables are, ``bits`` (the 8 bits ``node_bits`` gave the node: one term per
+    system may have them, stored in the node data's flag word, bits 6-13) and ``held`` (the implicit
+    product passes: the flag a term with ``held`` set in ``PREFIX_diagonal``'s ``held`` at the step's
+    start, e.g. "a barrier acts here"; 1 in the step's first pass). ``defines`` switch the chunk's
+    variants (names starting with PREFIX in capitals). ``uniforms`` are set on every pass that
+    compiles the chunk; their names, the tables' samplers and every function must start with
+    ``prefix`` (or ``u_`` + prefix).
     """
 
     prefix: str
@@ -98,8 +111,12 @@ class GlslTerm:
     implicit: bool = False
     neighbours: int = 0
     others: bool = False
+    hood: int = 0
+    held: bool = False
+    defines: dict[str, object] = field(default_factory=dict)
     uniforms: dict[str, object] = field(default_factory=dict)
     tables: tuple[NodeTable, ...] = ()
+    node_bits: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if (self.source is None) == (self.file is None):
@@ -108,6 +125,15 @@ class GlslTerm:
             raise ValueError(f"GlslTerm: prefix {self.prefix!r} is not a GLSL identifier")
         if self.neighbours not in (0, 18, 24):
             raise ValueError(f"GlslTerm {self.prefix}: neighbours must be 0, 18 or 24, got {self.neighbours}")
+        if self.hood not in (0, 1, 2):
+            raise ValueError(f"GlslTerm {self.prefix}: hood must be 0, 1 or 2, got {self.hood}")
+        for name in self.defines:
+            if not name.startswith(f"{self.prefix.upper()}_"):
+                raise ValueError(f"GlslTerm {self.prefix}: define {name!r} must start with {self.prefix.upper()}_")
+        if self.node_bits is not None:
+            bits = np.asarray(self.node_bits)
+            if bits.ndim != 1 or bits.dtype.kind not in "iu" or (len(bits) and (bits.min() < 0 or bits.max() > 255)):
+                raise ValueError(f"GlslTerm {self.prefix}: node_bits must be (N,) integers in 0..255")
         for name in (*self.uniforms, *(t.sampler for t in self.tables)):
             if not name.startswith(f"u_{self.prefix}"):
                 raise ValueError(f"GlslTerm {self.prefix}: uniform {name!r} must start with u_{self.prefix}")
@@ -140,6 +166,11 @@ class Term(ABC):
         """``K = -df/dx`` at x, (3N, 3N) N/m, symmetric positive semi-definite (the projected
         form where the exact one is indefinite): the implicit step's share of H."""
 
+    def hessian(self, x: np.ndarray, geometric: str = "projected") -> sp.csr_matrix:
+        """The implicit step's share of H at x for the springs' ``geometric`` option
+        (:data:`deformgl.sim.implicit.GEOMETRIC`; the default: :meth:`stiffness`)."""
+        return self.stiffness(x)
+
     def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """``K(x) y`` for y (N, 3)."""
         return (self.stiffness(x) @ np.asarray(y, np.float64).reshape(-1)).reshape(-1, 3)
@@ -149,6 +180,11 @@ class Term(ABC):
         K at rest; ``barrier``: the envelope of what the term stiffens to during a run, where that
         differs from rest (the default: K at rest in both)."""
         return self.stiffness(x_rest)
+
+    def dt_product(self, x_rest: np.ndarray, dx: np.ndarray, *, barrier: bool = False) -> np.ndarray:
+        """:meth:`dt_stiffness` times displacements dx (N, 3), N (the exact highest frequency's
+        Lanczos iterations; override it where K need not be assembled)."""
+        return (self.dt_stiffness(x_rest, barrier=barrier) @ np.asarray(dx, np.float64).reshape(-1)).reshape(-1, 3)
 
     def frequency_terms(self, x_rest: np.ndarray, *, barrier: bool = False) -> np.ndarray:
         """(N,) the Gershgorin row sums of :meth:`dt_stiffness`, N/m, the largest of each node's
@@ -161,8 +197,20 @@ class Term(ABC):
         """The term as messages name it, with its constants ("rest anchors, k = 30 N/m")."""
         return self.name
 
-    def glsl(self) -> GlslTerm | None:
-        """The term's GLSL form, or None where it has none (the GPU backends refuse it)."""
+    def limit_share(self, x_rest: np.ndarray, node: int, springs: float) -> str:
+        """:meth:`describe` where the term is the larger part of ``node``'s stiffness in the dt
+        bound (its :meth:`frequency_terms` with the envelope against ``springs``, the springs'
+        ``2 sum k``, N/m), else "": the dt check's message names it (:mod:`deformgl.sim.limits`)."""
+        return self.describe() if self.frequency_terms(x_rest, barrier=True)[node] > springs else ""
+
+    def acts(self) -> bool:
+        """Whether the term exerts a force on its system (False: no pass compiles it, e.g. cells
+        whose moduli are both 0)."""
+        return True
+
+    def glsl(self, grid: NodeGrid | None) -> GlslTerm | None:
+        """The term's GLSL form on the system's node ``grid``, or None where it has none (the GPU
+        backends refuse it)."""
         return None
 
     def feedback_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -173,17 +221,15 @@ class Term(ABC):
 
     def refusal(self, backend: str) -> str | None:
         """Why ``backend`` ("feedback", "xpbd", "fragment", "implicit") cannot run this term, one
-        phrase, or None. The default: the fragment backends run it where it has a GLSL form (and
-        implicit Euler where that form has its product); transform feedback and XPBD do not."""
-        form = self.glsl()
+        phrase, or None. The default: the fragment backends run it where it has a GLSL form
+        (implicit Euler where that form has its product: :func:`deformgl.sim.terms.glsl.pass_terms`
+        checks); transform feedback where it has :meth:`feedback_pairs`; XPBD does not."""
         if backend == "feedback" and self.feedback_pairs() is not None:
             return None
         if backend in ("feedback", "xpbd"):
             return f"{self.name} have no {'transform-feedback' if backend == 'feedback' else 'XPBD'} form"
-        if form is None:
+        if type(self).glsl is Term.glsl:
             return f"{self.name} have no GLSL form"
-        if backend == "implicit" and not form.implicit:
-            return f"{self.name} have no implicit product in GLSL"
         return None
 
 

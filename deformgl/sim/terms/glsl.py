@@ -16,12 +16,15 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
 
 __all__ = ["ACTIVE", "PassTerms", "compose", "pass_terms", "refuse_terms"]
 
 #: The include name of the composed term list.
 ACTIVE = "terms/active.glsl"
+#: The first bit of the terms' node bits in the node data's flag word (lib/node_flags.glsl).
+TERM_SHIFT = 6
 _NODE = "lib/term_node.glsl"
 
 
@@ -49,9 +52,27 @@ class PassTerms:
         if not self.forms:
             return {}
         out: dict[str, object] = {"TERMS": True, "TERMS_IMPLICIT": self.implicit,
-                                  "TERMS_NEIGHBOURS": any(f.neighbours for f in self.forms)}
-        out.update({f"TERM_{f.prefix.upper()}": True for f in self.forms})
+                                  "TERMS_NEIGHBOURS": any(f.neighbours for f in self.forms),
+                                  "TERMS_HOOD": self.hood > 0, "HOOD_DIAGONALS": self.hood > 1,
+                                  "TERMS_HELD": self.implicit and any(f.held for f in self.forms)}
+        for f in self.forms:
+            out[f"TERM_{f.prefix.upper()}"] = True
+            out.update(f.defines)
         return out
+
+    @property
+    def hood(self) -> int:
+        """How much of the node's 3x3x3 neighbourhood the pass keeps for its terms (0, 1: the 18
+        neighbours, 2: and the body diagonals)."""
+        return max((f.hood for f in self.forms), default=0)
+
+    def node_bits(self, count: int) -> np.ndarray:
+        """(N,) int64 the terms' node bits, shifted into the node data's flag word (bits 6-13,
+        ``shaders/lib/node_flags.glsl`` TERM_SHIFT); 0 without."""
+        for form in self.forms:
+            if form.node_bits is not None:
+                return np.asarray(form.node_bits, np.int64) << TERM_SHIFT
+        return np.zeros(count, np.int64)
 
     def chunks(self) -> dict[str, str]:
         """The include files given as text: each inline chunk, and ``terms/active.glsl``."""
@@ -124,8 +145,8 @@ def compose(forms: Sequence[GlslTerm], *, guarded: bool = False) -> str:
     if implicit:
         lines.append("#ifdef TERMS_IMPLICIT")
         function("void terms_product(inout vec3 q, TermNode n, vec3 y)", "PREFIX_product(q, n, y);", implicit)
-        function("void terms_diagonal(inout vec3 d, inout vec3 off, TermNode n)", "PREFIX_diagonal(d, off, n);",
-                 implicit)
+        function("void terms_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n)",
+                 "PREFIX_diagonal(d, off, held, n);", implicit)
         near_implicit = [f for f in implicit if f.neighbours]
         if near_implicit:
             lines.append("#ifdef TERMS_NEIGHBOURS")
@@ -136,15 +157,26 @@ def compose(forms: Sequence[GlslTerm], *, guarded: bool = False) -> str:
     return "\n".join(lines) + "\n"
 
 
-def pass_terms(terms: Sequence[Term], backend: str, caller: str, *, implicit: bool = False) -> PassTerms:
-    """The GLSL forms of ``terms`` for a pass of ``backend`` ("fragment" or "implicit"), after
-    :func:`refuse_terms`."""
+def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid | None, *,
+               implicit: bool = False) -> PassTerms:
+    """The GLSL forms on ``grid`` of the ``terms`` that act, for a pass of ``backend``
+    ("fragment" or "implicit"), after :func:`refuse_terms`; a one-line ValueError for a term
+    without the implicit product in an implicit pass, two terms with node bits or one prefix."""
     refuse_terms(terms, backend, caller)
-    forms = tuple(form for form in (t.glsl() for t in terms) if form is not None)
+    forms = []
+    for term in terms:
+        form = term.glsl(grid) if term.acts() else None
+        if form is None:
+            continue
+        if implicit and not form.implicit:
+            raise ValueError(f"{caller}: {term.name} have no implicit product in GLSL")
+        forms.append(form)
     prefixes = [f.prefix for f in forms]
     if len(set(prefixes)) != len(prefixes):
         raise ValueError(f"{caller}: two terms share a GLSL prefix ({', '.join(prefixes)})")
-    return PassTerms(forms, implicit)
+    if sum(f.node_bits is not None for f in forms) > 1:
+        raise ValueError(f"{caller}: two terms keep node bits; the node data has room for one term's")
+    return PassTerms(tuple(forms), implicit)
 
 
 def blocked_table(table: NodeTable, scatter: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:

@@ -10,14 +10,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from deformgl.sim import bending
+from deformgl.sim import bending, volume_glsl
 from deformgl.sim.terms.base import GlslTerm
 from deformgl.sim.terms.glsl import compose
 
-__all__ = ["SHIPPED", "shipped_active"]
+__all__ = ["SHIPPED", "VARIANTS", "shipped_active"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
-SHIPPED: tuple[GlslTerm, ...] = (bending.GLSL,)
+SHIPPED: tuple[GlslTerm, ...] = (volume_glsl.GLSL, bending.GLSL)
+#: Every form of each, as the shader pack enumerates them.
+VARIANTS: tuple[GlslTerm, ...] = (*volume_glsl.CELL_FORMS, bending.GLSL)
 
 
 def shipped_active() -> str:

@@ -1,16 +1,16 @@
 #version 330 core
-// The volumetric term of every node, per node (lib/cell_forces.glsl cell_forces: the float32
+// The volumetric term of every node, per node (terms/cell_forces.glsl cell_forces: the float32
 // twin of deformgl/sim/volume.py volume_forces), into a force texture: one fragment per node of
 // a compact layout (deformgl/grid/nodes.py CompactLayout: node n at texel node_texel(n)).
 // The node's 3x3x3 neighbourhood comes from u_cell_hood (7 RGBA32I layers, slot 4 l + c =
 // (dx + 1) + 3 (dy + 1) + 9 (dz + 1): deformgl/sim/backends/cell_tables.py neighbourhood), or
 // with COMPACT_DENSE (every node of the box exists) from the node-number strides; the mask of
-// its full incident cells is the node data's G >> CELL_SHIFT (lib/node_flags.glsl). Positions
+// its full incident cells is the node data's G >> TERM_SHIFT (lib/node_flags.glsl). Positions
 // are taken relative to the node (the terms only use differences), so float32 rounding stays at
 // the scale of h. Output: xyz the force in N, w 0; 0 at nodes in no full cell.
 #include "lib/node_flags.glsl"
 #include "lib/node_texel.glsl"
-#include "lib/cell_forces.glsl"
+#include "terms/cell_forces.glsl"
 
 uniform sampler2D u_x;       // RGBA32F: xyz position, m
 uniform sampler2D u_node;    // RGBA32F node data: G flag bits with the incident-cell mask
@@ -24,7 +24,7 @@ layout(location = 0) out vec4 o_force;
 
 void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
-    uint cells = cell_bits(int(texelFetch(u_node, texel, 0).g));
+    uint cells = term_bits(int(texelFetch(u_node, texel, 0).g));
     if (cells == 0u) {
         o_force = vec4(0.0);
         return;

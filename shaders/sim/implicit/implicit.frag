@@ -21,10 +21,10 @@
 //   MG_RESIDUAL  res = rhs - A x on this level (the coarse levels: sim/implicit/multigrid.frag)
 // MULTIGRID (INIT, UPDATE, DIRECTION): P^-1 is the V-cycle, run between the passes: INIT and
 // UPDATE leave r . z to multigrid.frag's RZ, DIRECTION reads z = M^-1 r from u_z.
-// IMPLICIT_CELLS (SETUP, WARM, INIT, MATVEC, TRUE_RESIDUAL, MG_*): the full cells' volumetric term and corner
-// barriers, their forces in f (lib/cell_forces.glsl) and their Gauss-Newton block in H
-// (sim/implicit/cells.glsl). Not CELLS: that define switches on the explicit stages' own cell
-// forces inside sim/integrators/forces.glsl, which this file includes for the springs.
+// TERMS (SETUP, WARM, INIT, MATVEC, TRUE_RESIDUAL, MG_*): the system's physics terms
+// (deformgl/sim/terms), their forces in f (sim/integrators/forces.glsl, with TERMS_HOOD the node's
+// neighbourhood from the 27-node table u_hood_nodes: HOOD_NODES), K y and the node's block
+// (sim/implicit/system.glsl); with TERMS_HELD the flag they set in SETUP travels in b's w.
 // The scalars rz, pq, rz_new are 1x1 textures (R; rz and rz_new G: r . r, the stopping test's)
 // reduced on the GPU (sim/implicit/reduce.frag).
 // Fixed nodes and padding texels write 0 to every CG vector (FINAL: x bit for bit, v = 0).
@@ -34,22 +34,16 @@
 #endif
 #include "lib/node_flags.glsl"
 
-uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed), B load groups,
-                            // A the full incident cells' bit mask (IMPLICIT_CELLS)
+uniform sampler2D u_node;   // RGBA32F static: R mass kg, G flags (1 exists, 2 fixed; the terms' node
+                            // bits 6-13, lib/node_flags.glsl), B load groups
 uniform sampler2D u_x;      // xyz position at t
 uniform sampler2D u_v;      // xyz velocity at t
 uniform float u_dt;
-#if defined(INIT) || defined(WARM) || defined(TRUE_RESIDUAL) || ((defined(MATVEC) || defined(MG_SMOOTH) || defined(MG_RESIDUAL)) && defined(IMPLICIT_CELLS) && defined(CELL_BARRIER))
-uniform sampler2D u_b;      // xyz right-hand side; w (IMPLICIT_CELLS, CELL_BARRIER): 1 where a
-                            // barrier term holds the node
+#if defined(INIT) || defined(WARM) || defined(TRUE_RESIDUAL) || ((defined(MATVEC) || defined(MG_SMOOTH) || defined(MG_RESIDUAL)) && defined(TERMS_HELD))
+uniform sampler2D u_b;      // xyz right-hand side; w (TERMS_HELD): the terms' flag, set in SETUP
 #endif
 #define EVAL_X(T) texelFetch(u_x, T, 0).xyz
 #define EVAL_V(T) texelFetch(u_v, T, 0).xyz
-#ifdef IMPLICIT_CELLS
-// before forces.glsl: it includes this file inside its own #ifdef CELLS, and the preprocessor
-// includes a file once, at its first #include, whether or not that one is compiled
-#include "lib/cell_forces.glsl"
-#endif
 // the neighbour and weight textures, the class uniforms and a = f / m (SETUP's f)
 #include "sim/integrators/forces.glsl"
 #include "sim/implicit/system.glsl"
@@ -166,33 +160,18 @@ void main() {
     float kd = node_drag_stiffness(texel_node(texel));
     vec3 hv = sk + kd * vi;
     vec3 f = m * grid_acceleration(texel, xi, vi, m, int(node.b));
-#ifdef IMPLICIT_CELLS
-    // the cells' forces (lib/cell_forces.glsl), their H v and their block of the node
-    vec3 cell_p[27], cell_v[27], cell_dk, cell_ok;
-    cell_gather(texel, u_x, xi, cell_p);
-    cell_gather(texel, u_v, vec3(0.0), cell_v);
-    uint incident = cell_mask(texel);
-    bool barrier_active;
-    f += cell_forces(cell_p, incident);
-    hv += cell_product(cell_p, cell_v, incident, true, cell_dk, cell_ok, barrier_active);
-    dk += cell_dk;
-    ok += cell_ok;
-#endif
+    float flag = 0.0;   // b's w: the terms' flag (TERMS_HELD; the cells': a barrier term holds the node)
 #ifdef TERMS
     // the physics terms' K v and their block of the node (their forces are in f: forces.glsl)
-    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m);
+    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m, term_bits(flags), 1.0);
     vec3 term_kv = vec3(0.0), term_dk = vec3(0.0), term_ok = vec3(0.0);
     terms_product(term_kv, term_node, vi);
-    terms_diagonal(term_dk, term_ok, term_node);
+    terms_diagonal(term_dk, term_ok, flag, term_node);
     hv += term_kv;
     dk += term_dk;
     ok += term_ok;
 #endif
     vec3 b = dt * (f - dt * hv);
-    float flag = 0.0;   // b's w: a barrier term holds the node (sim/implicit/cells.glsl)
-#ifdef IMPLICIT_CELLS
-    flag = barrier_active ? 1.0 : 0.0;
-#endif
     vec3 diag = vec3(m + dt * node_damping(m) + dt * dt * kd) + (dt * dt) * dk + dt * dc;
 #ifdef PRECOND_BLOCK
     vec3 off = (dt * dt) * ok + dt * oc;

@@ -27,9 +27,9 @@
 // TERMS: the system's further physics terms (deformgl/sim/terms; terms/active.glsl, composed by the
 // host): each node's terms_force after the cells'; with TERMS_NEIGHBOURS, terms_begin before the
 // neighbours and terms_neighbour(f, n, j, d) after each neighbour's spring, d = x_i - x_j.
-// CELLS (with CELL_CENTRE and/or CELL_BARRIER): the lattice's volumetric term of
-// deformgl/sim/volume.py volume_forces, gathered from the node's full incident cells at the same
-// evaluation state (sim/cells/node_hood.glsl; the incident-cell mask in u_node's G, bits 6-13).
+// TERMS_HOOD (with HOOD_DIAGONALS): a term reads the node's 3x3x3 neighbourhood at the same
+// evaluation state (lib/node_hood.glsl: the 18 neighbours the springs fetch are kept in node_hood);
+// the terms' node bits are u_node's G bits 6-13 (lib/node_flags.glsl term_bits).
 
 #include "lib/neighbour_count.glsl"
 #ifdef DENSE
@@ -51,25 +51,20 @@ uniform sampler2DArray u_weights;
 #include "lib/node_forces.glsl"
 #include "lib/node_texel.glsl"
 #include "lib/spring_force.glsl"
+#ifdef TERMS_HOOD
+// the positions of the 18 grid neighbours the springs fetch are kept, relative to the node, in
+// their slots of its 3x3x3 neighbourhood node_hood (slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1) of
+// NEIGHBOUR_OFFSETS[j]); node_hood.glsl adds the body diagonals (HOOD_DIAGONALS)
+vec3 node_hood[27];
+#define HOOD_POSITION(T) EVAL_X(T)
+#include "lib/node_hood.glsl"
+#endif
 #ifdef TERMS
 // the system's further physics terms (deformgl/sim/terms: each a chunk; terms/active.glsl, composed
-// by the host, calls them): their forces at the evaluation state, after the cells'
+// by the host, calls them): their forces at the evaluation state
+#define TERM_POSITION(T) EVAL_X(T)
+#define TERM_VELOCITY(T) EVAL_V(T)
 #include "terms/active.glsl"
-vec3 term_position(int node) {
-    return EVAL_X(node_texel(node));
-}
-vec3 term_velocity(int node) {
-    return EVAL_V(node_texel(node));
-}
-#endif
-#ifdef CELLS
-// CELLS (the lattice's volumetric term, sim/cells/node_hood.glsl): the positions of the 18 grid
-// neighbours the springs fetch are kept, relative to the node, in their slots of the node's
-// 3x3x3 neighbourhood cell_hood (slot (dx + 1) + 3 (dy + 1) + 9 (dz + 1) of NEIGHBOUR_OFFSETS[j]);
-// node_hood.glsl adds the body diagonals where the centre term reads them (the barrier never does).
-vec3 cell_hood[27];
-#define CELL_POSITION(T) EVAL_X(T)
-#include "sim/cells/node_hood.glsl"
 #endif
 
 // The spring of class cls to the neighbour at texel tj, d = x_i - x_j (lib/spring_force.glsl).
@@ -83,7 +78,7 @@ vec3 class_spring_force(vec3 d, ivec2 tj, vec3 vi, int cls) {
 
 // Neighbour J (a literal) and its spring; unrolled with literal indices (llvmpipe keeps a
 // dynamically indexed local array in memory). GRID_SPRING: the 18 grid neighbours (SLOT: their
-// slot of cell_hood, kept with CELLS); GRID_FLEXION: the 6 flexion neighbours (with NB_COUNT 24).
+// slot of node_hood, kept with TERMS_HOOD); GRID_FLEXION: the 6 flexion neighbours (with NB_COUNT 24).
 // (each macro on one line: a backslash line continuation is GLSL 4.20, not 3.30 nor ES 3.00)
 #ifdef DENSE
 #define NB_OTHER(J) (((mask >> (J)) & 1) != 0 ? self_node + u_offsets[J] : self_node)
@@ -95,17 +90,17 @@ vec3 class_spring_force(vec3 d, ivec2 tj, vec3 vi, int cls) {
 #else
 #define NB_SPRING(J, D, TJ) class_spring_force(D, TJ, vi, (J) < 6 ? 0 : ((J) < 18 ? 1 : 2))
 #endif
-#ifdef CELLS
-#define CELL_KEEP(SLOT, D) cell_hood[SLOT] = -(D);
+#ifdef TERMS_HOOD
+#define HOOD_KEEP(SLOT, D) node_hood[SLOT] = -(D);
 #else
-#define CELL_KEEP(SLOT, D)
+#define HOOD_KEEP(SLOT, D)
 #endif
 #ifdef TERMS_NEIGHBOURS
 #define TERMS_NB(J, D) terms_neighbour(f, term_node, J, D);
 #else
 #define TERMS_NB(J, D)
 #endif
-#define GRID_SPRING(J, SLOT) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); CELL_KEEP(SLOT, d) f += NB_SPRING(J, d, tj); TERMS_NB(J, d) }
+#define GRID_SPRING(J, SLOT) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); HOOD_KEEP(SLOT, d) f += NB_SPRING(J, d, tj); TERMS_NB(J, d) }
 #define GRID_FLEXION(J) { ivec2 tj = node_texel(NB_OTHER(J)); vec3 d = xi - EVAL_X(tj); f += NB_SPRING(J, d, tj); TERMS_NB(J, d) }
 
 vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
@@ -136,7 +131,7 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
 #endif
 #endif
 #ifdef TERMS
-    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m);
+    TermNode term_node = TermNode(ivec3(texel, 0), xi, vi, m, term_bits(int(texelFetch(u_node, texel, 0).g)), 1.0);
 #ifdef TERMS_NEIGHBOURS
     terms_begin(term_node);
 #endif
@@ -168,8 +163,8 @@ vec3 grid_acceleration(ivec2 texel, vec3 xi, vec3 vi, float m, int groups) {
     GRID_FLEXION(22)
     GRID_FLEXION(23)
 #endif
-#ifdef CELLS
-    f += hood_cell_force(texel, xi, cell_bits(int(texelFetch(u_node, texel, 0).g)));
+#ifdef TERMS_HOOD
+    hood_diagonals(texel, xi);
 #endif
 #ifdef TERMS
     terms_force(f, term_node);

@@ -1,6 +1,6 @@
 // The cells' XPBD constraints (Macklin, Muller & Chentanez 2016, eq. 17-18; docs/EQUATIONS.md,
 // "XPBD"), the float32 twin of deformgl/sim/xpbd_cells.py, on the 3x3x3 neighbourhood of
-// lib/cell_forces.glsl (its layout, corner numbering and uniforms):
+// terms/cell_forces.glsl (its layout, corner numbering and uniforms):
 //   volume constraint per full cell  C = J - 1 (J = det F at the centre), compliance 1 / (kappa V),
 //                                    grad_a C = cof(F) G_a, G_a = s_a / (4h)
 //   barrier per cell corner c        C = J_c - J_b >= 0 on the tet (c, c^1, c^2, c^4), compliance
@@ -9,7 +9,7 @@
 // (sim/xpbd/iterate.frag with CELLS: each node gathers its corrections).
 #ifndef XPBD_CELL_CONSTRAINTS_GLSL
 #define XPBD_CELL_CONSTRAINTS_GLSL
-#include "lib/cell_forces.glsl"
+#include "terms/cell_forces.glsl"
 
 // Incident cell q's J = det F at its centre; cof receives cof(F) (columns F1 x F2, F2 x F0,
 // F0 x F1), so grad_a J = cof * G_a. F is summed from positions relative to corner 0 (the G_c sum

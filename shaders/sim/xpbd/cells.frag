@@ -40,7 +40,7 @@ void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     int flags = int(texelFetch(u_node, texel, 0).g);
     o_lambda0 = o_lambda1 = o_state = o_delta0 = o_delta1 = vec4(0.0);
-    if ((flags & FLAG_EXISTS) == 0 || (cell_bits(flags) & 128u) == 0u) {
+    if ((flags & FLAG_EXISTS) == 0 || (term_bits(flags) & 128u) == 0u) {
         return;  // owns no cell
     }
     // corner c = dx + 2 dy + 4 dz is neighbourhood slot 13 + dx + 3 dy + 9 dz

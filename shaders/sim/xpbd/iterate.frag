@@ -259,7 +259,7 @@ void main() {
 #endif
     float barriers = 0.0;
 #ifdef CELLS
-    uint cells = cell_bits(flags);
+    uint cells = term_bits(flags);
     if (cells != 0u) {
         dx += cell_corrections(texel, cells, wi, barriers);
     }

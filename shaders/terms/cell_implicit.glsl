@@ -1,9 +1,8 @@
-// The full cells' part of the backward-Euler system of one node (define IMPLICIT_CELLS),
+// The cells' part of the backward-Euler system of one node (terms/cell.glsl with TERMS_IMPLICIT),
 // matrix-free, gathered from the node's (up to 8) full incident cells: the float32 twin of
-// deformgl/sim/implicit_cells.py cell_product (the Gauss-Newton part of the Hessian; why, and
-// the derivation: that module's docstring); SETUP also takes the forces from
-// lib/cell_forces.glsl (deformgl/sim/volume.py volume_forces). Each term is w/2 (J - J0)^2 of a
-// determinant J over nodes t; with g_t = dJ/dx_t its Gauss-Newton block is w g_t g_u^T, so
+// deformgl/sim/implicit_cells.py cell_product (the Gauss-Newton part of the Hessian; why, and the
+// derivation: that module's docstring). Each term is w/2 (J - J0)^2 of a determinant J over nodes
+// t; with g_t = dJ/dx_t its Gauss-Newton block is w g_t g_u^T, so
 //   (H y)_a = sum over the node's terms of w (sum_t g_t . y_t) g_a:
 //   CELL_CENTRE, the centre term of a cell: J = det F, F = S / (4h) with S's column k the sum of
 //     the cell's 4 edges along +k, g_t = cof(F) s_t / (4h), w = V kappa, and
@@ -13,48 +12,17 @@
 //     edge's end of bit k set gets + (e_{k+1} x e_{k+2}) / h^3, the other one minus that, so
 //     sum_t g_t . y_t = sum_k (e_{k+1} x e_{k+2}) . de_k / h^3, de_k the same edge of y;
 // and the node's own 3x3 block sum w g_a g_a^T (the preconditioners': diagonal xx yy zz,
-// off-diagonal xy xz yz). The pass defines CELL_CENTRE where kappa > 0 and CELL_BARRIER where
-// kappa_b > 0 (what lib/cell_forces.glsl compiles too): llvmpipe runs a uniform branch's body
-// anyway, so a term that is zero is not compiled.
+// off-diagonal xy xz yz). The host defines CELL_CENTRE where kappa > 0 (what terms/cell_forces.glsl
+// compiles too): llvmpipe runs a uniform branch's body anyway, so a term that is zero is not compiled.
 //
-// The node's 3x3x3 neighbourhood: u_cell_nb, 7 RGBA32I layers, slot 4 l + c = (dx + 1) +
-// 3 (dy + 1) + 9 (dz + 1) (deformgl/sim/backends/cell_tables.py neighbourhood; an absent node is
-// the node itself); the bit mask of the node's full incident cells (cell_tables.py
-// incident_cells) in the node data's A. Positions are gathered relative to the node (J, F and
-// the edges only take differences), which keeps float32 rounding at the scale of h. Every index
-// is a literal (the 8 cells and 27 slots unrolled by macros): llvmpipe keeps a dynamically
-// indexed local array in memory.
+// The node's 3x3x3 neighbourhood comes from the pass (lib/term_node.glsl hood_positions,
+// hood_vector), relative to the node (J, F and the edges only take differences), which keeps float32
+// rounding at the scale of h. Every index is a literal (the 8 cells and 27 slots unrolled by
+// macros): llvmpipe keeps a dynamically indexed local array in memory.
 //
-// With CELL_BARRIER, SETUP finds whether any barrier term holds the node (cell_product's
-// `held`) and stores it in b's w; WARM, INIT and MATVEC skip the barrier products of the other
-// nodes (and, without CELL_CENTRE, the whole gather).
-
-#include "lib/cell_forces.glsl"
-
-uniform isampler2DArray u_cell_nb;   // the 27 node numbers of the neighbourhood
-
-#define CELL_FETCH(V, S, O, K) V[K] = texelFetch(S, node_texel(hood[(K) / 4][(K) % 4]), 0).xyz - O;
-
-// v[slot] = s at the neighbourhood's node `slot` minus `origin`, for the 27 slots.
-void cell_gather(ivec2 texel, sampler2D s, vec3 origin, out vec3 v[27]) {
-    ivec4 hood[7];
-    for (int layer = 0; layer < 7; ++layer) {
-        hood[layer] = texelFetch(u_cell_nb, ivec3(texel, layer), 0);
-    }
-    CELL_FETCH(v, s, origin, 0) CELL_FETCH(v, s, origin, 1) CELL_FETCH(v, s, origin, 2)
-    CELL_FETCH(v, s, origin, 3) CELL_FETCH(v, s, origin, 4) CELL_FETCH(v, s, origin, 5)
-    CELL_FETCH(v, s, origin, 6) CELL_FETCH(v, s, origin, 7) CELL_FETCH(v, s, origin, 8)
-    CELL_FETCH(v, s, origin, 9) CELL_FETCH(v, s, origin, 10) CELL_FETCH(v, s, origin, 11)
-    CELL_FETCH(v, s, origin, 12) CELL_FETCH(v, s, origin, 13) CELL_FETCH(v, s, origin, 14)
-    CELL_FETCH(v, s, origin, 15) CELL_FETCH(v, s, origin, 16) CELL_FETCH(v, s, origin, 17)
-    CELL_FETCH(v, s, origin, 18) CELL_FETCH(v, s, origin, 19) CELL_FETCH(v, s, origin, 20)
-    CELL_FETCH(v, s, origin, 21) CELL_FETCH(v, s, origin, 22) CELL_FETCH(v, s, origin, 23)
-    CELL_FETCH(v, s, origin, 24) CELL_FETCH(v, s, origin, 25) CELL_FETCH(v, s, origin, 26)
-}
-
-uint cell_mask(ivec2 texel) {
-    return uint(texelFetch(u_node, texel, 0).a);
-}
+// cell_diagonal finds whether any barrier term holds the node (`held`, which the step's first pass
+// stores); cell_product, in the later passes, skips the barriers of the other nodes (and, without
+// CELL_CENTRE, the whole gather).
 
 // Adds w (g . y) g_a to hy and w g_a g_a^T to the block (diag, off).
 void cell_term(float w, float gy, vec3 ga, inout vec3 hy, inout vec3 diag, inout vec3 off) {
@@ -63,7 +31,7 @@ void cell_term(float w, float gy, vec3 ga, inout vec3 hy, inout vec3 diag, inout
     off += w * (ga.xxy * ga.yzz);
 }
 
-// The edges e_k of the tet of corner c of a cell (y: its 8 corners; lib/cell_forces.glsl
+// The edges e_k of the tet of corner c of a cell (y: its 8 corners; terms/cell_forces.glsl
 // cell_tet's, all three) and its unscaled determinant h^3 J_c = det [e_0 e_1 e_2].
 float tet_edges(vec3 y[8], int c, out vec3 e0, out vec3 e1, out vec3 e2) {
     e0 = y[c | 1] - y[c & 6];
@@ -124,7 +92,7 @@ bool barrier_corners(vec3 x[8], vec3 y[8], int a, inout vec3 hy, inout vec3 diag
 // the barriers (a node none of whose barrier terms is active). The barriers sit in a loop run
 // once or never rather than in an if: llvmpipe runs an if's body for every fragment, but leaves
 // a loop that no fragment of the group still runs.
-vec3 cell_product(vec3 p[27], vec3 y[27], uint cells, bool barrier, out vec3 diag, out vec3 off,
+vec3 cell_hessian(vec3 p[27], vec3 y[27], uint cells, bool barrier, out vec3 diag, out vec3 off,
                   out bool held) {
     vec3 hy = vec3(0.0);
     diag = vec3(0.0);
@@ -143,32 +111,39 @@ vec3 cell_product(vec3 p[27], vec3 y[27], uint cells, bool barrier, out vec3 dia
     return hy;
 }
 
-// H_cells y at the node at `texel` (xi its position, s the sampler of y): WARM, INIT, MATVEC,
-// TRUE_RESIDUAL and the multigrid's MG_SMOOTH, MG_RESIDUAL
-// (with CELL_BARRIER they declare u_b: its w is SETUP's flag).
-vec3 cells_times(ivec2 texel, vec3 xi, sampler2D s) {
-#if defined(CELL_BARRIER) && defined(SETUP)
-    bool barrier = true;   // (SETUP does not multiply: its own product is cell_product)
-#elif defined(CELL_BARRIER)
-    bool barrier = texelFetch(u_b, texel, 0).w > 0.5;
-#else
-    bool barrier = false;
-#endif
+// (H_cells y)_n added to q: the product passes (n.held: SETUP's flag; 1 in SETUP itself).
+void cell_product(inout vec3 q, TermNode n, vec3 y) {
+    bool barrier = n.held > 0.5;
     vec3 hy = vec3(0.0);
     vec3 diag, off;
     bool held;
 #ifdef CELL_CENTRE
-    vec3 p[27], y[27];
-    cell_gather(texel, u_x, xi, p);
-    cell_gather(texel, s, vec3(0.0), y);
-    hy = cell_product(p, y, cell_mask(texel), barrier, diag, off, held);
+    vec3 p[27], yv[27];
+    hood_positions(n, p);
+    hood_vector(n, yv);
+    hy = cell_hessian(p, yv, n.bits, barrier, diag, off, held);
 #else
-    for (int once = barrier ? 0 : 1; once < 1; ++once) {   // (the gathers too: see cell_product)
-        vec3 p[27], y[27];
-        cell_gather(texel, u_x, xi, p);
-        cell_gather(texel, s, vec3(0.0), y);
-        hy = cell_product(p, y, cell_mask(texel), true, diag, off, held);
+    for (int once = barrier ? 0 : 1; once < 1; ++once) {   // (the gathers too: see cell_hessian)
+        vec3 p[27], yv[27];
+        hood_positions(n, p);
+        hood_vector(n, yv);
+        hy = cell_hessian(p, yv, n.bits, true, diag, off, held);
     }
 #endif
-    return hy;
+    q += hy;
+}
+
+// The node's 3x3 block of H_cells added to (d, off), and whether a barrier term holds it.
+void cell_diagonal(inout vec3 d, inout vec3 off, inout float held, TermNode n) {
+    vec3 p[27], zero[27];
+    hood_positions(n, p);
+    for (int slot = 0; slot < 27; ++slot) {
+        zero[slot] = vec3(0.0);
+    }
+    vec3 dk, ok;
+    bool h;
+    cell_hessian(p, zero, n.bits, true, dk, ok, h);
+    d += dk;
+    off += ok;
+    held = h ? 1.0 : held;
 }

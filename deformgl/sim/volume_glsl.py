@@ -1,0 +1,45 @@
+"""The cells' volumetric term (:class:`deformgl.sim.volume.CellVolumes`) as GLSL: its chunk
+``shaders/terms/cell.glsl`` (``terms/cell_forces.glsl``'s forces and ``sim/implicit/cells.glsl``'s
+Gauss-Newton product from the node's 3x3x3 neighbourhood, which the pass keeps:
+``shaders/lib/node_hood.glsl``), its defines, uniforms and the node bits of its full incident
+cells. Every GPU pass that runs the term compiles it through the term list
+(:mod:`deformgl.sim.terms.glsl`); transform feedback and XPBD have forms of their own
+(:mod:`deformgl.sim.backends.feedback_cells`, :mod:`deformgl.sim.xpbd_cells`)."""
+
+from __future__ import annotations
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.backends.cell_tables import cell_uniforms, check_cells, incident_cells
+from deformgl.sim.terms.base import GlslTerm
+from deformgl.sim.volume import CellVolumes
+
+__all__ = ["CELL_FORMS", "GLSL", "cell_defines", "volume_glsl"]
+
+#: The term's form without its instance data (the shipped term list): the centre term needs the
+#: body diagonals of the neighbourhood (hood 2), the barrier alone not.
+GLSL = GlslTerm("cell", file="terms/cell.glsl", implicit=True, hood=2, held=True,
+                defines={"CELL_CENTRE": True, "CELL_BARRIER": True})
+#: Its forms (the shader pack's variants): the barrier alone (kappa = 0: nu = 1/4), both terms.
+CELL_FORMS = (GlslTerm("cell", file="terms/cell.glsl", implicit=True, hood=1, held=True,
+                       defines={"CELL_CENTRE": False, "CELL_BARRIER": True}), GLSL)
+
+
+def cell_defines(cells: CellVolumes) -> dict[str, object]:
+    """``CELL_BARRIER`` always, ``CELL_CENTRE`` where kappa > 0 (a lattice at nu = 1/4 has the
+    barrier alone). A barrier of modulus 0 (never a material's) is compiled and adds exact zeros:
+    one variant fewer to build and check; a centre term of modulus 0 is not compiled, which at
+    nu = 1/4 saves 0.4x of the spring step and the body diagonals."""
+    return {"CELL_CENTRE": cells.volume_modulus > 0, "CELL_BARRIER": True}
+
+
+def volume_glsl(cells: CellVolumes, grid: NodeGrid | None) -> GlslTerm:
+    """The GLSL form of ``cells`` on ``grid`` (ValueError when they are not the grid's cells)."""
+    if grid is None:
+        raise ValueError("the cells' volumetric term needs the system's node grid on the GPU")
+    check_cells(grid, cells)  # (a node finds its cells by grid offsets)
+    centre = cells.volume_modulus > 0
+    uniforms: dict[str, object] = dict(cell_uniforms(cells))
+    if not centre:
+        del uniforms["u_cell_kappa"]  # (not compiled: CELL_CENTRE off)
+    return GlslTerm("cell", file="terms/cell.glsl", implicit=True, hood=2 if centre else 1, held=True,
+                    defines=cell_defines(cells), uniforms=uniforms, node_bits=incident_cells(grid, cells))

@@ -1,0 +1,95 @@
+"""The cells' volumetric term and corner barrier (:mod:`deformgl.sim.volume`) as one physics term
+(:class:`deformgl.sim.terms.Term`): its float64 force and energy, its Hessian (Gauss-Newton, or
+the form that goes with the springs' ``geometric`` option: :mod:`deformgl.sim.implicit_cells`), its
+share of the dt bound (the centre term at rest, the barrier's envelope), and its GLSL form
+(:mod:`deformgl.sim.volume_glsl`). A system with ``cells`` holds one as the first of its terms
+(:class:`~deformgl.sim.springs.SpringSystem`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix, cell_product
+from deformgl.sim.terms.base import GlslTerm, Term
+from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
+                                 rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
+from deformgl.sim.volume_glsl import volume_glsl
+
+__all__ = ["VolumeTerm"]
+
+
+@dataclass(frozen=True, eq=False)
+class VolumeTerm(Term):
+    """The physics term of ``cells`` (immutable)."""
+
+    cells: CellVolumes
+
+    name = "the cells' volumetric term"
+
+    def acts(self) -> bool:
+        """At least one cell and a modulus > 0."""
+        c = self.cells
+        return c.count > 0 and (c.volume_modulus > 0 or c.barrier_modulus > 0)
+
+    def add_forces(self, x: np.ndarray, v: np.ndarray, t: float, out: np.ndarray) -> None:
+        """:func:`~deformgl.sim.volume.volume_forces` (the centre term and the corner barrier)."""
+        volume_forces(self.cells, x, out=out)
+
+    def energy(self, x: np.ndarray) -> float:
+        """:func:`~deformgl.sim.volume.volume_energy`."""
+        return volume_energy(self.cells, x)
+
+    def stiffness(self, x: np.ndarray) -> sp.csr_matrix:
+        """The Gauss-Newton Hessian at x (:func:`~deformgl.sim.implicit_cells.cell_matrix`)."""
+        return self.hessian(x)
+
+    def hessian(self, x: np.ndarray, geometric: str = "projected") -> sp.csr_matrix:
+        """The Hessian in the form that goes with the springs' ``geometric``
+        (:data:`~deformgl.sim.implicit_cells.CELL_HESSIAN`)."""
+        return cell_matrix(self.cells, x, len(x), CELL_HESSIAN[geometric])
+
+    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``K(x) y`` (Gauss-Newton) without assembling K."""
+        return cell_product(self.cells, x, np.asarray(y, np.float64))
+
+    def dt_stiffness(self, x_rest: np.ndarray, *, barrier: bool = False) -> sp.csr_matrix:
+        """The centre term's stiffness at rest (the barrier is inactive there) and, with
+        ``barrier``, the barrier's envelope (:func:`~deformgl.sim.volume.barrier_envelope_product`)."""
+        n = 3 * len(x_rest)
+        parts = [rest_stiffness_triplets(self.cells)] + ([barrier_envelope_triplets(self.cells)] if barrier else [])
+        rows, cols, values = (np.concatenate(a) for a in zip(*parts))
+        return sp.csr_matrix((values, (rows, cols)), shape=(n, n))
+
+    def dt_product(self, x_rest: np.ndarray, dx: np.ndarray, *, barrier: bool = False) -> np.ndarray:
+        """:func:`~deformgl.sim.volume.rest_product` (and the barrier's envelope) of dx."""
+        out = rest_product(self.cells, dx)
+        if barrier:
+            out += barrier_envelope_product(self.cells, dx)
+        return out
+
+    def frequency_terms(self, x_rest: np.ndarray, *, barrier: bool = False) -> np.ndarray:
+        """:func:`~deformgl.sim.volume.frequency_terms` (its bound on the node's ``m w^2``)."""
+        return frequency_terms(self.cells, len(x_rest), barrier=barrier)
+
+    def describe(self) -> str:
+        return f"the cells' inversion barrier, kappa_b = {self.cells.barrier_modulus:.4g} Pa"
+
+    def limit_share(self, x_rest: np.ndarray, node: int, springs: float) -> str:
+        """The barrier's envelope (not the centre term) against the springs' share at ``node``."""
+        if self.cells.barrier_modulus > 0:
+            n = len(x_rest)
+            envelope = (frequency_terms(self.cells, n, barrier=True) - frequency_terms(self.cells, n))[node]
+            if envelope > springs:
+                return self.describe()
+        return ""
+
+    def refusal(self, backend: str) -> str | None:
+        return None  # (every backend runs it: transform feedback and XPBD in forms of their own)
+
+    def glsl(self, grid: NodeGrid | None) -> GlslTerm:
+        """Its GLSL form (:func:`deformgl.sim.volume_glsl.volume_glsl`)."""
+        return volume_glsl(self.cells, grid)
