@@ -258,7 +258,7 @@ def test_animation_table_in_a_scene(ctx, jelly, tmp_path, capsys):
 
 
 def test_bench_animation_reports_the_cost_per_frame_against_a_still(ctx, jelly, capsys):
-    from deformgl.bench.animation import bench_animation
+    from studies.animation_frames import bench_animation
 
     jelly.write_text(jelly.read_text() + "\n[animation]\nframes = 6\nsteps_per_frame = 20\n")
     report = bench_animation(ctx, jelly)

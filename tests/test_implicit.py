@@ -89,7 +89,7 @@ def test_scaled_warm_start_keeps_truncated_cg_on_the_equilibrium():
     (the default) and a zero start stay on the equilibrium (bench trade --stiff's finding)."""
     import math
 
-    from deformgl.bench.implicit import stiff_cases
+    from deformgl.bench.trade_stiff import stiff_cases
     from deformgl.sim.implicit import warm_start
 
     case = stiff_cases(cases=((1.0e6, 9),))[0]
@@ -265,14 +265,14 @@ def test_scene_keys(tmp_path):
 @pytest.fixture(scope="module")
 def stiff_rows(ctx):
     """The quick stiff study of the 1 MPa block at 5 across (cases, rows)."""
-    from deformgl.bench.implicit import stiff_cases, stiff_study
+    from deformgl.bench.trade_stiff import stiff_cases, stiff_study
 
     cases = stiff_cases(quick=True, cases=((1.0e6, 5),))
     return cases, stiff_study(ctx, quick=True, cases=cases)
 
 
 def test_stiff_study_quick(stiff_rows):
-    from deformgl.bench.implicit import QUICK_ITERATIONS, QUICK_MULTIGRID, QUICK_XPBD, format_stiff
+    from deformgl.bench.trade_stiff import QUICK_ITERATIONS, QUICK_MULTIGRID, QUICK_XPBD, format_stiff
 
     cases, rows = stiff_rows
     assert cases and cases[0].omega1 > 100.0 and cases[0].linear_gap < 1e-3
@@ -330,7 +330,7 @@ def test_stiff_csv_json_and_chart(stiff_rows, tmp_path):
 
 
 def test_realtime_frames(ctx):
-    from deformgl.bench.implicit import format_realtime, realtime
+    from studies.realtime import format_realtime, realtime
 
     rows, gap, nodes = realtime(ctx, "jelly.toml", frames=2, iterations=(20,))
     assert [r.integrator for r in rows] == ["implicit-euler", "verlet"] and nodes > 100

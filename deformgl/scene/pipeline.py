@@ -268,7 +268,7 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
 
 #: Where the renderer maps the detailed mesh (``MappedMeshPass``'s ``mapping_pass``): once per
 #: vertex in a fragment pass, the same function as the paper's mapping in the drawing vertex
-#: shader (``deformgl bench render`` compares all three).
+#: shader (``python -m studies.render_speed`` compares all three).
 RENDER_MAPPING_PASS = "fragment"
 
 
