@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from deformgl.errors import SimulationError
+from deformgl.errors import ArgumentError, SimulationError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import springs
 from deformgl.sim.guards import API_WORDING, MAX_SUBSTEPS, SCENE_WORDING, BlowUp, StepPlan, retry_with_substeps
@@ -191,3 +191,19 @@ def test_the_api_wrapper_is_a_simulation_and_runs_on_the_one_run():
         result = run(sim, 25, check_every=10)
         assert type(result) is RunResult and (result.steps, result.dt, result.substeps) == (25, 1e-3, 1)
         assert result.time == pytest.approx(0.025) == sim.time
+
+
+def test_a_plain_simulation_runs_guarded_but_is_not_restarted():
+    """``run`` guards a backend's own simulation too; a smaller step would need a restart, which
+    only a GuardedSimulation does: refused in one line before any step."""
+    system, grid = small()
+    limit = dt_limit(system, "semi-implicit").dt
+    with make_simulation(system, "semi-implicit", "numpy", dt=2.5 * limit) as sim:
+        with pytest.raises(ArgumentError, match=r"^run: <arrays>: a restart at a step of .* needs a restartable "
+                                                r"simulation: deformgl\.GuardedSimulation\(\.\.\.\)$"):
+            run(sim, 10, unstable="subdivide", source="<arrays>")
+        assert sim.time == 0.0
+    with make_simulation(system, "semi-implicit", "numpy", dt=1e-3) as sim:
+        result = run(sim, 10, check_every=5)
+        assert (result.steps, result.substeps, result.dt, result.notes) == (10, 1, 1e-3, ())
+        assert result.time == pytest.approx(0.01) == sim.time

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from deformgl.errors import DeformglError
+from deformgl.errors import ArgumentError, DeformglError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import integrators as I
 from deformgl.sim import springs
@@ -145,3 +145,21 @@ def test_a_constructor_failing_half_way_releases_what_it_made(ctx, backend, monk
     with pytest.raises(RuntimeError, match="out of texture memory"):
         build(ctx, backend)
     assert made and type(made[0].mglo).__name__ == "InvalidObject"  # released
+
+
+def test_each_backend_takes_the_options_of_its_constructor():
+    """make_simulation dispatches; the options a backend x integrator takes are its class's keyword
+    arguments, and any other is refused in one line naming it, the integrator and the backend."""
+    system, grid = small_system()
+    with pytest.raises(SimulationSetupError, match=r"unknown option\(s\) 'cg_iterations' for verlet on the feedback "
+                                                  r"backend, which takes constraints, drags, loads, state, t0$") as info:
+        make_simulation(system, "verlet", "feedback", dt=1e-3, cg_iterations=3)
+    assert isinstance(info.value, ArgumentError) and "\n" not in str(info.value)
+    with pytest.raises(SimulationSetupError, match=r"'path' for implicit-euler on the numpy backend, which takes .*solver"):
+        make_simulation(system, "implicit-euler", "numpy", dt=1e-3, path="general")
+    with pytest.raises(SimulationSetupError, match=r"'cg_tolerance' for xpbd on the numpy backend, which takes .*omega"):
+        make_simulation(system, "xpbd", "numpy", dt=1e-3, cg_tolerance=0.0)
+    with pytest.raises(SimulationSetupError, match="dt must be a number > 0"):
+        make_simulation(system, "verlet", "numpy", dt=0.0)
+    with make_simulation(system, "xpbd", "numpy", dt=1e-3, iterations=3, omega=1.0) as sim:
+        sim.step(1)
