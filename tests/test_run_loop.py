@@ -207,3 +207,27 @@ def test_a_plain_simulation_runs_guarded_but_is_not_restarted():
         result = run(sim, 10, check_every=5)
         assert (result.steps, result.substeps, result.dt, result.notes) == (10, 1, 1e-3, ())
         assert result.time == pytest.approx(0.01) == sim.time
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the blown-up NumPy runs overflow on purpose
+def test_retries_bound_the_restarts_after_a_blow_up():
+    """``retries`` is the retry policy apart from the dt check's: 0 keeps the first blow-up, 1
+    restarts once (still too coarse here: the blow-up of the second attempt), and restarts come under
+    "run" too when asked for."""
+    system, grid = small()
+    limit = dt_limit(system, "semi-implicit", exact=False).dt
+    maker = Maker(None, system, grid, "numpy")
+    try:
+        for retries, attempts in ((0, 1), (1, 2)):
+            maker.dts.clear()
+            with pytest.raises(BlowUp):
+                guarded(maker, Settings(4 * limit, 60, safety=Policy("subdivide")), plan=StepPlan(4 * limit, 60),
+                        retries=retries)
+            assert maker.dts == [pytest.approx(4 * limit / 2 ** i) for i in range(attempts)]
+        maker.dts.clear()
+        result = guarded(maker, Settings(4 * limit, 60, safety=Policy("run")), plan=StepPlan(4 * limit, 60), retries=8)
+        assert result.substeps >= 4 and len(maker.dts) == len(result.notes) + 1
+        with pytest.raises(ArgumentError, match="run: retries must be None or an integer >= 0, got -1"):
+            guarded(maker, Settings(1e-3, 10), retries=-1)
+    finally:
+        maker.release()

@@ -179,21 +179,24 @@ def plan_steps(system: SpringSystem, physics: StepSettings, source, *,
 
 
 def retry_with_substeps(plan: StepPlan, policy: str, attempt: Callable[[StepPlan], T], notes: list[str], *,
-                        wording: Wording = SCENE_WORDING) -> tuple[T, StepPlan]:
-    """The retry policy of a run: ``attempt(plan)``; under "subdivide" a :class:`BlowUp` restarts
-    it with twice the substeps (up to :data:`MAX_SUBSTEPS`), each restart noted in ``notes``.
+                        wording: Wording = SCENE_WORDING, retries: int | None = None) -> tuple[T, StepPlan]:
+    """The retry policy of a run: ``attempt(plan)``; a :class:`BlowUp` restarts it with twice the
+    substeps (up to :data:`MAX_SUBSTEPS`), each restart noted in ``notes``, at most ``retries``
+    times (None: as many as the cap allows under "subdivide", none under any other policy).
     Returns what the last attempt returned and its plan.
 
     Raises:
-        BlowUp: under any other policy.
+        BlowUp: a blow-up once the restarts allowed are used.
         SimulationError: a blow-up at :data:`MAX_SUBSTEPS` substeps.
     """
+    left = (MAX_SUBSTEPS if policy == "subdivide" else 0) if retries is None else retries
     while True:
         try:
             return attempt(plan), plan
         except BlowUp as exc:
-            if policy != "subdivide":
+            if left <= 0:
                 raise
+            left -= 1
             finer = plan.halved()
             if finer is None:
                 raise SimulationError(f"{exc} (still at {plan.substeps} substeps per step, the most "

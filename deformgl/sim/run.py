@@ -227,7 +227,8 @@ class _Policy:
 def run(sim, steps: int | None = None, *, unstable: str | None = "refuse", check_every: int = 100,
         bad_distance: float = 1000.0, limit: float | None = None,
         converge: ConvergeRule | Converge | None = None, hold_until: float = 0.0, source: object = None,
-        progress: bool = False, settings: StepSettings | None = None, system: SpringSystem | None = None,
+        retries: int | None = None, progress: bool = False, settings: StepSettings | None = None,
+        system: SpringSystem | None = None,
         loads: tuple[Load, ...] | None = None, drags: tuple[Drag, ...] | None = None, plan: StepPlan | None = None,
         notes: list[str] | None = None, wording: Wording = API_WORDING, ctx=None, grid: NodeGrid | None = None,
         frame_every: int = 0, on_frame: Callable[[int, object], None] | None = None) -> RunResult:
@@ -254,6 +255,8 @@ def run(sim, steps: int | None = None, *, unstable: str | None = "refuse", check
         unstable: a dt above the stability limit is refused ("refuse"), run anyway ("run") or split
             into substeps ("subdivide", which also restarts after a blow-up with twice the
             substeps, up to 16); None: no dt check and no restart (a blow-up raises).
+        retries: restarts after a blow-up, each with twice the substeps (up to 16): None, the
+            policy's (as many as the cap allows under "subdivide", none otherwise); 0 none.
         check_every: steps between blow-up checks (0: at the end only).
         bad_distance: a node farther than this many rest-box lengths from the origin has blown up.
         limit: the same as a distance in world units (replaces ``bad_distance``).
@@ -305,6 +308,8 @@ def run(sim, steps: int | None = None, *, unstable: str | None = "refuse", check
                              _Policy(unstable or "run"))
     steps = settings.steps if steps is None else steps
     _check_counts(steps, check_every)
+    if retries is not None and (isinstance(retries, bool) or not isinstance(retries, (int, np.integer)) or retries < 0):
+        raise ArgumentError(f"run: retries must be None or an integer >= 0, got {retries!r}")
     system = sim.system if system is None else system
     if limit is None:
         if isinstance(bad_distance, bool) or not (isinstance(bad_distance, (int, float, np.number))
@@ -345,7 +350,8 @@ def run(sim, steps: int | None = None, *, unstable: str | None = "refuse", check
         finally:
             watch.release()
 
-    (result, used_sim), used = retry_with_substeps(plan, settings.safety.unstable, attempt, noted, wording=wording)
+    (result, used_sim), used = retry_with_substeps(plan, settings.safety.unstable, attempt, noted, wording=wording,
+                                                   retries=retries)
     solver_note = getattr(used_sim, "solver_note", None)  # an implicit integrator's unconverged solves
     note = solver_note() if callable(solver_note) else None
     if note:
