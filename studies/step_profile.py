@@ -1,7 +1,7 @@
 """``python -m studies.step_profile``: where the foundation's step pass spends its time.
 
 The pass of ``shaders/sim/verlet.frag`` is rebuilt stage by stage
-(``shaders/profile/step_ablation.frag``): one fetch of the node's own position, then its
+(``studies/shaders/step_ablation.frag``, this study's own shader, not in the package): one fetch of the node's own position, then its
 previous position and node data, the neighbour indices (or the offsets of a dense grid), the 18
 neighbours' positions, the spring sums; each stage's ms/pass and its increment over the one
 before show what the step is made of on this renderer. The full step (normals, damping,
@@ -11,6 +11,7 @@ gravity, pulls, fixed nodes) is measured alongside, with the index texture and w
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import moderngl
 
@@ -20,6 +21,15 @@ from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
 
 __all__ = ["STAGES", "ProfileRow", "format_profile", "profile_step"]
+
+#: The ablation shader's name (given to the preprocessor as text: it is not in the package).
+ABLATION = "studies/step_ablation.frag"
+
+
+def ablation_source() -> str:
+    """The text of ``studies/shaders/step_ablation.frag``."""
+    return (Path(__file__).parent / "shaders" / "step_ablation.frag").read_text(encoding="utf-8")
+
 
 #: What each ablation stage adds (``STAGE`` define of step_ablation.frag).
 STAGES = ("own position (pass floor)", "+ previous position, node data", "+ neighbour indices",
@@ -82,8 +92,8 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
     for stage, what in enumerate(STAGES):
         if stage == 2 and dense:
             what = "+ neighbour offsets"
-        program = Program(ctx, "sim/fullscreen.vert", "profile/step_ablation.frag",
-                          defines={"STAGE": stage, "DENSE": dense})
+        program = Program(ctx, "sim/fullscreen.vert", ABLATION, defines={"STAGE": stage, "DENSE": dense},
+                          chunks={ABLATION: ablation_source()})
         vao = ctx.vertex_array(program.gl, [])
         try:
             uniforms: dict[str, object] = {"u_position": 0, "u_previous": 1, "u_node": 2,
@@ -117,7 +127,7 @@ def _stages(ctx: moderngl.Context, textures: NodeTextures, name: str, nodes: int
 
 def format_profile(rows: list[ProfileRow], machine: str) -> str:
     """The table: ms/pass, increment over the stage before, share of the full step."""
-    lines = [machine, "foundation step pass rebuilt stage by stage (shaders/profile/step_ablation.frag; spring "
+    lines = [machine, "foundation step pass rebuilt stage by stage (studies/shaders/step_ablation.frag; spring "
              "sums: Mosegaard & Sørensen 2005, eq. 1/2); "
              "median ms per pass; share = increment / full step of the same lookup"]
     for grid in dict.fromkeys(r.grid for r in rows):

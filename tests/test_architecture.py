@@ -107,7 +107,7 @@ def test_the_wheel_holds_at_most_its_budget_of_benchmark_code():
 def test_subpackages_mirror_the_shaders():
     """Every shader folder has the package folder that uses it (shaders/sim -> deformgl/sim, ...)."""
     shader_dirs = {p.name for p in (ROOT / "shaders").iterdir() if p.is_dir() and p.name != "lib"}
-    homes = {"census": "sim", "feedback": "sim/backends", "profile": "bench", "terms": "sim/terms"}
+    homes = {"census": "sim", "feedback": "sim/backends", "terms": "sim/terms"}
     for name in shader_dirs:
         assert (PACKAGE / homes.get(name, name)).is_dir(), f"shaders/{name} has no package folder"
 

@@ -147,9 +147,13 @@ def test_bench_render_times_every_draw_path_and_the_renderers_frame(ctx):
     assert "curvature, culled" in text and f"the frame below: {RENDER_MAPPING_PASS}" in text
 
 
-def test_the_pack_enumerates_every_profile_stage():
-    """deformgl.pack.variants counts the ablation stages without importing the bench."""
-    from studies.step_profile import STAGES
-    from deformgl.pack.variants import PROFILE_STAGES
+def test_the_ablation_shader_has_every_stage_of_the_study():
+    """The step profile's own shader (studies/shaders/step_ablation.frag, out of the package) stops
+    after each of the study's stages and defaults to the whole cut-down step."""
+    import re
 
-    assert PROFILE_STAGES == len(STAGES)
+    from studies.step_profile import STAGES, ablation_source
+
+    text = ablation_source()
+    assert re.search(r"#define STAGE (\d+)", text).group(1) == str(len(STAGES) - 1)
+    assert {int(n) for n in re.findall(r"#(?:el)?if STAGE (?:>=|==) (\d+)", text)} == set(range(1, len(STAGES)))

@@ -108,7 +108,6 @@ def test_every_shader_file_of_the_source_tree_is_in_the_installed_package():
     ("sim/integrators/step.frag", {"VERLET": True, "DENSE": True, "NB_LAYERS": 5, "NB_COUNT": 18}),
     ("feedback/euler.vert", {"NODE_ROW": 64, "SPRING_ROW": 64, "SPRING_DAMPING": True}),
     ("sim/verlet.frag", {"PULLS": 0, "COMPACT": True}),
-    ("profile/step_ablation.frag", {"STAGE": 4, "DENSE": True}),
 ])
 def test_shared_helpers_come_from_one_library_file(name, defines):
     """node_texel and spring_force are defined once, in shaders/lib/, and pasted once per program."""

@@ -24,7 +24,7 @@ def test_enumeration_covers_every_builder_and_its_switches():
     for pair in [("sim/fullscreen.vert", "sim/integrators/step.frag"), ("sim/node_points.vert", "sim/verlet.frag"),
                  ("feedback/rk4_stage.vert", None), ("render/mapped_mesh.vert", "render/mapped_mesh.frag"),
                  ("trilinear/transform.vert", None), ("sim/fullscreen.vert", "census/census.frag"),
-                 ("sim/fullscreen.vert", "profile/step_ablation.frag"), ("sim/fullscreen.vert", "sim/node_normals.frag")]:
+                 ("sim/fullscreen.vert", "sim/node_normals.frag")]:
         assert pair in by_file
     assert all(len(list(g())) for g in GROUPS.values())
 

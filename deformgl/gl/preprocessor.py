@@ -97,14 +97,15 @@ def preprocess(name: str, defines: dict[str, object] | None = None, profile: str
         defines: variant switches injected after ``#version``.
         profile: ``"core"`` (GLSL 3.30 core, as written) or ``"es"`` (GLSL ES 3.00, see the
             module docstring).
-        chunks: include files given as text, by include name: an ``#include`` of one of these names
-            takes its text instead of a file (the physics terms' chunks, :mod:`deformgl.sim.terms`,
-            and the term list a pass composes of them).
+        chunks: shader files given as text, by name: ``name`` itself or an ``#include`` of one of
+            these names takes its text instead of the package's file (the physics terms' chunks,
+            :mod:`deformgl.sim.terms`, and the term list a pass composes of them; a study's own
+            shader).
 
     Returns:
         The complete source and the file list for :meth:`Source.explain_log`.
     """
-    text = read_shader_file(name)
+    text = chunks[name] if chunks and name in chunks else read_shader_file(name)
     lines = text.splitlines()
     if not lines or not _VERSION.match(lines[0]):
         raise ShaderError(f"shaders/{name}:1: #version must be the first line")

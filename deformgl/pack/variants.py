@@ -4,7 +4,7 @@ A :class:`Variant` is one program: its vertex and fragment files, its defines an
 transform-feedback varyings, as :class:`deformgl.gl.programs.Program` receives them. The spaces
 come from the builders' own tables (the integrator specs of :mod:`deformgl.sim.stages`, the
 foundation pass's draw modes, the layouts' defines, the census modes, the mapping passes, the
-trilinear draw paths and normal modes, the profile stages), so a new stage or switch there adds
+trilinear draw paths and normal modes), so a new stage or switch there adds
 its variants here.
 
 Two kinds of define are values rather than switches, and are reduced to classes in
@@ -284,21 +284,9 @@ def trilinear() -> Iterator[Variant]:
         yield _v("trilinear/transform.vert", None, d, ("v_world", "v_normal"))
 
 
-#: The ablation stages of ``profile/step_ablation.frag`` (its STAGE define; their names are
-#: ``studies.step_profile.STAGES``, which the pack does not import: tests/test_bench.py checks
-#: the two agree).
-PROFILE_STAGES = 5
-
-
-def profile() -> Iterator[Variant]:
-    for stage, dense in itertools.product(range(PROFILE_STAGES), (False, True)):
-        yield _v("sim/fullscreen.vert", "profile/step_ablation.frag", {"STAGE": stage, "DENSE": dense})
-
-
-#: The groups of :func:`all_variants`, by the code that builds them.
 GROUPS = {"fragment backend": fragment_backend, "xpbd": xpbd, "feedback backend": feedback_backend,
           "foundation and normals": foundation, "blocked": blocked, "cells": cells, "census": census, "render": render,
-          "trilinear": trilinear, "profile": profile}
+          "trilinear": trilinear}
 
 
 def all_variants() -> list[Variant]:
