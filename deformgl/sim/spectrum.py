@@ -261,5 +261,5 @@ def modal_damping(system: SpringSystem, *, barrier: bool = False) -> ModalDampin
     k = system.stiffness > 0
     b = system.damping[k] / system.stiffness[k] if k.any() else np.zeros(1)
     if any(t.frequency_terms(system.rest_positions, barrier=barrier).any() for t in system.terms):
-        b = np.append(b, 0.0)  # the terms' stiffness (the cells', a sheet's bending) Rayleigh beta does not damp
+        b = np.append(b, 0.0)  # the physics terms' stiffness, which Rayleigh beta does not damp
     return ModalDamping((float(a.min()), float(a.max())), (float(b.min()), float(b.max())))
