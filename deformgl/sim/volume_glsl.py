@@ -27,8 +27,8 @@ CELL_FORMS = (GlslTerm("cell", file="terms/cell.glsl", implicit=True, hood=1, he
 def cell_defines(cells: CellVolumes) -> dict[str, object]:
     """``CELL_BARRIER`` always, ``CELL_CENTRE`` where kappa > 0 (a lattice at nu = 1/4 has the
     barrier alone). A barrier of modulus 0 (never a material's) is compiled and adds exact zeros:
-    one variant fewer to build and check; a centre term of modulus 0 is not compiled, which at
-    nu = 1/4 saves 0.4x of the spring step and the body diagonals."""
+    one variant fewer to build and check; a centre term of modulus 0 is not compiled, nor are the
+    body diagonals fetched (docs/PERFORMANCE.md, "The cells' volumetric term: cost per step")."""
     return {"CELL_CENTRE": cells.volume_modulus > 0, "CELL_BARRIER": True}
 
 

@@ -7,17 +7,11 @@ In a simulation the term is one of the system's physics terms (:mod:`deformgl.si
 computed inside the pass that computes the springs, per node, gathered from the node's (up to 8)
 full incident cells (``shaders/terms/cell_forces.glsl`` ``cell_forces``, the float32 twin of
 :func:`~deformgl.sim.volume.volume_forces`) from the 18 neighbour positions the springs fetched
-and, for the centre term, the 8 body diagonals of the 3x3x3 neighbourhood. Measured on a 30^3
-block (27,000 nodes, nu = 0.45, llvmpipe on 2 cores, CPU time per Verlet step of the foundation
-pass, springs alone 2.0 ms): in the pass +0.56x (+0.21x at nu = 1/4, the barrier alone); a pass
-of its own per node writing a force texture that the spring pass adds, +1.4x (27 fetches per
-node and a second pass); a pass per cell (each cell once, the forces on its 8 corners into 8
-render targets, 8 fetches per node to gather them) +1.2x, the gather from 8 distinct textures
-costing more than the cells themselves. The per-node function is unrolled over the 8 cells with
-literal indices: the looped form kept its arrays in memory on llvmpipe and cost 3.8x as much
-(9.9 against 2.6 ms for the 27,000 nodes). A centre term of modulus 0 is not compiled, which at
-nu = 1/4 (the barrier alone) saves 0.4x of the spring step (llvmpipe runs the body of a uniform
-branch anyway) and the diagonals.
+and, for the centre term, the 8 body diagonals of the 3x3x3 neighbourhood, rather than in a pass
+of its own like this one or a pass per cell, and unrolled over the 8 cells with literal indices
+(llvmpipe keeps a looped form's arrays in memory); a centre term of modulus 0 is not compiled
+(llvmpipe runs the body of a uniform branch anyway). What each costs: docs/PERFORMANCE.md, "The
+cells' volumetric term: cost per step".
 """
 
 from __future__ import annotations
