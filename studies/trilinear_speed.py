@@ -16,8 +16,11 @@ from deformgl.bench.sim_speed import machine_line
 from deformgl.render.camera import View
 from deformgl.render.passes import RenderTarget
 from deformgl.trilinear.renderer import TrilinearRenderer, shader_defines
-from deformgl.trilinear.scenegraph import ComposedScene, Node, SceneComposer, compose_scene
-from deformgl.trilinear.scenes import BACKGROUND, BuiltScene, LIGHT, depth_scene, helix_scene, scene_view, spheres_scene
+from deformgl.trilinear.scenegraph import SceneComposer, compose_scene
+from deformgl.trilinear.batches import ComposedScene
+from deformgl.trilinear.graph_nodes import Node
+from deformgl.trilinear.scenes import BACKGROUND, BuiltScene, depth_scene, helix_scene, spheres_scene
+from deformgl.trilinear.graphbuild import LIGHT, scene_view
 
 
 @dataclass(frozen=True)
