@@ -13,7 +13,7 @@ import pytest
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import integrators as I
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.backends.cell_tables import incident_cells
+from deformgl.sim.cell_tables import incident_cells
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS

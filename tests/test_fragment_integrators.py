@@ -8,7 +8,8 @@ import pytest
 
 from deformgl.sim import integrators as I
 from deformgl.sim import springs
-from deformgl.sim.backends.fragment import FragmentIntegrator, grid_neighbours
+from deformgl.grid.neighbours import grid_neighbours
+from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere
 

@@ -72,7 +72,7 @@ def anchored(n=4, k_anchor=30.0, **options):
     base = springs.from_grid(grid, k_structural=50.0, k_shear=20.0, mass=0.1, fixed=fixed,
                              velocity_damping=0.02, **options)
     weight = np.linspace(0.5, 1.5, grid.count)  # unequal per node: the table is read per node
-    return dataclasses.replace(base, terms=(RestAnchors(grid.rest_positions, k_anchor, weight),)), grid
+    return dataclasses.replace(base, extra_terms=(RestAnchors(grid.rest_positions, k_anchor, weight),)), grid
 
 
 def start(system, dt):
@@ -97,7 +97,7 @@ def gpu_run(ctx, system, name, dt, steps, state, **options):
 
 def test_numpy_reference_has_the_term():
     system, _ = anchored()
-    base = dataclasses.replace(system, terms=())
+    base = dataclasses.replace(system, extra_terms=())
     rng = np.random.default_rng(1)
     x = system.rest_positions + rng.normal(size=(system.count, 3)) * 0.01
     v = np.zeros_like(x)
@@ -121,7 +121,7 @@ def test_a_numpy_run_oscillates_at_the_anchor_frequency():
     # an offset the node passes through its rest position
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((1, 1, 1), bool))
     base = springs.from_grid(grid, k_structural=0.0, k_shear=0.0, mass=0.2, gravity=(0.0, 0.0, 0.0))
-    system = dataclasses.replace(base, terms=(RestAnchors(grid.rest_positions, 20.0, np.ones(1)),))
+    system = dataclasses.replace(base, extra_terms=(RestAnchors(grid.rest_positions, 20.0, np.ones(1)),))
     omega = np.sqrt(20.0 / 0.2)
     dt = 1e-4
     steps = int(round(np.pi / 2 / omega / dt))
@@ -138,7 +138,7 @@ def test_fragment_general_stages_match_float64(ctx, name):
     state = start(system, dt)
     x, _ = gpu_run(ctx, system, name, dt, 100, state, path="general")
     ref = reference(system, name, dt, 100, state)
-    without = reference(dataclasses.replace(system, terms=()), name, dt, 100, state)
+    without = reference(dataclasses.replace(system, extra_terms=()), name, dt, 100, state)
     assert np.abs(ref.x - without.x).max() > 0.05 * system.spacing  # the term matters
     assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
 
@@ -170,7 +170,7 @@ def test_implicit_euler_numpy_and_gpu_match_float64(ctx, preconditioner):
     options = dict(cg_preconditioner=preconditioner, cg_tolerance=1e-6, cg_iterations=200, state=state)
     cpu = make_simulation(system, "implicit-euler", "numpy", dt=dt, **options)
     cpu.step(20)
-    without = make_simulation(dataclasses.replace(system, terms=()), "implicit-euler", "numpy", dt=dt, **options)
+    without = make_simulation(dataclasses.replace(system, extra_terms=()), "implicit-euler", "numpy", dt=dt, **options)
     without.step(20)
     assert np.abs(cpu.positions() - without.positions()).max() > 0.05 * system.spacing
     gpu = make_simulation(system, "implicit-euler", "fragment", dt=dt, ctx=ctx, **options)
@@ -184,7 +184,7 @@ def test_implicit_euler_numpy_and_gpu_match_float64(ctx, preconditioner):
 
 def test_dt_limit_sees_the_term():
     system, _ = anchored(3, k_anchor=5000.0)
-    base = dataclasses.replace(system, terms=())
+    base = dataclasses.replace(system, extra_terms=())
     for integrator in ("verlet", "semi-implicit", "rk4"):
         with_term = dt_limit(system, integrator).dt
         assert with_term < 0.7 * dt_limit(base, integrator).dt
@@ -207,7 +207,7 @@ def test_implicit_matrix_holds_the_term():
     system, _ = anchored(3)
     x = system.rest_positions
     lin = assemble(system, x, np.zeros_like(x), 0.0, 1e-2)
-    base = assemble(dataclasses.replace(system, terms=()), x, np.zeros_like(x), 0.0, 1e-2)
+    base = assemble(dataclasses.replace(system, extra_terms=()), x, np.zeros_like(x), 0.0, 1e-2)
     diff = (lin.hessian - base.hessian).tocsr()
     expected = system.terms[0].stiffness(x)
     assert abs(diff - expected).max() < 1e-12
@@ -289,7 +289,7 @@ class Tethers(Term):
 
 def tethered(n=4, k=300.0):
     system, grid = anchored(n)
-    return dataclasses.replace(system, terms=(*system.terms, Tethers(grid.rest_positions, k))), grid
+    return dataclasses.replace(system, extra_terms=(*system.extra_terms, Tethers(grid.rest_positions, k))), grid
 
 
 def test_the_tether_matrix_is_minus_the_force_derivative():
@@ -310,7 +310,7 @@ def test_a_coupling_term_runs_on_the_fragment_stages(ctx, name):
     dt = 2e-3
     state = start(system, dt)
     ref = reference(system, name, dt, 100, state)
-    without = reference(dataclasses.replace(system, terms=system.terms[:1]), name, dt, 100, state)
+    without = reference(dataclasses.replace(system, extra_terms=system.extra_terms[:1]), name, dt, 100, state)
     assert np.abs(ref.x - without.x).max() > 0.05 * system.spacing
     x, _ = gpu_run(ctx, system, name, dt, 100, state, path="general")
     assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing

@@ -77,8 +77,8 @@ def test_declarations_are_checked():
     assert NodeTable("u_good_t", np.zeros((4, 8))).layers == 2
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((2, 2, 2), bool))
     system = springs.from_grid(grid, k_structural=1.0, k_shear=1.0)
-    with pytest.raises(ValueError, match=r"terms\[0\]: str is not a deformgl.sim.terms.Term"):
-        dataclasses.replace(system, terms=("springs",))
+    with pytest.raises(ValueError, match=r"extra_terms\[0\]: str is not a deformgl.sim.terms.Term"):
+        dataclasses.replace(system, extra_terms=("springs",))
 
 
 class _Plain(Term):
@@ -123,8 +123,9 @@ def test_a_sheets_bending_is_one_of_its_terms():
     assert isinstance(sheet.bending, SheetBending) and sheet.terms == (sheet.bending,)
     plain = dataclasses.replace(sheet, bending=None)
     assert plain.terms == ()
-    again = dataclasses.replace(plain, bending=sheet.bending, terms=(sheet.bending,))
-    assert again.terms == (sheet.bending,)  # (once)
+    assert dataclasses.replace(plain, bending=sheet.bending).terms == (sheet.bending,)
+    with pytest.raises(ValueError, match=r"^SpringSystem.extra_terms\[0\]: a sheet's bending go in the system's bending= field$"):
+        dataclasses.replace(plain, extra_terms=(sheet.bending,))  # (not silently dropped, nor counted twice)
     # the fragment backend's form: its coefficients on the 24-neighbour table
     form = sheet.bending.glsl(sheet.grid)
     assert form.neighbours == 24 and form.tables[0].values.shape == (sheet.count, 24)

@@ -236,7 +236,7 @@ def estimate(scene: Any) -> Budget:
     solid = material is not None and scene.cloth is None
     if solid:
         # the cells (C, 8) int64, about one per node, and the (N, 27) int32 neighbourhood table of
-        # the GPU backends' cell gather (deformgl.sim.volume, sim/backends/cell_tables.py)
+        # the GPU backends' cell gather (deformgl.sim.volume, sim/cell_tables.py)
         host["material lattice"] += int(CELL_HOST_BYTES_PER_NODE * nodes)
     bending = bool(getattr(material, "bending_stiffness", 0.0))
     if bending:

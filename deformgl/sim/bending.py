@@ -113,10 +113,6 @@ class SheetBending(Term):
         """B on each coordinate (the blocks ``B_ij I``), the same at every x."""
         return sp.kron(self.matrix, sp.identity(3), format="csr")
 
-    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """``B y`` (N, 3)."""
-        return self.matrix @ np.asarray(y, np.float64)
-
     def dt_product(self, x_rest: np.ndarray, dx: np.ndarray, *, barrier: bool = False) -> np.ndarray:
         """``B dx`` (linear: the same B at any state)."""
         return self.matrix @ np.asarray(dx, np.float64)

@@ -61,7 +61,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from deformgl.sim.clock import CpuSimulationBase
-from deformgl.sim.implicit_cells import CELL_HESSIAN
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels
 from deformgl.sim.springs import Drag, Load, SpringSystem, forces

@@ -32,7 +32,7 @@ Hessian, indefinite in compression and tension alike); "eigen" (NumPy only) is t
 projection of each cell's 24x24 block (centre and active barriers together), negative
 eigenvalues set to 0: what clamping g is for a spring, at the cost of a 24x24 eigendecomposition
 per cell and step, which the GPU's matrix-free product does not do. :func:`cell_product` is the
-matrix-free Gauss-Newton product, the twin of the GPU's ``shaders/sim/implicit/cells.glsl``.
+matrix-free Gauss-Newton product, the twin of the GPU's ``shaders/terms/cell_implicit.glsl``.
 
 Measured (with the barrier's first J_b = 0.5) with direct solves at dt = 1/30 s
 (tests/test_cells_implicit.py: the 5x3x3-node block clamped at one end under gravity, and the

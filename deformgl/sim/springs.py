@@ -79,9 +79,10 @@ class SpringSystem:
         cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.volume`: any
             Poisson's ratio, the inversion barrier), or None (springs only).
         bending: a sheet's bending term (:mod:`deformgl.sim.bending`: the plate's D in N·m,
-            ``f = -B x``), or None; it is the first of :attr:`terms` too.
-        terms: further physics terms (:class:`deformgl.sim.terms.Term`), each one object that
-            every backend runs through its declared forms (or refuses in one line naming it).
+            ``f = -B x``), or None.
+        extra_terms: further physics terms (:class:`deformgl.sim.terms.Term`), each one object that
+            every backend runs through its declared forms (or refuses in one line naming it);
+            :attr:`terms` is every term of the system, the cells' and a sheet's bending first.
     """
 
     rest_positions: np.ndarray
@@ -103,7 +104,7 @@ class SpringSystem:
     material: object = None
     cells: CellVolumes | None = None
     bending: SheetBending | None = None
-    terms: tuple[Term, ...] = ()
+    extra_terms: tuple[Term, ...] = ()
 
     def __post_init__(self) -> None:
         n = np.shape(self.rest_positions)[0]
@@ -135,16 +136,25 @@ class SpringSystem:
             raise ValueError(f"SpringSystem.cells: corner node numbers outside 0..{n - 1}")
         if self.bending is not None and self.bending.count != n:
             raise ValueError(f"SpringSystem.bending: {self.bending.count} nodes, the system {n}")
+        object.__setattr__(self, "extra_terms", tuple(self.extra_terms))
+        for k, term in enumerate(self.extra_terms):
+            if not isinstance(term, Term):
+                raise ValueError(f"SpringSystem.extra_terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
+            if isinstance(term, (VolumeTerm, SheetBending)):
+                field_name = "cells" if isinstance(term, VolumeTerm) else "bending"
+                raise ValueError(f"SpringSystem.extra_terms[{k}]: {term.name} go in the system's {field_name}= field")
         # the cells' volumetric term and a sheet's bending are terms too, first (the backends sum
-        # in the terms' order); their fields say which (dataclasses.replace(system, cells=None)
-        # drops them from the terms too)
-        terms = tuple(t for t in self.terms if not isinstance(t, (VolumeTerm, SheetBending)))
+        # in the terms' order)
         built_in = ((VolumeTerm(self.cells),) if self.cells is not None else ()) + (
             (self.bending,) if self.bending is not None else ())
-        object.__setattr__(self, "terms", built_in + terms)
-        for k, term in enumerate(self.terms):
-            if not isinstance(term, Term):
-                raise ValueError(f"SpringSystem.terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
+        object.__setattr__(self, "_terms", built_in + self.extra_terms)
+
+    @property
+    def terms(self) -> tuple[Term, ...]:
+        """Every physics term of the system, in the order the backends sum them: the cells'
+        volumetric term (``cells``), a sheet's bending (``bending``), then :attr:`extra_terms`."""
+        terms: tuple[Term, ...] = self.__dict__["_terms"]
+        return terms
 
     @property
     def count(self) -> int:

@@ -1,5 +1,5 @@
 """The cells' volumetric term (:class:`deformgl.sim.volume.CellVolumes`) as GLSL: its chunk
-``shaders/terms/cell.glsl`` (``terms/cell_forces.glsl``'s forces and ``sim/implicit/cells.glsl``'s
+``shaders/terms/cell.glsl`` (``terms/cell_forces.glsl``'s forces and ``terms/cell_implicit.glsl``'s
 Gauss-Newton product from the node's 3x3x3 neighbourhood, which the pass keeps:
 ``shaders/lib/node_hood.glsl``), its defines, uniforms and the node bits of its full incident
 cells. Every GPU pass that runs the term compiles it through the term list
@@ -9,7 +9,7 @@ cells. Every GPU pass that runs the term compiles it through the term list
 from __future__ import annotations
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.cell_tables import cell_uniforms, check_cells, incident_cells
+from deformgl.sim.cell_tables import cell_uniforms, check_cells, incident_cells
 from deformgl.sim.terms.base import GlslTerm
 from deformgl.sim.volume import CellVolumes
 

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix, cell_product
+from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
 from deformgl.sim.terms.base import GlslTerm, Term
 from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
                                  rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
@@ -51,10 +51,6 @@ class VolumeTerm(Term):
         """The Hessian in the form that goes with the springs' ``geometric``
         (:data:`~deformgl.sim.implicit_cells.CELL_HESSIAN`)."""
         return cell_matrix(self.cells, x, len(x), CELL_HESSIAN[geometric])
-
-    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """``K(x) y`` (Gauss-Newton) without assembling K."""
-        return cell_product(self.cells, x, np.asarray(y, np.float64))
 
     def dt_stiffness(self, x_rest: np.ndarray, *, barrier: bool = False) -> sp.csr_matrix:
         """The centre term's stiffness at rest (the barrier is inactive there) and, with

@@ -24,7 +24,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.backends.cell_tables import check_cells
+from deformgl.sim.cell_tables import check_cells
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.terms.glsl import TERM_SHIFT
 from deformgl.sim.volume import CellVolumes

@@ -52,8 +52,9 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
-from deformgl.sim.backends.cell_tables import cell_uniforms
+from deformgl.sim.cell_tables import cell_uniforms
 from deformgl.sim.terms.glsl import refuse_terms
+from deformgl.sim.volume_term import VolumeTerm
 from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit, has_cells
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.clock import SimulationBase
@@ -160,6 +161,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"FeedbackSimulation: dt must be > 0, got {dt}")
         refuse_terms(system.terms, "feedback", "FeedbackSimulation")
+        for term in system.terms:  # (the cells run this backend's own form: CELLS, feedback_cells)
+            if term.feedback_pairs() is None and not isinstance(term, VolumeTerm) and term.acts():
+                raise ValueError(f"FeedbackSimulation: {term.name} have no transform-feedback form")
         self.ctx = ctx
         self.system = system
         self.integrator = integrator
@@ -209,7 +213,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         for term in system.terms:
             pairs = term.feedback_pairs()
             if pairs is None:
-                continue  # (refused in __init__)
+                continue  # (the cells: CELLS below; any other was refused in __init__)
             rows, cols, coefficients = pairs
             ends = np.concatenate([ends, rows])
             other = np.concatenate([other, cols])

@@ -8,7 +8,7 @@ node n's texels are its slots s = 0..6 in the node layout (``shaders/lib/node_te
 ``node_slot_texel(n, CELL_SLOTS, s)``), whose 28 integers are the 27 node numbers of its 3x3x3
 neighbourhood (integer ``m = 4 s + channel`` holds slot m of
 :func:`deformgl.grid.neighbours.neighbourhood`) and, last (texel 6, ``w``), the bit mask
-of its full incident cells (:func:`deformgl.sim.backends.cell_tables.incident_cells`).
+of its full incident cells (:func:`deformgl.sim.cell_tables.incident_cells`).
 
 Only grid bodies have cells; the tables assume the system's cells are cells of its node grid, as
 :func:`deformgl.sim.materials.lattice_system` builds them, and :func:`check_system_cells` refuses any
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.backends.cell_tables import check_cells, incident_cells
+from deformgl.sim.cell_tables import check_cells, incident_cells
 from deformgl.sim.springs import SpringSystem
 
 __all__ = ["CELL_SLOTS", "has_cells", "cell_node_row_limit", "cell_image"]
@@ -42,7 +42,7 @@ def has_cells(system: SpringSystem) -> bool:
 
 def check_system_cells(system: SpringSystem) -> None:
     """Raise ValueError (one line) unless ``system.cells`` are distinct cells of ``system.grid``
-    (:func:`~deformgl.sim.backends.cell_tables.check_cells`)."""
+    (:func:`~deformgl.sim.cell_tables.check_cells`)."""
     cells, grid = system.cells, system.grid
     if cells is None:
         return

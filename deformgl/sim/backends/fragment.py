@@ -63,14 +63,14 @@ from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.blocked import BlockedTextures
 from deformgl.sim.backends.foundation import NodeTextures, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.backends.verlet_pass import FoundationVerlet
-from deformgl.sim.backends.grid_springs import (FLEXION_OFFSETS, compact_layout,
-                                                grid_neighbours, grid_springs, spring_weights)
+from deformgl.grid.neighbours import FLEXION_OFFSETS
+from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
 from deformgl.sim.stages import BUFFERS, Stage, spec
 from deformgl.sim.terms.glsl import pass_terms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.grid.neighbours import diagonal_table
 
-__all__ = ["FragmentIntegrator", "PATHS", "grid_neighbours"]
+__all__ = ["FragmentIntegrator", "PATHS"]
 
 #: How the fragment backend runs Verlet (see :class:`FragmentIntegrator`).
 PATHS = ("auto", "general", "foundation")
@@ -352,7 +352,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         if self.tex_hood_diagonals is not None:
             uniforms["u_hood_diagonals"] = _HOOD_DIAGONAL_UNIT
         if self.terms:
-            uniforms.update(self.terms.uniforms(_TERM_UNITS))
+            # (a term's uniform may be used in its implicit functions only: set where active)
+            uniforms.update({k: v for k, v in self.terms.uniforms(_TERM_UNITS).items() if k in members})
         if defines.get("GROUND"):  # (set only with a ground plane)
             c = self.constraints
             if c is None or c.ground is None:

@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 
 from deformgl.errors import GLError
-from deformgl.grid.neighbours import FLEXION_OFFSETS, grid_neighbours
+from deformgl.grid.neighbours import grid_neighbours
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 
-__all__ = ["FLEXION_OFFSETS", "check_topology", "class_values", "compact_layout", "grid_neighbours", "grid_springs",
+__all__ = ["check_topology", "class_values", "compact_layout", "grid_springs",
            "spring_weights", "weight_layers", "weight_levels"]
 
 def class_values(system: SpringSystem, cls: int, name: str) -> tuple[float, float, float]:

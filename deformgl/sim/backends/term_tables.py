@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import moderngl
 import numpy as np
 
+from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 from deformgl.grid.blocks import BlockedLayout
 from deformgl.grid.nodes import CompactLayout, NodeGrid
@@ -46,6 +47,12 @@ class TermTables(GLOwner):
                 tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
                 self.textures.append(tex)
                 self.bytes_allocated += w * h * len(image) * 16
+
+    def active_uniforms(self, program: Program) -> dict[str, object]:
+        """:attr:`uniforms` that ``program`` uses (a term's uniform may serve its implicit
+        functions only, which an explicit pass does not compile)."""
+        members = program.members
+        return {k: v for k, v in self.uniforms.items() if k in members}
 
     def bind(self) -> None:
         """Bind every table to its unit."""

@@ -183,7 +183,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
                 units = range(blocked.units["weights"] + 1, int(ctx.info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16)))
                 self.term_tables = self.own(TermTables(ctx, terms.extra, grid, blocked.blocks, units))
                 block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels, branch=branch))
-                block_pass.program.set(**self.term_tables.uniforms)
+                block_pass.program.set(**self.term_tables.active_uniforms(block_pass.program))
                 self.textures, self.verlet = blocked, block_pass
                 #: one step: (current, previous, target, dt, pull forces)
                 self._draw_step = partial(block_pass.run, blocked)
@@ -194,7 +194,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
                 one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
                 if terms.extra and isinstance(textures.layout, CompactLayout):  # (VerletPass refused the atlas)
                     self.term_tables = self.own(TermTables(ctx, terms.extra, grid, textures.layout, TERM_UNITS))
-                    one_pass.program.set(**self.term_tables.uniforms)
+                    one_pass.program.set(**self.term_tables.active_uniforms(one_pass.program))
                 self.textures, self.verlet = textures, one_pass
                 self._draw_step = partial(one_pass.run, textures)
         self.current, self.previous, self.spare = 0, 1, 2

@@ -36,7 +36,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.backends.cell_tables import cell_uniforms, incident_cells
+from deformgl.sim.cell_tables import cell_uniforms, incident_cells
 from deformgl.sim.backends.compact_textures import float_texture, layer_texture
 from deformgl.sim.xpbd_cells import CellConstraints
 

@@ -99,7 +99,9 @@ class GlslTerm:
     mass ``m``, where its tables are, ``bits`` (the 8 bits ``node_bits`` gave the node: one term per
     system may have them, stored in the node data's flag word, bits 6-13) and ``held`` (the implicit
     product passes: the flag a term with ``held`` set in ``PREFIX_diagonal``'s ``held`` at the step's
-    start, e.g. "a barrier acts here"; 1 in the step's first pass). ``defines`` switch the chunk's
+    start, e.g. "a barrier acts here"; 1 in the step's first pass). The implicit functions (and any
+    function that calls ``term_vector``, ``hood_positions`` or ``hood_vector``, which only implicit
+    Euler's passes define) go under ``#ifdef TERMS_IMPLICIT``. ``defines`` switch the chunk's
     variants (names starting with PREFIX in capitals). ``uniforms`` are set on every pass that
     compiles the chunk; their names, the tables' samplers and every function must start with
     ``prefix`` (or ``u_`` + prefix).
@@ -170,10 +172,6 @@ class Term(ABC):
         """The implicit step's share of H at x for the springs' ``geometric`` option
         (:data:`deformgl.sim.implicit.GEOMETRIC`; the default: :meth:`stiffness`)."""
         return self.stiffness(x)
-
-    def stiffness_product(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """``K(x) y`` for y (N, 3)."""
-        return (self.stiffness(x) @ np.asarray(y, np.float64).reshape(-1)).reshape(-1, 3)
 
     def dt_stiffness(self, x_rest: np.ndarray, *, barrier: bool = False) -> sp.csr_matrix:
         """The stiffness the dt bound covers (:mod:`deformgl.sim.spectrum`, :mod:`deformgl.sim.limits`):

@@ -13,11 +13,15 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import moderngl
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
+
+if TYPE_CHECKING:
+    import moderngl
 
 __all__ = ["ACTIVE", "PassTerms", "compose", "pass_terms", "refuse_terms"]
 
@@ -107,7 +111,7 @@ class PassTerms:
         out.update({t.sampler: unit for t, unit in zip(tables, units)})
         return out
 
-    def textures(self, make: Callable[[NodeTable], moderngl.TextureArray]) -> list[moderngl.TextureArray]:
+    def textures(self, make: Callable[[NodeTable], "moderngl.TextureArray"]) -> list["moderngl.TextureArray"]:
         """One texture array per table, made by the backend in its node layout."""
         return [make(t) for t in self.tables]
 
@@ -165,9 +169,11 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
     refuse_terms(terms, backend, caller)
     forms = []
     for term in terms:
-        form = term.glsl(grid) if term.acts() else None
-        if form is None:
+        if not term.acts():
             continue
+        form = term.glsl(grid)
+        if form is None:
+            raise ValueError(f"{caller}: {term.name} have no GLSL form")
         if implicit and not form.implicit:
             raise ValueError(f"{caller}: {term.name} have no implicit product in GLSL")
         forms.append(form)
