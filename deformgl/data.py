@@ -11,12 +11,32 @@ from __future__ import annotations
 
 import os
 from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
 from deformgl.errors import DeformglError
 
-__all__ = ["asset", "default_output", "find_mesh", "find_scene", "is_packaged", "packaged_scene", "scene_file",
+__all__ = ["asset", "default_output", "find_mesh", "find_scene", "is_packaged", "package_folder", "packaged_scene", "scene_file",
            "scene_names", "scenes_dir"]
+
+
+def package_folder(name: str) -> Traversable:
+    """The package data folder ``deformgl.<name>`` (``"shaders"`` or ``"scenes"``).
+
+    An installed deformgl (wheel or editable) has them as packages; a deformgl imported from a
+    source checkout without being installed there (the repository root on ``sys.path``, as
+    ``python -m studies.NAME`` from the root does beside a non-editable install, and pytest's
+    ``pythonpath``) finds them as the repository's own ``shaders/`` and ``scenes/`` folders,
+    which is what the wheel packages (pyproject.toml's ``package-dir``).
+    """
+    try:
+        return resources.files(f"deformgl.{name}")
+    except ModuleNotFoundError:
+        checkout = Path(__file__).resolve().parents[1] / name
+        if checkout.is_dir():
+            return checkout
+        raise DeformglError(f"deformgl.{name}: the package data is missing (neither installed nor "
+                            f"a source checkout's {name}/ folder); reinstall deformgl") from None
 
 
 def scenes_dir() -> Path:
@@ -25,7 +45,7 @@ def scenes_dir() -> Path:
     Raises:
         DeformglError: If the package data is not on the file system (a zipped install).
     """
-    root = resources.files("deformgl.scenes")
+    root = package_folder("scenes")
     if not isinstance(root, Path) or not root.is_dir():
         raise DeformglError(f"the packaged scenes are not a folder on disk ({root}); install "
                             "deformgl unzipped (pip install)")

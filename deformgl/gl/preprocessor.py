@@ -2,7 +2,8 @@
 
 Shader files live in the ``shaders/`` folder, which ships inside the wheel as the package
 ``deformgl.shaders`` and is read through :mod:`importlib.resources`, in an editable install and an
-installed wheel alike.
+installed wheel alike (and from the checkout's folder where the checkout itself is imported:
+:func:`deformgl.data.package_folder`).
 
 Rules, as in moderngl-window's ``ShaderSource`` and three.js' chunks:
 
@@ -25,8 +26,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from importlib import resources
-
+from deformgl.data import package_folder
 from deformgl.errors import ShaderError
 
 MAX_INCLUDE_DEPTH = 16
@@ -50,7 +50,7 @@ def read_shader_file(name: str) -> str:
     Raises:
         ShaderError: the file does not exist in the package.
     """
-    node = resources.files("deformgl.shaders")
+    node = package_folder("shaders")
     for part in name.split("/"):
         node = node.joinpath(part)
     if not node.is_file():

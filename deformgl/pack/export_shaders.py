@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
+from deformgl.data import package_folder
 from deformgl.errors import InputError
 from deformgl.files import OutputSet, write_atomic
 from deformgl.gl.preprocessor import ES_PRECISION, PROFILES, read_shader_file
@@ -49,7 +49,7 @@ def _walk(node: Traversable, prefix: str) -> list[str]:
 
 def pack_files() -> list[str]:
     """Every shader file of the pack, relative to the shaders folder, sorted."""
-    return _walk(resources.files("deformgl.shaders"), "")
+    return _walk(package_folder("shaders"), "")
 
 
 def shader_text(name: str, profile: str) -> str:
@@ -81,7 +81,7 @@ def pack_contents(out: Path, profile: str) -> dict[Path, str]:
     meta, readme = out / "pack.json", out / "README.md"
     for path in {p.parent for p in targets.values()}:
         path.mkdir(parents=True, exist_ok=True)
-    contract = resources.files("deformgl.shaders").joinpath("README.md").read_text(encoding="utf-8")
+    contract = package_folder("shaders").joinpath("README.md").read_text(encoding="utf-8")
     info = {"name": "deformgl shader pack", "version": PACK_VERSION, "profile": profile,
             "language": f"GLSL {_LANGUAGE[profile]}", "license": "MIT", "files": names}
     files = {path: shader_text(name, profile) for name, path in targets.items()}
