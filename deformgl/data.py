@@ -24,10 +24,10 @@ def package_folder(name: str) -> Traversable:
     """The package data folder ``deformgl.<name>`` (``"shaders"`` or ``"scenes"``).
 
     An installed deformgl (wheel or editable) has them as packages; a deformgl imported from a
-    source checkout without being installed there (the repository root on ``sys.path``, as
-    ``python -m studies.NAME`` from the root does beside a non-editable install, and pytest's
-    ``pythonpath``) finds them as the repository's own ``shaders/`` and ``scenes/`` folders,
-    which is what the wheel packages (pyproject.toml's ``package-dir``).
+    source checkout without being installed there (the repository root first on ``sys.path``, as
+    ``python -m studies.NAME`` from the root does beside a non-editable install) finds them as the
+    repository's own ``shaders/`` and ``scenes/`` folders, which is what the wheel packages
+    (pyproject.toml's ``package-dir``).
     """
     try:
         return resources.files(f"deformgl.{name}")

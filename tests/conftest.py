@@ -27,6 +27,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import pytest
@@ -35,6 +36,11 @@ REQUIRE_GL = os.environ.get("DEFORMGL_REQUIRE_GL") == "1"
 #: Set by .ci/run, which installs the extras: then the extras' tests may not skip either.
 REQUIRE_EXTRAS = os.environ.get("DEFORMGL_REQUIRE_EXTRAS") == "1"
 TESTS = Path(__file__).parent
+# The tests of the studies import `studies` (the repository's studies/ folder, not in the wheel):
+# the repository root goes last on the path, so that `deformgl` stays the installed package (the
+# README installs the wheel, not the checkout; a root put first would shadow it).
+if str(TESTS.parent) not in sys.path:
+    sys.path.append(str(TESTS.parent))
 GOLDEN_DIR = TESTS / "golden"
 OUTPUT_DIR = TESTS / "output"
 

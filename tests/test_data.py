@@ -1,7 +1,7 @@
 """Where the package data comes from: the installed packages ``deformgl.shaders`` and
 ``deformgl.scenes``, or, where deformgl is imported from a source checkout that is not what is
-installed (``python -m studies.NAME`` from the repository root beside a non-editable install,
-pytest's ``pythonpath``), the checkout's own ``shaders/`` and ``scenes/`` folders."""
+installed (``python -m studies.NAME`` from the repository root beside a non-editable install),
+the checkout's own ``shaders/`` and ``scenes/`` folders."""
 
 from __future__ import annotations
 
@@ -43,6 +43,5 @@ def test_missing_package_data_is_one_line_naming_it(monkeypatch):
         raise ModuleNotFoundError(name)
 
     monkeypatch.setattr(data.resources, "files", no_package)
-    assert data.package_folder("shaders") == ROOT / "shaders"  # the checkout's
     with pytest.raises(DeformglError, match=r"deformgl\.nothing: the package data is missing"):
         data.package_folder("nothing")
