@@ -147,3 +147,25 @@ def test_the_estimate_is_within_30_percent_of_the_measured_peak(ctx, kind, sizes
     for n, r in zip(sizes[1:], rest):
         measured, estimated = r["rss"] - base["rss"], r["est"] - base["est"]
         assert 0.7 * measured <= estimated <= 1.3 * measured, rows
+
+
+def test_the_estimate_counts_each_term_the_material_declares():
+    """The memory estimate reads a term's counts from the material's ``term_needs`` (the term's
+    own module declares them): the flap's bending adds its host bytes, its coefficient layers on
+    the fragment backend and its list entries on transform feedback, per node, and nothing else."""
+    from deformgl.data import packaged_scene
+    from deformgl.scene.budget import FEEDBACK_SPRING_END, VEC4_BYTES, _texels
+    from deformgl.sim import bending
+
+    flap = load_scene(packaged_scene("cloth_flap"))
+    assert flap.physics.material.term_needs == (bending.NEEDS,)
+    membrane = dataclasses.replace(flap, physics=dataclasses.replace(
+        flap.physics, material=dataclasses.replace(flap.physics.material, bending_stiffness=0.0, flexion_ratio=0.25)))
+    assert membrane.physics.material.term_needs == ()   # (flexion 2h springs: the same neighbour table)
+    for backend, gpu_extra in (("fragment", lambda n: _texels(n) * VEC4_BYTES * bending.NEEDS.node_layers),
+                               ("feedback", lambda n: bending.NEEDS.feedback_entries * n * FEEDBACK_SPRING_END)):
+        with_term, without = (estimate(dataclasses.replace(s, physics=dataclasses.replace(s.physics, backend=backend)))
+                              for s in (flap, membrane))
+        n = with_term.nodes
+        assert with_term.host["material lattice"] - without.host["material lattice"] == bending.NEEDS.host_bytes_per_node * n
+        assert with_term.gpu["simulation"] - without.gpu["simulation"] == gpu_extra(n)

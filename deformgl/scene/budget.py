@@ -67,11 +67,6 @@ NODE_TEXEL = VEC4_BYTES
 NEIGHBOUR_LAYER = VEC4_BYTES
 #: Feedback backend: per spring end, the R32I other node and the RGBA32F spring data.
 FEEDBACK_SPRING_END = 4 + VEC4_BYTES
-#: per texel of a solid's node texture: the cell gather's 27-neighbourhood and incident-cell
-#: mask, 7 RGBA32I texels (an upper bound: dense grids compute the neighbourhood)
-CELL_TABLE = 7 * VEC4_BYTES
-#: host bytes per node of a solid's cells: (C, 8) int64 corners (C <= N) + (N, 27) int32 table
-CELL_HOST_BYTES_PER_NODE = 8 * 8 + 27 * 4
 #: Software renderers keep GPU memory in host memory.
 SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software")
 
@@ -171,11 +166,6 @@ def _mesh_counts(scene: Any) -> tuple[np.ndarray, int, int]:
 #: on a 125k-node block: +456 over ``from_grid``'s peak for the cell counts and the weighted
 #: stiffness, +1,258 for the spring-weight table and its lookup keys; 2,000 with a margin.
 MATERIAL_HOST_BYTES_PER_NODE = 2000
-#: a sheet's bending term on the host: its stencils and B (1.37 kB per node measured), with a margin
-BENDING_HOST_BYTES_PER_NODE = 1600
-#: the feedback backend's list entries per node for a sheet's bending: B's off-diagonal entries
-#: (12 at an interior node: 4 at h, 4 at 2h, 4 diagonals)
-BENDING_LIST_ENTRIES = 12
 
 
 def estimate(scene: Any) -> Budget:
@@ -183,8 +173,11 @@ def estimate(scene: Any) -> Budget:
     alone: the grid box bounds the node count, nothing is voxelized or allocated."""
     physics = scene.physics
     material = getattr(physics, "material", None)
+    # the terms the material's lattice holds besides the springs, each with its counts
+    # (deformgl.sim.terms.TermNeeds, declared in the term's own module)
+    needs = tuple(getattr(material, "term_needs", ()))
     flexion = (physics.flexion.stiffness > 0 if material is None
-               else bool(getattr(material, "flexion_ratio", 0.0) or getattr(material, "bending_stiffness", 0.0)))
+               else bool(getattr(material, "flexion_ratio", 0.0)) or any(t.neighbours == 24 for t in needs))
     if scene.cloth is not None:
         nx, nz = scene.cloth.nodes
         shape = (int(nx), 1, int(nz))
@@ -233,23 +226,15 @@ def estimate(scene: Any) -> Budget:
         # the cell assembly (a second (S,) stiffness and its temporaries) and the (N, 18 or 24)
         # float64 spring weights with their lookup keys (MATERIAL_HOST_BYTES_PER_NODE)
         host["material lattice"] = int(MATERIAL_HOST_BYTES_PER_NODE * nodes)
-    solid = material is not None and scene.cloth is None
-    if solid:
-        # the cells (C, 8) int64, about one per node, and the (N, 27) int32 neighbourhood table of
-        # the GPU backends' cell gather (deformgl.sim.volume, sim/cell_tables.py)
-        host["material lattice"] += int(CELL_HOST_BYTES_PER_NODE * nodes)
-    bending = bool(getattr(material, "bending_stiffness", 0.0))
-    if bending:
-        # the plate term's stencils and its sparse B being assembled (measured 1.37 kB per node at
-        # the peak on 250k nodes, 270 B kept; deformgl.sim.bending)
-        host["material lattice"] += int(BENDING_HOST_BYTES_PER_NODE * nodes)
+        # its terms' own assembly (a solid's cells: their corners and gather table)
+        host["material lattice"] += int(sum(t.host_bytes_per_node for t in needs) * nodes)
+    term_texel = sum(t.texel_bytes for t in needs)  # the terms' integer tables per node texel
     texels = _texels(nodes)
     if physics.backend == "fragment":
         dense = scene.cloth is not None  # a box mesh is dense too; counted as not (an upper bound)
         layers = 0 if dense else (6 if flexion else 5)
         weights = (6 if flexion else 5) if material is not None else 0  # the spring-weight layers
-        if bending:
-            weights += 6  # the bending coefficients (deformgl.sim.bending), one per neighbour
+        weights += sum(t.node_layers for t in needs)  # the terms' node tables
         if physics.integrator == "xpbd":  # always a neighbour texture, and the stiffness layers
             layers, weights = 2 * (6 if flexion else 5), 0
         # Verlet's blocked layout (several nodes per fragment, deformgl.sim.backends.blocked) adds
@@ -259,11 +244,11 @@ def estimate(scene: Any) -> Budget:
         # spans the thin axis of a sheet, so a sheet fills its blocks
         blocked = 2 if physics.integrator == "verlet" and physics.layout != "compact" else 0
         sim = texels * (NODE_TEXEL + NEIGHBOUR_LAYER * layers + VEC4_BYTES * weights
-                        + VEC4_BYTES * (len(GPU_BUFFERS[physics.integrator]) + blocked) + (CELL_TABLE if solid else 0))
+                        + VEC4_BYTES * (len(GPU_BUFFERS[physics.integrator]) + blocked) + term_texel)
     elif physics.backend == "feedback":
-        sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + (CELL_TABLE if solid else 0))
+        sim = (texels * (VEC4_BYTES + VEC4_BYTES * len(GPU_BUFFERS[physics.integrator]) + term_texel)
                + 2 * springs * FEEDBACK_SPRING_END
-               + (BENDING_LIST_ENTRIES * nodes * FEEDBACK_SPRING_END if bending else 0))
+               + sum(t.feedback_entries for t in needs) * nodes * FEEDBACK_SPRING_END)
     else:  # the NumPy reference: its state is host memory; textures only to draw
         sim = texels * 2 * VEC4_BYTES
     gpu = {

@@ -113,14 +113,9 @@ def build_cloth_model(scene: Scene) -> SceneModel:
 
 def material_line(material: object, spacing: float) -> str:
     """``material E = ... Pa, rho = ... kg/m^3 at spacing h = ... m`` for the render log."""
-    if isinstance(material, ElasticMaterial):
-        what = f"E = {material.youngs_modulus:.4g} Pa, rho = {material.density:.4g} kg/m^3"
-    elif isinstance(material, SheetMaterial):
-        what = f"Y = {material.stretch_modulus:.4g} N/m, rho_A = {material.areal_density:.4g} kg/m^2"
-        if material.bending_stiffness:
-            what += f", D = {material.bending_stiffness:.4g} N*m"
-    else:
+    if not isinstance(material, (ElasticMaterial, SheetMaterial)):
         return "per-spring constants"
+    what = material.summary
     name = getattr(material, "name", "")
     return f"material {name + ' ' if name else ''}{what} at grid spacing h = {spacing:.4g} m"
 

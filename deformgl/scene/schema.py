@@ -36,7 +36,6 @@ from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.scene.material_table import _BODY_MATERIAL
 from deformgl.sim.materials import SheetMaterial
 from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
-from deformgl.sim.bending import BENDING_REFUSAL
 
 __all__ = ["apply_overrides", "load_scene"]
 
@@ -419,8 +418,9 @@ def load_scene(path: str | PathLike[str], overrides: dict[str, Any] | None = Non
                 _fail(file, "material", "a cloth needs a sheet material (stretch_modulus, areal_density)"
                       if d["cloth"] is not None else
                       "stretch_modulus and areal_density are for a cloth; a mesh needs youngs_modulus and density")
-            if getattr(material, "bending_stiffness", 0.0) and d["physics"].integrator == "xpbd":
-                _fail(file, "material.bending_stiffness", BENDING_REFUSAL)
+            for needs in material.term_needs:  # a term the integrator has no form of, before the build
+                if (why := needs.refusal(d["physics"].integrator)) is not None:
+                    _fail(file, needs.key, why)
             d["physics"] = dataclasses.replace(d["physics"], material=material, damping=0.0)
         return Scene(source, **d)
 

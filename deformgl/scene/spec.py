@@ -20,7 +20,6 @@ from deformgl.sim.implicit import DEFAULT_PRECONDITIONER
 from deformgl.sim.integrators import INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, SheetMaterial
 from deformgl.sim.simulation import BACKENDS  # where a scene's simulation runs
-from deformgl.sim.bending import BENDING_REFUSAL
 
 Vec3 = tuple[float, float, float]
 MAX_SIZE = 16384
@@ -444,9 +443,10 @@ class Scene:
             if value is not None:
                 scene = dataclasses.replace(scene, physics=dataclasses.replace(
                     scene.physics, **{key: check(file, flag, value)}))
-        if integrator == "xpbd" and isinstance(scene.physics.material, SheetMaterial) \
-                and scene.physics.material.bending_stiffness > 0:
-            _fail(file, "--integrator", f"xpbd: the scene's material.bending_stiffness {BENDING_REFUSAL}")
+        material = scene.physics.material
+        for needs in material.term_needs if material is not None else ():
+            if integrator is not None and (why := needs.refusal(integrator)) is not None:
+                _fail(file, "--integrator", f"{integrator}: the scene's {needs.key} {why}")
         if steps is not None:
             scene = dataclasses.replace(
                 scene, physics=dataclasses.replace(scene.physics, steps=_STEPS(file, "--steps", steps)))

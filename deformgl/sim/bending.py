@@ -55,9 +55,9 @@ import scipy.sparse as sp
 
 from deformgl.grid.neighbours import grid_neighbours
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
+from deformgl.sim.terms.base import GlslTerm, NodeTable, Term, TermNeeds
 
-__all__ = ["BENDING_REFUSAL", "SHEET_BENDING_POISSON", "SheetBending", "node_weights", "sheet_bending"]
+__all__ = ["BENDING_REFUSAL", "NEEDS", "SHEET_BENDING_POISSON", "SheetBending", "node_weights", "sheet_bending"]
 
 #: the plate Poisson's ratio of the bending term: the membrane lattice's (2D Lamé lambda = mu)
 SHEET_BENDING_POISSON = 1.0 / 3.0
@@ -68,6 +68,14 @@ SHEET_BENDING_POISSON = 1.0 / 3.0
 #: constraint end, so the GPU sweep would store 45 more floats per node.)
 BENDING_REFUSAL = ("has no XPBD constraint: run it with an explicit integrator or implicit-euler, or use "
                    "flexion_ratio with xpbd")
+
+#: What the term costs and refuses, from the scene alone (:class:`~deformgl.sim.terms.TermNeeds`):
+#: on the host its stencils and B being assembled (1.37 kB per node measured at the peak on 250k
+#: nodes, 270 B kept; 1,600 with a margin); the 24-neighbour table; on the fragment backends its
+#: 6 coefficient layers (one per neighbour); on transform feedback B's off-diagonal entries (12 at
+#: an interior node: 4 at h, 4 at 2h, 4 diagonals); no XPBD form.
+NEEDS = TermNeeds("material.bending_stiffness", host_bytes_per_node=1600, neighbours=24, node_layers=6,
+                  feedback_entries=12, refused=(("xpbd", BENDING_REFUSAL),))
 
 #: The term's GLSL form (``shaders/terms/bending.glsl``): ``f -= c_j (x_i - x_j)`` over the 24 grid
 #: neighbours, c_j from its table (:meth:`SheetBending.neighbour_coefficients`).

@@ -62,7 +62,9 @@ from numpy.typing import ArrayLike
 
 from deformgl.errors import ArgumentError
 from deformgl.grid.nodes import NodeGrid
+from deformgl.sim import bending as _bending, volume_term as _volume_term
 from deformgl.sim.bending import sheet_bending
+from deformgl.sim.terms.base import TermNeeds
 from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
 from deformgl.sim.volume import BARRIER_SCALE, CellVolumes, grid_cells
 
@@ -151,6 +153,17 @@ class ElasticMaterial:
         """The P-wave speed sqrt((lambda + 2 mu) / rho) in m/s (sqrt(6 E / (5 rho)) at nu = 1/4)."""
         return math.sqrt(self.p_wave_modulus / self.density)
 
+    @property
+    def term_needs(self) -> tuple[TermNeeds, ...]:
+        """What the terms its lattice holds besides the springs will need (the cells' volumetric
+        term), known before the lattice is built."""
+        return (_volume_term.NEEDS,)
+
+    @property
+    def summary(self) -> str:
+        """``E = ... Pa, rho = ... kg/m^3`` for the render log."""
+        return f"E = {self.youngs_modulus:.4g} Pa, rho = {self.density:.4g} kg/m^3"
+
 
 @dataclass(frozen=True)
 class SheetMaterial:
@@ -188,6 +201,18 @@ class SheetMaterial:
         if self.flexion_ratio > 0 and self.bending_stiffness > 0:
             raise ArgumentError("SheetMaterial: bending_stiffness and flexion_ratio: give one (the plate's D in "
                                 "N·m is the calibrated bending; flexion springs would add to it)")
+
+    @property
+    def term_needs(self) -> tuple[TermNeeds, ...]:
+        """What the terms its lattice holds besides the springs will need (the bending term where
+        ``bending_stiffness`` is set), known before the lattice is built."""
+        return (_bending.NEEDS,) if self.bending_stiffness > 0 else ()
+
+    @property
+    def summary(self) -> str:
+        """``Y = ... N/m, rho_A = ... kg/m^2`` (and ``D = ... N*m``) for the render log."""
+        what = f"Y = {self.stretch_modulus:.4g} N/m, rho_A = {self.areal_density:.4g} kg/m^2"
+        return what + (f", D = {self.bending_stiffness:.4g} N*m" if self.bending_stiffness else "")
 
 
 #: Named materials (E in Pa, rho in kg/m^3, Poisson's ratio) with the source of the values. Soft

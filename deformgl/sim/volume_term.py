@@ -14,12 +14,19 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
-from deformgl.sim.terms.base import GlslTerm, Term
+from deformgl.sim.terms.base import GlslTerm, Term, TermNeeds
 from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
                                  rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
 from deformgl.sim.volume_glsl import volume_glsl
 
-__all__ = ["VolumeTerm"]
+__all__ = ["NEEDS", "VolumeTerm"]
+
+#: What the term costs, from the scene alone (:class:`~deformgl.sim.terms.TermNeeds`): on the host
+#: the cells' (C, 8) int64 corners (C <= N) and the GPU gather's (N, 27) int32 neighbourhood table
+#: (:mod:`deformgl.sim.cell_tables`); on the GPU backends its 27-neighbourhood and incident-cell
+#: mask, 7 RGBA32I texels per node texel (an upper bound: dense grids compute the neighbourhood).
+#: Every integrator runs it.
+NEEDS = TermNeeds("material", host_bytes_per_node=8 * 8 + 27 * 4, texel_bytes=7 * 16)
 
 
 @dataclass(frozen=True, eq=False)

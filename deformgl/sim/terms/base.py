@@ -13,7 +13,10 @@ besides its springs (``SpringSystem.terms``). It declares, in its own module:
   fragment backend's integrator stages, the foundation Verlet pass in the compact and the blocked
   layout, implicit Euler's right-hand side) and the implicit product's row and diagonal block,
   with the per-node tables and uniforms they read,
-* a one-line refusal for each backend that has no form of it (transform feedback, XPBD).
+* a one-line refusal for each backend that has no form of it (transform feedback, XPBD),
+* what it will cost and refuse, known from the scene alone before its data exists
+  (:class:`TermNeeds`: the memory budget's counts, the refusals a scene gets before the build),
+  which the material that makes it returns (``material.term_needs``).
 
 The backends loop over the system's terms and name none (:mod:`deformgl.sim.terms.glsl` composes
 a pass's chunk list); a system compiles only the terms it holds. How to add a term:
@@ -32,7 +35,7 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 
-__all__ = ["GlslTerm", "NodeTable", "Term", "block_diagonal"]
+__all__ = ["GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
 
 
 @dataclass(frozen=True)
@@ -144,6 +147,38 @@ class GlslTerm:
     def include(self) -> str:
         """The include name of the chunk."""
         return self.file if self.file is not None else f"terms/{self.prefix}.glsl"
+
+
+@dataclass(frozen=True)
+class TermNeeds:
+    """What a term will cost and refuse, known from the scene alone, before its data exists: the
+    memory estimate (:func:`deformgl.scene.budget.estimate`) sums these over the material's terms,
+    and the scene checks refuse an integrator in ``refused`` before anything is built.
+
+    Attributes:
+        key: the scene key that turns the term on (``"material.<key>"``): refusals name it.
+        host_bytes_per_node: host bytes per node its assembly adds at the peak (measured, with a margin).
+        neighbours: the grid neighbours its GLSL form reads (:attr:`GlslTerm.neighbours`): 24 adds
+            the neighbour table's 2h layer.
+        node_layers: RGBA32F layers per node its node tables add on the fragment backends.
+        texel_bytes: bytes per node texel of its integer tables on the GPU backends.
+        feedback_entries: list entries per node it adds on the transform-feedback backend (each
+            one a spring end).
+        refused: (integrator, why) pairs: the integrators with no form of it, each with the
+            phrase a refusal says after the key.
+    """
+
+    key: str
+    host_bytes_per_node: int = 0
+    neighbours: int = 0
+    node_layers: int = 0
+    texel_bytes: int = 0
+    feedback_entries: int = 0
+    refused: tuple[tuple[str, str], ...] = ()
+
+    def refusal(self, integrator: str) -> str | None:
+        """Why ``integrator`` cannot run the term, or None."""
+        return dict(self.refused).get(integrator)
 
 
 class Term(ABC):
