@@ -226,12 +226,12 @@ def test_the_fragment_backend_settles_on_the_static_solve_too(ctx):
 
 @pytest.mark.fem
 @pytest.mark.slow
-def test_the_bench_accuracy_command_prints_the_table_and_writes_its_files(tmp_path, capsys):
+def test_the_accuracy_study_prints_the_table_and_writes_its_files(tmp_path, capsys):
     import json
 
-    from deformgl.cli import main
+    from studies.accuracy import main
 
-    assert main(["bench", "accuracy", "--quick", "--quiet", "--out", str(tmp_path)]) == 0
+    assert main(["--quick", "--quiet", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "fitted order" in out and "Euler-Bernoulli" in out and "nu" in out
     data = json.loads((tmp_path / "accuracy.json").read_text())
