@@ -26,7 +26,7 @@ void bending_force(inout vec3 f, TermNode n) {
 }
 
 void bending_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, vec3 dy) {
-    float c = term_table(u_bending_c, NB_LAYERS, j / 4, n)[j % 4];
+    float c = bending_c[j / 4][j % 4];
     sk += c * dy;
     dk += vec3(c);
 }

@@ -81,7 +81,7 @@ class GlslTerm:
     node to its grid neighbours (``neighbours`` 18: the 6 axis and 12 face-diagonal neighbours of
     ``deformgl.grid.nodes.NEIGHBOUR_OFFSETS``; 24: and the 6 at 2h along the axes) defines besides::
 
-        void PREFIX_begin(TermNode n);                                    // once per node, first
+        void PREFIX_begin(TermNode n);  // once per node, before its neighbours (both gathers)
         void PREFIX_neighbour(inout vec3 f, TermNode n, int j, vec3 d);  // d = x_n - x_j
         void PREFIX_neighbour_product(inout vec3 sk, inout vec3 dk, TermNode n, int j, vec3 dy);
             // (implicit) adds its (K y)_n share of neighbour j, dy = y_n - y_j, and its diagonal

@@ -56,6 +56,7 @@ void spring_sums(ivec2 texel, vec3 xi, vec3 yi, float m, out vec3 sk, out vec3 s
     sk = vec3(0.0); sc = vec3(0.0); dk = vec3(0.0); dc = vec3(0.0); ok = vec3(0.0); oc = vec3(0.0);
 #ifdef TERMS_NEIGHBOURS
     TermNode term_node = TermNode(ivec3(texel, 0), xi, vec3(0.0), m, 0u, 1.0);
+    terms_begin(term_node);
 #endif
     for (int layer = 0; layer < NB_LAYERS; ++layer) {
         ivec4 nb = texelFetch(u_neighbours, ivec3(texel, layer), 0);
