@@ -32,8 +32,11 @@ def package_folder(name: str) -> Traversable:
     try:
         return resources.files(f"deformgl.{name}")
     except ModuleNotFoundError:
-        checkout = Path(__file__).resolve().parents[1] / name
-        if checkout.is_dir():
+        root = Path(__file__).resolve().parents[1]
+        checkout = root / name
+        # only a source checkout's own folder (its pyproject.toml beside the package), never a
+        # folder of that name that another distribution put beside an installed deformgl
+        if (root / "pyproject.toml").is_file() and (root / "deformgl" / "data.py").is_file() and checkout.is_dir():
             return checkout
         raise DeformglError(f"deformgl.{name}: the package data is missing (neither installed nor "
                             f"a source checkout's {name}/ folder); reinstall deformgl") from None

@@ -124,7 +124,7 @@ def test_a_sheets_bending_is_one_of_its_terms():
     plain = dataclasses.replace(sheet, bending=None)
     assert plain.terms == ()
     assert dataclasses.replace(plain, bending=sheet.bending).terms == (sheet.bending,)
-    with pytest.raises(ValueError, match=r"^SpringSystem.extra_terms\[0\]: a sheet's bending go in the system's bending= field$"):
+    with pytest.raises(ValueError, match=r"^SpringSystem.extra_terms\[0\]: a sheet's bending go in the system's own field \(bending=term\)$"):
         dataclasses.replace(plain, extra_terms=(sheet.bending,))  # (not silently dropped, nor counted twice)
     # the fragment backend's form: its coefficients on the 24-neighbour table
     form = sheet.bending.glsl(sheet.grid)

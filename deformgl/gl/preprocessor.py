@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
+
 from deformgl.data import package_folder
 from deformgl.errors import ShaderError
 

@@ -141,8 +141,9 @@ class SpringSystem:
             if not isinstance(term, Term):
                 raise ValueError(f"SpringSystem.extra_terms[{k}]: {type(term).__name__} is not a deformgl.sim.terms.Term")
             if isinstance(term, (VolumeTerm, SheetBending)):
-                field_name = "cells" if isinstance(term, VolumeTerm) else "bending"
-                raise ValueError(f"SpringSystem.extra_terms[{k}]: {term.name} go in the system's {field_name}= field")
+                field_name = "cells=term.cells" if isinstance(term, VolumeTerm) else "bending=term"
+                raise ValueError(f"SpringSystem.extra_terms[{k}]: {term.name} go in the system's own field "
+                                 f"({field_name})")
         # the cells' volumetric term and a sheet's bending are terms too, first (the backends sum
         # in the terms' order)
         built_in = ((VolumeTerm(self.cells),) if self.cells is not None else ()) + (

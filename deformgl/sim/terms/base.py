@@ -159,7 +159,8 @@ class TermNeeds:
         key: the scene key that turns the term on (``"material.<key>"``): refusals name it.
         host_bytes_per_node: host bytes per node its assembly adds at the peak (measured, with a margin).
         neighbours: the grid neighbours its GLSL form reads (:attr:`GlslTerm.neighbours`): 24 adds
-            the neighbour table's 2h layer.
+            the neighbour table's 2h layer, which the estimate counts as the flexion lattice's (its
+            2h springs too: an upper bound where the term has no 2h springs of its own).
         node_layers: RGBA32F layers per node its node tables add on the fragment backends.
         texel_bytes: bytes per node texel of its integer tables on the GPU backends.
         feedback_entries: list entries per node it adds on the transform-feedback backend (each
