@@ -139,9 +139,8 @@ class SheetBending(Term):
         return b.row[off], b.col[off], -b.data[off]
 
     def refusal(self, backend: str) -> str | None:
-        if backend == "xpbd":
-            return f"a sheet's bending_stiffness {BENDING_REFUSAL}"
-        return super().refusal(backend)
+        why = NEEDS.refusal(backend)  # (the scene checks refuse the same, from NEEDS)
+        return f"a sheet's bending_stiffness {why}" if why is not None else super().refusal(backend)
 
     def glsl(self, grid: NodeGrid | None) -> GlslTerm:
         """:data:`GLSL` with the coefficients of ``grid``'s 24-neighbour table as its node table."""
