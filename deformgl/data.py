@@ -16,8 +16,8 @@ from pathlib import Path
 
 from deformgl.errors import DeformglError
 
-__all__ = ["asset", "default_output", "find_mesh", "find_scene", "is_packaged", "package_folder", "packaged_scene", "scene_file",
-           "scene_names", "scenes_dir"]
+__all__ = ["asset", "default_output", "find_mesh", "find_scene", "is_packaged", "package_folder", "packaged_scene",
+           "scene_file", "scene_names", "scenes_dir"]
 
 
 def package_folder(name: str) -> Traversable:
@@ -36,7 +36,7 @@ def package_folder(name: str) -> Traversable:
         checkout = root / name
         # only a source checkout's own folder (its pyproject.toml beside the package), never a
         # folder of that name that another distribution put beside an installed deformgl
-        if (root / "pyproject.toml").is_file() and (root / "deformgl" / "data.py").is_file() and checkout.is_dir():
+        if (root / "pyproject.toml").is_file() and checkout.is_dir():
             return checkout
         raise DeformglError(f"deformgl.{name}: the package data is missing (neither installed nor "
                             f"a source checkout's {name}/ folder); reinstall deformgl") from None
