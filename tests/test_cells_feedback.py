@@ -15,7 +15,7 @@ from deformgl.sim import integrators as I
 from deformgl.grid.neighbours import neighbourhood
 from deformgl.sim.cell_tables import incident_cells
 from deformgl.sim.backends.feedback import FeedbackSimulation
-from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit
+from deformgl.sim.volume_glsl import CELL_SLOTS, volume_feedback
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.volume import BARRIER_J, CellVolumes, corner_jacobians, volume_forces
@@ -71,7 +71,9 @@ def test_the_cell_table_holds_the_neighbourhood_and_the_mask():
     system, _ = squashed()
     n, row = system.count, 16
     rows = -(-n // row)
-    img = cell_image(system, row, rows).reshape(rows * row, 4 * CELL_SLOTS)
+    form = volume_feedback(system.cells, system.grid)
+    assert form.slots == CELL_SLOTS
+    img = form.image(row, rows).reshape(rows * row, 4 * CELL_SLOTS)
     assert img.dtype == np.int32 and img.shape == (rows * row, 28)
     assert np.array_equal(img[:n, :27], neighbourhood(system.grid))
     assert np.array_equal(img[:n, 27], incident_cells(system.grid, system.cells))
@@ -79,7 +81,7 @@ def test_the_cell_table_holds_the_neighbourhood_and_the_mask():
     # the node at grid (1, 1, 1) is a corner of all 8 cells around it; a corner node of 1
     centre = int(system.grid.index[1, 1, 1])
     assert img[centre, 27] == 255 and bin(int(img[0, 27])).count("1") == 1
-    assert cell_node_row_limit(16384) == 2048 and cell_node_row_limit(7 * 1024) == 1024
+    assert form.row_limit(16384) == 2048 and form.row_limit(7 * 1024) == 1024
 
 
 def test_cells_without_a_grid_are_refused_in_one_line():
@@ -166,7 +168,8 @@ def test_systems_without_cells_compile_no_cell_code(ctx):
                            (dataclasses.replace(system, cells=empty), False), (system, True)):
         sim = FeedbackSimulation(ctx, variant, "semi-implicit", 1e-3)
         try:
-            assert sim.has_cells is cells and (sim.tex_cells is not None) is cells
-            assert all(("CELLS" in p.program.defines) is cells for p in sim._passes.values())
+            assert bool(sim.feedback_terms) is cells and bool(sim.term_textures) is cells
+            assert all(("TERM_CELL" in p.program.defines) is cells for p in sim._passes.values())
+            assert all(("u_cell_nodes" in p.program.gl) is cells for p in sim._passes.values())  # (compiled)
         finally:
             sim.release()

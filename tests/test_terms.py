@@ -15,7 +15,7 @@ from deformgl.sim import materials, springs
 from deformgl.sim.bending import SheetBending
 from deformgl.sim.terms import GlslTerm, NodeTable, Term
 from deformgl.sim.terms.glsl import ACTIVE, PassTerms, compose, pass_terms
-from deformgl.sim.terms.registry import SHIPPED, shipped_active
+from deformgl.sim.terms.registry import FEEDBACK_SHIPPED, SHIPPED, shipped_active, shipped_feedback
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,11 +26,15 @@ def test_the_shipped_term_list_is_the_registrys():
     for form in SHIPPED:
         assert form.file is not None and (ROOT / "shaders" / form.file).is_file()
         assert f"#ifdef TERM_{form.prefix.upper()}" in shipped_active()
+    assert (ROOT / "shaders" / "terms" / "feedback.glsl").read_text(encoding="utf-8") == shipped_feedback()
+    for feedback in FEEDBACK_SHIPPED:
+        assert (ROOT / "shaders" / feedback.file).is_file()
+        assert f"{feedback.prefix}_feedback(f, i, xi);" in shipped_feedback()
 
 
-#: The cells' forms that are not term chunks yet: transform feedback's and XPBD's own (their
-#: backends name the term), and the term alone in a pass of its own (its check against float64).
-OWN_FORMS = {"feedback/cells.glsl", "feedback/forces.glsl", "sim/xpbd/cells.frag", "sim/xpbd/cell_constraints.glsl",
+#: The cells' forms that are not term chunks yet: XPBD's own (its backend names the term), and the
+#: term alone in a pass of its own (its check against float64).
+OWN_FORMS = {"sim/xpbd/cells.frag", "sim/xpbd/cell_constraints.glsl",
              "sim/xpbd/iterate.frag", "sim/cells/node_cells.frag"}
 
 

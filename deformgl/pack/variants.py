@@ -188,11 +188,16 @@ def xpbd() -> Iterator[Variant]:
 
 def feedback_backend() -> Iterator[Variant]:
     """``FeedbackSimulation``: one vertex-only program per stage (``_add_pass``)."""
+    from deformgl.sim.terms.registry import FEEDBACK_SHIPPED
+
+    # the physics terms' chunks (FeedbackSimulation.feedback_terms): none, or one shipped chunk
+    term_sets: list[dict[str, object]] = [{}, *({"FEEDBACK_TERMS": True, f"TERM_{f.prefix.upper()}": True, **f.defines}
+                                               for f in FEEDBACK_SHIPPED)]
     for name in EXPLICIT_INTEGRATORS:
         sp = spec(name)
-        for forces, c, cells in itertools.product(list(_forces()), _constraints(), (False, True)):
+        for forces, c, terms in itertools.product(list(_forces()), _constraints(), term_sets):
             common: dict[str, object] = {"NODE_ROW": NODE_ROW_MAX, "SPRING_ROW": SPRING_ROW_MAX, **forces, **c,
-                                         "CELLS": cells}
+                                         **terms}
             if not common["SPRING_DAMPING"]:
                 del common["SPRING_DAMPING"]
             if sp.velocity:

@@ -2,18 +2,29 @@
 ``shaders/terms/cell.glsl`` (``terms/cell_forces.glsl``'s forces and ``terms/cell_implicit.glsl``'s
 Gauss-Newton product from the node's 3x3x3 neighbourhood, which the pass keeps:
 ``shaders/lib/node_hood.glsl``), its defines, uniforms and the node bits of its full incident
-cells. Every GPU pass that runs the term compiles it through the term list
-(:mod:`deformgl.sim.terms.glsl`); transform feedback and XPBD have forms of their own
-(:mod:`deformgl.sim.backends.feedback_cells`, :mod:`deformgl.sim.xpbd_cells`)."""
+cells; and its transform-feedback form (:func:`volume_feedback`: ``shaders/terms/cell_feedback.glsl``
+and its cell table). Every GPU pass that runs the term compiles it through the term list
+(:mod:`deformgl.sim.terms.glsl`); XPBD has a form of its own (:mod:`deformgl.sim.xpbd_cells`).
+
+The feedback form's table, :data:`CELL_SLOTS` RGBA32I texels per node: its 28 integers are the 27
+node numbers of the node's 3x3x3 neighbourhood (integer ``m = 4 s + channel`` holds slot m of
+:func:`deformgl.grid.neighbours.neighbourhood`) and, last (texel 6, ``w``), the bit mask of its full
+incident cells (:func:`deformgl.sim.cell_tables.incident_cells`)."""
 
 from __future__ import annotations
 
+import numpy as np
+
+from deformgl.grid.neighbours import neighbourhood
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.cell_tables import cell_uniforms, check_cells, incident_cells
-from deformgl.sim.terms.base import GlslTerm
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
 from deformgl.sim.volume import CellVolumes
 
-__all__ = ["CELL_FORMS", "GLSL", "cell_defines", "volume_glsl"]
+__all__ = ["CELL_FORMS", "CELL_SLOTS", "FEEDBACK", "GLSL", "cell_defines", "volume_feedback", "volume_glsl"]
+
+#: RGBA32I texels per node of the feedback form's cell table: 27 neighbourhood node numbers and the mask.
+CELL_SLOTS = 7
 
 #: The term's form without its instance data (the shipped term list): the centre term needs the
 #: body diagonals of the neighbourhood (hood 2), the barrier alone not.
@@ -43,3 +54,21 @@ def volume_glsl(cells: CellVolumes, grid: NodeGrid | None) -> GlslTerm:
         del uniforms["u_cell_kappa"]  # (not compiled: CELL_CENTRE off)
     return GlslTerm("cell", file="terms/cell.glsl", implicit=True, hood=2 if centre else 1, held=True,
                     defines=cell_defines(cells), uniforms=uniforms, node_bits=incident_cells(grid, cells))
+
+
+def volume_feedback(cells: CellVolumes, grid: NodeGrid | None) -> FeedbackTerm:
+    """The transform-feedback form of ``cells`` on ``grid``: ``terms/cell_feedback.glsl`` and its
+    cell table (see the module docstring); ValueError (one line) without a grid or when they are
+    not the grid's cells. Both terms are compiled, each behind a test of its modulus."""
+    if grid is None:
+        raise ValueError("the system has cells (a volumetric term) but no node grid; only grid bodies "
+                         "(lattice_system) can carry cells")
+    check_cells(grid, cells)  # (a node finds its cells by grid offsets)
+    table = np.zeros((grid.count, 4 * CELL_SLOTS), np.int32)
+    table[:, :27] = neighbourhood(grid)
+    table[:, -1] = incident_cells(grid, cells)
+    return FeedbackTerm("cell", "terms/cell_feedback.glsl", "u_cell_nodes", table, uniforms=dict(cell_uniforms(cells)))
+
+
+#: The feedback form without its instance data (the shipped list, the shader pack).
+FEEDBACK = FeedbackTerm("cell", "terms/cell_feedback.glsl", "u_cell_nodes", np.zeros((0, 4 * CELL_SLOTS), np.int32))

@@ -14,10 +14,10 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.implicit_cells import CELL_HESSIAN, cell_matrix
-from deformgl.sim.terms.base import GlslTerm, Term, TermNeeds
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, Term, TermNeeds
 from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
                                  rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
-from deformgl.sim.volume_glsl import volume_glsl
+from deformgl.sim.volume_glsl import volume_feedback, volume_glsl
 
 __all__ = ["NEEDS", "VolumeTerm"]
 
@@ -91,8 +91,12 @@ class VolumeTerm(Term):
         return ""
 
     def refusal(self, backend: str) -> str | None:
-        return None  # (every backend runs it: transform feedback and XPBD in forms of their own)
+        return None  # (every backend runs it: XPBD in a form of its own)
 
     def glsl(self, grid: NodeGrid | None) -> GlslTerm:
         """Its GLSL form (:func:`deformgl.sim.volume_glsl.volume_glsl`)."""
         return volume_glsl(self.cells, grid)
+
+    def feedback(self, grid: NodeGrid | None) -> FeedbackTerm:
+        """Its transform-feedback form (:func:`deformgl.sim.volume_glsl.volume_feedback`)."""
+        return volume_feedback(self.cells, grid)

@@ -6,8 +6,9 @@
 // u = d/|d| (0 for |d| = 0):  f = k (L - |d|) u  - c_s ((v_i - v_j) . u) u
 // (Movania & Feng 2012, eq. 2; lib/spring_force.glsl)
 // per node: m g + wind_drag (wind - v) (WIND) - c v (Movania & Feng 2012, eq. 1) + loads and drags
-// (lib/node_forces.glsl); with CELLS, a grid body's volumetric term and inversion barrier over
-// the node's full incident cells (feedback/cells.glsl, deformgl/sim/volume.py).
+// (lib/node_forces.glsl); with FEEDBACK_TERMS, the system's physics terms that have a
+// transform-feedback chunk (terms/feedback.glsl feedback_terms(), composed of the terms' chunks by
+// deformgl/sim/terms/glsl.py compose_feedback()).
 // Fixed nodes have a = 0.
 //
 // The stage shader defines, before including this file:
@@ -35,8 +36,8 @@ uniform isampler2D u_other;
 uniform sampler2D u_springs;
 #include "lib/node_forces.glsl"
 #include "lib/spring_force.glsl"
-#ifdef CELLS
-#include "feedback/cells.glsl"
+#ifdef FEEDBACK_TERMS
+#include "terms/feedback.glsl"
 #endif
 
 ivec4 node_info(int n) {
@@ -58,8 +59,8 @@ vec3 list_acceleration(int i, ivec4 info, vec4 xi, vec3 vi) {
         f += spring_force(xi.xyz - eval_x(j).xyz, s.x, s.y, 0.0, vec3(0.0));
 #endif
     }
-#ifdef CELLS
-    f += node_cell_forces(i, xi.xyz);
+#ifdef FEEDBACK_TERMS
+    feedback_terms(f, i, xi.xyz);
 #endif
     add_node_forces(f, i, info.w, xi.xyz, vi, xi.w);
     return f / xi.w;

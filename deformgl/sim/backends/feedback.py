@@ -13,10 +13,11 @@ GPU data (all 2D textures are read with ``texelFetch``, filter NEAREST):
   ``other`` R32I (the other node) and ``springs`` RGBA32F (rest length, stiffness, spring damping, 0), SPRING_ROW
   entries per row. A physics term's feedback form (``Term.feedback_pairs``) joins the lists as
   entries of rest length 0 and signed stiffness c_ij: the same shader, no define.
-* Cells (grid bodies whose system has ``cells``, :mod:`deformgl.sim.volume`; define ``CELLS``):
-  ``cell_nodes`` RGBA32I, 7 texels per node: the 27 node numbers of its 3x3x3 neighbourhood and
-  the mask of its full incident cells (:mod:`deformgl.sim.backends.feedback_cells`); every stage
-  adds the cells' volumetric term and corner barrier to the springs' forces.
+* Physics terms with a transform-feedback chunk (``Term.feedback``,
+  :class:`~deformgl.sim.terms.base.FeedbackTerm`; define ``FEEDBACK_TERMS``): each term's integer
+  table, its slots per node at ``node_slot_texel`` (units 5, 6, ...), and its chunk, composed into
+  ``terms/feedback.glsl`` (:func:`~deformgl.sim.terms.glsl.compose_feedback`), which every stage
+  calls after the springs.
 * State: a pass writes K vec4 per node, interleaved in varying order (``Program`` captures
   interleaved). The buffer is then copied GPU to GPU into an RGBA32F texture of K * NODE_ROW x
   rows texels (``Texture.write(buffer)``: a pixel-unpack-buffer upload, no CPU round trip), in
@@ -52,10 +53,7 @@ import moderngl
 import numpy as np
 
 from deformgl.gl.es_context import read_texture
-from deformgl.sim.cell_tables import cell_uniforms
-from deformgl.sim.terms.glsl import refuse_terms
-from deformgl.sim.volume_term import VolumeTerm
-from deformgl.sim.backends.feedback_cells import CELL_SLOTS, cell_image, cell_node_row_limit, has_cells
+from deformgl.sim.terms.glsl import FEEDBACK, compose_feedback, feedback_terms
 from deformgl.sim.backends.uniforms import sphere_uniforms, uniform_array
 from deformgl.sim.clock import SimulationBase
 
@@ -73,6 +71,8 @@ NODE_ROW_MAX = 1024
 #: Neighbour-list entries per texture row at most.
 SPRING_ROW_MAX = 4096
 _VEC4 = 16
+#: The texture unit of the first term table (0-2 the lists, 3-4 the state).
+_TERM_UNIT = 5
 
 
 def _row(count: int, limit: int) -> int:
@@ -134,7 +134,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
 
     Args:
         ctx: the GL context.
-        system: the spring system (with ``cells``, a grid body: ValueError without its grid).
+        system: the spring system (a term without a transform-feedback form: ValueError).
         integrator: one of :data:`deformgl.sim.integrators.EXPLICIT_INTEGRATORS`.
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
@@ -160,10 +160,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         _check_layout(self.spec)
         if not dt > 0:
             raise ValueError(f"FeedbackSimulation: dt must be > 0, got {dt}")
-        refuse_terms(system.terms, "feedback", "FeedbackSimulation")
-        for term in system.terms:  # (the cells run this backend's own form: CELLS, feedback_cells)
-            if term.feedback_pairs() is None and not isinstance(term, VolumeTerm) and term.acts():
-                raise ValueError(f"FeedbackSimulation: {term.name} have no transform-feedback form")
+        #: the chunks of the terms that have one (``Term.feedback``), compiled into every stage
+        self.feedback_terms = feedback_terms(system.terms, system.grid, "FeedbackSimulation")
         self.ctx = ctx
         self.system = system
         self.integrator = integrator
@@ -175,7 +173,6 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if self.count == 0:
             raise ValueError("FeedbackSimulation: the system has no nodes")
         self.load_bits = load_groups(self.loads, self.count)
-        self.has_cells = has_cells(system)  #: whether the stages gather the cells' term (CELLS)
         for drag in self.drags:
             if not 0 <= drag.node < self.count:
                 raise ValueError(f"FeedbackSimulation: drag node {drag.node} outside the system")
@@ -197,7 +194,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
     def _build(self, state: State | None) -> None:
         system, n = self.system, self.count
         limit = int(self.ctx.info["GL_MAX_TEXTURE_SIZE"])
-        self.node_row = _row(n, min(NODE_ROW_MAX, cell_node_row_limit(limit) if self.has_cells else limit))
+        self.node_row = _row(n, min(NODE_ROW_MAX, *(f.row_limit(limit) for f in self.feedback_terms), limit))
         self.rows = -(-n // self.node_row)
         texels = self.node_row * self.rows
 
@@ -213,7 +210,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         for term in system.terms:
             pairs = term.feedback_pairs()
             if pairs is None:
-                continue  # (the cells: CELLS below; any other was refused in __init__)
+                continue  # (a chunk of its own: self.feedback_terms)
             rows, cols, coefficients = pairs
             ends = np.concatenate([ends, rows])
             other = np.concatenate([other, cols])
@@ -248,9 +245,10 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.tex_other = self._texture(self.spring_row, spring_rows, "i4", other_img.tobytes(),
                                        components=1)
         self.tex_springs = self._texture(self.spring_row, spring_rows, "f4", param_img.tobytes())
-        self.tex_cells = (self._texture(CELL_SLOTS * self.node_row, self.rows, "i4",
-                                        cell_image(system, self.node_row, self.rows).tobytes())
-                          if self.has_cells else None)
+        #: the terms' tables, bound on units 5, 6, ... in the order of ``feedback_terms``
+        self.term_textures = [self._texture(f.slots * self.node_row, self.rows, "i4",
+                                            f.image(self.node_row, self.rows).tobytes())
+                              for f in self.feedback_terms]
 
         # Start state (float64 on the CPU, uploaded once as float32).
         s = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
@@ -312,8 +310,11 @@ class FeedbackSimulation(SimulationBase, GLOwner):
             common["SPHERES"] = 0
         if sp.velocity:
             common["VELOCITY"] = True
-        if self.has_cells:
-            common["CELLS"] = True
+        if self.feedback_terms:
+            common["FEEDBACK_TERMS"] = True
+            for f in self.feedback_terms:
+                common[f"TERM_{f.prefix.upper()}"] = True
+                common.update(f.defines)
         for stage in sp.stages:
             self._add_pass(stage, {**common, **stage.feedback_defines()})
 
@@ -328,7 +329,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
 
     def _add_pass(self, stage: Stage, defines: dict[str, object]) -> None:
         varyings = tuple(_varying(b) for b in stage.writes)
-        program = Program(self.ctx, stage.vertex, defines=defines, varyings=varyings)
+        chunks = {FEEDBACK: compose_feedback(self.feedback_terms)} if self.feedback_terms else None
+        program = Program(self.ctx, stage.vertex, defines=defines, varyings=varyings, chunks=chunks)
         self.own(program)
         vao = self.own(self.ctx.vertex_array(program.gl, []))
         self._passes[stage.name] = _Pass(program, vao, len(varyings))
@@ -341,8 +343,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         if "WIND" in defines:
             uniforms.update(u_wind=tuple(float(w) for w in system.wind),
                             u_wind_drag=system.wind_drag)
-        if "CELLS" in defines and system.cells is not None:
-            uniforms.update(u_cell_nodes=5, **cell_uniforms(system.cells))
+        for unit, f in enumerate(self.feedback_terms, start=_TERM_UNIT):
+            uniforms.update(f.uniforms)
+            uniforms[f.sampler] = unit
         if not self.spec.velocity:
             uniforms.update(u_x=3, u_x_prev=4)
         else:
@@ -397,8 +400,8 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         self.tex_nodes.use(0)
         self.tex_other.use(1)
         self.tex_springs.use(2)
-        if self.tex_cells is not None:
-            self.tex_cells.use(5)
+        for unit, tex in enumerate(self.term_textures, start=_TERM_UNIT):
+            tex.use(unit)
         dt, sp = self.dt, self.spec
         try:
             for _ in range(n):

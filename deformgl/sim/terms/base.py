@@ -13,7 +13,9 @@ besides its springs (``SpringSystem.terms``). It declares, in its own module:
   fragment backend's integrator stages, the foundation Verlet pass in the compact and the blocked
   layout, implicit Euler's right-hand side) and the implicit product's row and diagonal block,
   with the per-node tables and uniforms they read,
-* a one-line refusal for each backend that has no form of it (transform feedback, XPBD),
+* its transform-feedback form (:meth:`Term.feedback_pairs` for a term linear in the positions, or
+  a chunk of its own: :class:`FeedbackTerm`), or a one-line refusal for each backend that has no
+  form of it (transform feedback, XPBD),
 * what it will cost and refuse, known from the scene alone before its data exists
   (:class:`TermNeeds`: the memory budget's counts, the refusals a scene gets before the build),
   which the material that makes it returns (``material.term_needs``).
@@ -35,7 +37,7 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 
-__all__ = ["GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
+__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,68 @@ class GlslTerm:
 
 
 @dataclass(frozen=True)
+class FeedbackTerm:
+    """A term's transform-feedback form (:mod:`deformgl.sim.backends.feedback`): a chunk, the file
+    ``file`` under ``shaders/``, that defines::
+
+        void PREFIX_feedback(inout vec3 f, int i, vec3 xi);  // adds node i's force, N
+
+    evaluated at the stage's state: ``xi`` the node's position, ``eval_x(j)`` (vec4, w the mass)
+    and, with ``SPRING_DAMPING``, ``eval_v(j)`` any node's (the stage shader's hooks), and its
+    per-node integer table ``table`` ((N, 4 * slots) int32, ``slots`` RGBA32I texels per node),
+    sampled as ``uniform isampler2D <sampler>`` and read with ``texelFetch(<sampler>,
+    node_slot_texel(i, slots, s), 0)`` (``shaders/lib/node_texel.glsl``). The backend composes the
+    chunks into ``terms/feedback.glsl`` (:func:`deformgl.sim.terms.glsl.compose_feedback`), whose
+    ``feedback_terms`` every stage calls under ``FEEDBACK_TERMS``. ``defines`` (names starting with
+    PREFIX in capitals), ``uniforms`` and ``sampler`` as :class:`GlslTerm`'s.
+    A term linear in the positions may give :meth:`Term.feedback_pairs` instead (no chunk)."""
+
+    prefix: str
+    file: str
+    sampler: str
+    table: np.ndarray
+    defines: dict[str, object] = field(default_factory=dict)
+    uniforms: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.table)
+        if t.ndim != 2 or t.shape[1] == 0 or t.shape[1] % 4 or t.dtype.kind not in "iu":
+            raise ValueError(f"FeedbackTerm {self.prefix}: table of shape {t.shape} and type {t.dtype}, "
+                             f"expected (N, 4 * slots) integers")
+        t = t.astype(np.int32)
+        t.setflags(write=False)
+        object.__setattr__(self, "table", t)
+        for name in self.defines:
+            if not name.startswith(f"{self.prefix.upper()}_"):
+                raise ValueError(f"FeedbackTerm {self.prefix}: define {name!r} must start with {self.prefix.upper()}_")
+        for name in (*self.uniforms, self.sampler):
+            if not name.startswith(f"u_{self.prefix}"):
+                raise ValueError(f"FeedbackTerm {self.prefix}: uniform {name!r} must start with u_{self.prefix}")
+
+    @property
+    def slots(self) -> int:
+        """RGBA32I texels per node of its table."""
+        return int(self.table.shape[1] // 4)
+
+    def row_limit(self, limit: int) -> int:
+        """The largest power of two of nodes per row whose table fits a texture ``limit`` texels wide."""
+        width = 1
+        while 2 * width * self.slots <= limit:
+            width *= 2
+        return width
+
+    def image(self, node_row: int, rows: int) -> np.ndarray:
+        """(rows, slots * node_row, 4) int32: the table's texture, node n's slot s at texel
+        ``node_slot_texel(n, slots, s)`` (padding nodes: zeros)."""
+        n = len(self.table)
+        if n > node_row * rows:
+            raise ValueError(f"FeedbackTerm {self.prefix}: {n} nodes do not fit {rows} rows of {node_row}")
+        out = np.zeros((rows * node_row, 4 * self.slots), np.int32)
+        out[:n] = self.table
+        return out.reshape(rows, node_row * self.slots, 4)
+
+
+@dataclass(frozen=True)
 class TermNeeds:
     """What a term will cost and refuse, known from the scene alone, before its data exists: the
     memory estimate (:func:`deformgl.scene.budget.estimate`) sums these over the material's terms,
@@ -247,6 +311,11 @@ class Term(ABC):
         backends refuse it)."""
         return None
 
+    def feedback(self, grid: NodeGrid | None) -> FeedbackTerm | None:
+        """The term's transform-feedback chunk on the system's node ``grid`` (ValueError, one line,
+        where its data does not fit the grid), or None where it has none."""
+        return None
+
     def feedback_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The transform-feedback form of a term linear in the positions, ``f_i = -sum_j c_ij (x_i
         - x_j)``: (rows, cols, c) with c in N/m, each pair in the list of its row (the backend
@@ -257,8 +326,9 @@ class Term(ABC):
         """Why ``backend`` ("feedback", "xpbd", "fragment", "implicit") cannot run this term, one
         phrase, or None. The default: the fragment backends run it where it has a GLSL form
         (implicit Euler where that form has its product: :func:`deformgl.sim.terms.glsl.pass_terms`
-        checks); transform feedback where it has :meth:`feedback_pairs`; XPBD does not."""
-        if backend == "feedback" and self.feedback_pairs() is not None:
+        checks); transform feedback where it has :meth:`feedback_pairs` or :meth:`feedback`; XPBD
+        does not."""
+        if backend == "feedback" and (type(self).feedback is not Term.feedback or self.feedback_pairs() is not None):
             return None
         if backend in ("feedback", "xpbd"):
             return f"{self.name} have no {'transform-feedback' if backend == 'feedback' else 'XPBD'} form"

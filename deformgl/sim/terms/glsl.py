@@ -18,15 +18,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.terms.base import GlslTerm, NodeTable, Term
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term
 
 if TYPE_CHECKING:
     import moderngl
 
-__all__ = ["ACTIVE", "PassTerms", "compose", "pass_terms", "refuse_terms"]
+__all__ = ["ACTIVE", "FEEDBACK", "PassTerms", "compose", "compose_feedback", "feedback_terms", "pass_terms",
+           "refuse_terms"]
 
 #: The include name of the composed term list.
 ACTIVE = "terms/active.glsl"
+#: The include name of the composed transform-feedback term list.
+FEEDBACK = "terms/feedback.glsl"
 #: The first bit of the terms' node bits in the node data's flag word (lib/node_flags.glsl).
 TERM_SHIFT = 6
 _NODE = "lib/term_node.glsl"
@@ -183,6 +186,48 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
     if sum(f.node_bits is not None for f in forms) > 1:
         raise ValueError(f"{caller}: two terms keep node bits; the node data has room for one term's")
     return PassTerms(tuple(forms), implicit)
+
+
+def compose_feedback(forms: Sequence[FeedbackTerm], *, guarded: bool = False) -> str:
+    """``terms/feedback.glsl`` of ``forms``: each chunk's include, then ``feedback_terms`` calling
+    each term's ``PREFIX_feedback`` in turn (``guarded``: each under ``#ifdef TERM_<PREFIX>``, the
+    shipped file)."""
+    lines = ["// The physics terms of the transform-feedback stages (deformgl/sim/terms). Composed by",
+             "// deformgl/sim/terms/glsl.py compose_feedback(); do not edit: `python -m deformgl.sim.terms.registry`",
+             "// writes the shipped one. Included by feedback/forces.glsl under FEEDBACK_TERMS."]
+
+    def each(form: FeedbackTerm, text: str) -> None:
+        lines.extend([f"#ifdef TERM_{form.prefix.upper()}", text, "#endif"] if guarded else [text])
+
+    for form in forms:
+        each(form, f'#include "{form.file}"')
+    lines.append("void feedback_terms(inout vec3 f, int i, vec3 xi) {")
+    for form in forms:
+        each(form, f"    {form.prefix}_feedback(f, i, xi);")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
+def feedback_terms(terms: Sequence[Term], grid: NodeGrid | None, caller: str) -> tuple[FeedbackTerm, ...]:
+    """The transform-feedback chunks on ``grid`` of the ``terms`` that act, after
+    :func:`refuse_terms`; a one-line ValueError (starting with ``caller``) for a term with neither a
+    chunk nor :meth:`~deformgl.sim.terms.base.Term.feedback_pairs`, or for data that does not fit."""
+    refuse_terms(terms, "feedback", caller)
+    forms = []
+    for term in terms:
+        if not term.acts() or term.feedback_pairs() is not None:
+            continue
+        try:
+            form = term.feedback(grid)
+        except ValueError as err:
+            raise ValueError(f"{caller}: {err}") from None
+        if form is None:
+            raise ValueError(f"{caller}: {term.name} have no transform-feedback form")
+        forms.append(form)
+    prefixes = [f.prefix for f in forms]
+    if len(set(prefixes)) != len(prefixes):
+        raise ValueError(f"{caller}: two terms share a feedback prefix ({', '.join(prefixes)})")
+    return tuple(forms)
 
 
 def blocked_table(table: NodeTable, scatter: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:

@@ -1,9 +1,11 @@
-"""The physics terms deformgl ships, as their GLSL forms (:class:`~deformgl.sim.terms.base.GlslTerm`):
-what the shader pack enumerates and compiles (``shaders/terms/active.glsl`` is :func:`shipped_active`,
-each term under ``#ifdef TERM_<PREFIX>``). A new shipped term adds its form here.
+"""The physics terms deformgl ships, as their GLSL forms (:class:`~deformgl.sim.terms.base.GlslTerm`)
+and transform-feedback chunks (:class:`~deformgl.sim.terms.base.FeedbackTerm`): what the shader pack
+enumerates and compiles (``shaders/terms/active.glsl`` is :func:`shipped_active`,
+``shaders/terms/feedback.glsl`` :func:`shipped_feedback`, each term under ``#ifdef TERM_<PREFIX>``).
+A new shipped term adds its forms here.
 
-``python -m deformgl.sim.terms.registry`` writes ``shaders/terms/active.glsl`` from this list
-(tests/test_terms.py checks the shipped file is the list's)."""
+``python -m deformgl.sim.terms.registry`` writes both files from these lists (tests/test_terms.py
+checks the shipped files are the lists')."""
 
 from __future__ import annotations
 
@@ -11,15 +13,18 @@ import sys
 from pathlib import Path
 
 from deformgl.sim import bending, volume_glsl
-from deformgl.sim.terms.base import GlslTerm
-from deformgl.sim.terms.glsl import compose
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
+from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, compose, compose_feedback
 
-__all__ = ["SHIPPED", "VARIANTS", "shipped_active"]
+__all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "shipped_active", "shipped_feedback"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
 SHIPPED: tuple[GlslTerm, ...] = (volume_glsl.GLSL, bending.GLSL)
 #: Every form of each, as the shader pack enumerates them.
 VARIANTS: tuple[GlslTerm, ...] = (*volume_glsl.CELL_FORMS, bending.GLSL)
+#: The transform-feedback chunks of the shipped terms that have one (the rest give
+#: ``Term.feedback_pairs`` or are refused).
+FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_glsl.FEEDBACK,)
 
 
 def shipped_active() -> str:
@@ -27,11 +32,18 @@ def shipped_active() -> str:
     return compose(SHIPPED, guarded=True)
 
 
+def shipped_feedback() -> str:
+    """The text of ``shaders/terms/feedback.glsl``: every shipped feedback chunk, each under its define."""
+    return compose_feedback(FEEDBACK_SHIPPED, guarded=True)
+
+
 def main() -> int:
-    """Write ``shaders/terms/active.glsl`` of the repository (or of the path given)."""
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shaders" / "terms" / "active.glsl"
-    path.write_text(shipped_active(), encoding="utf-8")
-    print(path)
+    """Write ``terms/active.glsl`` and ``terms/feedback.glsl`` under the repository's ``shaders/``
+    (or under the folder given)."""
+    root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shaders"
+    for name, text in ((ACTIVE, shipped_active()), (FEEDBACK, shipped_feedback())):
+        (root / name).write_text(text, encoding="utf-8")
+        print(root / name)
     return 0
 
 
