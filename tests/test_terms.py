@@ -15,7 +15,8 @@ from deformgl.sim import materials, springs
 from deformgl.sim.bending import SheetBending
 from deformgl.sim.terms import GlslTerm, NodeTable, Term
 from deformgl.sim.terms.glsl import ACTIVE, PassTerms, compose, pass_terms
-from deformgl.sim.terms.registry import FEEDBACK_SHIPPED, SHIPPED, shipped_active, shipped_feedback
+from deformgl.sim.terms.registry import (FEEDBACK_SHIPPED, SHIPPED, XPBD_SHIPPED, shipped_active, shipped_feedback,
+                                         shipped_xpbd)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,18 +31,20 @@ def test_the_shipped_term_list_is_the_registrys():
     for feedback in FEEDBACK_SHIPPED:
         assert (ROOT / "shaders" / feedback.file).is_file()
         assert f"{feedback.prefix}_feedback(f, i, xi);" in shipped_feedback()
+    assert (ROOT / "shaders" / "terms" / "xpbd.glsl").read_text(encoding="utf-8") == shipped_xpbd()
+    for chunk in XPBD_SHIPPED:
+        assert all((ROOT / "shaders" / f).is_file() for f in (chunk.file, *chunk.passes))
+        assert f"{chunk.prefix}_xpbd(dx, counts, texel, flags, wi);" in shipped_xpbd()
 
 
-#: The cells' forms that are not term chunks yet: XPBD's own (its backend names the term), and the
-#: term alone in a pass of its own (its check against float64).
-OWN_FORMS = {"sim/xpbd/cells.frag", "sim/xpbd/cell_constraints.glsl",
-             "sim/xpbd/iterate.frag", "sim/cells/node_cells.frag"}
+#: The cells' term alone in a pass of its own (its check against float64).
+OWN_FORMS = {"sim/cells/node_cells.frag"}
 
 
 def test_no_shared_pass_shader_names_a_shipped_term():
     """The passes know the hooks (terms_force, terms_neighbour, ...), not the terms: no shader
-    outside shaders/terms/ (and the cells' own transform-feedback and XPBD forms) holds a shipped
-    term's prefix, define or uniform."""
+    outside shaders/terms/ (and the cells' check pass) holds a shipped term's prefix, define or
+    uniform."""
     for path in (ROOT / "shaders").rglob("*"):
         rel = path.relative_to(ROOT / "shaders").as_posix()
         if path.suffix not in (".glsl", ".frag", ".vert") or path.parent.name == "terms" or rel in OWN_FORMS:

@@ -29,7 +29,6 @@ import numpy as np
 from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
-from deformgl.sim.backends.xpbd_cells_gpu import CELL_TERMS, cell_pass_defines, sweep_defines
 from deformgl.sim.backends.foundation import DRAW_MODES, MAX_PULLS
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import MAX_LOADS
@@ -175,14 +174,19 @@ def xpbd() -> Iterator[Variant]:
         if wind:
             d["WIND"] = True
         yield _v("sim/fullscreen.vert", "sim/xpbd/predict.frag", d)
-    # the cells' terms (XpbdCells): none, or a (volume, barrier) pair of CELL_TERMS
-    cell_sweeps: list[dict[str, object]] = [{}, *(sweep_defines(*t) for t in CELL_TERMS)]
-    for (layers, count), damping, drags, c, cells in itertools.product(((5, 18), (6, 24)), (False, True),
-                                                                       _counts("DRAGS"), _constraints(), cell_sweeps):
+    from deformgl.sim.terms.base import XpbdChunk
+    from deformgl.sim.terms.registry import XPBD_SHIPPED
+
+    # the physics terms' chunks (XpbdFragment.term_passes): none, or one shipped chunk in each variant
+    variants = [XpbdChunk(c.prefix, c.file, c.passes, defines) for c in XPBD_SHIPPED for defines in c.variants]
+    sweeps: list[dict[str, object]] = [{}, *(v.sweep_defines() for v in variants)]
+    for (layers, count), damping, drags, c, terms in itertools.product(((5, 18), (6, 24)), (False, True),
+                                                                       _counts("DRAGS"), _constraints(), sweeps):
         yield _v("sim/fullscreen.vert", "sim/xpbd/iterate.frag",
-                 {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_DAMPING": damping, "DRAGS": drags, **c, **cells})
-    for terms in CELL_TERMS:
-        yield _v("sim/fullscreen.vert", "sim/xpbd/cells.frag", cell_pass_defines(*terms))
+                 {"NB_LAYERS": layers, "NB_COUNT": count, "SPRING_DAMPING": damping, "DRAGS": drags, **c, **terms})
+    for v in variants:
+        for fragment in v.passes:
+            yield _v("sim/fullscreen.vert", fragment, dict(v.defines))
     yield _v("sim/fullscreen.vert", "sim/xpbd/finish.frag", {})
 
 

@@ -1,9 +1,10 @@
 """The cells' volumetric term and corner barrier (:mod:`deformgl.sim.volume`) as one physics term
 (:class:`deformgl.sim.terms.Term`): its float64 force and energy, its Hessian (Gauss-Newton, or
 the form that goes with the springs' ``geometric`` option: :mod:`deformgl.sim.implicit_cells`), its
-share of the dt bound (the centre term at rest, the barrier's envelope), and its GLSL form
-(:mod:`deformgl.sim.volume_glsl`). A system with ``cells`` holds one as the first of its terms
-(:class:`~deformgl.sim.springs.SpringSystem`)."""
+share of the dt bound (the centre term at rest, the barrier's envelope), its GLSL forms
+(:mod:`deformgl.sim.volume_glsl`: the passes' chunk and the transform-feedback chunk) and its
+XPBD form (:mod:`deformgl.sim.xpbd_cells`, on the GPU :mod:`deformgl.sim.xpbd_cells_gpu`). A
+system with ``cells`` holds one as the first of its terms (:class:`~deformgl.sim.springs.SpringSystem`)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, Term, TermNeeds
 from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
                                  rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
 from deformgl.sim.volume_glsl import volume_feedback, volume_glsl
+from deformgl.sim.xpbd_cells import CellConstraints
 
 __all__ = ["NEEDS", "VolumeTerm"]
 
@@ -91,7 +93,12 @@ class VolumeTerm(Term):
         return ""
 
     def refusal(self, backend: str) -> str | None:
-        return None  # (every backend runs it: XPBD in a form of its own)
+        return None  # (every backend runs it)
+
+    def xpbd(self, inverse_mass: np.ndarray) -> CellConstraints:
+        """Its XPBD form: the cells' volume constraints and corner barriers
+        (:class:`~deformgl.sim.xpbd_cells.CellConstraints`)."""
+        return CellConstraints(self.cells, inverse_mass)
 
     def glsl(self, grid: NodeGrid | None) -> GlslTerm:
         """Its GLSL form (:func:`deformgl.sim.volume_glsl.volume_glsl`)."""

@@ -29,12 +29,13 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
    copies of a spring's lambda on the GPU (one per end) stay equal. Then ``lambda += d_lambda``,
    ``x_i += w_i u d_lambda``, ``x_j -= w_j u d_lambda`` (Macklin, Müller & Chentanez 2016, eq. 17), all at once; drags are
    zero-rest-length vector constraints ``C = x - target(t + h)`` of compliance ``1 / k_drag``
-   (``n_s`` = the node's count); a system with cells (``SpringSystem.cells``: a material
-   lattice) adds their volume constraints ``J - 1`` and corner barriers ``J_c - J_b >= 0`` in the
-   same sweep (:mod:`deformgl.sim.xpbd_cells`: the constraint potentials are the energies of
+   (``n_s`` = the node's count); each physics term of the system adds its constraints in the
+   same sweep (``Term.xpbd``, :class:`~deformgl.sim.terms.base.TermConstraints`; the cells of a
+   material lattice: their volume constraints ``J - 1`` and corner barriers ``J_c - J_b >= 0``,
+   :mod:`deformgl.sim.xpbd_cells`, whose constraint potentials are the energies of
    :mod:`deformgl.sim.volume`, so the fixed point is the equilibrium of ``springs.forces``), and
-   then a node's count n_i also holds its volume constraints and its barriers active after the
-   previous sweep; then spheres and the ground project x
+   a node's count n_i also holds the terms' constraints at it (the cells': its volume constraints,
+   and its barriers active after the previous sweep); then spheres and the ground project x
    (``integrators.apply_constraints`` without the velocity rule);
 4. ``v = (x - x^n) / h`` (Algorithm 1, line 15); fixed nodes: x^n exactly, v = 0.
 
@@ -42,7 +43,7 @@ XPBD has no explicit step limit: for any dt a sweep only redistributes bounded c
 trades accuracy instead: with few iterations a stiff body is too soft (the Jacobi sweep has not
 propagated the load) and the implicit step damps motion. :attr:`XpbdSolver.residual` is the
 relative residual ``|C + at lambda| / |C|`` of Macklin, Müller & Chentanez 2016, eq. 7 at the last iterate
-(the cells' constraints in it times the spacing h, in metres like the springs').
+(the terms' constraints in it in metres like the springs': the cells' times the spacing h).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ import numpy as np
 from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.xpbd_cells import CellConstraints
+from deformgl.sim.terms.base import TermConstraints
 from deformgl.sim.terms.glsl import refuse_terms
 
 __all__ = [
@@ -66,11 +67,11 @@ __all__ = [
     "XpbdNumpy",
     "XpbdSettings",
     "XpbdSolver",
-    "cell_constraints",
     "check_terms",
     "constraint_counts",
     "node_terms",
     "relative_residual",
+    "term_constraints",
 ]
 
 #: The integrator name (``make_simulation(system, NAME, ...)``, ``--integrator xpbd``).
@@ -102,28 +103,31 @@ class XpbdSettings:
 
 
 def constraint_counts(system: SpringSystem, drags: tuple[Drag, ...] = ()) -> np.ndarray:
-    """(N,) float64 constraints per node: springs with k > 0 at it, its drags and its cells'
-    volume constraints (:mod:`deformgl.sim.xpbd_cells`, where kappa > 0) (>= 1). The active
-    barriers are counted per sweep on top (:meth:`CellConstraints.barrier_counts`)."""
+    """(N,) float64 constraints per node: springs with k > 0 at it, its drags and the terms'
+    static counts (:meth:`TermConstraints.static_counts`: the cells' volume constraints where
+    kappa > 0) (>= 1). The terms' dynamic counts are added per sweep on top
+    (:meth:`TermConstraints.dynamic_counts`: the cells' active barriers)."""
     live = system.stiffness > 0
     n = np.bincount(system.i[live], minlength=system.count) + np.bincount(system.j[live],
                                                                           minlength=system.count)
     n = n.astype(np.float64)
     for d in drags:
         n[d.node] += 1.0
-    cells = cell_constraints(system, np.zeros(system.count))
-    if cells is not None:
-        n += cells.volume_counts()
+    for term in term_constraints(system, np.zeros(system.count)):
+        n += term.static_counts()
     return np.maximum(n, 1.0)
 
 
-def cell_constraints(system: SpringSystem, inverse_mass: np.ndarray) -> CellConstraints | None:
-    """The system's cell constraints, or None (no cells, or neither term has a modulus)."""
-    cells = system.cells
-    if cells is None:
-        return None
-    found = CellConstraints(cells, inverse_mass)
-    return found if found.volume or found.barrier else None
+def term_constraints(system: SpringSystem, inverse_mass: np.ndarray) -> tuple[TermConstraints, ...]:
+    """The XPBD forms (``Term.xpbd``) of the system's terms that act, in the terms' order, after
+    :func:`check_terms`."""
+    check_terms(system)
+    found = []
+    for term in system.terms:
+        form = term.xpbd(inverse_mass) if term.acts() else None
+        if form is not None:
+            found.append(form)
+    return tuple(found)
 
 
 def node_terms(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
@@ -176,12 +180,13 @@ class XpbdSolver:
         self.counts = counts                                     # n_i without the active barriers
         self.count = np.maximum(counts[self.i], counts[self.j])  # n_s = max(n_i, n_j)
         self.drag_count = np.array([counts[d.node] for d in self.drags])
-        #: the cells' volume and barrier constraints (:mod:`deformgl.sim.xpbd_cells`), or None
-        self.cells = cell_constraints(system, self.w)
+        #: the terms' constraints (:func:`term_constraints`: the cells' volume and barrier constraints)
+        self.term_constraints = term_constraints(system, self.w)
         #: relative residual |C + at lambda| / |C| of Macklin, Müller & Chentanez 2016, eq. 7 after the last sweep (nan: no step yet)
         self.residual = float("nan")
-        #: the cells' multipliers after the last substep, ((C,) volume, (C, 8) barrier), or None
-        self.cell_lambda: tuple[np.ndarray, np.ndarray] | None = None
+        #: the terms' multipliers after the last substep, one per term (the cells': ((C,) volume,
+        #: (C, 8) barrier)); empty before a step
+        self.term_multipliers: tuple[object, ...] = ()
 
     def _external(self, t: float) -> np.ndarray:
         """(N, 3) a_i = gravity + (loads + wind_drag wind) / m_i at time t."""
@@ -205,13 +210,14 @@ class XpbdSolver:
         targets = [np.asarray(d.target(t + h), np.float64) for d in self.drags]
         at_d = [1.0 / (float(d.stiffness) * h * h) for d in self.drags]
         wi, wj = self.w[self.i], self.w[self.j]
-        cells = self.cells
-        lam_v, lam_b = cells.zeros() if cells is not None else (np.zeros(0), np.zeros((0, 8)))
+        terms = self.term_constraints
+        multipliers = [term.start() for term in terms]
         count, drag_count, counts = self.count, self.drag_count, self.counts
         for _ in range(self.settings.iterations):
-            if cells is not None and cells.barrier:
-                # n_i this sweep: the static count plus the barriers active after the last sweep
-                counts = self.counts + cells.barrier_counts(lam_b)
+            dynamic = [c for c in (term.dynamic_counts(m) for term, m in zip(terms, multipliers)) if c is not None]
+            if dynamic:
+                # n_i this sweep: the static count plus the terms' constraints active after the last sweep
+                counts = self.counts + sum(dynamic[1:], dynamic[0])
                 count = np.maximum(counts[self.i], counts[self.j])
                 drag_count = np.array([counts[d.node] for d in self.drags])
             d = p[self.i] - p[self.j]
@@ -229,18 +235,18 @@ class XpbdSolver:
                 dld = -self.omega * (p[node] - targets[q] + at_d[q] * lam_d[q]) / (drag_count[q] * self.w[node] + at_d[q])
                 lam_d[q] += dld
                 dx[node] += self.w[node] * dld
-            if cells is not None:
-                dx += cells.sweep(p, lam_v, lam_b, counts, h, self.omega)
+            for term, m in zip(terms, multipliers):
+                dx += term.sweep(p, m, counts, h, self.omega)
             p = p + dx
             if self.constraints is not None:
                 apply_constraints(self.constraints, p, None, t, h)
             p = np.where(fixed, xn, p)
         c = np.linalg.norm(p[self.i] - p[self.j], axis=1) - self.rest  # at the last iterate
         at_lam = at * lam
-        if cells is not None:
-            self.cell_lambda = (lam_v, lam_b)
-            c_cells, at_lam_cells = cells.residual_terms(p, lam_v, lam_b, h)
-            c, at_lam = np.concatenate([c, c_cells]), np.concatenate([at_lam, at_lam_cells])
+        self.term_multipliers = tuple(multipliers)
+        for term, m in zip(terms, multipliers):
+            c_term, at_lam_term = term.residual_terms(p, m, h)
+            c, at_lam = np.concatenate([c, c_term]), np.concatenate([at_lam, at_lam_term])
         self.residual = relative_residual(c, at_lam)
         v_new = np.where(fixed, 0.0, (p - xn) / h)
         return p, v_new

@@ -1,6 +1,7 @@
 """The cells' volumetric term (:mod:`deformgl.sim.volume`) as XPBD constraints (Macklin, Müller &
-Chentanez 2016), float64: the reference of the cell pass ``shaders/sim/xpbd/cells.frag`` and of
-the cell gather of ``shaders/sim/xpbd/iterate.frag`` (``CELLS``).
+Chentanez 2016), float64: the term's XPBD form (:class:`~deformgl.sim.terms.base.TermConstraints`),
+the reference of its GPU passes (:mod:`deformgl.sim.xpbd_cells_gpu`: the cell pass
+``shaders/terms/cell_xpbd.frag`` and the node sweep's chunk ``shaders/terms/cell_xpbd.glsl``).
 
 Per full cell of rest volume ``V = h^3`` (:class:`~deformgl.sim.volume.CellVolumes`):
 
@@ -43,18 +44,42 @@ whose active set does not change.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.terms.base import TermConstraints, XpbdChunk
 from deformgl.sim.volume import CORNER_SIGNS, CellVolumes, cell_state
 
-__all__ = ["CellConstraints", "TET_NODES"]
+if TYPE_CHECKING:
+    import moderngl
+
+    from deformgl.grid.nodes import CompactLayout
+    from deformgl.sim.xpbd_cells_gpu import XpbdCells
+
+__all__ = ["CellConstraints", "TET_NODES", "XPBD", "chunk"]
+
+
+def chunk(volume: bool, barrier: bool) -> XpbdChunk:
+    """The term's XPBD chunk and cell pass with these constraints (kappa > 0, kappa_b > 0)."""
+    return XpbdChunk("cell", "terms/cell_xpbd.glsl", ("terms/cell_xpbd.frag",),
+                     {"CELL_VOLUME": volume, "CELL_BARRIER": barrier},
+                     ({"CELL_VOLUME": False, "CELL_BARRIER": True}, {"CELL_VOLUME": True, "CELL_BARRIER": False},
+                      {"CELL_VOLUME": True, "CELL_BARRIER": True}))
+
+
+#: The XPBD chunk without instance data (the shipped list; ``variants``: the (volume, barrier)
+#: combinations a system's cells can have; not neither, then there are no cell constraints).
+XPBD = chunk(True, True)
 
 #: (8, 4) the tet of corner c: the corner, then its neighbours along x, y, z (c ^ 1, c ^ 2, c ^ 4).
 TET_NODES = np.array([[c, c ^ 1, c ^ 2, c ^ 4] for c in range(8)], dtype=np.int64)
 
 
-class CellConstraints:
-    """The volume and barrier constraints of a system's full cells in the XPBD Jacobi sweep.
+class CellConstraints(TermConstraints):
+    """The volume and barrier constraints of a system's full cells in the XPBD Jacobi sweep. Its
+    multipliers: ((C,) volume, (C, 8) barrier).
 
     Args:
         cells: the cells (``SpringSystem.cells``).
@@ -74,6 +99,28 @@ class CellConstraints:
         self._g = CORNER_SIGNS / (4.0 * cells.spacing)           # (8, 3) G_a, 1/m
         self._tets = cells.corners[:, TET_NODES]                  # (C, 8, 4) node numbers
         self._edge_scale = -CORNER_SIGNS / cells.spacing          # (8, 3): edge k of corner c is -s_c[k] / h
+
+    def static_counts(self) -> np.ndarray:
+        """:meth:`volume_counts`."""
+        return self.volume_counts()
+
+    def start(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`zeros`."""
+        return self.zeros()
+
+    def dynamic_counts(self, multipliers: object) -> np.ndarray | None:
+        """The active barriers (:meth:`barrier_counts`), or None without barriers."""
+        if not self.barrier:
+            return None
+        _, lam_barrier = _pair(multipliers)
+        return self.barrier_counts(lam_barrier)
+
+    def gpu(self, ctx: "moderngl.Context", grid: NodeGrid, layout: "CompactLayout", omega: float,
+            first_unit: int) -> "XpbdCells":
+        """:class:`~deformgl.sim.xpbd_cells_gpu.XpbdCells`."""
+        from deformgl.sim.xpbd_cells_gpu import XpbdCells
+
+        return XpbdCells(ctx, grid, layout, self, omega, first_unit)
 
     def volume_counts(self) -> np.ndarray:
         """(N,) float64 volume constraints at each node (0 everywhere where kappa = 0)."""
@@ -130,19 +177,18 @@ class CellConstraints:
         tet[:, 1:] = g
         return tet
 
-    def sweep(self, p: np.ndarray, lam_volume: np.ndarray, lam_barrier: np.ndarray, counts: np.ndarray,
-              h: float, omega: float) -> np.ndarray:
+    def sweep(self, p: np.ndarray, multipliers: object, counts: np.ndarray, h: float, omega: float) -> np.ndarray:
         """One Jacobi sweep of every cell constraint at the iterate ``p`` (N, 3): updates the
         multipliers in place and returns the (N, 3) position corrections.
 
         Args:
             p: the iterate, m.
-            lam_volume: (C,) the volume multipliers.
-            lam_barrier: (C, 8) the barrier multipliers (>= 0).
+            multipliers: ((C,) the volume multipliers, (C, 8) the barrier multipliers (>= 0)).
             counts: (N,) the constraint count n_a of every node in this sweep.
             h: the substep, s.
             omega: the relaxation.
         """
+        lam_volume, lam_barrier = _pair(multipliers)
         dx = np.zeros((self.count, 3))
         corners = self.cells.corners
         at_v, at_b = self.compliances(h)
@@ -172,11 +218,11 @@ class CellConstraints:
                 _scatter(dx, nodes, (w * (new - lam)[:, None])[:, :, None] * grad)
         return dx
 
-    def residual_terms(self, p: np.ndarray, lam_volume: np.ndarray, lam_barrier: np.ndarray,
-                       h: float) -> tuple[np.ndarray, np.ndarray]:
+    def residual_terms(self, p: np.ndarray, multipliers: object, h: float) -> tuple[np.ndarray, np.ndarray]:
         """(C, alpha~ lambda) of every cell constraint at ``p``, in metres (times the spacing h,
         so they join the springs' ``|C + alpha~ lambda| / |C|``): the volume constraints', and
         the barriers' where active (lambda > 0) or violated (C < 0), 0 elsewhere."""
+        lam_volume, lam_barrier = _pair(multipliers)
         s = self.cells.spacing
         at_v, at_b = self.compliances(h)
         c_parts, l_parts = [np.zeros(0)], [np.zeros(0)]
@@ -198,6 +244,13 @@ _UPPER = [lower | (1 << k) for k, lower in enumerate(_LOWER)]
 #: (8, 3) the edge of axis k at corner c: the m with c in (_LOWER[k][m], _UPPER[k][m]).
 _EDGE_OF = np.array([[int(np.nonzero(_LOWER[k] == (c & ~(1 << k)))[0][0]) for k in range(3)]
                      for c in range(8)])
+
+
+def _pair(multipliers: object) -> tuple[np.ndarray, np.ndarray]:
+    """The (volume, barrier) multiplier arrays of :meth:`CellConstraints.start`."""
+    if not (isinstance(multipliers, tuple) and len(multipliers) == 2):
+        raise TypeError("CellConstraints: multipliers must be the (volume, barrier) pair of start()")
+    return multipliers[0], multipliers[1]
 
 
 def _det(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:

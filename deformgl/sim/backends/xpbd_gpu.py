@@ -11,18 +11,20 @@ Per substep three kinds of fragment pass (shaders/sim/xpbd/):
   lambda); iterate and multipliers are ping-ponged;
 * ``finish.frag``: v = (x - x^n)/h and x into the state textures (ping-pong pair).
 
-A system with cells (:mod:`deformgl.sim.xpbd_cells`) adds a cell pass ``cells.frag`` before each
-sweep and ``CELLS`` (``CELL_VOLUME``, ``CELL_BARRIER``) to ``iterate.frag``, whose nodes gather
-the cells' corrections and write their active barrier count into the w of the iterate
-(:class:`~deformgl.sim.backends.xpbd_cells_gpu.XpbdCells`, its textures there).
+Each physics term of the system brings its XPBD passes (``Term.xpbd`` then
+:meth:`~deformgl.sim.terms.base.TermConstraints.gpu`: :class:`~deformgl.sim.terms.xpbd_passes.XpbdPasses`,
+e.g. the cells' per-cell pass, :mod:`deformgl.sim.xpbd_cells_gpu`), drawn before each sweep, and
+its chunk in ``iterate.frag`` (``XPBD_TERMS``: ``terms/xpbd.glsl`` composed of the terms' chunks),
+whose nodes gather the terms' corrections and write their active constraint count into the w of
+the iterate.
 
 Textures (``width x rows`` of the compact layout, NEAREST, ``texelFetch``; docs/ARCHITECTURE.md):
-node RGBA32F (R inverse mass, 0 fixed; G flags 1 exists, 2 fixed, ``64 << q`` full incident
-cell q; B load-group bits; A the node's constraint count n_i: springs, drags, volume
-constraints), neighbours RGBA32I array of ``NB_LAYERS`` layers (absent: the node
+node RGBA32F (R inverse mass, 0 fixed; G flags 1 exists, 2 fixed, bits 6-13 a term's node bits
+(the cells': ``64 << q`` full incident cell q); B load-group bits; A the node's constraint count
+n_i: springs, drags, the terms' static counts), neighbours RGBA32I array of ``NB_LAYERS`` layers (absent: the node
 itself), stiffness RGBA32F array (k_s of the spring to neighbour 4l + c in channel c of layer l,
 0 where there is none: the per-spring weights of the calibrated lattice times the class's k),
-state x, v, x', v' RGBA32F, two iterates (w: with cells the node's active barriers), 2 x
+state x, v, x', v' RGBA32F, two iterates (w: the terms' active constraints at the node), 2 x
 ``NB_LAYERS`` lambda RGBA32F (channel c of lambda texture l: the multiplier of neighbour 4l + c),
 2 drag-lambda RGBA32F (xyz) with drags.
 """
@@ -38,12 +40,13 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import NodeGrid, layout_uniforms
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
-from deformgl.sim.backends.xpbd_cells_gpu import CELL_SAMPLERS, XpbdCells
 from deformgl.sim.backends.uniforms import uniform_array
 from deformgl.sim.clock import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, load_groups
+from deformgl.sim.terms.glsl import TERM_SHIFT, XPBD, compose_xpbd
+from deformgl.sim.terms.xpbd_passes import XpbdPasses
 from deformgl.sim.xpbd import (
     DEFAULT_ITERATIONS,
     DEFAULT_SUBSTEPS,
@@ -52,17 +55,19 @@ from deformgl.sim.xpbd import (
     XpbdSettings,
     _check_drags,
     check_terms,
-    cell_constraints,
     constraint_counts,
     node_terms,
     relative_residual,
+    term_constraints,
 )
 
 __all__ = ["XpbdFragment", "column_stiffness"]
 
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_stiffness": 2, "u_x": 3, "u_v": 4, "u_p": 5,
-             "u_lambda_drag": 6, **{f"u_lambda{layer}": 7 + layer for layer in range(6)}, **CELL_SAMPLERS}
+             "u_lambda_drag": 6, **{f"u_lambda{layer}": 7 + layer for layer in range(6)}}
+#: The texture unit of the terms' first sampler (after the node sweep's own).
+_TERM_UNIT = 13
 
 
 def column_stiffness(system: SpringSystem, nb: np.ndarray, classes: list[tuple[float, float, float]]) -> np.ndarray:
@@ -145,11 +150,18 @@ class XpbdFragment(SimulationBase, GLOwner):
         self.tex_stiffness = self._array_texture(self.k_columns.astype(np.float32), "f4")
         inv_mass, _ = node_terms(system)
         counts = constraint_counts(system, self.drags)
-        constraints = cell_constraints(system, inv_mass)
-        #: the cells' multipliers and cell pass (:mod:`deformgl.sim.backends.xpbd_cells_gpu`), or None
-        self.cells = None if constraints is None else self.own(
-            XpbdCells(self.ctx, self.grid, self.layout, constraints, float(self.settings.omega)))
-        flags = 1.0 + 2.0 * system.fixed + (0.0 if self.cells is None else self.cells.flag_bits())
+        #: each term's XPBD passes and multipliers (:class:`~deformgl.sim.terms.xpbd_passes.XpbdPasses`)
+        self.term_passes: list[XpbdPasses] = []
+        unit = _TERM_UNIT
+        self._term_forms = term_constraints(system, inv_mass)  # (their float64 forms: the residual)
+        for form in self._term_forms:
+            gpu = self.own(form.gpu(self.ctx, self.grid, self.layout, float(self.settings.omega), unit))
+            self.term_passes.append(gpu)
+            unit += len(gpu.samplers)
+        bits = [b for b in (t.node_bits() for t in self.term_passes) if b is not None]
+        if len(bits) > 1:
+            raise ValueError("xpbd: two terms keep node bits; the node data has room for one term's")
+        flags = 1.0 + 2.0 * system.fixed + (np.asarray(bits[0], np.float64) * float(1 << TERM_SHIFT) if bits else 0.0)
         node = np.stack([inv_mass, flags, self.load_bits, counts], axis=1)
         self.tex_node = self._texture(self._image(node))
         x = np.array(system.rest_positions if state is None else state.x, np.float64)
@@ -174,16 +186,17 @@ class XpbdFragment(SimulationBase, GLOwner):
                                       "SPRING_DAMPING": sp, "DRAGS": len(self.drags), "SPHERES": 0}
         if c is not None and (c.ground is not None or c.spheres):
             iterate.update(CONSTRAINTS=True, GROUND=c.ground is not None, SPHERES=len(c.spheres))
-        if self.cells is not None:
-            iterate.update(self.cells.defines())
+        chunks = [t.chunk for t in self.term_passes]
+        for chunk in chunks:
+            iterate.update(chunk.sweep_defines())
         self.p_predict = self._program("sim/xpbd/predict.frag", common)
-        self.p_iterate = self._program("sim/xpbd/iterate.frag", iterate)
+        self.p_iterate = self._program("sim/xpbd/iterate.frag", iterate, {XPBD: compose_xpbd(chunks)} if chunks else None)
         self.p_finish = self._program("sim/xpbd/finish.frag", {})
         h_sub = self.dt / self.settings.substeps
         passes = [self.p_predict, self.p_iterate, self.p_finish]
-        if self.cells is not None:
-            passes.append(self.cells.program)
-            self.p_iterate.set(**self.cells.uniforms(self.p_iterate))
+        for term in self.term_passes:
+            passes += term.programs()
+            self.p_iterate.set(**term.sweep_uniforms(self.p_iterate))
         for p in passes:
             p.set(**{s: u for s, u in _SAMPLERS.items() if s in p.members}, u_h=h_sub)
             if "u_width_log2" in p.members:
@@ -205,11 +218,10 @@ class XpbdFragment(SimulationBase, GLOwner):
                       for p in (self.p_predict, self.p_iterate, self.p_finish)}
         tex_count = 4 + 2 + 2 * self.layers + len(self.drag_lambdas)
         self.bytes_allocated = (tex_count + 1 + 2 * self.layers) * w * h * _VEC4
-        if self.cells is not None:
-            self.bytes_allocated += self.cells.bytes_allocated
+        self.bytes_allocated += sum(t.bytes_allocated for t in self.term_passes)
 
-    def _program(self, fragment: str, defines: dict[str, object]) -> Program:
-        return self.own(Program(self.ctx, "sim/fullscreen.vert", fragment, defines=defines))
+    def _program(self, fragment: str, defines: dict[str, object], chunks: dict[str, str] | None = None) -> Program:
+        return self.own(Program(self.ctx, "sim/fullscreen.vert", fragment, defines=defines, chunks=chunks))
 
     # -- stepping ----------------------------------------------------------------------------
 
@@ -237,8 +249,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         self._draw(self.p_predict, [self.iterates[0]])
         clear = self.lambdas[0] + self.drag_lambdas[:1]
         self._fbo(clear).clear(0.0, 0.0, 0.0, 0.0)
-        if self.cells is not None:
-            self.cells.clear()
+        for term in self.term_passes:
+            term.clear()
         if self.drags:
             self.p_iterate.set(u_drag_target=uniform_array([tuple(float(c) for c in np.asarray(d.target(t + h), float))
                                                      for d in self.drags]))
@@ -250,8 +262,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         for _ in range(self.settings.iterations):
             b = 1 - a
             self.iterates[a].use(_SAMPLERS["u_p"])
-            if self.cells is not None:
-                self.cells.sweep(a, b)
+            for term in self.term_passes:
+                term.sweep(a, b)
             for layer, tex in enumerate(self.lambdas[a]):
                 tex.use(_SAMPLERS[f"u_lambda{layer}"])
             if self.drags:
@@ -328,9 +340,9 @@ class XpbdFragment(SimulationBase, GLOwner):
         c = np.linalg.norm(p[rows] - p[self.nb[rows, cols]], axis=1) - rest
         h = self.dt / self.settings.substeps
         at_lam = 1.0 / (self.k_columns[rows, cols] * h * h) * lam[rows, cols]
-        if self.cells is not None:
-            c_cells, at_lam_cells = self.cells.constraints.residual_terms(p, *self.cells.read(self._last), h)
-            c, at_lam = np.concatenate([c, c_cells]), np.concatenate([at_lam, at_lam_cells])
+        for form, term in zip(self._term_forms, self.term_passes):
+            c_term, at_lam_term = form.residual_terms(p, term.read(self._last), h)
+            c, at_lam = np.concatenate([c, c_term]), np.concatenate([at_lam, at_lam_term])
         return relative_residual(c, at_lam)
 
     @property

@@ -14,8 +14,9 @@ besides its springs (``SpringSystem.terms``). It declares, in its own module:
   layout, implicit Euler's right-hand side) and the implicit product's row and diagonal block,
   with the per-node tables and uniforms they read,
 * its transform-feedback form (:meth:`Term.feedback_pairs` for a term linear in the positions, or
-  a chunk of its own: :class:`FeedbackTerm`), or a one-line refusal for each backend that has no
-  form of it (transform feedback, XPBD),
+  a chunk of its own: :class:`FeedbackTerm`) and its XPBD form (:meth:`Term.xpbd`:
+  :class:`TermConstraints`, with its GPU passes and :class:`XpbdChunk`), or a one-line refusal
+  for each backend that has no form of it,
 * what it will cost and refuse, known from the scene alone before its data exists
   (:class:`TermNeeds`: the memory budget's counts, the refusals a scene gets before the build),
   which the material that makes it returns (``material.term_needs``).
@@ -31,13 +32,21 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 
-__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
+if TYPE_CHECKING:
+    import moderngl
+
+    from deformgl.grid.nodes import CompactLayout
+    from deformgl.sim.terms.xpbd_passes import XpbdPasses
+
+__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermConstraints", "TermNeeds", "XpbdChunk",
+           "block_diagonal"]
 
 
 @dataclass(frozen=True)
@@ -214,6 +223,67 @@ class FeedbackTerm:
 
 
 @dataclass(frozen=True)
+class XpbdChunk:
+    """A term's XPBD form on the GPU as the shader pack and the node sweep know it
+    (:mod:`deformgl.sim.backends.xpbd_gpu`): the chunk ``file`` (under ``shaders/``) that the node
+    sweep ``sim/xpbd/iterate.frag`` includes, through ``terms/xpbd.glsl``
+    (:func:`deformgl.sim.terms.glsl.compose_xpbd`) under ``XPBD_TERMS``, defining::
+
+        void PREFIX_xpbd(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi);
+            // adds the node's corrections from the term's constraints (wi its inverse mass), and to
+            // counts its constraints active after this sweep (the next sweep's n_i adds them)
+
+    and the fragment shaders of the term's own passes (``passes``, drawn with
+    ``sim/fullscreen.vert``), compiled with ``defines`` (one of ``variants`` where the pack
+    enumerates them)."""
+
+    prefix: str
+    file: str
+    passes: tuple[str, ...] = ()
+    defines: dict[str, object] = field(default_factory=dict)
+    variants: tuple[dict[str, object], ...] = ()
+
+    def sweep_defines(self) -> dict[str, object]:
+        """The defines the node sweep adds for this chunk."""
+        return {"XPBD_TERMS": True, f"TERM_{self.prefix.upper()}": True, **self.defines}
+
+
+class TermConstraints(ABC):
+    """A term's XPBD form (Macklin, Müller & Chentanez 2016): its constraints, solved in the same
+    Jacobi sweep as the springs' (:class:`deformgl.sim.xpbd.XpbdSolver`, float64), and their GPU
+    passes (:meth:`gpu`). ``multipliers`` is whatever the form keeps per substep (its lambdas)."""
+
+    @abstractmethod
+    def static_counts(self) -> np.ndarray:
+        """(N,) float64 its constraints at each node, always counted in n_i."""
+
+    @abstractmethod
+    def start(self) -> object:
+        """The multipliers at a substep's start."""
+
+    def dynamic_counts(self, multipliers: object) -> np.ndarray | None:
+        """(N,) its constraints counted at each node this sweep on top of :meth:`static_counts`
+        (e.g. the active ones of an inequality), from the last sweep's multipliers; None: none."""
+        return None
+
+    @abstractmethod
+    def sweep(self, p: np.ndarray, multipliers: object, counts: np.ndarray, h: float, omega: float) -> np.ndarray:
+        """One Jacobi sweep at the iterate p (N, 3), m, with n_i ``counts``, substep h (s) and
+        relaxation omega: updates ``multipliers`` in place, returns the (N, 3) corrections, m."""
+
+    @abstractmethod
+    def residual_terms(self, p: np.ndarray, multipliers: object, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """(C, alpha~ lambda) of its constraints at p, in metres (they join the springs' relative
+        residual |C + alpha~ lambda| / |C|)."""
+
+    def gpu(self, ctx: "moderngl.Context", grid: NodeGrid, layout: "CompactLayout", omega: float,
+            first_unit: int) -> "XpbdPasses":
+        """Its GPU form on the compact ``layout`` of ``grid``, its samplers on units from
+        ``first_unit`` (the backend owns and releases it); NotImplementedError where it has none."""
+        raise NotImplementedError(f"{type(self).__name__} has no XPBD form on the GPU")
+
+
+@dataclass(frozen=True)
 class TermNeeds:
     """What a term will cost and refuse, known from the scene alone, before its data exists: the
     memory estimate (:func:`deformgl.scene.budget.estimate`) sums these over the material's terms,
@@ -316,6 +386,11 @@ class Term(ABC):
         where its data does not fit the grid), or None where it has none."""
         return None
 
+    def xpbd(self, inverse_mass: np.ndarray) -> TermConstraints | None:
+        """The term's XPBD form with the nodes' inverse masses (N,) 1/kg (0 at fixed nodes), or
+        None where it has none (XPBD refuses it)."""
+        return None
+
     def feedback_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The transform-feedback form of a term linear in the positions, ``f_i = -sum_j c_ij (x_i
         - x_j)``: (rows, cols, c) with c in N/m, each pair in the list of its row (the backend
@@ -327,8 +402,10 @@ class Term(ABC):
         phrase, or None. The default: the fragment backends run it where it has a GLSL form
         (implicit Euler where that form has its product: :func:`deformgl.sim.terms.glsl.pass_terms`
         checks); transform feedback where it has :meth:`feedback_pairs` or :meth:`feedback`; XPBD
-        does not."""
+        where it has :meth:`xpbd`."""
         if backend == "feedback" and (type(self).feedback is not Term.feedback or self.feedback_pairs() is not None):
+            return None
+        if backend == "xpbd" and type(self).xpbd is not Term.xpbd:
             return None
         if backend in ("feedback", "xpbd"):
             return f"{self.name} have no {'transform-feedback' if backend == 'feedback' else 'XPBD'} form"

@@ -18,18 +18,20 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term, XpbdChunk
 
 if TYPE_CHECKING:
     import moderngl
 
-__all__ = ["ACTIVE", "FEEDBACK", "PassTerms", "compose", "compose_feedback", "feedback_terms", "pass_terms",
-           "refuse_terms"]
+__all__ = ["ACTIVE", "FEEDBACK", "XPBD", "PassTerms", "compose", "compose_feedback", "compose_xpbd", "feedback_terms",
+           "pass_terms", "refuse_terms"]
 
 #: The include name of the composed term list.
 ACTIVE = "terms/active.glsl"
 #: The include name of the composed transform-feedback term list.
 FEEDBACK = "terms/feedback.glsl"
+#: The include name of the composed XPBD node-sweep term list.
+XPBD = "terms/xpbd.glsl"
 #: The first bit of the terms' node bits in the node data's flag word (lib/node_flags.glsl).
 TERM_SHIFT = 6
 _NODE = "lib/term_node.glsl"
@@ -204,6 +206,25 @@ def compose_feedback(forms: Sequence[FeedbackTerm], *, guarded: bool = False) ->
     lines.append("void feedback_terms(inout vec3 f, int i, vec3 xi) {")
     for form in forms:
         each(form, f"    {form.prefix}_feedback(f, i, xi);")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
+def compose_xpbd(chunks: Sequence[XpbdChunk], *, guarded: bool = False) -> str:
+    """``terms/xpbd.glsl`` of ``chunks``: each chunk's include, then ``xpbd_terms`` calling each
+    term's ``PREFIX_xpbd`` in turn (``guarded``: each under ``#ifdef TERM_<PREFIX>``, the shipped file)."""
+    lines = ["// The physics terms of the XPBD node sweep (deformgl/sim/terms). Composed by",
+             "// deformgl/sim/terms/glsl.py compose_xpbd(); do not edit: `python -m deformgl.sim.terms.registry`",
+             "// writes the shipped one. Included by sim/xpbd/iterate.frag under XPBD_TERMS."]
+
+    def each(chunk: XpbdChunk, text: str) -> None:
+        lines.extend([f"#ifdef TERM_{chunk.prefix.upper()}", text, "#endif"] if guarded else [text])
+
+    for chunk in chunks:
+        each(chunk, f'#include "{chunk.file}"')
+    lines.append("void xpbd_terms(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi) {")
+    for chunk in chunks:
+        each(chunk, f"    {chunk.prefix}_xpbd(dx, counts, texel, flags, wi);")
     lines.append("}")
     return "\n".join(lines) + "\n"
 

@@ -1,10 +1,11 @@
-"""The physics terms deformgl ships, as their GLSL forms (:class:`~deformgl.sim.terms.base.GlslTerm`)
-and transform-feedback chunks (:class:`~deformgl.sim.terms.base.FeedbackTerm`): what the shader pack
-enumerates and compiles (``shaders/terms/active.glsl`` is :func:`shipped_active`,
-``shaders/terms/feedback.glsl`` :func:`shipped_feedback`, each term under ``#ifdef TERM_<PREFIX>``).
-A new shipped term adds its forms here.
+"""The physics terms deformgl ships, as their GLSL forms (:class:`~deformgl.sim.terms.base.GlslTerm`),
+transform-feedback chunks (:class:`~deformgl.sim.terms.base.FeedbackTerm`) and XPBD chunks
+(:class:`~deformgl.sim.terms.base.XpbdChunk`): what the shader pack enumerates and compiles
+(``shaders/terms/active.glsl`` is :func:`shipped_active`, ``shaders/terms/feedback.glsl``
+:func:`shipped_feedback`, ``shaders/terms/xpbd.glsl`` :func:`shipped_xpbd`, each term under
+``#ifdef TERM_<PREFIX>``). A new shipped term adds its forms here.
 
-``python -m deformgl.sim.terms.registry`` writes both files from these lists (tests/test_terms.py
+``python -m deformgl.sim.terms.registry`` writes the three files from these lists (tests/test_terms.py
 checks the shipped files are the lists')."""
 
 from __future__ import annotations
@@ -12,11 +13,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from deformgl.sim import bending, volume_glsl
-from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
-from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, compose, compose_feedback
+from deformgl.sim import bending, volume_glsl, xpbd_cells
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, XpbdChunk
+from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, XPBD, compose, compose_feedback, compose_xpbd
 
-__all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "shipped_active", "shipped_feedback"]
+__all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "XPBD_SHIPPED", "shipped_active", "shipped_feedback",
+           "shipped_xpbd"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
 SHIPPED: tuple[GlslTerm, ...] = (volume_glsl.GLSL, bending.GLSL)
@@ -25,6 +27,8 @@ VARIANTS: tuple[GlslTerm, ...] = (*volume_glsl.CELL_FORMS, bending.GLSL)
 #: The transform-feedback chunks of the shipped terms that have one (the rest give
 #: ``Term.feedback_pairs`` or are refused).
 FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_glsl.FEEDBACK,)
+#: The XPBD node-sweep chunks of the shipped terms that have one, each with its define variants.
+XPBD_SHIPPED: tuple[XpbdChunk, ...] = (xpbd_cells.XPBD,)
 
 
 def shipped_active() -> str:
@@ -37,11 +41,16 @@ def shipped_feedback() -> str:
     return compose_feedback(FEEDBACK_SHIPPED, guarded=True)
 
 
+def shipped_xpbd() -> str:
+    """The text of ``shaders/terms/xpbd.glsl``: every shipped XPBD chunk, each under its define."""
+    return compose_xpbd(XPBD_SHIPPED, guarded=True)
+
+
 def main() -> int:
-    """Write ``terms/active.glsl`` and ``terms/feedback.glsl`` under the repository's ``shaders/``
-    (or under the folder given)."""
+    """Write ``terms/active.glsl``, ``terms/feedback.glsl`` and ``terms/xpbd.glsl`` under the
+    repository's ``shaders/`` (or under the folder given)."""
     root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shaders"
-    for name, text in ((ACTIVE, shipped_active()), (FEEDBACK, shipped_feedback())):
+    for name, text in ((ACTIVE, shipped_active()), (FEEDBACK, shipped_feedback()), (XPBD, shipped_xpbd())):
         (root / name).write_text(text, encoding="utf-8")
         print(root / name)
     return 0

@@ -1,7 +1,7 @@
-"""The cells' XPBD constraints on the fragment backend (:mod:`deformgl.sim.xpbd_cells` in float32):
-the per-cell multipliers, the cell pass ``shaders/sim/xpbd/cells.frag`` and what the node sweep
-``shaders/sim/xpbd/iterate.frag`` (define ``CELLS``) reads of them. Owned by
-:class:`~deformgl.sim.backends.xpbd_gpu.XpbdFragment`.
+"""The cells' XPBD constraints on the fragment backend (:mod:`deformgl.sim.xpbd_cells` in float32),
+the term's :class:`~deformgl.sim.terms.xpbd_passes.XpbdPasses`: the per-cell multipliers, the cell
+pass ``shaders/terms/cell_xpbd.frag`` and what the node sweep's chunk ``shaders/terms/cell_xpbd.glsl``
+reads of them. Owned by :class:`~deformgl.sim.backends.xpbd_gpu.XpbdFragment`.
 
 A Jacobi sweep with cells is two passes: the cell pass (one fragment per node; the node at corner
 0 of a full cell owns that cell) reads the iterate and the cell multipliers of the last sweep and
@@ -14,7 +14,8 @@ texel, 0 at every other texel; docs/ARCHITECTURE.md):
 * neighbourhood: RGBA32I array, 7 layers: column ``4 l + c`` the node at slot
   ``(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`` of the 3x3x3 neighbourhood
   (:func:`~deformgl.grid.neighbours.neighbourhood`; the node itself where absent), column
-  27 0; static. A node's full incident cells are the flag bits ``64 << q`` of the XPBD node data;
+  27 0; static. A node's full incident cells are its term bits (:meth:`XpbdCells.node_bits`:
+  ``64 << q`` in the XPBD node data's flags);
 * lambda, 2 sets (ping-pong per sweep) of 2 RGBA32F: the barrier multipliers of corners 0..3 and
   4..7 (>= 0);
 * state, 2 sets of 1 RGBA32F: R the volume multiplier, G its change in this sweep, B the mask of
@@ -33,56 +34,43 @@ import numpy as np
 from deformgl.errors import GLError
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
-from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.grid.neighbours import neighbourhood
 from deformgl.sim.cell_tables import cell_uniforms, incident_cells
 from deformgl.sim.backends.compact_textures import float_texture, layer_texture
-from deformgl.sim.xpbd_cells import CellConstraints
+from deformgl.sim.terms.xpbd_passes import XpbdPasses
+from deformgl.sim.xpbd_cells import CellConstraints, chunk
 
-__all__ = ["CELL_SAMPLERS", "CELL_SHIFT", "CELL_TERMS", "XpbdCells", "cell_pass_defines", "sweep_defines"]
+__all__ = ["CELL_SAMPLERS", "XpbdCells"]
 
-#: Texture units of the cells' samplers (after those of the node sweep's own).
-CELL_SAMPLERS = {"u_cell_nodes": 13, "u_cell_lambda0": 14, "u_cell_lambda1": 15, "u_cell_state": 16,
-                 "u_cell_delta0": 17, "u_cell_delta1": 18}
-#: The incident-cell mask's place in the node flags (``lib/node_flags.glsl`` CELL_SHIFT).
-CELL_SHIFT = 6
+#: The cells' samplers, in the order of their texture units (from the backend's ``first_unit``).
+CELL_SAMPLERS = ("u_cell_nodes", "u_cell_lambda0", "u_cell_lambda1", "u_cell_state", "u_cell_delta0", "u_cell_delta1")
 _NEIGHBOURHOOD_LAYERS = 7
-#: The (volume, barrier) combinations a system's cells can have (kappa > 0, kappa_b > 0; not
-#: neither: then there are no cell constraints), for deformgl.pack.variants.
-CELL_TERMS = ((False, True), (True, False), (True, True))
-
-
-def cell_pass_defines(volume: bool, barrier: bool) -> dict[str, object]:
-    """The defines of ``sim/xpbd/cells.frag`` for cells with these terms."""
-    return {"CELL_VOLUME": volume, "CELL_BARRIER": barrier}
-
-
-def sweep_defines(volume: bool, barrier: bool) -> dict[str, object]:
-    """The defines the node sweep ``sim/xpbd/iterate.frag`` adds for cells with these terms."""
-    return {"CELLS": True, **cell_pass_defines(volume, barrier)}
 _VEC4 = 16
 
 
-class XpbdCells(GLOwner):
+class XpbdCells(XpbdPasses):
     """The cells' multipliers and the cell pass of :class:`XpbdFragment`.
 
     Args:
         ctx: the GL context.
         grid: the system's node grid.
         layout: its compact layout.
-        constraints: the cell constraints (:func:`deformgl.sim.xpbd.cell_constraints`).
+        constraints: the cell constraints (``VolumeTerm.xpbd``).
         omega: the relaxation.
+        first_unit: the texture unit of its first sampler (:data:`CELL_SAMPLERS` in order).
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout,
-                 constraints: CellConstraints, omega: float) -> None:
+                 constraints: CellConstraints, omega: float, first_unit: int) -> None:
         targets = 5
         if targets > int(ctx.info.get("GL_MAX_DRAW_BUFFERS", 8)):
             raise GLError(f"xpbd: the cell pass needs {targets} render targets, the context has "
                           f"{ctx.info.get('GL_MAX_DRAW_BUFFERS')}")
         super().__init__(ctx)
         self.constraints, self.layout = constraints, layout
+        self.chunk = chunk(constraints.volume, constraints.barrier)
+        self.samplers = {name: first_unit + k for k, name in enumerate(CELL_SAMPLERS)}
         cells = constraints.cells
         self.owners = np.ascontiguousarray(cells.corners[:, 0])   # (C,) each cell's corner-0 node
         self.mask = incident_cells(grid, cells)
@@ -92,9 +80,8 @@ class XpbdCells(GLOwner):
             self.lambdas = [[float_texture(self, ctx, size) for _ in range(2)] for _ in range(2)]
             self.states = [float_texture(self, ctx, size) for _ in range(2)]
             self.deltas = [float_texture(self, ctx, size) for _ in range(2)]
-            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/xpbd/cells.frag",
-                                            defines=cell_pass_defines(constraints.volume, constraints.barrier)))
-            self.program.set(**self.uniforms(self.program), u_omega=float(omega))
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", self.chunk.passes[0], defines=self.chunk.defines))
+            self.program.set(**self.sweep_uniforms(self.program), u_omega=float(omega))
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))
             self._fbos = [self.own(ctx.framebuffer(color_attachments=[*self.lambdas[b], self.states[b],
                                                                       *self.deltas]))
@@ -103,19 +90,19 @@ class XpbdCells(GLOwner):
         w, h_px = size
         self.bytes_allocated = (_NEIGHBOURHOOD_LAYERS + 8) * w * h_px * _VEC4
 
-    def defines(self) -> dict[str, object]:
-        """The defines of the node sweep's cell gather (:func:`sweep_defines`)."""
-        return sweep_defines(self.constraints.volume, self.constraints.barrier)
+    def programs(self) -> list[Program]:
+        """The cell pass."""
+        return [self.program]
 
-    def uniforms(self, program: Program) -> dict[str, object]:
-        """The uniforms of ``terms/cell_forces.glsl`` that ``program`` uses (the caller sets the
-        samplers, ``u_h`` and ``u_width_log2`` of every pass)."""
-        values = cell_uniforms(self.constraints.cells)
+    def sweep_uniforms(self, program: Program) -> dict[str, object]:
+        """The uniforms of ``terms/cell_forces.glsl`` and the cells' samplers that ``program``
+        uses (the backend sets ``u_node``, ``u_p``, ``u_h`` and ``u_width_log2`` of every pass)."""
+        values: dict[str, object] = {**cell_uniforms(self.constraints.cells), **self.samplers}
         return {k: v for k, v in values.items() if k in program.members}
 
-    def flag_bits(self) -> np.ndarray:
-        """(N,) the incident-cell bits of the node flags (``64 << q``)."""
-        return self.mask.astype(np.float64) * float(1 << CELL_SHIFT)
+    def node_bits(self) -> np.ndarray:
+        """(N,) the incident-cell mask (bit q: full incident cell q)."""
+        return self.mask
 
     def clear(self) -> None:
         """Zero the multipliers of set 0 (a substep's start)."""
@@ -124,15 +111,16 @@ class XpbdCells(GLOwner):
     def sweep(self, a: int, b: int) -> None:
         """The cell pass from multiplier set ``a`` to set ``b`` at the iterate bound to ``u_p``;
         then binds set b's state and the changes for the node sweep."""
-        self.tex_nodes.use(CELL_SAMPLERS["u_cell_nodes"])
-        self.lambdas[a][0].use(CELL_SAMPLERS["u_cell_lambda0"])
-        self.lambdas[a][1].use(CELL_SAMPLERS["u_cell_lambda1"])
-        self.states[a].use(CELL_SAMPLERS["u_cell_state"])
+        units = self.samplers
+        self.tex_nodes.use(units["u_cell_nodes"])
+        self.lambdas[a][0].use(units["u_cell_lambda0"])
+        self.lambdas[a][1].use(units["u_cell_lambda1"])
+        self.states[a].use(units["u_cell_state"])
         self._fbos[b].use()
         self.vao.render(moderngl.TRIANGLES, vertices=3)
-        self.states[b].use(CELL_SAMPLERS["u_cell_state"])
-        self.deltas[0].use(CELL_SAMPLERS["u_cell_delta0"])
-        self.deltas[1].use(CELL_SAMPLERS["u_cell_delta1"])
+        self.states[b].use(units["u_cell_state"])
+        self.deltas[0].use(units["u_cell_delta0"])
+        self.deltas[1].use(units["u_cell_delta1"])
 
     def read(self, b: int) -> tuple[np.ndarray, np.ndarray]:
         """The multipliers of set ``b`` in float64: ((C,) volume, (C, 8) barrier)."""

@@ -1,5 +1,5 @@
 #version 330 core
-// XPBD cell pass: one Jacobi sweep of the cells' constraints (sim/xpbd/cell_constraints.glsl;
+// XPBD cell pass: one Jacobi sweep of the cells' constraints (terms/cell_constraints.glsl;
 // Macklin, Muller & Chentanez 2016, eq. 18), the multiplier half of
 // deformgl/sim/xpbd_cells.py CellConstraints.sweep, in float32. One fragment per node; the node
 // that is corner 0 of a full cell (incident cell 7) owns that cell and its multipliers, all from
@@ -11,7 +11,7 @@
 //                          lambda' = max(lambda + d_lambda, 0), at = 8 / (kappa_b V h^2),
 //                          n_s = max over the tet's 4 nodes
 // with n_a = the node's static count (u_node A) + its active barriers after the last sweep (u_p w).
-// The node sweep (sim/xpbd/iterate.frag, CELLS) then applies w_a grad_a d_lambda at every corner.
+// The node sweep (sim/xpbd/iterate.frag, terms/cell_xpbd.glsl) then applies w_a grad_a d_lambda at every corner.
 //
 // Textures at the owner's texel (docs/ARCHITECTURE.md, "XPBD cell multipliers"): lambda RGBA32F x 2
 // (corners 0..3, 4..7), state RGBA32F (R volume lambda, G its change this sweep, B the mask of
@@ -19,7 +19,7 @@
 // 0), delta RGBA32F x 2 (the barriers' lambda change this sweep).
 #include "lib/node_flags.glsl"
 #include "lib/node_texel.glsl"
-#include "sim/xpbd/cell_constraints.glsl"
+#include "terms/cell_constraints.glsl"
 
 uniform sampler2D u_node;              // R inverse mass (0 fixed), G flags (64 << q: incident cell q), A constraint count
 uniform sampler2D u_p;                 // xyz iterate, w active barriers at the node

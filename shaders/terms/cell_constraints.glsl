@@ -5,8 +5,8 @@
 //                                    grad_a C = cof(F) G_a, G_a = s_a / (4h)
 //   barrier per cell corner c        C = J_c - J_b >= 0 on the tet (c, c^1, c^2, c^4), compliance
 //                                    1 / (kappa_b V / 8), gradients from corner_gradients()
-// Shared by the cell pass (sim/xpbd/cells.frag: the multipliers) and the node sweep
-// (sim/xpbd/iterate.frag with CELLS: each node gathers its corrections).
+// Shared by the cell pass (terms/cell_xpbd.frag: the multipliers) and the node sweep
+// (terms/cell_xpbd.glsl in sim/xpbd/iterate.frag: each node gathers its corrections).
 #ifndef XPBD_CELL_CONSTRAINTS_GLSL
 #define XPBD_CELL_CONSTRAINTS_GLSL
 #include "terms/cell_forces.glsl"
