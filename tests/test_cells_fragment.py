@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.cell_pass import NodeCellForces, check_cells
+from deformgl.sim.volume_pass import NodeCellForces, check_cells
 from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system

@@ -37,17 +37,11 @@ def test_the_shipped_term_list_is_the_registrys():
         assert f"{chunk.prefix}_xpbd(dx, counts, texel, flags, wi);" in shipped_xpbd()
 
 
-#: The cells' term alone in a pass of its own (its check against float64).
-OWN_FORMS = {"sim/cells/node_cells.frag"}
-
-
 def test_no_shared_pass_shader_names_a_shipped_term():
     """The passes know the hooks (terms_force, terms_neighbour, ...), not the terms: no shader
-    outside shaders/terms/ (and the cells' check pass) holds a shipped term's prefix, define or
-    uniform."""
+    outside shaders/terms/ holds a shipped term's prefix, define or uniform."""
     for path in (ROOT / "shaders").rglob("*"):
-        rel = path.relative_to(ROOT / "shaders").as_posix()
-        if path.suffix not in (".glsl", ".frag", ".vert") or path.parent.name == "terms" or rel in OWN_FORMS:
+        if path.suffix not in (".glsl", ".frag", ".vert") or path.parent.name == "terms":
             continue
         text = path.read_text(encoding="utf-8")
         for form in SHIPPED:

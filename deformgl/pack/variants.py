@@ -253,11 +253,11 @@ def blocked() -> Iterator[Variant]:
 
 
 def cells() -> Iterator[Variant]:
-    """``NodeCellForces`` (``deformgl.sim.backends.cell_pass``): the volumetric term alone, per node."""
+    """``NodeCellForces`` (``deformgl.sim.volume_pass``): the volumetric term alone, per node."""
     from deformgl.sim.volume_glsl import CELL_FORMS
 
     for dense, form in itertools.product((False, True), CELL_FORMS):
-        yield _v("sim/fullscreen.vert", "sim/cells/node_cells.frag",
+        yield _v("sim/fullscreen.vert", "terms/cell_alone.frag",
                  {"COMPACT_DENSE": dense, **{k: v for k, v in form.defines.items() if v}})
 
 

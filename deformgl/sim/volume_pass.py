@@ -1,7 +1,6 @@
 """The cells' volumetric term (:mod:`deformgl.sim.volume`: any Poisson's ratio, the inversion
-barrier) alone, per node, in a pass of its own (:class:`NodeCellForces`), and the body-diagonal
-table of the node's neighbourhood (:func:`diagonal_table`) the passes keep for the physics terms
-that read it (``shaders/lib/node_hood.glsl``).
+barrier) alone, per node, in a pass of its own (:class:`NodeCellForces`, ``shaders/terms/cell_alone.frag``):
+the term's check against float64 and its force field at any positions.
 
 In a simulation the term is one of the system's physics terms (:mod:`deformgl.sim.volume_glsl`):
 computed inside the pass that computes the springs, per node, gathered from the node's (up to 8)
@@ -33,7 +32,7 @@ from deformgl.sim.volume_glsl import volume_glsl
 __all__ = ["check_cells", "NodeCellForces"]
 
 class NodeCellForces(GLOwner):
-    """The volumetric term alone, per node, into a force texture (``shaders/sim/cells/node_cells.frag``):
+    """The volumetric term alone, per node, into a force texture (``shaders/terms/cell_alone.frag``):
     ``terms/cell_forces.glsl`` checked against :func:`~deformgl.sim.volume.volume_forces` without
     springs or an integrator, and the force field of the term at any positions.
 
@@ -63,7 +62,7 @@ class NodeCellForces(GLOwner):
             self.force = float_texture(self, ctx, size)
             self.fbo = self.own(ctx.framebuffer(color_attachments=[self.force]))
             self.hood = None if self.layout.dense else layer_texture(self, ctx, size, neighbourhood(grid), "i4", 7)
-            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/cells/node_cells.frag",
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "terms/cell_alone.frag",
                                             defines={"COMPACT_DENSE": self.layout.dense, **form.defines}))
             uniforms: dict[str, object] = {**form.uniforms, "u_x": 0, "u_node": 1,
                                            **layout_uniforms(self.layout.width)}
