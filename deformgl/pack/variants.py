@@ -174,7 +174,7 @@ def xpbd() -> Iterator[Variant]:
         if wind:
             d["WIND"] = True
         yield _v("sim/fullscreen.vert", "sim/xpbd/predict.frag", d)
-    from deformgl.sim.terms.base import XpbdChunk
+    from deformgl.sim.terms.constraints import XpbdChunk
     from deformgl.sim.terms.registry import XPBD_SHIPPED
 
     # the physics terms' chunks (XpbdFragment.term_passes): none, or one shipped chunk in each variant

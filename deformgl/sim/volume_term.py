@@ -3,7 +3,7 @@
 the form that goes with the springs' ``geometric`` option: :mod:`deformgl.sim.implicit_cells`), its
 share of the dt bound (the centre term at rest, the barrier's envelope), its GLSL forms
 (:mod:`deformgl.sim.volume_glsl`: the passes' chunk and the transform-feedback chunk) and its
-XPBD form (:mod:`deformgl.sim.xpbd_cells`, on the GPU :mod:`deformgl.sim.xpbd_cells_gpu`). A
+XPBD form (:mod:`deformgl.sim.xpbd_cells`, on the GPU :class:`deformgl.sim.xpbd_cells.XpbdCells`). A
 system with ``cells`` holds one as the first of its terms (:class:`~deformgl.sim.springs.SpringSystem`)."""
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
    ``x_i += w_i u d_lambda``, ``x_j -= w_j u d_lambda`` (Macklin, Müller & Chentanez 2016, eq. 17), all at once; drags are
    zero-rest-length vector constraints ``C = x - target(t + h)`` of compliance ``1 / k_drag``
    (``n_s`` = the node's count); each physics term of the system adds its constraints in the
-   same sweep (``Term.xpbd``, :class:`~deformgl.sim.terms.base.TermConstraints`; the cells of a
+   same sweep (``Term.xpbd``, :class:`~deformgl.sim.terms.constraints.TermConstraints`; the cells of a
    material lattice: their volume constraints ``J - 1`` and corner barriers ``J_c - J_b >= 0``,
    :mod:`deformgl.sim.xpbd_cells`, whose constraint potentials are the energies of
    :mod:`deformgl.sim.volume`, so the fixed point is the equilibrium of ``springs.forces``), and
@@ -55,7 +55,7 @@ import numpy as np
 from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, Drag, Load, State, apply_constraints
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.terms.base import TermConstraints
+from deformgl.sim.terms.constraints import TermConstraints
 from deformgl.sim.terms.glsl import refuse_terms
 
 __all__ = [

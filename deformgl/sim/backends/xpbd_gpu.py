@@ -12,8 +12,8 @@ Per substep three kinds of fragment pass (shaders/sim/xpbd/):
 * ``finish.frag``: v = (x - x^n)/h and x into the state textures (ping-pong pair).
 
 Each physics term of the system brings its XPBD passes (``Term.xpbd`` then
-:meth:`~deformgl.sim.terms.base.TermConstraints.gpu`: :class:`~deformgl.sim.terms.xpbd_passes.XpbdPasses`,
-e.g. the cells' per-cell pass, :mod:`deformgl.sim.xpbd_cells_gpu`), drawn before each sweep, and
+:meth:`~deformgl.sim.terms.constraints.TermConstraints.gpu`: :class:`~deformgl.sim.terms.constraints.XpbdPasses`,
+e.g. the cells' per-cell pass, :class:`deformgl.sim.xpbd_cells.XpbdCells`), drawn before each sweep, and
 its chunk in ``iterate.frag`` (``XPBD_TERMS``: ``terms/xpbd.glsl`` composed of the terms' chunks),
 whose nodes gather the terms' corrections and write their active constraint count into the w of
 the iterate.
@@ -46,7 +46,7 @@ from deformgl.sim.backends.compact_textures import compact_image, float_texture,
 from deformgl.sim.integrators import Constraints, Drag, Load, State
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, load_groups
 from deformgl.sim.terms.glsl import TERM_SHIFT, XPBD, compose_xpbd
-from deformgl.sim.terms.xpbd_passes import XpbdPasses
+from deformgl.sim.terms.constraints import XpbdPasses
 from deformgl.sim.xpbd import (
     DEFAULT_ITERATIONS,
     DEFAULT_SUBSTEPS,
@@ -150,7 +150,7 @@ class XpbdFragment(SimulationBase, GLOwner):
         self.tex_stiffness = self._array_texture(self.k_columns.astype(np.float32), "f4")
         inv_mass, _ = node_terms(system)
         counts = constraint_counts(system, self.drags)
-        #: each term's XPBD passes and multipliers (:class:`~deformgl.sim.terms.xpbd_passes.XpbdPasses`)
+        #: each term's XPBD passes and multipliers (:class:`~deformgl.sim.terms.constraints.XpbdPasses`)
         self.term_passes: list[XpbdPasses] = []
         unit = _TERM_UNIT
         self._term_forms = term_constraints(system, inv_mass)  # (their float64 forms: the residual)

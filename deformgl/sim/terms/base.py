@@ -15,7 +15,8 @@ besides its springs (``SpringSystem.terms``). It declares, in its own module:
   with the per-node tables and uniforms they read,
 * its transform-feedback form (:meth:`Term.feedback_pairs` for a term linear in the positions, or
   a chunk of its own: :class:`FeedbackTerm`) and its XPBD form (:meth:`Term.xpbd`:
-  :class:`TermConstraints`, with its GPU passes and :class:`XpbdChunk`), or a one-line refusal
+  :class:`~deformgl.sim.terms.constraints.TermConstraints`, with its GPU passes and
+  :class:`~deformgl.sim.terms.constraints.XpbdChunk`), or a one-line refusal
   for each backend that has no form of it,
 * what it will cost and refuse, known from the scene alone before its data exists
   (:class:`TermNeeds`: the memory budget's counts, the refusals a scene gets before the build),
@@ -32,21 +33,15 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 
-if TYPE_CHECKING:
-    import moderngl
+from deformgl.sim.terms.constraints import TermConstraints
 
-    from deformgl.grid.nodes import CompactLayout
-    from deformgl.sim.terms.xpbd_passes import XpbdPasses
-
-__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermConstraints", "TermNeeds", "XpbdChunk",
-           "block_diagonal"]
+__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
 
 
 @dataclass(frozen=True)
@@ -220,67 +215,6 @@ class FeedbackTerm:
         out = np.zeros((rows * node_row, 4 * self.slots), np.int32)
         out[:n] = self.table
         return out.reshape(rows, node_row * self.slots, 4)
-
-
-@dataclass(frozen=True)
-class XpbdChunk:
-    """A term's XPBD form on the GPU as the shader pack and the node sweep know it
-    (:mod:`deformgl.sim.backends.xpbd_gpu`): the chunk ``file`` (under ``shaders/``) that the node
-    sweep ``sim/xpbd/iterate.frag`` includes, through ``terms/xpbd.glsl``
-    (:func:`deformgl.sim.terms.glsl.compose_xpbd`) under ``XPBD_TERMS``, defining::
-
-        void PREFIX_xpbd(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi);
-            // adds the node's corrections from the term's constraints (wi its inverse mass), and to
-            // counts its constraints active after this sweep (the next sweep's n_i adds them)
-
-    and the fragment shaders of the term's own passes (``passes``, drawn with
-    ``sim/fullscreen.vert``), compiled with ``defines`` (one of ``variants`` where the pack
-    enumerates them)."""
-
-    prefix: str
-    file: str
-    passes: tuple[str, ...] = ()
-    defines: dict[str, object] = field(default_factory=dict)
-    variants: tuple[dict[str, object], ...] = ()
-
-    def sweep_defines(self) -> dict[str, object]:
-        """The defines the node sweep adds for this chunk."""
-        return {"XPBD_TERMS": True, f"TERM_{self.prefix.upper()}": True, **self.defines}
-
-
-class TermConstraints(ABC):
-    """A term's XPBD form (Macklin, Müller & Chentanez 2016): its constraints, solved in the same
-    Jacobi sweep as the springs' (:class:`deformgl.sim.xpbd.XpbdSolver`, float64), and their GPU
-    passes (:meth:`gpu`). ``multipliers`` is whatever the form keeps per substep (its lambdas)."""
-
-    @abstractmethod
-    def static_counts(self) -> np.ndarray:
-        """(N,) float64 its constraints at each node, always counted in n_i."""
-
-    @abstractmethod
-    def start(self) -> object:
-        """The multipliers at a substep's start."""
-
-    def dynamic_counts(self, multipliers: object) -> np.ndarray | None:
-        """(N,) its constraints counted at each node this sweep on top of :meth:`static_counts`
-        (e.g. the active ones of an inequality), from the last sweep's multipliers; None: none."""
-        return None
-
-    @abstractmethod
-    def sweep(self, p: np.ndarray, multipliers: object, counts: np.ndarray, h: float, omega: float) -> np.ndarray:
-        """One Jacobi sweep at the iterate p (N, 3), m, with n_i ``counts``, substep h (s) and
-        relaxation omega: updates ``multipliers`` in place, returns the (N, 3) corrections, m."""
-
-    @abstractmethod
-    def residual_terms(self, p: np.ndarray, multipliers: object, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """(C, alpha~ lambda) of its constraints at p, in metres (they join the springs' relative
-        residual |C + alpha~ lambda| / |C|)."""
-
-    def gpu(self, ctx: "moderngl.Context", grid: NodeGrid, layout: "CompactLayout", omega: float,
-            first_unit: int) -> "XpbdPasses":
-        """Its GPU form on the compact ``layout`` of ``grid``, its samplers on units from
-        ``first_unit`` (the backend owns and releases it); NotImplementedError where it has none."""
-        raise NotImplementedError(f"{type(self).__name__} has no XPBD form on the GPU")
 
 
 @dataclass(frozen=True)

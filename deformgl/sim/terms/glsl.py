@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term, XpbdChunk
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term
+from deformgl.sim.terms.constraints import XpbdChunk
 
 if TYPE_CHECKING:
     import moderngl

@@ -1,6 +1,6 @@
 """The physics terms deformgl ships, as their GLSL forms (:class:`~deformgl.sim.terms.base.GlslTerm`),
 transform-feedback chunks (:class:`~deformgl.sim.terms.base.FeedbackTerm`) and XPBD chunks
-(:class:`~deformgl.sim.terms.base.XpbdChunk`): what the shader pack enumerates and compiles
+(:class:`~deformgl.sim.terms.constraints.XpbdChunk`): what the shader pack enumerates and compiles
 (``shaders/terms/active.glsl`` is :func:`shipped_active`, ``shaders/terms/feedback.glsl``
 :func:`shipped_feedback`, ``shaders/terms/xpbd.glsl`` :func:`shipped_xpbd`, each term under
 ``#ifdef TERM_<PREFIX>``). A new shipped term adds its forms here.
@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from deformgl.sim import bending, volume_glsl, xpbd_cells
-from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, XpbdChunk
+from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
+from deformgl.sim.terms.constraints import XpbdChunk
 from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, XPBD, compose, compose_feedback, compose_xpbd
 
 __all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "XPBD_SHIPPED", "shipped_active", "shipped_feedback",
