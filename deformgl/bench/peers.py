@@ -79,7 +79,7 @@ class TaichiStepper(PeerStepper):
     (``ti.FieldsBuilder``), so models come and go without ``ti.reset()``; :meth:`release` frees
     them. The kernel is compiled per stepper with the system constants folded in (like uniforms
     that never change) and takes one int argument, the rotation phase of the three state rows:
-    Taichi's Python-side launch cost grows by ~15-150 us per kernel argument on this machine.
+    Taichi's Python-side launch cost grows with each kernel argument.
     """
 
     name = "taichi"

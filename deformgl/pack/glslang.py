@@ -6,9 +6,9 @@ preprocessor (:func:`deformgl.gl.preprocessor.preprocess`) in a profile (``core`
 file never mentions cannot change it, so a stage is compiled once per distinct set of the
 defines it mentions. Programs are linked (``-l``: vertex outputs against fragment inputs; the ES
 profile's vertex-only programs with ``lib/empty.frag``) once per pair of files and values of the
-defines both stages mention (only those can make the two sides' interfaces disagree; a process
-per link costs ~40 ms, and the thousands of integrator variants, whose vertex stage mentions no
-define, link once; every stage source is compiled). Any error or warning is reported.
+defines both stages mention (only those can make the two sides' interfaces disagree; a link is a process of its own, and
+the thousands of integrator variants, whose vertex stage mentions no define, link once; every
+stage source is compiled). Any error or warning is reported.
 """
 
 from __future__ import annotations

@@ -306,9 +306,9 @@ def check_dt(system: SpringSystem, integrator: str, dt: float, *,
 
     The cheap Gershgorin limit is tried first; a dt at or below it is accepted (it is
     conservative). A dt above it is judged on the exact spectrum when the system has at most
-    ``exact_up_to`` free nodes (dense eigen solve, ~0.3 s for 300 nodes), on a Lanczos estimate
-    of its top (relative residual :data:`LANCZOS_TOL`, a dt must stay :data:`LANCZOS_MARGIN`
-    below the limit; ~1 s for 20k nodes) up to ``lanczos_up_to``, else refused on the
+    ``exact_up_to`` free nodes (a dense eigen solve), on a Lanczos estimate of its top (relative
+    residual :data:`LANCZOS_TOL`, a dt must stay :data:`LANCZOS_MARGIN` below the limit) up to
+    ``lanczos_up_to``, else refused on the
     Gershgorin bound, whose message says so.
 
     Integrators without an explicit limit (``integrators.STABLE_INTEGRATORS``: XPBD) are never
