@@ -8,7 +8,7 @@ the FEM value (ElementHex2, Richardson-extrapolated from meshes refined by halvi
 :func:`~deformgl.bench.fem.fem_reference`), with nu = 1/4 as the lattice. The rows give the
 ratio deformgl / FEM and the relative error |ratio - 1|; the fitted order is the least-squares
 slope of log(error) against log(h) over the resolutions. A second table puts the lattice with
-the material's Poisson's ratio (springs + the cells' volumetric term, :mod:`deformgl.sim.volume`)
+the material's Poisson's ratio (springs + the cells' volumetric term, :mod:`deformgl.sim.terms.volume.energy`)
 against FEM bodies of that ratio, beside the springs-only lattice of nu = 1/4 it replaces.
 """
 

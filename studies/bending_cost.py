@@ -3,7 +3,7 @@
 The same cloth (a square sheet, Y = 50 N/m, rho_A = 0.2 kg/m^2, two corners pinned) on the
 fragment backend with its three ways to bend: the flexion springs of Movania & Feng 2012
 (``flexion_ratio`` 0.1, the baseline: the paper's cloth), the plate term (``bending_stiffness``,
-:mod:`deformgl.sim.bending`) and none (a membrane), for semi-implicit Euler (the integrator pass)
+:mod:`deformgl.sim.terms.bending`) and none (a membrane), for semi-implicit Euler (the integrator pass)
 and implicit Euler (20 CG iterations a step). Rounds alternate the variants in one process, as
 :mod:`studies.cells_cost`; each round's ms per step and ratio to that round's baseline are
 kept, and the table prints the median ratio with its spread.

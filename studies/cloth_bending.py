@@ -1,4 +1,4 @@
-"""The sheet's bending term (:mod:`deformgl.sim.bending`) against the analytic plate:
+"""The sheet's bending term (:mod:`deformgl.sim.terms.bending`) against the analytic plate:
 ``python -m studies.cloth_bending`` prints docs/ACCURACY.md's "Cloth bending" tables.
 
 Every check is a flat sheet of :class:`~deformgl.sim.materials.SheetMaterial` with a plate
@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.bending import SHEET_BENDING_POISSON, node_weights, sheet_bending
+from deformgl.sim.terms.bending import SHEET_BENDING_POISSON, node_weights, sheet_bending
 from deformgl.sim.materials import SheetMaterial, sheet_system
 
 __all__ = ["elastica_errors", "navier_centre", "plate_ratio", "strip_ratio", "twisted_plate_ratio"]

@@ -1,7 +1,7 @@
 """Large strain without inversion (issue 27, item 2): ``python -m studies.inversion``.
 
 Three runs that invert cells of a springs-only lattice, each with the lattice's cells (the
-volumetric term and the corner barrier of :mod:`deformgl.sim.volume`) and, for comparison,
+volumetric term and the corner barrier of :mod:`deformgl.sim.terms.volume.energy`) and, for comparison,
 without them (``cells=None``: the springs alone, what deformgl had before):
 
 * **hang**: a 0.2 x 0.02 x 0.02 m cantilever (rho = 1000 kg/m^3, nu = 1/4, E = 5 kPa or 50 kPa)
@@ -11,7 +11,7 @@ without them (``cells=None``: the springs alone, what deformgl had before):
   (0.4 s down, 0.3 s held), then released (0.2 s up, 0.5 s to settle).
 
 Each run reports the inversion census (cells with a corner Jacobian <= 0,
-:func:`~deformgl.sim.volume.describe_inverted`) at the end (and for the crush also while held)
+:func:`~deformgl.sim.terms.volume.energy.describe_inverted`) at the end (and for the crush also while held)
 and whether every node stayed finite. Semi-implicit Euler at half the Gershgorin dt limit of the
 system (springs and cells), on the fragment backend by default.
 """
@@ -32,7 +32,7 @@ from deformgl.sim.integrators import Constraints, Sphere
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl import make_simulation
 from deformgl.sim.springs import SpringSystem, max_angular_frequency
-from deformgl.sim.volume import inverted_cells
+from deformgl.sim.terms.volume.energy import inverted_cells
 
 __all__ = ["Case", "InversionRow", "hang_case", "drop_case", "crush_case", "run_case", "format_rows", "main"]
 

@@ -190,7 +190,7 @@ def test_the_jellys_pushed_corner_keeps_its_cells(ctx):
     cell of the grid (full or partly filled) keeps a volume ratio of at least 0.5."""
     from deformgl.scene.pipeline import build_scene_model
     from deformgl.sim.restartable import GuardedSimulation
-    from deformgl.sim.volume import CellVolumes, cell_state, grid_cells
+    from deformgl.sim.terms.volume.energy import CellVolumes, cell_state, grid_cells
 
     scene = load_scene(SCENE_DIR / "jelly.toml")
     built = build_scene_model(scene)

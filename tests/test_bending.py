@@ -1,4 +1,4 @@
-"""A sheet's bending stiffness in N·m (deformgl.sim.bending): the discrete plate energy, its
+"""A sheet's bending stiffness in N·m (deformgl.sim.terms.bending): the discrete plate energy, its
 calibration against the analytic plate, every backend against the NumPy reference, the dt check."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 from studies.cloth_bending import elastica_errors, plate_ratio, strip_ratio, twisted_plate_ratio
 from deformgl.errors import InputError
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.bending import SHEET_BENDING_POISSON, sheet_bending
+from deformgl.sim.terms.bending import SHEET_BENDING_POISSON, sheet_bending
 from deformgl.sim.limits import check_dt, dt_limit
 from deformgl.sim.materials import SheetMaterial, sheet_system
 from deformgl.sim.simulation import SimulationSetupError, make_simulation

@@ -20,7 +20,7 @@ from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import Load, from_grid
-from deformgl.sim.volume import corner_jacobians
+from deformgl.sim.terms.volume.energy import corner_jacobians
 
 H = 0.01
 SHAPES = [s for s in BLOCK_SHAPES if s != (1, 1, 1)]

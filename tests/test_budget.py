@@ -155,7 +155,7 @@ def test_the_estimate_counts_each_term_the_material_declares():
     the fragment backend and its list entries on transform feedback, per node, and nothing else."""
     from deformgl.data import packaged_scene
     from deformgl.scene.budget import FEEDBACK_SPRING_END, VEC4_BYTES, _texels
-    from deformgl.sim import bending
+    from deformgl.sim.terms import bending
 
     flap = load_scene(packaged_scene("cloth_flap"))
     assert flap.physics.material.term_needs == (bending.NEEDS,)

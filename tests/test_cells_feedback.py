@@ -1,4 +1,4 @@
-"""The volumetric term of the lattice (any Poisson's ratio, inversion barrier; deformgl/sim/volume.py)
+"""The volumetric term of the lattice (any Poisson's ratio, inversion barrier; deformgl/sim/terms/volume/energy.py)
 on the transform-feedback backend against the float64 reference, and the cell table it reads."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import pytest
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import integrators as I
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.cell_tables import incident_cells
+from deformgl.sim.terms.volume.tables import incident_cells
 from deformgl.sim.backends.feedback import FeedbackSimulation
-from deformgl.sim.volume_glsl import CELL_SLOTS, volume_feedback
+from deformgl.sim.terms.volume.chunks import CELL_SLOTS, volume_feedback
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.materials import ElasticMaterial, lattice_system
-from deformgl.sim.volume import BARRIER_J, CellVolumes, corner_jacobians, volume_forces
+from deformgl.sim.terms.volume.energy import BARRIER_J, CellVolumes, corner_jacobians, volume_forces
 
 EPS32 = 2.0 ** -23
 
@@ -109,7 +109,7 @@ def test_cells_that_are_not_the_grids_are_refused():
 @pytest.mark.parametrize("nu", [0.25, 0.45])
 def test_the_cell_forces_match_volume_forces(ctx, nu):
     """One explicit Euler step from rest: (v' - v_springs')/dt is the cells' acceleration, compared
-    with deformgl.sim.volume.volume_forces / m (measured max relative error 3e-7)."""
+    with deformgl.sim.terms.volume.energy.volume_forces / m (measured max relative error 3e-7)."""
     system, x = squashed(nu)
     dt = 1e-3
     state = I.initial_state(system, dt, x=x)

@@ -1,4 +1,4 @@
-"""The lattice's volumetric term (deformgl.sim.volume: any Poisson's ratio, the inversion barrier)
+"""The lattice's volumetric term (deformgl.sim.terms.volume.energy: any Poisson's ratio, the inversion barrier)
 on the fragment backend against the float64 reference: shaders/terms/cell_forces.glsl alone
 (NodeCellForces), then every integrator and the Verlet fast path on lattices at nu = 0.45,
 dense and with holes, and with corners inside the barrier."""
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.volume_pass import NodeCellForces, check_cells
+from deformgl.sim.terms.volume.check_pass import NodeCellForces, check_cells
 from deformgl.sim.backends.fragment import FragmentIntegrator
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import NumpySimulation
 from deformgl.sim.springs import max_angular_frequency
-from deformgl.sim.volume import BARRIER_SCALE, CellVolumes, corner_jacobians, grid_cells, volume_forces
+from deformgl.sim.terms.volume.energy import BARRIER_SCALE, CellVolumes, corner_jacobians, grid_cells, volume_forces
 
 pytestmark = pytest.mark.gl
 

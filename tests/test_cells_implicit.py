@@ -1,5 +1,5 @@
 """Implicit Euler with the lattice's full cells (issue 27): the cells' Hessian
-(:mod:`deformgl.sim.implicit_cells`) against the energy's derivatives, the NumPy backend reaching
+(:mod:`deformgl.sim.terms.volume.hessian`) against the energy's derivatives, the NumPy backend reaching
 the static equilibrium at nu = 0.45, the GPU backend against the NumPy one at nu = 0.25 and 0.45,
 a squashed block kept un-inverted by the barrier, and the Gauss-Newton choice measured against
 the eigenvalue projection and the exact Hessian."""
@@ -13,12 +13,12 @@ import pytest
 
 from deformgl.bench.fem import WORKLOADS, lattice_case
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.implicit_cells import cell_matrix, cell_product
+from deformgl.sim.terms.volume.hessian import cell_matrix, cell_product
 from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import Load, forces
-from deformgl.sim.volume import BARRIER_J, cell_state, corner_jacobians, inverted_cells, volume_forces
+from deformgl.sim.terms.volume.energy import BARRIER_J, cell_state, corner_jacobians, inverted_cells, volume_forces
 
 H = 0.02  # m, the small blocks' spacing
 

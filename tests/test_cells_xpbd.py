@@ -1,5 +1,5 @@
-"""XPBD with the cells' volumetric term (issue 27; deformgl/sim/xpbd_cells.py): the volume and
-barrier constraints are exactly the energies of deformgl/sim/volume.py, XPBD settles to the
+"""XPBD with the cells' volumetric term (issue 27; deformgl/sim/terms/volume/xpbd_form.py): the volume and
+barrier constraints are exactly the energies of deformgl/sim/terms/volume/energy.py, XPBD settles to the
 force-based static equilibrium at nu = 0.45, small strains at nu = 1/4 are the springs' alone bit
 for bit, an inverted block recovers, and the fragment passes match the float64 reference at
 nu = 0.25 and 0.45."""
@@ -16,7 +16,7 @@ from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.simulation import make_simulation
 from deformgl.sim.springs import cloth, forces
-from deformgl.sim.volume import corner_jacobians, inverted_cells
+from deformgl.sim.terms.volume.energy import corner_jacobians, inverted_cells
 from deformgl.sim.xpbd import XpbdNumpy, XpbdSettings, XpbdSolver, constraint_counts, term_constraints
 from test_xpbd import _everything  # loads, a drag, a ground and a sphere: every term of the sweep
 

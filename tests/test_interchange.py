@@ -94,7 +94,7 @@ def test_the_mesh_series_reads_back_with_its_fields(frames, tmp_path, suffix):
     assert np.abs(read[-1][2]["velocity"]).max() > 0.02  # m/s: it falls
     # the grid's strain at each vertex: that of the full cell it lies in at rest (found by index here)
     grid = done.model.grid
-    from deformgl.sim.volume import grid_cells
+    from deformgl.sim.terms.volume.energy import grid_cells
 
     cells = grid_cells(grid.occupied, grid.index)
     lower = {tuple(ijk): c for c, ijk in enumerate(grid.ijk[cells[:, 0]])}

@@ -4,7 +4,7 @@ barrier (issue 42, defect 6: the limit used to bound the rest stiffness only, an
 cantilever below blew up near step 300 at 0.9 of it with semi-implicit Euler, Verlet and RK4).
 
 The bound (deformgl.sim.limits._dt_limit) adds the barrier's envelope, every corner's barrier
-active at the rest geometry (deformgl.sim.volume.barrier_envelope_product); the unit tests below
+active at the rest geometry (deformgl.sim.terms.volume.energy.barrier_envelope_product); the unit tests below
 pin the envelope against the barrier's own Hessian and the Gershgorin bound against the spectrum.
 """
 
@@ -16,12 +16,12 @@ import scipy.sparse as sp
 
 import deformgl as dg
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.implicit_cells import cell_matrix
+from deformgl.sim.terms.volume.hessian import cell_matrix
 from deformgl.sim.limits import dt_limit
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.spectrum import exact_frequency, stiffness_matrix, stiffness_product
 from deformgl.sim.springs import max_angular_frequency
-from deformgl.sim.volume import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets,
+from deformgl.sim.terms.volume.energy import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets,
                                  grid_cells, inverted_cells)
 
 #: the cantilever of defect 6: 0.2 x 0.02 x 0.02 m, E = 5 kPa, rho = 1000 kg/m^3, mass damping 3/s

@@ -12,7 +12,7 @@ import pytest
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import materials, springs
-from deformgl.sim.bending import SheetBending
+from deformgl.sim.terms.bending import SheetBending
 from deformgl.sim.terms import GlslTerm, NodeTable, Term
 from deformgl.sim.terms.glsl import ACTIVE, PassTerms, compose, pass_terms
 from deformgl.sim.terms.registry import (FEEDBACK_SHIPPED, SHIPPED, XPBD_SHIPPED, shipped_active, shipped_feedback,

@@ -22,7 +22,7 @@ from deformgl.sim.integrators import Constraints, Drag, Load, Sphere, State
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.simulation import SimulationSetupError, make_simulation
 from deformgl.sim.limits import check_dt
-from deformgl.sim.volume import inverted_cells
+from deformgl.sim.terms.volume.energy import inverted_cells
 from deformgl.sim.xpbd import XpbdNumpy, XpbdSettings
 
 SOFT = ElasticMaterial(1.0e5, 1000.0, mass_damping=3.0, stiffness_damping=1e-3)
@@ -103,7 +103,7 @@ def test_distance_constraints_can_invert_a_soft_block_at_a_large_step():
     """A documented limitation: a first prediction of about one spacing (g dt^2 ~ h) folds the
     block through its fixed base. Distance constraints alone keep the mirror image, which
     satisfies every one of them (every cell inverted). The cells' barrier
-    (deformgl/sim/xpbd_cells.py) makes it a state of positive energy: with it, 100 Jacobi sweeps of
+    (deformgl/sim/terms/volume/xpbd_form.py) makes it a state of positive energy: with it, 100 Jacobi sweeps of
     one substep leave no cell inverted in 160 steps (measured at J_b = 0.7: 50 sweeps leave 10 of
     27 from step 40 on, as at J_b = 0.5, 0.62, 0.68; at 0.6 50 sweeps left none, at 0.65 7;
     tests/test_cells_xpbd.py turns a mirrored block back)."""

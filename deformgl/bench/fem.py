@@ -47,7 +47,7 @@ from deformgl.errors import DeformglError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.volume import rest_stiffness_triplets
+from deformgl.sim.terms.volume.energy import rest_stiffness_triplets
 
 __all__ = ["Workload", "WORKLOADS", "MATERIAL", "LatticeCase", "FemResult", "lattice_case",
            "static_displacement", "stiffness_matrix", "lattice_value", "face_weights",
@@ -208,7 +208,7 @@ def lattice_case(w: Workload, across: int, material: ElasticMaterial = MATERIAL,
 def stiffness_matrix(system: SpringSystem) -> sp.csr_matrix:
     """The (3N, 3N) stiffness matrix of the springs linearised at their rest positions:
     ``K = sum_s k_s n_s n_s^T`` in 3x3 blocks (the rest state is force-free, so there is no
-    geometric term), plus the cells' centre term (:mod:`deformgl.sim.volume`)."""
+    geometric term), plus the cells' centre term (:mod:`deformgl.sim.terms.volume.energy`)."""
     x = system.rest_positions
     d = x[system.j] - x[system.i]
     n = d / np.linalg.norm(d, axis=1)[:, None]

@@ -26,7 +26,7 @@ def tissue_workloads(nus: Sequence[float] = TISSUE_POISSON, sim_time: float = SI
     corner dragged 3 spacings sideways and 1 up like the volume workload (a drag of twice the
     lattice's spring constant). Rayleigh beta = 1 / w (w the springs' Gershgorin top frequency)
     damps the springs' top mode with ratio 0.5 and alpha = 2 /s every mode a little; the cells'
-    volumetric term is not damped (:mod:`deformgl.sim.volume`), so at nu > 1/4 forward Euler and
+    volumetric term is not damped (:mod:`deformgl.sim.terms.volume.energy`), so at nu > 1/4 forward Euler and
     midpoint find less damping at the top of the spectrum."""
     h, n = 0.01, 6
     grid = NodeGrid(np.array([-(n - 1) * h / 2, 0.0, -(n - 1) * h / 2]), h, np.ones((n,) * 3, bool))

@@ -253,8 +253,8 @@ def blocked() -> Iterator[Variant]:
 
 
 def cells() -> Iterator[Variant]:
-    """``NodeCellForces`` (``deformgl.sim.volume_pass``): the volumetric term alone, per node."""
-    from deformgl.sim.volume_glsl import CELL_FORMS
+    """``NodeCellForces`` (``deformgl.sim.terms.volume.check_pass``): the volumetric term alone, per node."""
+    from deformgl.sim.terms.volume.chunks import CELL_FORMS
 
     for dense, form in itertools.product((False, True), CELL_FORMS):
         yield _v("sim/fullscreen.vert", "terms/cell_alone.frag",

@@ -57,7 +57,7 @@ FETCHES: dict[str, int] = {
     "FINAL": 4, "MG_SMOOTH_ZERO": 4, "MG_SMOOTH": 52, "MG_RESIDUAL": 50, "RZ": 3,
     "LEVEL_SMOOTH_ZERO": 4, "LEVEL_SMOOTH": 119, "LEVEL_RESIDUAL": 116, "RESTRICT": 41, "PROLONG": 13,
 }
-#: What the cells' volumetric term (Poisson's ratio above 1/4: :mod:`deformgl.sim.volume`) adds to
+#: What the cells' volumetric term (Poisson's ratio above 1/4: :mod:`deformgl.sim.terms.volume.energy`) adds to
 #: a pass that evaluates forces or products: an explicit force its 8 body diagonals' positions
 #: (the rest of the neighbourhood is the springs'); an implicit product its 7 neighbourhood index
 #: layers and the 26 neighbours' positions and ``y``. The implicit backend's SETUP always gathers

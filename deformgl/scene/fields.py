@@ -19,7 +19,7 @@ All in SI units, world coordinates (the scene's recentring undone):
   cell** (8 corners present): ``volume_ratio`` J = det F (deformed volume over rest volume) and
   the Green–Lagrange strain ``E = (FᵀF − I) / 2`` (dimensionless), F the trilinear map's
   deformation gradient at the cell centre (as the volumetric term uses it,
-  :func:`~deformgl.sim.volume.cell_state`), and ``fill``: the share of the cell inside the mesh
+  :func:`~deformgl.sim.terms.volume.energy.cell_state`), and ``fill``: the share of the cell inside the mesh
   (1 where the grid carries no fill).
 
 Nodes that do not come from a simulation (a node-frames file, a motion) have no velocity: the
@@ -35,7 +35,7 @@ import numpy as np
 from deformgl.errors import InputError
 from deformgl.mapping.bases import map_vertices
 from deformgl.sim.normals import unit_sums
-from deformgl.sim.volume import centre_deformation, grid_cells
+from deformgl.sim.terms.volume.energy import centre_deformation, grid_cells
 
 __all__ = ["GridFrame", "MeshFrame", "NodeFields", "VTK_HEXAHEDRON", "check_grid_export", "green_strain",
            "grid_series", "mesh_series", "sheet_quads"]

@@ -16,13 +16,13 @@ with ``H = -df/dx`` the spring stiffness matrix and ``C = -df/dv`` the damping m
   (NumPy only, for the cells below) treats the springs as "projected".
 * ``C_s = c_s u u^T`` (spring damping along the spring; its dependence on x is dropped).
 
-Per full cell (``system.cells``, :mod:`deformgl.sim.volume`): the Hessian of the volumetric term
+Per full cell (``system.cells``, :mod:`deformgl.sim.terms.volume.energy`): the Hessian of the volumetric term
 ``V kappa/2 (J - 1)^2`` and of the corner barriers inside ``J_b``, built by
-:func:`deformgl.sim.implicit_cells.cell_matrix`. Their geometric part ``w (J - J0) d^2 J / dx^2``
-is indefinite wherever it is not zero (:mod:`deformgl.sim.implicit_cells`), so "projected" and
+:func:`deformgl.sim.terms.volume.hessian.cell_matrix`. Their geometric part ``w (J - J0) d^2 J / dx^2``
+is indefinite wherever it is not zero (:mod:`deformgl.sim.terms.volume.hessian`), so "projected" and
 "none" keep the Gauss-Newton part ``w dJ/dx dJ/dx^T`` only (positive semidefinite; the GPU's
 product too), "full" the exact Hessian, and "eigen" each cell's exact 24x24 block with its
-negative eigenvalues set to 0 (:data:`~deformgl.sim.implicit_cells.CELL_HESSIAN`; measured against
+negative eigenvalues set to 0 (:data:`~deformgl.sim.terms.volume.hessian.CELL_HESSIAN`; measured against
 each other in tests/test_cells_implicit.py). The right-hand side has the exact forces
 (:func:`~deformgl.sim.springs.forces`, cells included).
 

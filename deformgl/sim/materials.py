@@ -16,7 +16,7 @@ uniform small strain eps. Summed over the infinite lattice per node volume h^3 (
 which is isotropic (C11 - C12 = 2 C44) with Lamé constants lambda = mu = k/h: Poisson's ratio
 1/4 and Young's modulus E = 5k/(2h). So ``k = mu h`` (``= 2 E h / 5`` at nu = 1/4; at a larger
 nu the springs carry the shear modulus mu = E / (2 (1 + nu)) and each full cell adds the missing
-``kappa = lambda - mu`` as a volumetric term, :mod:`deformgl.sim.volume`, ``system.cells``). One cell alone reproduces the same
+``kappa = lambda - mu`` as a volumetric term, :mod:`deformgl.sim.terms.volume.energy`, ``system.cells``). One cell alone reproduces the same
 tensor when each of its edges carries k/4 and each face diagonal k/2 (an interior edge is shared
 by 4 cells, a diagonal by 2), so a body of full cells has exactly the continuum's energy under
 any uniform strain: the lattice passes the patch test, and its boundary springs get the right
@@ -62,11 +62,12 @@ from numpy.typing import ArrayLike
 
 from deformgl.errors import ArgumentError
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim import bending as _bending, volume_term as _volume_term
-from deformgl.sim.bending import sheet_bending
+from deformgl.sim.terms import bending as _bending
+from deformgl.sim.terms.volume import term as _volume_term
+from deformgl.sim.terms.bending import sheet_bending
 from deformgl.sim.terms.base import TermNeeds
 from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
-from deformgl.sim.volume import BARRIER_SCALE, CellVolumes, grid_cells
+from deformgl.sim.terms.volume.energy import BARRIER_SCALE, CellVolumes, grid_cells
 
 #: the Poisson's ratios the lattice offers: 1/4 (springs alone) up to nearly incompressible
 MIN_POISSON = 0.25
@@ -103,7 +104,7 @@ class ElasticMaterial:
         name: a label (a preset's name).
         source: where the values come from.
         poissons_ratio: nu, dimensionless, in [1/4, 1/2) (default 1/4). The springs carry the
-            shear modulus mu; a volumetric term per full cell (:mod:`deformgl.sim.volume`) adds
+            shear modulus mu; a volumetric term per full cell (:mod:`deformgl.sim.terms.volume.energy`) adds
             the lambda - mu that central springs cannot give (0 at nu = 1/4). Below 1/4 a
             lattice would need lambda < mu, which central springs cannot give: refused.
     """
@@ -173,7 +174,7 @@ class SheetMaterial:
 
     * ``bending_stiffness`` D in N·m, the plate's ``E t^3 / (12 (1 - nu^2))`` (a fabric's bending
       rigidity per unit width, as a cantilever test measures it, is ``D (1 - nu^2)``, nu = 1/3):
-      the calibrated plate term of :mod:`deformgl.sim.bending`, linear in the positions
+      the calibrated plate term of :mod:`deformgl.sim.terms.bending`, linear in the positions
       (Bergou et al. 2006), checked against the analytic plate (docs/ACCURACY.md, "Cloth bending");
     * ``flexion_ratio`` r in [0, 0.5]: flexion springs (2h along an axis) of r k_d, the edges
       reduced to (2 - 4r) k_d so the membrane keeps its modulus (0: none). A flat sheet's flexion
@@ -287,7 +288,7 @@ def critical_dt(material: ElasticMaterial, spacing: float, integrator: str = "ve
     (k = mu h), the volumetric term of its 8 cells at most ``8 * 1.5 kappa h / m = 12 kappa /
     (rho h^2)`` (Cauchy-Schwarz on ``V kappa (sum_c G_c . x_c)^2`` with ``sum_c |G_c|^2 = 3 / (2 h^2)``);
     and the inversion barrier's envelope of its 8 cells (every corner active, the stiffest it gets
-    in compression: :func:`deformgl.sim.volume.frequency_terms`) ``8 (sqrt(3) + 3)^2 / 8 kappa_b h
+    in compression: :func:`deformgl.sim.terms.volume.energy.frequency_terms`) ``8 (sqrt(3) + 3)^2 / 8 kappa_b h
     / m = 22.4 kappa_b / (rho h^2)``, ``kappa_b = 12 mu``. Verlet and semi-implicit Euler are
     stable for ``dt < 2 / w_max`` (a Gershgorin bound, the same as :mod:`deformgl.sim.limits`
     computes on a built system of full cells; the run's check may accept more, on the exact
@@ -437,7 +438,7 @@ def sheet_system(grid: NodeGrid, material: SheetMaterial, *, fixed: ArrayLike | 
     """The calibrated system of a membrane on a one-node-thick grid (a cloth): edges
     ``k_e = 2 k_d`` and diagonals ``k_d = 3 Y / 8`` times their share of full square cells,
     node masses ``rho_A h^2 / 4`` per cell at the node (see the module docstring), and with
-    ``bending_stiffness`` the plate term of :func:`deformgl.sim.bending.sheet_bending`."""
+    ``bending_stiffness`` the plate term of :func:`deformgl.sim.terms.bending.sheet_bending`."""
     shape = grid.shape
     thin_axes = [a for a in range(3) if shape[a] == 1]
     if not thin_axes:

@@ -34,7 +34,7 @@ from deformgl.sim.guards import (API_WORDING, SCENE_WORDING, UNSTABLE_POLICIES, 
                                  plan_steps, retry_with_substeps)
 from deformgl.sim.simulation import Simulation
 from deformgl.sim.springs import Drag, Load, SpringSystem
-from deformgl.sim.volume import describe_inverted
+from deformgl.sim.terms.volume.energy import describe_inverted
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run"]
 
@@ -53,7 +53,7 @@ class RunResult:
         time: the simulation's clock at the end (s); None when not recorded.
         notes: what the plan and the restarts changed, for a log.
         convergence: the convergence stop's last measures (its ``describe()``), None without one.
-        inverted_cells: the inversion census at the end (:func:`deformgl.sim.volume.describe_inverted`):
+        inverted_cells: the inversion census at the end (:func:`deformgl.sim.terms.volume.energy.describe_inverted`):
             cells whose trilinear map has a Jacobian <= 0 at a corner; None for a system without
             cells (springs only).
         inverted: the census's phrase naming the first inverted cell, "" when there is none.

@@ -51,7 +51,7 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
     Feng 2012 eq. 2, ``F = k (L - |d|) d/|d|``), and each physics term its
     :meth:`~deformgl.sim.terms.Term.dt_product`: with ``barrier`` what the term stiffens to in a
     run (the cells' inversion barrier where it is strongest,
-    :func:`deformgl.sim.volume.barrier_envelope_product`; inactive at rest), the stiffness the
+    :func:`deformgl.sim.terms.volume.energy.barrier_envelope_product`; inactive at rest), the stiffness the
     explicit dt bound must cover. Returns (N, 3); fixed nodes are not masked.
     """
     u = _rest_directions(system)

@@ -25,9 +25,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from deformgl.grid.nodes import N_STRUCTURAL, NodeGrid
-from deformgl.sim.volume import CellVolumes
-from deformgl.sim.volume_term import VolumeTerm
-from deformgl.sim.bending import SheetBending
+from deformgl.sim.terms.volume.energy import CellVolumes
+from deformgl.sim.terms.volume.term import VolumeTerm
+from deformgl.sim.terms.bending import SheetBending
 from deformgl.sim.terms.base import Term
 
 STRUCTURAL = 0
@@ -76,9 +76,9 @@ class SpringSystem:
         material: the :mod:`deformgl.sim.materials` material the springs were assembled from
             (:func:`~deformgl.sim.materials.lattice_system`), or None (per-spring constants); the
             dt check words its refusal in the material's terms.
-        cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.volume`: any
+        cells: the volumetric term of the grid's full cells (:mod:`deformgl.sim.terms.volume.energy`: any
             Poisson's ratio, the inversion barrier), or None (springs only).
-        bending: a sheet's bending term (:mod:`deformgl.sim.bending`: the plate's D in N·m,
+        bending: a sheet's bending term (:mod:`deformgl.sim.terms.bending`: the plate's D in N·m,
             ``f = -B x``), or None.
         extra_terms: further physics terms (:class:`deformgl.sim.terms.Term`), each one object that
             every backend runs through its declared forms (or refuses in one line naming it);
@@ -415,7 +415,7 @@ def forces(system: SpringSystem, x: np.ndarray, v: np.ndarray, t: float,
     * spring damping along the spring: ``-c_s ((v_i - v_j) . u) u``;
 
     per full cell (``system.cells``): the volumetric term and the corner barrier of
-    :func:`deformgl.sim.volume.volume_forces`; each of ``system.terms`` (a sheet's bending ``-B x``
+    :func:`deformgl.sim.terms.volume.energy.volume_forces`; each of ``system.terms`` (a sheet's bending ``-B x``
     among them) :meth:`~deformgl.sim.terms.Term.add_forces`;
     per node: gravity ``m g``, wind ``wind_drag (wind - v)``, global damping ``-c v``
     (Movania & Feng 2012 eq. 1) and Rayleigh mass damping ``-alpha m v``, each drag's ``k_d (target(t) - x)`` and each load's
@@ -495,7 +495,7 @@ def max_angular_frequency(system: SpringSystem, *, barrier: bool = False) -> Fre
     :meth:`~deformgl.sim.terms.Term.frequency_terms` (``barrier``: with the envelope of what it
     stiffens to in a run): the cells' centre term ``1.5 kappa h`` per cell at the node and their
     inversion barrier, inactive at rest, only with ``barrier``
-    (:func:`deformgl.sim.volume.frequency_terms`); a sheet's bending its row sum ``sum_j |B_ij|``.
+    (:func:`deformgl.sim.terms.volume.energy.frequency_terms`); a sheet's bending its row sum ``sum_j |B_ij|``.
     """
     n = system.count
     ksum = (np.bincount(system.i, weights=system.stiffness, minlength=n)

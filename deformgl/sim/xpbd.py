@@ -32,8 +32,8 @@ and, at rest, their static equilibrium. One step of dt is ``substeps`` substeps 
    (``n_s`` = the node's count); each physics term of the system adds its constraints in the
    same sweep (``Term.xpbd``, :class:`~deformgl.sim.terms.constraints.TermConstraints`; the cells of a
    material lattice: their volume constraints ``J - 1`` and corner barriers ``J_c - J_b >= 0``,
-   :mod:`deformgl.sim.xpbd_cells`, whose constraint potentials are the energies of
-   :mod:`deformgl.sim.volume`, so the fixed point is the equilibrium of ``springs.forces``), and
+   :mod:`deformgl.sim.terms.volume.xpbd_form`, whose constraint potentials are the energies of
+   :mod:`deformgl.sim.terms.volume.energy`, so the fixed point is the equilibrium of ``springs.forces``), and
    a node's count n_i also holds the terms' constraints at it (the cells': its volume constraints,
    and its barriers active after the previous sweep); then spheres and the ground project x
    (``integrators.apply_constraints`` without the velocity rule);

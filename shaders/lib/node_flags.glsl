@@ -3,7 +3,7 @@
 // Flag bits: 1 exists, 2 fixed, 4 << g member of scripted pull g (deformgl/sim/backends/foundation.py),
 // 64 << b: bit b of the physics terms' node bits (deformgl/sim/terms GlslTerm.node_bits; one term's:
 // the volumetric term's full incident cells, bit q = qx + 2 qy + 4 qz the cell whose lower corner
-// is at offset (qx - 1, qy - 1, qz - 1), deformgl/sim/volume_glsl.py),
+// is at offset (qx - 1, qy - 1, qz - 1), deformgl/sim/terms/volume/chunks.py),
 // 16384: the node's pulls are per kilogram (u_pull_force times its mass; a material scene's pull).
 // The fragment-pass integrators' node data (sim/integrators/step.frag) uses the same G bits
 // (its load groups are in B instead).

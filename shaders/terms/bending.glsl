@@ -1,4 +1,4 @@
-// A sheet's bending (deformgl/sim/bending.py SheetBending; docs/EQUATIONS.md "Cloth bending"): the
+// A sheet's bending (deformgl/sim/terms/bending.py SheetBending; docs/EQUATIONS.md "Cloth bending"): the
 // discrete plate energy E = 1/2 sum_c x_c^T B x_c (Bergou et al. 2006), f = -B x, read through the
 // 24 grid neighbours (the 18 of NEIGHBOUR_OFFSETS, then the 6 at 2h along the axes; NB_LAYERS 6):
 //   f_n -= c_j (x_n - x_j),   c_j = -B[n, j]   (rows of B sum to 0; an absent neighbour is the

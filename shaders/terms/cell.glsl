@@ -1,4 +1,4 @@
-// The cells' volumetric term and corner barrier (deformgl/sim/volume.py CellVolumes; docs/EQUATIONS.md
+// The cells' volumetric term and corner barrier (deformgl/sim/terms/volume/energy.py CellVolumes; docs/EQUATIONS.md
 // "Any Poisson's ratio"): the float32 twin of volume_forces (terms/cell_forces.glsl) on the node, from
 // its 3x3x3 neighbourhood, which the pass keeps for it (TERMS_HOOD: node_hood in the explicit
 // gathers, lib/node_hood.glsl), and its full incident cells, the term's node bits (n.bits: bit q the

@@ -1,9 +1,9 @@
 #version 330 core
 // The volumetric term of every node, per node (terms/cell_forces.glsl cell_forces: the float32
-// twin of deformgl/sim/volume.py volume_forces), into a force texture: one fragment per node of
+// twin of deformgl/sim/terms/volume/energy.py volume_forces), into a force texture: one fragment per node of
 // a compact layout (deformgl/grid/nodes.py CompactLayout: node n at texel node_texel(n)).
 // The node's 3x3x3 neighbourhood comes from u_cell_hood (7 RGBA32I layers, slot 4 l + c =
-// (dx + 1) + 3 (dy + 1) + 9 (dz + 1): deformgl/sim/cell_tables.py neighbourhood), or
+// (dx + 1) + 3 (dy + 1) + 9 (dz + 1): deformgl/sim/terms/volume/tables.py neighbourhood), or
 // with COMPACT_DENSE (every node of the box exists) from the node-number strides; the mask of
 // its full incident cells is the node data's G >> TERM_SHIFT (lib/node_flags.glsl). Positions
 // are taken relative to the node (the terms only use differences), so float32 rounding stays at

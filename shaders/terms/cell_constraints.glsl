@@ -1,5 +1,5 @@
 // The cells' XPBD constraints (Macklin, Muller & Chentanez 2016, eq. 17-18; docs/EQUATIONS.md,
-// "XPBD"), the float32 twin of deformgl/sim/xpbd_cells.py, on the 3x3x3 neighbourhood of
+// "XPBD"), the float32 twin of deformgl/sim/terms/volume/xpbd_form.py, on the 3x3x3 neighbourhood of
 // terms/cell_forces.glsl (its layout, corner numbering and uniforms):
 //   volume constraint per full cell  C = J - 1 (J = det F at the centre), compliance 1 / (kappa V),
 //                                    grad_a C = cof(F) G_a, G_a = s_a / (4h)

@@ -1,8 +1,8 @@
 // The cells' volumetric term and inversion barrier on one node in the transform-feedback stages
-// (the term's feedback form, deformgl/sim/volume_glsl.py volume_feedback(); compiled with
+// (the term's feedback form, deformgl/sim/terms/volume/chunks.py volume_feedback(); compiled with
 // TERM_CELL through terms/feedback.glsl): the node's 3x3x3 neighbourhood and the mask of its full
 // incident cells come from one RGBA32I texture, the forces from terms/cell_forces.glsl (the
-// float32 twin of deformgl/sim/volume.py volume_forces()). Included by feedback/forces.glsl after
+// float32 twin of deformgl/sim/terms/volume/energy.py volume_forces()). Included by feedback/forces.glsl after
 // the stage's eval_x hook.
 //
 //   u_cell_nodes (7 NODE_ROW x rows)  node n: texels node_slot_texel(n, 7, s) (lib/node_texel.glsl),
@@ -10,7 +10,7 @@
 //                                     neighbourhood slot m = (dx + 1) + 3 (dy + 1) + 9 (dz + 1)
 //                                     (absent: the node itself), integer 27 (texel 6, w) the bit
 //                                     mask of its full incident cells
-//                                     (deformgl/sim/volume_glsl.py).
+//                                     (deformgl/sim/terms/volume/chunks.py).
 //
 // The positions handed to cell_forces() are relative to the node's own: both terms depend on
 // differences of positions only (the centre gradients G_c sum to zero), and differences of nearby

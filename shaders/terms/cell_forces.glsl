@@ -1,5 +1,5 @@
 // The lattice's volumetric term and inversion barrier on one node, gathered from its (up to 8)
-// full incident cells: the float32 twin of deformgl/sim/volume.py volume_forces() (derivation
+// full incident cells: the float32 twin of deformgl/sim/terms/volume/energy.py volume_forces() (derivation
 // there and in docs/EQUATIONS.md, "Any Poisson's ratio"). Per full cell of rest volume V = h^3:
 //   centre term   E = V kappa/2 (J - 1)^2, J = det F at the cell centre,
 //                 F = sum_c x_c (x) G_c, G_c = s_c / (4h)      (one-point volumetric quadrature;

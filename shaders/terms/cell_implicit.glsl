@@ -1,6 +1,6 @@
 // The cells' part of the backward-Euler system of one node (terms/cell.glsl with TERMS_IMPLICIT),
 // matrix-free, gathered from the node's (up to 8) full incident cells: the float32 twin of
-// deformgl/sim/implicit_cells.py cell_product (the Gauss-Newton part of the Hessian; why, and the
+// deformgl/sim/terms/volume/hessian.py cell_product (the Gauss-Newton part of the Hessian; why, and the
 // derivation: that module's docstring). Each term is w/2 (J - J0)^2 of a determinant J over nodes
 // t; with g_t = dJ/dx_t its Gauss-Newton block is w g_t g_u^T, so
 //   (H y)_a = sum over the node's terms of w (sum_t g_t . y_t) g_a:

@@ -1,7 +1,7 @@
 #version 330 core
 // XPBD cell pass: one Jacobi sweep of the cells' constraints (terms/cell_constraints.glsl;
 // Macklin, Muller & Chentanez 2016, eq. 18), the multiplier half of
-// deformgl/sim/xpbd_cells.py CellConstraints.sweep, in float32. One fragment per node; the node
+// deformgl/sim/terms/volume/xpbd_form.py CellConstraints.sweep, in float32. One fragment per node; the node
 // that is corner 0 of a full cell (incident cell 7) owns that cell and its multipliers, all from
 // the iterate u_p of this sweep:
 //   volume (CELL_VOLUME):  d_lambda = -omega (J - 1 + at lambda) / (n_s sum_a w_a |grad_a|^2 + at),

@@ -1,4 +1,4 @@
-// The cells' XPBD constraints in the node sweep (the term's XPBD chunk, deformgl/sim/xpbd_cells.py
+// The cells' XPBD constraints in the node sweep (the term's XPBD chunk, deformgl/sim/terms/volume/xpbd_form.py
 // XPBD; compiled with TERM_CELL through terms/xpbd.glsl into sim/xpbd/iterate.frag): each node
 // gathers the corrections w_i grad_i C d_lambda of the constraints of its full incident cells
 // (terms/cell_constraints.glsl), whose d_lambda the cell pass (terms/cell_xpbd.frag) computed from

@@ -13,7 +13,7 @@ Per substep three kinds of fragment pass (shaders/sim/xpbd/):
 
 Each physics term of the system brings its XPBD passes (``Term.xpbd`` then
 :meth:`~deformgl.sim.terms.constraints.TermConstraints.gpu`: :class:`~deformgl.sim.terms.constraints.XpbdPasses`,
-e.g. the cells' per-cell pass, :class:`deformgl.sim.xpbd_cells.XpbdCells`), drawn before each sweep, and
+e.g. the cells' per-cell pass, :class:`deformgl.sim.terms.volume.xpbd_form.XpbdCells`), drawn before each sweep, and
 its chunk in ``iterate.frag`` (``XPBD_TERMS``: ``terms/xpbd.glsl`` composed of the terms' chunks),
 whose nodes gather the terms' corrections and write their active constraint count into the w of
 the iterate.

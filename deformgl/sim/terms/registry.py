@@ -13,7 +13,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from deformgl.sim import bending, volume_glsl, xpbd_cells
+from deformgl.sim.terms import bending
+from deformgl.sim.terms.volume import chunks as volume_chunks, xpbd_form as volume_xpbd
 from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
 from deformgl.sim.terms.constraints import XpbdChunk
 from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, XPBD, compose, compose_feedback, compose_xpbd
@@ -22,14 +23,14 @@ __all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "XPBD_SHIPPED", "shipped_a
            "shipped_xpbd"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
-SHIPPED: tuple[GlslTerm, ...] = (volume_glsl.GLSL, bending.GLSL)
+SHIPPED: tuple[GlslTerm, ...] = (volume_chunks.GLSL, bending.GLSL)
 #: Every form of each, as the shader pack enumerates them.
-VARIANTS: tuple[GlslTerm, ...] = (*volume_glsl.CELL_FORMS, bending.GLSL)
+VARIANTS: tuple[GlslTerm, ...] = (*volume_chunks.CELL_FORMS, bending.GLSL)
 #: The transform-feedback chunks of the shipped terms that have one (the rest give
 #: ``Term.feedback_pairs`` or are refused).
-FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_glsl.FEEDBACK,)
+FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_chunks.FEEDBACK,)
 #: The XPBD node-sweep chunks of the shipped terms that have one, each with its define variants.
-XPBD_SHIPPED: tuple[XpbdChunk, ...] = (xpbd_cells.XPBD,)
+XPBD_SHIPPED: tuple[XpbdChunk, ...] = (volume_xpbd.XPBD,)
 
 
 def shipped_active() -> str:

@@ -1,4 +1,4 @@
-"""Per-node tables of the volumetric term (:mod:`deformgl.sim.volume`) for the GPU backends:
+"""Per-node tables of the volumetric term (:mod:`deformgl.sim.terms.volume.energy`) for the GPU backends:
 each node's 3x3x3 neighbourhood and the mask of its full incident cells, in the node order of the
 system, ready for :func:`~deformgl.sim.backends.compact_textures.layer_texture` or a buffer.
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.volume import CORNER_SIGNS, CellVolumes
+from deformgl.sim.terms.volume.energy import CORNER_SIGNS, CellVolumes
 
 __all__ = ["check_cells", "incident_cells", "cell_uniforms"]
 

@@ -1,15 +1,15 @@
-"""The cells' volumetric term (:class:`deformgl.sim.volume.CellVolumes`) as GLSL: its chunk
+"""The cells' volumetric term (:class:`deformgl.sim.terms.volume.energy.CellVolumes`) as GLSL: its chunk
 ``shaders/terms/cell.glsl`` (``terms/cell_forces.glsl``'s forces and ``terms/cell_implicit.glsl``'s
 Gauss-Newton product from the node's 3x3x3 neighbourhood, which the pass keeps:
 ``shaders/lib/node_hood.glsl``), its defines, uniforms and the node bits of its full incident
 cells; and its transform-feedback form (:func:`volume_feedback`: ``shaders/terms/cell_feedback.glsl``
 and its cell table). Every GPU pass that runs the term compiles it through the term list
-(:mod:`deformgl.sim.terms.glsl`); XPBD has a form of its own (:mod:`deformgl.sim.xpbd_cells`).
+(:mod:`deformgl.sim.terms.glsl`); XPBD has a form of its own (:mod:`deformgl.sim.terms.volume.xpbd_form`).
 
 The feedback form's table, :data:`CELL_SLOTS` RGBA32I texels per node: its 28 integers are the 27
 node numbers of the node's 3x3x3 neighbourhood (integer ``m = 4 s + channel`` holds slot m of
 :func:`deformgl.grid.neighbours.neighbourhood`) and, last (texel 6, ``w``), the bit mask of its full
-incident cells (:func:`deformgl.sim.cell_tables.incident_cells`)."""
+incident cells (:func:`deformgl.sim.terms.volume.tables.incident_cells`)."""
 
 from __future__ import annotations
 
@@ -17,9 +17,9 @@ import numpy as np
 
 from deformgl.grid.neighbours import neighbourhood
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.cell_tables import cell_uniforms, check_cells, incident_cells
+from deformgl.sim.terms.volume.tables import cell_uniforms, check_cells, incident_cells
 from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
-from deformgl.sim.volume import CellVolumes
+from deformgl.sim.terms.volume.energy import CellVolumes
 
 __all__ = ["CELL_FORMS", "CELL_SLOTS", "FEEDBACK", "GLSL", "cell_defines", "volume_feedback", "volume_glsl"]
 

@@ -58,13 +58,13 @@ CORNER_SIGNS = np.array([[2 * dx - 1, 2 * dy - 1, 2 * dz - 1]
 _CORNER_NEIGHBOURS = np.array([[c ^ (1 << k) for k in range(3)] for c in range(8)], dtype=np.int64)
 #: (8, 4) the tet of corner c: c, then its neighbours along x, y, z.
 _CORNER_TETS = np.concatenate([np.arange(8)[:, None], _CORNER_NEIGHBOURS], axis=1)
-_CORNER_TETS.setflags(write=False)  # (shared: corner_tets returns it, implicit_cells.TET_CORNERS is it)
+_CORNER_TETS.setflags(write=False)  # (shared: corner_tets returns it, hessian.TET_CORNERS is it)
 
 
 @dataclass(frozen=True, eq=False)
 class CellVolumes:
     """The full cells of a grid body and their volumetric constants (immutable); as a physics term
-    :class:`deformgl.sim.volume_term.VolumeTerm`.
+    :class:`deformgl.sim.terms.volume.term.VolumeTerm`.
 
     Attributes:
         corners: (C, 8) int64 node numbers of each cell's corners, corner ``dx + 2 dy + 4 dz``.

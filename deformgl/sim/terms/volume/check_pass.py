@@ -1,11 +1,11 @@
-"""The cells' volumetric term (:mod:`deformgl.sim.volume`: any Poisson's ratio, the inversion
+"""The cells' volumetric term (:mod:`deformgl.sim.terms.volume.energy`: any Poisson's ratio, the inversion
 barrier) alone, per node, in a pass of its own (:class:`NodeCellForces`, ``shaders/terms/cell_alone.frag``):
 the term's check against float64 and its force field at any positions.
 
-In a simulation the term is one of the system's physics terms (:mod:`deformgl.sim.volume_glsl`):
+In a simulation the term is one of the system's physics terms (:mod:`deformgl.sim.terms.volume.chunks`):
 computed inside the pass that computes the springs, per node, gathered from the node's (up to 8)
 full incident cells (``shaders/terms/cell_forces.glsl`` ``cell_forces``, the float32 twin of
-:func:`~deformgl.sim.volume.volume_forces`) from the 18 neighbour positions the springs fetched
+:func:`~deformgl.sim.terms.volume.energy.volume_forces`) from the 18 neighbour positions the springs fetched
 and, for the centre term, the 8 body diagonals of the 3x3x3 neighbourhood, rather than in a pass
 of its own like this one or a pass per cell, and unrolled over the 8 cells with literal indices
 (llvmpipe keeps a looped form's arrays in memory); a centre term of modulus 0 is not compiled
@@ -23,17 +23,17 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
 from deformgl.grid.neighbours import neighbourhood
-from deformgl.sim.cell_tables import check_cells
+from deformgl.sim.terms.volume.tables import check_cells
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.terms.glsl import TERM_SHIFT
-from deformgl.sim.volume import CellVolumes
-from deformgl.sim.volume_glsl import volume_glsl
+from deformgl.sim.terms.volume.energy import CellVolumes
+from deformgl.sim.terms.volume.chunks import volume_glsl
 
 __all__ = ["check_cells", "NodeCellForces"]
 
 class NodeCellForces(GLOwner):
     """The volumetric term alone, per node, into a force texture (``shaders/terms/cell_alone.frag``):
-    ``terms/cell_forces.glsl`` checked against :func:`~deformgl.sim.volume.volume_forces` without
+    ``terms/cell_forces.glsl`` checked against :func:`~deformgl.sim.terms.volume.energy.volume_forces` without
     springs or an integrator, and the force field of the term at any positions.
 
     Args:

@@ -1,5 +1,5 @@
 """The cells' blocks of the backward-Euler matrix (:mod:`deformgl.sim.implicit`): the Hessian of
-the volumetric term and of the corner barriers of :mod:`deformgl.sim.volume`, float64.
+the volumetric term and of the corner barriers of :mod:`deformgl.sim.terms.volume.energy`, float64.
 
 Both terms are ``w/2 (J - J0)^2`` of a determinant ``J = det E``, ``E = sum_t x_t (x) D_t`` a linear
 map of T nodes' positions (the weights D_t (3,) per node):
@@ -7,7 +7,7 @@ map of T nodes' positions (the weights D_t (3,) per node):
 * the centre term: the cell's 8 corners, ``D_a = G_a = s_a / (4h)``, ``w = V kappa``, ``J0 = 1``;
 * the barrier of corner c (only where ``J_c < J_b``): the tet of c and its three neighbours
   c ^ 1, c ^ 2, c ^ 4 inside the cell, ``D_c = s_c / h``, ``D_(c ^ 2^k) = -s_c[k] / h e_k``,
-  ``w = V/8 kappa_b``, ``J0 = J_b`` (then ``det E`` is :func:`~deformgl.sim.volume.corner_jacobians`' det F_c).
+  ``w = V/8 kappa_b``, ``J0 = J_b`` (then ``det E`` is :func:`~deformgl.sim.terms.volume.energy.corner_jacobians`' det F_c).
 
 With ``dJ/dx_t = cof(E) D_t =: g_t`` (``dJ/dE = cof E``), the Hessian of one term is::
 
@@ -61,7 +61,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from deformgl.sim.volume import CORNER_SIGNS, CellVolumes, corner_tets
+from deformgl.sim.terms.volume.energy import CORNER_SIGNS, CellVolumes, corner_tets
 
 __all__ = ["CELL_HESSIANS", "CELL_HESSIAN", "DeterminantTerms", "centre_terms", "barrier_terms",
            "term_blocks", "cell_matrix", "cell_product"]
@@ -120,7 +120,7 @@ class DeterminantTerms:
 
 
 def centre_terms(cells: CellVolumes, x: np.ndarray) -> DeterminantTerms:
-    """The centre term of every cell (:mod:`deformgl.sim.volume`), T = 8."""
+    """The centre term of every cell (:mod:`deformgl.sim.terms.volume.energy`), T = 8."""
     weights = np.broadcast_to(CORNER_SIGNS / (4.0 * cells.spacing), (cells.count, 8, 3))
     return DeterminantTerms(cells.corners, weights, x, cells.volume * cells.volume_modulus, 1.0)
 

@@ -1,9 +1,9 @@
-"""The cells' volumetric term (:mod:`deformgl.sim.volume`) as XPBD constraints (Macklin, Müller &
+"""The cells' volumetric term (:mod:`deformgl.sim.terms.volume.energy`) as XPBD constraints (Macklin, Müller &
 Chentanez 2016): the term's XPBD form, in float64 (:class:`CellConstraints`, a
 :class:`~deformgl.sim.terms.constraints.TermConstraints`) and on the GPU (:class:`XpbdCells`: the
 cell pass ``shaders/terms/cell_xpbd.frag`` and the node sweep's chunk ``shaders/terms/cell_xpbd.glsl``).
 
-Per full cell of rest volume ``V = h^3`` (:class:`~deformgl.sim.volume.CellVolumes`):
+Per full cell of rest volume ``V = h^3`` (:class:`~deformgl.sim.terms.volume.energy.CellVolumes`):
 
 * **volume constraint** (only where ``kappa > 0``): ``C = J - 1``, J = det F at the cell centre,
   compliance ``alpha = 1 / (kappa V)``; its potential ``1/2 alpha^-1 C^2`` (Macklin, Müller &
@@ -14,11 +14,11 @@ Per full cell of rest volume ``V = h^3`` (:class:`~deformgl.sim.volume.CellVolum
   c ^ 4 in the cell), compliance ``alpha = 1 / (kappa_b V / 8)``. Its multiplier is kept
   ``>= 0`` (projected Jacobi): at convergence ``lambda = max(0, -C / alpha~)``, so the constraint
   stores ``V/8 kappa_b/2 (J_b - J_c)^2`` exactly where ``J_c < J_b`` and nothing elsewhere, the
-  corner barrier of :func:`~deformgl.sim.volume.volume_energy`.
+  corner barrier of :func:`~deformgl.sim.terms.volume.energy.volume_energy`.
 
 Together with the spring constraints of :mod:`deformgl.sim.xpbd` the constraint potential is the
 energy whose negative gradient :func:`deformgl.sim.springs.forces` evaluates, so XPBD's fixed
-point is the same static equilibrium. Neither term is damped (as in :mod:`deformgl.sim.volume`).
+point is the same static equilibrium. Neither term is damped (as in :mod:`deformgl.sim.terms.volume.energy`).
 
 The Jacobi step of each constraint is that of the springs (Macklin, Müller & Chentanez 2016,
 eq. 17-18, ``alpha~ = alpha / h^2`` of eq. 4), relaxed by omega and by ``n_s``, the largest
@@ -78,9 +78,9 @@ from deformgl.gl.programs import Program
 from deformgl.grid.neighbours import neighbourhood
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim.backends.compact_textures import float_texture, layer_texture
-from deformgl.sim.cell_tables import cell_uniforms, incident_cells
+from deformgl.sim.terms.volume.tables import cell_uniforms, incident_cells
 from deformgl.sim.terms.constraints import TermConstraints, XpbdChunk, XpbdPasses
-from deformgl.sim.volume import CORNER_SIGNS, CellVolumes, cell_state
+from deformgl.sim.terms.volume.energy import CORNER_SIGNS, CellVolumes, cell_state
 
 __all__ = ["CELL_SAMPLERS", "CellConstraints", "TET_NODES", "XPBD", "XpbdCells", "chunk"]
 
@@ -171,7 +171,7 @@ class CellConstraints(TermConstraints):
 
     def _edges(self, p: np.ndarray) -> np.ndarray:
         """(C, 3 axes, 4, 3) the cells' edges over h, along +x, +y, +z: corner c's edge e_k of
-        :func:`~deformgl.sim.volume.corner_jacobians` (``(x_(c ^ 2^k) - x_c) (-s_c[k]) / h``)
+        :func:`~deformgl.sim.terms.volume.energy.corner_jacobians` (``(x_(c ^ 2^k) - x_c) (-s_c[k]) / h``)
         is edge ``_EDGE_OF[c, k]`` of axis k, the same vector for c and c ^ 2^k."""
         xc = p[self.cells.corners]                                               # (C, 8, 3)
         e = np.empty((len(xc), 3, 4, 3))
@@ -181,7 +181,7 @@ class CellConstraints(TermConstraints):
         return e
 
     def corner_dets(self, p: np.ndarray) -> np.ndarray:
-        """(C, 8) J_c = det F_c at every corner (:func:`~deformgl.sim.volume.corner_jacobians`'
+        """(C, 8) J_c = det F_c at every corner (:func:`~deformgl.sim.terms.volume.energy.corner_jacobians`'
         det, without its gradients)."""
         e = self._edges(p)
         return _det(e[:, 0, _EDGE_OF[:, 0]], e[:, 1, _EDGE_OF[:, 1]], e[:, 2, _EDGE_OF[:, 2]])
