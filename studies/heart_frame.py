@@ -65,7 +65,7 @@ def heart_frame(ctx: moderngl.Context, *, rounds: int = 7, frame_steps: int = 15
     """``{"compact": ms per frame per round, "default": ms per frame per round, "block": the block}``
     of the heart frame (the module docstring)."""
     from deformgl.render.passes import RenderTarget
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 
     setup = heart_frame_setup()
     built = setup.built

@@ -66,7 +66,7 @@ def bench_integrators(ctx: moderngl.Context, *, cloths=INTEGRATOR_CLOTHS, volume
     so that 2048^2 finishes; the NumPy reference gets a tenth of that.
     """
     from deformgl.sim.backends.feedback import FeedbackSimulation
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state, step as numpy_step
     from deformgl.sim.springs import max_angular_frequency
 

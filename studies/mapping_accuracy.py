@@ -41,7 +41,7 @@ from deformgl.bench.sim_speed import timed
 from deformgl.data import packaged_scene
 from deformgl.sim.normals import rest_normals
 from deformgl.mapping.closest import closest_on_triangles
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.bench import report_files
 from deformgl.render.mapped import MappedMeshPass
 from deformgl.mapping.bases import constant_basis

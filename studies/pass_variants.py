@@ -2,7 +2,7 @@
 and the 3D-atlas layout drawn as rectangles, one quad or points — against the float64 NumPy
 reference on 4k to 131k nodes (docs/PERFORMANCE.md, "Simulation step"):
 ``python -m studies.pass_variants``. The variants other than compact and blocked are options of
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator` that only this study uses."""
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator` that only this study uses."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import moderngl
 
 from deformgl.bench.sim_speed import machine_line, timed
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from studies.common import gl_context, parse, parser, run_main
 
 

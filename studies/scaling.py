@@ -239,7 +239,7 @@ def _make(ctx: moderngl.Context, backend: str, system, integrator: str, dt: floa
     """Construct a backend's simulation; returns (sim, GPU bytes it allocated)."""
     from deformgl.sim.backends.blocked import BlockedTextures
     from deformgl.sim.backends.feedback import FeedbackSimulation
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 
     if backend == "foundation":  # the fragment backend's Verlet fast path, counted from its GL objects
         base = fragment_verlet(ctx, system, dt)

@@ -16,7 +16,7 @@ from pathlib import Path
 import moderngl
 
 from deformgl.bench.sim_speed import block_system, fragment_verlet, machine_line, stable_dt, timed
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
 
@@ -162,7 +162,7 @@ def lattice_weights(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32))
     import numpy as np
 
     from deformgl.grid.nodes import NodeGrid
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     from deformgl.sim.materials import PRESETS, critical_dt, lattice_system
 
     out = []

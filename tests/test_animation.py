@@ -70,7 +70,7 @@ def test_gif_frames_come_from_one_run_and_match_stills_of_the_same_step(ctx, jel
 def test_an_animation_reads_no_node_state_between_frames(ctx, jelly, tmp_path, monkeypatch):
     from deformgl.scene.animation import frame_plan, render_frames
     from deformgl.scene.schema import load_scene
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 
     def refuse(self):
         raise AssertionError("node positions were read back")

@@ -23,7 +23,7 @@ from deformgl.render.passes import GridSurfacePass
 from deformgl.render.sheet_normals import sheet_neighbours
 from deformgl.scene.pipeline import render_scene
 from deformgl.scene.schema import load_scene
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.trilinear.scenes import SCENES as TRILINEAR_SCENES, demo_graph_file, render_trilinear_scene
 from deformgl.trilinear.graphfile import load_graph
 

@@ -16,7 +16,7 @@ from deformgl.bench.sim_speed import bench_occupancy
 from deformgl.grid.blocks import BLOCK_SHAPES, CORNER_OFFSETS, BlockedLayout, parse_block
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
 from deformgl.sim.backends.blocked import BLOCK_TABLE, blocked_refusal, default_block
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import Load, from_grid

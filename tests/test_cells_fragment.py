@@ -12,7 +12,7 @@ import pytest
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.volume.check_pass import NodeCellForces, check_cells
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import NumpySimulation

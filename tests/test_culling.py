@@ -118,7 +118,7 @@ def test_cull_leaves_a_closed_unfolded_mesh_scene_as_it_was(ctx):
     (a scanned mesh whose surface meets itself in places) differs only in a handful of pixels,
     where a back face showed."""
     from deformgl.scene.pipeline import build_scene_model, make_draw_pass
-    from deformgl.sim.backends.foundation import NodeTextures
+    from deformgl.sim.backends.verlet_data import NodeTextures
     for name, most in (("jelly", 0), ("fin", 20)):
         scene = load_scene(SCENES / f"{name}.toml").with_overrides(steps=50, mapping="constant")
         assert scene.render.cull is False  # (the default)
@@ -146,7 +146,7 @@ def test_every_mapping_pass_culls_either_winding(ctx, mapping_pass):
     culling, so "cw" does not cull the mapping away)."""
     from deformgl.render.mapped_setup import get_binding, mapped_vertices
     from deformgl.scene.pipeline import build_scene_model, scene_lighting, scene_view
-    from deformgl.sim.backends.foundation import NodeTextures
+    from deformgl.sim.backends.verlet_data import NodeTextures
     from deformgl.sim.normals import rest_normals
     from deformgl.grid.surface import grid_surface
 

@@ -8,7 +8,7 @@ import pytest
 from deformgl.sim import integrators as I
 from deformgl.sim import springs
 from deformgl.sim.backends.feedback import FeedbackSimulation
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 

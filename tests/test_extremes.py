@@ -21,7 +21,7 @@ import trimesh
 
 from deformgl.sim import integrators as I
 from deformgl.sim.census import NodeCensus
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.scene.pipeline import build_scene_model, render_scene

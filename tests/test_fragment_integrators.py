@@ -9,7 +9,7 @@ import pytest
 from deformgl.sim import integrators as I
 from deformgl.sim import springs
 from deformgl.grid.neighbours import grid_neighbours
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere
 
@@ -291,7 +291,7 @@ def test_release_and_constructor_failure_clean_up(ctx, monkeypatch):
     def released(obj) -> bool:
         return type(obj.mglo).__name__ == "InvalidObject"
 
-    from deformgl.sim.backends import fragment as fragment_integrators
+    from deformgl.sim.backends import explicit_gpu as fragment_integrators
 
     def broken(*args, **kwargs):
         raise RuntimeError("no program")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.mapping.bases import map_vertices
 from deformgl.mapping.node_drivers import DrivenNodes, Motion
 from deformgl.sim.normals import unpack_normals

@@ -388,7 +388,7 @@ def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_norma
     per-spring weights, as the levels code in the node texture (the default for the lattice) or as
     the weight texture: the same positions as the reference, and normals that are still the
     unweighted unit-vector sums of Mosegaard & Sørensen 2005, eq. 3."""
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     from deformgl.sim.normals import unit_sums, unpack_normals
     occ = np.ones((6, 4, 3), bool)
     occ[5, 3, 2] = False
@@ -467,7 +467,7 @@ def test_the_levels_code_takes_shares_that_float64_rounds_off_a_quarter():
 def test_the_verlet_pass_steps_the_same_with_levels_as_with_the_weight_texture(ctx):
     """The two stores of the lattice's weights are the same function: bit-identical positions
     and normals after 60 steps."""
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     occ = np.ones((7, 5, 4), bool)
     occ[6, 4, 3] = False
     grid = NodeGrid(np.zeros(3), 0.01, occ)

@@ -8,7 +8,7 @@ import pytest
 
 from deformgl.bench import peers
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.foundation import MAX_PULLS
+from deformgl.sim.backends.verlet_data import MAX_PULLS
 from deformgl.sim.integrators import State
 from deformgl.sim.simulation import NumpySimulation
 from deformgl.sim.springs import Load, from_grid

@@ -8,7 +8,7 @@ import pytest
 
 from deformgl.render.camera import frame_box, look_at, orthographic, perspective
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.progress import Progress
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 

@@ -147,7 +147,7 @@ def test_trilinear_renderer_releases_everything_it_made_and_binds_back_the_calle
 
 def test_driven_nodes_release_their_pass_not_the_textures(ctx):
     from deformgl.grid.nodes import NodeGrid
-    from deformgl.sim.backends.foundation import NodeTextures
+    from deformgl.sim.backends.verlet_data import NodeTextures
 
     grid = NodeGrid(np.zeros(3), 1.0, np.ones((2, 2, 2), bool))
     textures = NodeTextures(ctx, grid)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.fragment import FragmentIntegrator
-from deformgl.sim.backends.foundation import MAX_PULLS
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
+from deformgl.sim.backends.verlet_data import MAX_PULLS
 from deformgl.sim.integrators import State
 from deformgl.sim.normals import pack_normals, unit_sums, unpack_normals
 from deformgl.sim.simulation import NumpySimulation, make_simulation

@@ -16,7 +16,7 @@ from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.stages import BUFFERS, SPECS, IntegratorSpec, Stage, spec
 
 ROOT = Path(__file__).resolve().parent.parent
-BACKENDS = [ROOT / "deformgl/sim/backends/fragment.py", ROOT / "deformgl/sim/backends/feedback.py"]
+BACKENDS = [ROOT / "deformgl/sim/backends/explicit_gpu.py", ROOT / "deformgl/sim/backends/feedback.py"]
 SHADERS = ROOT / "shaders"
 #: fragment outputs of step.frag, by location
 OUTPUT_ORDER = [("x",), ("v",), ("sum", "x"), ("sum", "v")]

@@ -4,7 +4,7 @@
 import numpy as np
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
-from deformgl.sim.backends.foundation import MAX_PULLS, VerletTerms, node_flags, verlet_terms
+from deformgl.sim.backends.verlet_data import MAX_PULLS, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.springs import Load, SpringSystem, load_groups
 
 

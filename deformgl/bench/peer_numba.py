@@ -12,7 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from deformgl.bench.peer_base import PeerStepper
-from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
+from deformgl.sim.backends.verlet_data import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
 from deformgl.sim.springs import Load, SpringSystem
 
 _NB: dict[str, Any] = {}

@@ -1,4 +1,4 @@
-"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.foundation`) in Taichi,
+"""The fragment backend's Verlet fast path (:mod:`deformgl.sim.backends.verlet_data`) in Taichi,
 NVIDIA Warp and Numba on the CPU, for ``deformgl bench sim --peers``.
 
 Each peer runs the same float32 position-Verlet step as ``shaders/sim/verlet.frag`` (Mosegaard &
@@ -14,7 +14,7 @@ the node's mask is set; elsewhere the (N, 18) neighbour table."""
 import numpy as np
 
 from deformgl.bench.peer_base import PeerStepper
-from deformgl.sim.backends.foundation import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
+from deformgl.sim.backends.verlet_data import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
 from deformgl.sim.springs import Load, SpringSystem
 
 PEERS = ("taichi", "warp", "numba")

@@ -21,7 +21,7 @@ import numpy as np
 
 from deformgl.gl.context import context_info
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.backends.fragment import FragmentIntegrator
+from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.sim.simulation import NumpySimulation, Simulation
 from deformgl.sim.springs import SpringSystem, from_grid, max_angular_frequency
 

@@ -379,7 +379,7 @@ def _run(ctx: moderngl.Context, w: Workload, backend: str, name: str, dt: float,
                                      constraints=cons, drags=drags)
             return x, timed(more, repeats) / batch * 1e3
     if backend == "fragment":
-        from deformgl.sim.backends.fragment import FragmentIntegrator
+        from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
         sim: Any = FragmentIntegrator(ctx, w.system, w.grid, name, dt, state=state,
                                       constraints=cons, drags=drags)
     else:

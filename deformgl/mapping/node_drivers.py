@@ -15,7 +15,7 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.inputs import max_mesh_bytes
-from deformgl.sim.backends.foundation import NodeTextures, tile_rectangles
+from deformgl.sim.backends.verlet_data import NodeTextures, tile_rectangles
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner

@@ -56,7 +56,7 @@ def integrator_case(constraint: str):
 def integrators(ctx) -> dict[str, np.ndarray]:
     """Positions after :data:`STEPS` steps, every backend, integrator and constraint."""
     from deformgl.sim.backends.feedback import FeedbackSimulation
-    from deformgl.sim.backends.fragment import FragmentIntegrator
+    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 
     out = {}

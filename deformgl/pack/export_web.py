@@ -43,7 +43,7 @@ from deformgl.scene.pipeline import build_scene_model, make_draw_pass, scene_lig
 from deformgl.scene.physics import SceneBox, scene_constraints, scene_drags
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import Scene
-from deformgl.sim.backends.foundation import verlet_terms
+from deformgl.sim.backends.verlet_data import verlet_terms
 from deformgl.sim.guards import plan_steps
 from deformgl.sim.simulation import make_simulation
 

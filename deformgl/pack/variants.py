@@ -29,7 +29,7 @@ import numpy as np
 from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
-from deformgl.sim.backends.foundation import DRAW_MODES, MAX_PULLS
+from deformgl.sim.backends.verlet_data import DRAW_MODES, MAX_PULLS
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.springs import MAX_LOADS
 from deformgl.sim.stages import spec

@@ -320,7 +320,7 @@ def render_frames(ctx: moderngl.Context, scene: Scene, plan: FramePlan | None = 
         try:
             if simulate:
                 from deformgl.mapping.node_drivers import DrivenNodes
-                from deformgl.sim.backends.foundation import NodeTextures
+                from deformgl.sim.backends.verlet_data import NodeTextures
 
                 def texture_of(sim) -> moderngl.Texture:
                     if getattr(sim, "packed_normals", False):

@@ -50,7 +50,7 @@ from deformgl.scene.physics import scene_system
 from deformgl.scene.schema import load_scene
 from deformgl.scene.spec import AXES, MAX_SIZE, MIN_SIZE, Physics, Region, Scene
 from deformgl.sim.restartable import GuardedSimulation
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.sim.normals import rest_normals
 from deformgl.sim.springs import SpringSystem
 

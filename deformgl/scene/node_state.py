@@ -13,7 +13,7 @@ from deformgl.errors import InputError
 from deformgl.mapping.node_drivers import DrivenNodes, Motion, load_node_frames
 from deformgl.scene.physics import SceneBox, SceneRun, simulate_scene
 from deformgl.scene.spec import Scene
-from deformgl.sim.backends.foundation import NodeTextures
+from deformgl.sim.backends.verlet_data import NodeTextures
 
 __all__ = ["NodeState"]
 

@@ -4,7 +4,7 @@ obstacles from the scene file, and the run (fixed step count or convergence stop
 Scene positions are bounding-box fractions of the (recentred) scene box; sphere radii are in
 units of its longest side. Every scene runs here, on its integrator and backend:
 
-* ``fragment``: :class:`~deformgl.sim.backends.fragment.FragmentIntegrator` (grid topology; for
+* ``fragment``: :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator` (grid topology; for
   Verlet on a system the foundation pass models it picks that pass, whose state texture carries
   the packed node normals the mappings draw from);
 * ``feedback``: :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (explicit neighbour lists);
@@ -328,7 +328,7 @@ def check_layout(ctx, scene: Scene, system: SpringSystem, grid: NodeGrid, loads,
     if scene.physics.layout in ("auto", "compact"):
         return
     from deformgl.sim.backends.blocked import blocked_refusal
-    from deformgl.sim.backends.foundation import verlet_terms
+    from deformgl.sim.backends.verlet_data import verlet_terms
 
     if ctx is not None:
         lacks = blocked_refusal(ctx.info, parse_block(scene.physics.layout))

@@ -10,7 +10,7 @@ or 1 ("at least one"), which is all the convergence stop and the blow-up guard a
 
 State textures are RGBA32F, read with ``texelFetch``; slot ``s`` of node ``n`` is texel
 ``(slots * (n % row) + s, n / row)`` (``node_slot_texel``; ``row`` a power of two): ``slots = 1, row = layout.width`` for
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, ``slots = 2, row = node_row`` for
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`, ``slots = 2, row = node_row`` for
 the ``tex_state`` of :class:`~deformgl.sim.backends.feedback.FeedbackSimulation` (``slots = 1`` for its
 Verlet ``tex_x``). Only xyz is looked at; w (mass, a packed normal) is ignored.
 

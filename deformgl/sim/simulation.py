@@ -1,7 +1,7 @@
 """One interface for every simulation backend, and one constructor.
 
 :class:`Simulation` is what the one run (:func:`deformgl.sim.run.run`), the renderers and the
-benchmarks use; the fragment backend (:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`,
+benchmarks use; the fragment backend (:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`,
 Mosegaard & Sørensen 2005, section 3.1), the transform-feedback backend
 (:class:`~deformgl.sim.backends.feedback.FeedbackSimulation`) and the float64 NumPy reference
 (:class:`NumpySimulation`, Movania & Feng 2012, eq. 3-9) all implement it. Positions and
@@ -35,7 +35,7 @@ BACKENDS = ("fragment", "feedback", "numpy")
 #: kind is "explicit" (the five of :data:`~deformgl.sim.integrators.EXPLICIT_INTEGRATORS`, whose
 #: classes take the integrator's name), "implicit-euler" or "xpbd".
 CLASSES: dict[tuple[str, str], tuple[str, str]] = {
-    ("explicit", "fragment"): ("deformgl.sim.backends.fragment", "FragmentIntegrator"),
+    ("explicit", "fragment"): ("deformgl.sim.backends.explicit_gpu", "FragmentIntegrator"),
     ("explicit", "feedback"): ("deformgl.sim.backends.feedback", "FeedbackSimulation"),
     ("explicit", "numpy"): ("deformgl.sim.simulation", "NumpySimulation"),
     ("implicit-euler", "fragment"): ("deformgl.sim.backends.implicit_gpu", "ImplicitFragment"),
@@ -179,7 +179,7 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
             every one takes ``constraints``, ``drags``, ``loads``, ``state``, ``t0``; the fragment
             backend's explicit integrators also ``path`` ("auto", "general", "foundation"),
             ``layout`` and ``block`` (several nodes per fragment) and the foundation pass's
-            variants (:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`);
+            variants (:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`);
             "implicit-euler" ``cg_iterations``, ``cg_tolerance``, ``cg_check_every``,
             ``cg_preconditioner`` ("jacobi", "block-jacobi", "multigrid"), ``cg_warm_start``
             ("scaled", "previous", "zero") and on numpy ``solver`` and ``geometric``; "xpbd"

@@ -7,7 +7,7 @@ Movania & Feng 2012 compare explicit Euler (Movania & Feng 2012, eq. 4-5), semi-
 buffers are those of :data:`deformgl.sim.integrators.GPU_BUFFERS` (ping-pong: no stage reads what
 it writes).
 
-Both backends build their passes from this table (:mod:`deformgl.sim.backends.fragment`,
+Both backends build their passes from this table (:mod:`deformgl.sim.backends.explicit_gpu`,
 :mod:`deformgl.sim.backends.feedback`): a pass per :class:`Stage`, in order, at its stage time;
 its shader switches are the stage's :attr:`Stage.defines` plus what follows from what it reads and
 writes (:meth:`Stage.derived_defines`: ``EVAL_STAGE``, ``READ_SUMS``, ``WRITE_SUMS``) and, for the

@@ -1,6 +1,6 @@
 // Static node data texture (RGBA32F): R mass (kg), G flag bits, B neighbour mask (18 bits), A the spring-weight
 // levels code of SPRING_WEIGHT_LEVELS (lib/springs.glsl; 24 bits, exact in a float), else 0.
-// Flag bits: 1 exists, 2 fixed, 4 << g member of scripted pull g (deformgl/sim/backends/foundation.py),
+// Flag bits: 1 exists, 2 fixed, 4 << g member of scripted pull g (deformgl/sim/backends/verlet_data.py),
 // 64 << b: bit b of the physics terms' node bits (deformgl/sim/terms GlslTerm.node_bits; one term's:
 // the volumetric term's full incident cells, bit q = qx + 2 qy + 4 qz the cell whose lower corner
 // is at offset (qx - 1, qy - 1, qz - 1), deformgl/sim/terms/volume/chunks.py),

@@ -223,7 +223,7 @@ class BlockedVerletPass(GLOwner):
 
     Args:
         ctx: GL context.
-        terms: the pass's uniforms (:class:`~deformgl.sim.backends.foundation.VerletTerms`;
+        terms: the pass's uniforms (:class:`~deformgl.sim.backends.verlet_data.VerletTerms`;
             :func:`blocked_refusal` None).
         textures: the blocked textures it reads and writes.
         weight_levels: the node data's alpha holds the lattice's levels code (else any weights are

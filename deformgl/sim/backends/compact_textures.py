@@ -2,7 +2,7 @@
 (:class:`~deformgl.grid.nodes.CompactLayout`: node n at texel ``(n % width, n / width)``): RGBA32F
 images of per-node values, and texture arrays of per-node tables four columns a layer
 (neighbour numbers, spring weights, multipliers). Shared by
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, the implicit Euler and XPBD
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`, the implicit Euler and XPBD
 backends; every texture is owned by the caller's :class:`~deformgl.gl.resources.GLOwner`."""
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ start, same stopping test), in float32. A step is (``shaders/sim/implicit/implic
 
 The matrix-vector product of a node is computed from its 18 (+6 flexion) grid neighbours
 (Mosegaard & Sørensen 2005, section 3.1: the neighbour-index texture of
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator`, with the per-spring weight texture of
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`, with the per-spring weight texture of
 the calibrated lattice). The system's further physics terms (``system.terms``,
 :mod:`deformgl.sim.terms`) add their K y and diagonal blocks in
 :data:`~deformgl.sim.backends.implicit_passes.TERM_PASSES` (define TERMS; those that read the grid
@@ -91,7 +91,7 @@ class ImplicitFragment(SimulationBase, GLOwner):
 
     Args:
         ctx, system, grid, dt, constraints, drags, loads, state, t0: as
-            :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`.
+            :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`.
         cg_iterations: CG iterations per step (the most, with a tolerance).
         cg_tolerance: relative residual ``|r| / |b|`` to stop at, or ``|r|`` at most the absolute
             floor (:func:`~deformgl.sim.implicit.residual_floor`) (0: always ``cg_iterations``,

@@ -3,9 +3,9 @@ Sørensen 2005, section 3.1 — one fragment pass per step (:class:`VerletPass` 
 :class:`~deformgl.sim.backends.blocked.BlockedVerletPass` on the blocked layout), the spring force
 of Mosegaard & Sørensen 2005, eq. 1 (Mosegaard & Sørensen 2005, eq. 2 where the classes share one
 stiffness) and the packed node normal (Mosegaard & Sørensen 2005, eq. 3) written with the new position, so a mapped mesh draws straight from the state texture.
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator` builds a :class:`FoundationVerlet` by
-itself for Verlet when the pass models the system (:func:`~deformgl.sim.backends.foundation.verlet_terms`;
-the textures and their channels: :mod:`deformgl.sim.backends.foundation`)."""
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator` builds a :class:`FoundationVerlet` by
+itself for Verlet when the pass models the system (:func:`~deformgl.sim.backends.verlet_data.verlet_terms`;
+the textures and their channels: :mod:`deformgl.sim.backends.verlet_data`)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
-from deformgl.sim.backends.foundation import (HOOD_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
+from deformgl.sim.backends.verlet_data import (HOOD_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
                                               NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms

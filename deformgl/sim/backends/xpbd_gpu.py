@@ -89,7 +89,7 @@ class XpbdFragment(SimulationBase, GLOwner):
             :func:`materials.lattice_system`).
         grid: its node grid (default ``system.grid``).
         dt: step in s, > 0.
-        constraints, drags, loads, state, t0: as :class:`~deformgl.sim.backends.fragment.FragmentIntegrator`.
+        constraints, drags, loads, state, t0: as :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`.
         iterations, substeps, omega: :class:`~deformgl.sim.xpbd.XpbdSettings`.
 
     Raises:

@@ -5,7 +5,7 @@ the pass and the simulation are :mod:`deformgl.sim.backends.verlet_pass`.
 One fragment pass per step over RGBA32F textures, the spring force of Mosegaard & Sørensen 2005,
 eq. 1 (eq. 2 where the classes share one stiffness) and the packed eq. 3 node normal written
 with the new position, so a mapped mesh draws straight from the state texture.
-:class:`~deformgl.sim.backends.fragment.FragmentIntegrator` picks it by itself for Verlet when
+:class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator` picks it by itself for Verlet when
 the system uses nothing the pass does not model (:func:`verlet_terms`); nothing else builds a
 :class:`~deformgl.sim.backends.verlet_pass.FoundationVerlet`. It computes the same function as the general Verlet stage
 (Movania & Feng 2012, section 3; :func:`deformgl.sim.integrators.step`) from the same state.

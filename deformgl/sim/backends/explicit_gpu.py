@@ -61,7 +61,7 @@ from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
 from deformgl.sim.backends.blocked import BlockedTextures
-from deformgl.sim.backends.foundation import NodeTextures, VerletTerms, node_flags, verlet_terms
+from deformgl.sim.backends.verlet_data import NodeTextures, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.backends.verlet_pass import FoundationVerlet
 from deformgl.grid.neighbours import FLEXION_OFFSETS
 from deformgl.sim.backends.grid_springs import compact_layout, grid_springs, spring_weights
@@ -106,9 +106,9 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             ``x_prev``.
         t0: time of the start state.
         path: "auto" (default): Verlet runs on the foundation pass of Mosegaard & Sørensen 2005,
-            section 3.1 (:mod:`~deformgl.sim.backends.foundation`: one pass per step, the packed
+            section 3.1 (:mod:`~deformgl.sim.backends.verlet_data`: one pass per step, the packed
             node normal written with each position, :attr:`packed_normals`) whenever that pass
-            models the system and options (:func:`~deformgl.sim.backends.foundation.verlet_terms`),
+            models the system and options (:func:`~deformgl.sim.backends.verlet_data.verlet_terms`),
             every other case on the stages of :data:`deformgl.sim.stages.SPECS`; "general": the
             stages always; "foundation": the foundation pass or a ValueError saying why not.
         layout: the foundation pass's node layout: "auto" (default): several nodes per fragment
@@ -120,7 +120,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             blocked layout in that shape (node positions bit for bit those of "compact").
         draw, branch, layout other than "auto" and "compact", weight_texture, block: variants of the
             foundation pass (:class:`~deformgl.sim.backends.verlet_pass.VerletPass`,
-            :class:`~deformgl.sim.backends.foundation.NodeTextures`); other values than the
+            :class:`~deformgl.sim.backends.verlet_data.NodeTextures`); other values than the
             defaults need ``path="foundation"``.
 
     Raises:
