@@ -159,7 +159,8 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time __getattr__ im
     from deformgl.sim.run import RunResult, run
     from deformgl.sim.equilibrium import ConvergeRule
     from deformgl.sim.simulation import Simulation, SimulationSetupError, make_simulation
-    from deformgl.sim.springs import Drag, Load, SpringSystem, cloth, from_grid, from_triangle_mesh
+    from deformgl.sim.springs import SpringSystem, cloth, from_grid, from_triangle_mesh
+    from deformgl.sim.scripted import Drag, Load
     from deformgl.sim.materials import PRESETS, ElasticMaterial, SheetMaterial, lattice_system, sheet_system
     from deformgl.sim.limits import check_dt, dt_limit
     from deformgl.trilinear.attachments import TubeAttachment

@@ -6,7 +6,8 @@ import time
 from dataclasses import dataclass
 
 from deformgl.bench.peers import PEERS, available_peers, make_stepper
-from deformgl.sim.springs import Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Load
 
 
 @dataclass

@@ -19,7 +19,8 @@ from deformgl.sim.backends.blocked import BLOCK_TABLE, blocked_refusal, default_
 from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
-from deformgl.sim.springs import Load, from_grid
+from deformgl.sim.springs import from_grid
+from deformgl.sim.scripted import Load
 from deformgl.sim.terms.volume.energy import corner_jacobians
 
 H = 0.01

@@ -17,7 +17,8 @@ from deformgl.sim.terms.volume.hessian import cell_matrix, cell_product
 from deformgl.sim.integrators import State
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import make_simulation
-from deformgl.sim.springs import Load, forces
+from deformgl.sim.springs import forces
+from deformgl.sim.scripted import Load
 from deformgl.sim.terms.volume.energy import BARRIER_J, cell_state, corner_jacobians, inverted_cells, volume_forces
 
 H = 0.02  # m, the small blocks' spacing

@@ -22,7 +22,8 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.equilibrium import DEFAULT_INTERVAL, ConvergeRule, EquilibriumMonitor
 from deformgl.sim.run import run
 from deformgl.sim.simulation import NumpySimulation
-from deformgl.sim.springs import Load, from_grid
+from deformgl.sim.springs import from_grid
+from deformgl.sim.scripted import Load
 
 #: the cases of the README's test command (a few seconds each); the others are slow (up to minutes)
 FAST = {("verlet", 1e-4), ("rk4", 1e-4), ("semi-implicit", 1e-4)}

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from deformgl.sim import integrators as I
-from deformgl.sim import springs
+from deformgl.sim import scripted, springs
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
 from deformgl.grid.nodes import NodeGrid
@@ -34,8 +34,8 @@ def make(ctx, backend, system, grid, name, dt, **kwargs):
 def loads_of(system):
     top = system.rest_positions[:, 1] > 0.65
     far = system.rest_positions[:, 0] > 0.35
-    return (springs.Load(top, lambda t: (0.4 * min(t / 0.005, 1.0), 0.0, 0.0)),
-            springs.Load(far, lambda t: (0.0, 0.0, -0.3 if t >= 0.004 else 0.0)))
+    return (scripted.Load(top, lambda t: (0.4 * min(t / 0.005, 1.0), 0.0, 0.0)),
+            scripted.Load(far, lambda t: (0.0, 0.0, -0.3 if t >= 0.004 else 0.0)))
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -44,7 +44,7 @@ def test_loads_and_drags_match_reference(ctx, backend, name):
     system, grid = block(wind=(1.0, 0.0, 0.5), wind_drag=0.01)
     dt = 1e-3
     loads = loads_of(system)
-    drags = (springs.Drag(20, lambda t: (0.45, 0.8 + 3.0 * t, 0.0), 40.0),)
+    drags = (scripted.Drag(20, lambda t: (0.45, 0.8 + 3.0 * t, 0.0), 40.0),)
     state = I.initial_state(system, dt, drags=drags, loads=loads)
     sim = make(ctx, backend, system, grid, name, dt, drags=drags, loads=loads, state=state)
     try:
@@ -69,7 +69,7 @@ def test_drag_target_is_followed(ctx, backend):
     node = int(np.argmax(system.rest_positions[:, 0] + system.rest_positions[:, 1]))
     start = system.rest_positions[node]
     end = start + np.array([0.05, 0.04, 0.0])
-    drag = springs.Drag(node, lambda t: start + (end - start) * min(t / 0.1, 1.0), 2000.0)
+    drag = scripted.Drag(node, lambda t: start + (end - start) * min(t / 0.1, 1.0), 2000.0)
     dt = 0.5 / springs.max_angular_frequency(system).omega / np.sqrt(1 + 2000.0 / 50.0)
     sim = make(ctx, backend, system, grid, "semi-implicit", dt, drags=(drag,))
     try:
@@ -97,7 +97,7 @@ def test_features_compiled_only_when_used(ctx, backend):
         sim.release()
     windy, grid = block(wind=(1.0, 0.0, 0.0), wind_drag=0.1)
     sim = make(ctx, backend, windy, grid, "euler", 1e-3, loads=loads_of(windy),
-               drags=(springs.Drag(5, lambda t: (0, 0, 0), 1.0),))
+               drags=(scripted.Drag(5, lambda t: (0, 0, 0), 1.0),))
     try:
         text = _source(sim)
         assert "#define LOADS 2" in text and "#define DRAGS 1" in text and "#define WIND" in text
@@ -109,14 +109,14 @@ def test_features_compiled_only_when_used(ctx, backend):
 def test_too_many_loads_and_bad_drag_node_are_refused(ctx):
     system, grid = block()
     mask = np.ones(system.count, bool)
-    five = tuple(springs.Load(mask, lambda t: (0, 0, 0)) for _ in range(5))
+    five = tuple(scripted.Load(mask, lambda t: (0, 0, 0)) for _ in range(5))
     with pytest.raises(ValueError, match="at most 4"):
         FragmentIntegrator(ctx, system, grid, "verlet", 1e-3, loads=five)
     with pytest.raises(ValueError, match="at most 4"):
         FeedbackSimulation(ctx, system, "verlet", 1e-3, loads=five)
     with pytest.raises(ValueError, match="drag node"):
         FragmentIntegrator(ctx, system, grid, "verlet", 1e-3,
-                           drags=(springs.Drag(system.count, lambda t: (0, 0, 0), 1.0),))
+                           drags=(scripted.Drag(system.count, lambda t: (0, 0, 0), 1.0),))
 
 
 def _step_program(sim):
@@ -149,8 +149,8 @@ def test_loads_per_kg_scale_with_each_nodes_mass_on_every_backend(ctx, backend, 
     system = springs.from_grid(grid, k_structural=50.0, k_shear=20.0, mass=mass,
                                fixed=grid.ijk[:, 0] == 0, velocity_damping=0.02)
     top = system.rest_positions[:, 1] > 0.75
-    per_kg = (springs.Load(top, lambda t: (4.0 * min(t / 0.005, 1.0), 0.0, 1.0), per_kg=True),)
-    per_node = (springs.Load(top, lambda t: (4.0 * min(t / 0.005, 1.0), 0.0, 1.0)),)
+    per_kg = (scripted.Load(top, lambda t: (4.0 * min(t / 0.005, 1.0), 0.0, 1.0), per_kg=True),)
+    per_node = (scripted.Load(top, lambda t: (4.0 * min(t / 0.005, 1.0), 0.0, 1.0)),)
     dt, steps = 1e-3, 15
 
     def run(backend_, loads, **extra):
@@ -168,5 +168,5 @@ def test_per_node_and_per_kg_loads_on_one_node_are_refused():
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((2, 2, 2), bool))
     every = np.ones(grid.count, bool)
     with pytest.raises(ValueError, match="per node and a load per kilogram"):
-        springs.load_groups((springs.Load(every, lambda t: (1, 0, 0)),
-                             springs.Load(every, lambda t: (1, 0, 0), per_kg=True)), grid.count)
+        scripted.load_groups((scripted.Load(every, lambda t: (1, 0, 0)),
+                             scripted.Load(every, lambda t: (1, 0, 0), per_kg=True)), grid.count)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from deformgl.sim import integrators as I
-from deformgl.sim import springs
+from deformgl.sim import scripted, springs
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere
@@ -131,8 +131,8 @@ def test_moving_sphere_and_drags_match_reference(ctx):
     system = damped_grid(3, fixed_nodes=(0,))
     dt = 1e-3
     sphere = Sphere(centre=lambda t: (0.25 + 20.0 * t, 0.6, 0.0), radius=0.08)
-    drags = (springs.Drag(13, lambda t: (0.3, 0.7 + t, 0.0), 30.0),
-             springs.Drag(26, lambda t: (0.5, 0.8, 0.2 - 5.0 * t), 10.0))
+    drags = (scripted.Drag(13, lambda t: (0.3, 0.7 + t, 0.0), 30.0),
+             scripted.Drag(26, lambda t: (0.5, 0.8, 0.2 - 5.0 * t), 10.0))
     constraints = Constraints(ground=0.5, spheres=(sphere,))
     for name in EXPLICIT_INTEGRATORS:
         state = I.initial_state(system, dt, drags=drags)

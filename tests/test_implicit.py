@@ -13,7 +13,7 @@ from deformgl.sim.integrators import Constraints, initial_state
 from deformgl.sim.limits import check_dt, dt_limit
 from deformgl.sim.materials import ElasticMaterial, critical_dt
 from deformgl.sim.simulation import SimulationSetupError, make_simulation
-from deformgl.sim.springs import Drag, Load
+from deformgl.sim.scripted import Drag, Load
 
 TISSUE = ElasticMaterial(3.0e3, 1060.0, mass_damping=1.0, stiffness_damping=1e-3)
 

@@ -11,7 +11,8 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.verlet_data import MAX_PULLS
 from deformgl.sim.integrators import State
 from deformgl.sim.simulation import NumpySimulation
-from deformgl.sim.springs import Load, from_grid
+from deformgl.sim.springs import from_grid
+from deformgl.sim.scripted import Load
 
 H = 0.05
 #: float32 peers after 50 steps of the jelly block below: max |x - x_ref| <= TOL * spacing

@@ -15,7 +15,8 @@ from deformgl.sim.backends.verlet_data import MAX_PULLS
 from deformgl.sim.integrators import State
 from deformgl.sim.normals import pack_normals, unit_sums, unpack_normals
 from deformgl.sim.simulation import NumpySimulation, make_simulation
-from deformgl.sim.springs import Load, SpringSystem, from_grid
+from deformgl.sim.springs import SpringSystem, from_grid
+from deformgl.sim.scripted import Load
 
 H = 0.05
 
@@ -260,7 +261,7 @@ def test_dense_blocks_find_neighbours_by_arithmetic_with_the_same_result(ctx):
 
 def test_verlet_picks_the_foundation_pass_where_it_models_the_system(ctx):
     from deformgl.sim.integrators import Constraints
-    from deformgl.sim.springs import Drag
+    from deformgl.sim.scripted import Drag
 
     grid = NodeGrid(np.zeros(3), H, np.ones((4, 3, 3), bool))
     plain = from_grid(grid, k_structural=40.0, k_shear=20.0, mass=0.01, velocity_damping=0.02)

@@ -5,7 +5,8 @@ import numpy as np
 
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, node_strides
 from deformgl.sim.backends.verlet_data import MAX_PULLS, VerletTerms, node_flags, verlet_terms
-from deformgl.sim.springs import Load, SpringSystem, load_groups
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Load, load_groups
 
 
 def _pull_rows(loads: tuple[Load, ...], t: float) -> np.ndarray:

@@ -15,7 +15,8 @@ import numpy as np
 
 from deformgl.bench.peer_base import PeerStepper
 from deformgl.sim.backends.verlet_data import FLAG_FIXED, MAX_PULLS, PULL_SHIFT
-from deformgl.sim.springs import Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Load
 
 PEERS = ("taichi", "warp", "numba")
 

@@ -2,7 +2,7 @@
 section 3; :mod:`deformgl.sim.integrators`) on each backend.
 
 Workloads (:func:`standard_workloads`): a damped 6x6x6 block whose top corner a
-:class:`~deformgl.sim.springs.Drag` pulls along a smooth path, and a 16x16 cloth falling onto a
+:class:`~deformgl.sim.scripted.Drag` pulls along a smooth path, and a 16x16 cloth falling onto a
 fixed sphere; at most 300 free nodes, so :func:`~deformgl.sim.limits.dt_limit` uses the exact
 spectrum. dt = f x limit for f in :data:`FRACTIONS`, rounded so that T/dt is an integer; a run
 that goes non-finite or :data:`DIVERGED_SPACINGS` spacings off is "diverged". Error: node
@@ -33,7 +33,8 @@ from deformgl.bench.sim_speed import machine_line, timed
 from deformgl.grid.nodes import NodeGrid
 from deformgl.bench import report_files
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, Sphere, initial_state, simulate
-from deformgl.sim.springs import Drag, SpringSystem, cloth, from_grid
+from deformgl.sim.springs import SpringSystem, cloth, from_grid
+from deformgl.sim.scripted import Drag
 from deformgl.sim.limits import dt_limit
 
 __all__ = ["BACKENDS", "FRACTIONS", "QUICK_FRACTIONS", "SIM_TIME", "DIVERGED_SPACINGS",

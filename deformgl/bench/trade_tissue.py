@@ -12,7 +12,8 @@ import numpy as np
 from deformgl.bench.trade import SIM_TIME, Workload, _ramp
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import PRESETS, lattice_system
-from deformgl.sim.springs import Drag, max_angular_frequency
+from deformgl.sim.springs import max_angular_frequency
+from deformgl.sim.scripted import Drag
 
 __all__ = ["TISSUE_POISSON", "tissue_workloads"]
 

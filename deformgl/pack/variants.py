@@ -31,7 +31,7 @@ from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
 from deformgl.sim.backends.verlet_data import DRAW_MODES, MAX_PULLS
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
-from deformgl.sim.springs import MAX_LOADS
+from deformgl.sim.scripted import MAX_LOADS
 from deformgl.sim.stages import spec
 from deformgl.trilinear.batches import PATHS
 from deformgl.trilinear.normal_transform import NORMAL_MODES

@@ -44,7 +44,8 @@ from deformgl.sim.simulation import make_simulation
 from deformgl.errors import SceneError
 from deformgl.scene.spec import Keyframes, Physics, Region, Scene
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, lattice_system, sheet_system
-from deformgl.sim.springs import Drag, Load, SpringSystem, from_grid
+from deformgl.sim.springs import SpringSystem, from_grid
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["MATERIAL_MAJORITY", "region_nodes", "xpbd_options", "layout_options", "check_layout", "SceneBox", "SceneRun", "bad_limit", "simulate_scene", "scene_constraints", "scene_drags", "scene_loads",
            "scene_system"]

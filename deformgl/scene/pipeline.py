@@ -28,7 +28,8 @@ from deformgl.render.mapped import MappedMeshPass, closed_front_face
 from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image
 from deformgl.grid.meshio import load_mesh
 from deformgl.sim.normals import rest_normals
-from deformgl.sim.springs import Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Load
 from deformgl.render.passes import GridSurfacePass, Lighting, RenderTarget
 from deformgl.scene.spec import Scene
 from deformgl.scene.spec import MIN_EXTENT, ClothSpec, MeshSpec, Vec3

@@ -35,7 +35,7 @@ from deformgl.sim.equilibrium import CRITERIA as CONVERGE_CRITERIA
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.scene.material_table import _BODY_MATERIAL
 from deformgl.sim.materials import SheetMaterial
-from deformgl.sim.springs import MAX_LOADS as MAX_PULLS
+from deformgl.sim.scripted import MAX_LOADS as MAX_PULLS
 
 __all__ = ["apply_overrides", "load_scene"]
 

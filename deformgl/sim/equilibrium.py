@@ -46,7 +46,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from deformgl.sim.simulation import Simulation
-from deformgl.sim.springs import Drag, Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["CRITERIA", "DEFAULT_CHECKS", "DEFAULT_INTERVAL", "DEFAULT_TOLERANCE", "ConvergeRule",
            "DisplacementMonitor", "EquilibriumMonitor"]

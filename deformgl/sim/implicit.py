@@ -63,7 +63,8 @@ import scipy.sparse.linalg as spla
 from deformgl.sim.clock import CpuSimulationBase
 from deformgl.sim.integrators import Constraints, State, apply_constraints, initial_state
 from deformgl.sim.multigrid import CoarseLevels, block_inverse, grid_levels
-from deformgl.sim.springs import Drag, Load, SpringSystem, forces
+from deformgl.sim.springs import SpringSystem, forces
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["GEOMETRIC", "PRECONDITIONERS", "DEFAULT_PRECONDITIONER", "CG_DEFAULTS", "SolveReport", "SolverStats",
            "EPS32", "EPS64", "residual_floor", "multigrid_levels", "LinearSystem",

@@ -43,7 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from deformgl.sim.springs import Drag, Load, SpringSystem, forces
+from deformgl.sim.springs import SpringSystem, forces
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["INTEGRATORS", "EXPLICIT_INTEGRATORS", "IMPLICIT_INTEGRATORS", "STABLE_INTEGRATORS", "GPU_BUFFERS",
            "VEC4_BYTES", "State", "Sphere", "Constraints", "Drag", "Load",

@@ -17,7 +17,8 @@ import numpy as np
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim import simulation as backends
-from deformgl.sim.springs import Drag, Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["GuardedSimulation"]
 

@@ -33,7 +33,8 @@ from deformgl.sim.equilibrium import ConvergeRule, DisplacementMonitor, Equilibr
 from deformgl.sim.guards import (API_WORDING, SCENE_WORDING, UNSTABLE_POLICIES, BlowUpWatch, StepPlan, StepSettings, Watch, Wording,
                                  plan_steps, retry_with_substeps)
 from deformgl.sim.simulation import Simulation
-from deformgl.sim.springs import Drag, Load, SpringSystem
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load
 from deformgl.sim.terms.volume.energy import describe_inverted
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run"]

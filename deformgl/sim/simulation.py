@@ -25,8 +25,9 @@ import numpy as np
 from deformgl.errors import ArgumentError
 from deformgl.sim import integrators
 from deformgl.sim.clock import CpuSimulationBase
-from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, IMPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
-from deformgl.sim.springs import Drag, Load, SpringSystem
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, INTEGRATORS, Constraints, State
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load
 
 __all__ = ["BACKENDS", "Simulation", "SimulationSetupError", "NumpySimulation", "make_simulation"]
 

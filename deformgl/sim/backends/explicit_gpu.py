@@ -59,7 +59,8 @@ from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid, layout_uniforms
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load, load_groups
 from deformgl.sim.backends.blocked import BlockedTextures
 from deformgl.sim.backends.verlet_data import NodeTextures, VerletTerms, node_flags, verlet_terms
 from deformgl.sim.backends.verlet_pass import FoundationVerlet
@@ -101,7 +102,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated at each pass's stage time, as uniforms).
-        loads: scripted per-node forces (at most ``springs.MAX_LOADS``).
+        loads: scripted per-node forces (at most ``scripted.MAX_LOADS``).
         state: start state (default :func:`integrators.initial_state` at rest); Verlet uses its
             ``x_prev``.
         t0: time of the start state.

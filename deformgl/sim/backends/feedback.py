@@ -61,7 +61,8 @@ from deformgl.errors import GLError
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, Constraints, State, initial_state
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load, load_groups
 from deformgl.sim.stages import BUFFERS, IntegratorSpec, Stage, spec
 
 __all__ = ["FeedbackSimulation", "NODE_ROW_MAX", "SPRING_ROW_MAX"]
@@ -139,7 +140,7 @@ class FeedbackSimulation(SimulationBase, GLOwner):
         dt: step in s, > 0.
         constraints: ground plane and (static or moving) spheres, or None.
         drags: scripted drags (targets evaluated on the CPU at each stage's time, as uniforms).
-        loads: scripted per-node forces (at most ``springs.MAX_LOADS``; forces evaluated on the
+        loads: scripted per-node forces (at most ``scripted.MAX_LOADS``; forces evaluated on the
             CPU at each stage's time, as uniforms; group bits per node in ``nodes.w``).
         state: start state (default :func:`deformgl.sim.integrators.initial_state` at rest); Verlet
             uses its ``x_prev``.

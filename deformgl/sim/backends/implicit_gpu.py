@@ -78,7 +78,8 @@ from deformgl.sim.implicit import (DEFAULT_PRECONDITIONER, DEFAULT_WARM_START, S
                                    solver_note)
 from deformgl.sim.multigrid import Hierarchy
 from deformgl.sim.integrators import Constraints, State, initial_state
-from deformgl.sim.springs import Drag, Load, SpringSystem, load_groups
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Drag, Load, load_groups
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 
 __all__ = ["ImplicitFragment"]

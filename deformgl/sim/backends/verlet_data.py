@@ -44,8 +44,8 @@ from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
 from deformgl.sim.integrators import Constraints, State
 from deformgl.sim.normals import pack_normals, unit_sums
-from deformgl.sim.springs import (FLEXION, LOAD_PER_KG_BIT, MAX_LOADS, SHEAR, STRUCTURAL, Drag, Load, SpringSystem,
-                                  load_groups)
+from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
+from deformgl.sim.scripted import LOAD_PER_KG_BIT, MAX_LOADS, Drag, Load, load_groups
 
 from deformgl.sim.terms.glsl import PassTerms, pass_terms
 
@@ -152,7 +152,7 @@ def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.n
 
 def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.ndarray:
     """(N,) int64 flag bits of the static node texture: exists, fixed, load groups and
-    :data:`FLAG_PULLS_PER_KG` (``load_bits``: :func:`~deformgl.sim.springs.load_groups`)."""
+    :data:`FLAG_PULLS_PER_KG` (``load_bits``: :func:`~deformgl.sim.scripted.load_groups`)."""
     bits = FLAG_EXISTS + FLAG_FIXED * np.asarray(fixed, np.int64)
     if load_bits is not None:
         groups = np.asarray(load_bits, np.int64)

@@ -25,7 +25,8 @@ from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.clock import SimulationBase
 from deformgl.sim.integrators import State
 from deformgl.sim.stages import spec
-from deformgl.sim.springs import Load, SpringSystem, load_groups
+from deformgl.sim.springs import SpringSystem
+from deformgl.sim.scripted import Load, load_groups
 
 __all__ = ["FoundationVerlet", "VerletPass"]
 

@@ -44,7 +44,8 @@ from deformgl.sim.backends.uniforms import uniform_array
 from deformgl.sim.clock import SimulationBase
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.sim.integrators import Constraints, Drag, Load, State
-from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, load_groups
+from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
+from deformgl.sim.scripted import load_groups
 from deformgl.sim.terms.glsl import TERM_SHIFT, XPBD, compose_xpbd
 from deformgl.sim.terms.constraints import XpbdPasses
 from deformgl.sim.xpbd import (
