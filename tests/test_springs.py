@@ -5,7 +5,8 @@ import pytest
 import trimesh
 
 from deformgl.grid.nodes import NodeGrid
-from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem, cloth, forces, from_grid, from_triangle_mesh, max_angular_frequency
+from deformgl.sim.springs import (FLEXION, SHEAR, STRUCTURAL, SpringSystem, cloth, forces, from_grid, from_triangle_mesh,
+                                  max_angular_frequency)
 from deformgl.sim.scripted import Drag
 
 H = 0.05

@@ -22,7 +22,7 @@ from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.spectrum import exact_frequency, stiffness_matrix, stiffness_product
 from deformgl.sim.springs import max_angular_frequency
 from deformgl.sim.terms.volume.energy import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets,
-                                 grid_cells, inverted_cells)
+                                              grid_cells, inverted_cells)
 
 #: the cantilever of defect 6: 0.2 x 0.02 x 0.02 m, E = 5 kPa, rho = 1000 kg/m^3, mass damping 3/s
 LENGTH, WIDTH, YOUNGS, DENSITY, MASS_DAMPING = 0.2, 0.02, 5.0e3, 1000.0, 3.0

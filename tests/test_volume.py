@@ -14,8 +14,8 @@ from deformgl.bench.fem import stiffness_matrix
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial, critical_dt, lattice_system
 from deformgl.sim.springs import forces, max_angular_frequency
-from deformgl.sim.terms.volume.energy import (BARRIER_J, CellVolumes, corner_jacobians, describe_inverted, inverted_cells,
-                                 rest_product, volume_energy, volume_forces)
+from deformgl.sim.terms.volume.energy import (BARRIER_J, CellVolumes, corner_jacobians, describe_inverted,
+                                              inverted_cells, rest_product, volume_energy, volume_forces)
 from test_fem import uniaxial  # a block on three symmetry planes under a top-face pressure: E and nu
 
 NUS = (0.25, 0.3, 0.45, 0.49)

@@ -16,11 +16,11 @@ uniform small strain eps. Summed over the infinite lattice per node volume h^3 (
 which is isotropic (C11 - C12 = 2 C44) with Lamé constants lambda = mu = k/h: Poisson's ratio
 1/4 and Young's modulus E = 5k/(2h). So ``k = mu h`` (``= 2 E h / 5`` at nu = 1/4; at a larger
 nu the springs carry the shear modulus mu = E / (2 (1 + nu)) and each full cell adds the missing
-``kappa = lambda - mu`` as a volumetric term, :mod:`deformgl.sim.terms.volume.energy`, ``system.cells``). One cell alone reproduces the same
-tensor when each of its edges carries k/4 and each face diagonal k/2 (an interior edge is shared
-by 4 cells, a diagonal by 2), so a body of full cells has exactly the continuum's energy under
-any uniform strain: the lattice passes the patch test, and its boundary springs get the right
-share without special cases. A cell gives ``rho h^3 / 8`` of mass to each of its 8 corners.
+``kappa = lambda - mu`` as a volumetric term, :mod:`deformgl.sim.terms.volume.energy`,
+``system.cells``). One cell alone reproduces the same tensor when each of its edges carries k/4
+and each face diagonal k/2 (an interior edge is shared by 4 cells, a diagonal by 2), so a body
+of full cells has exactly the continuum's energy under any uniform strain: the lattice passes the
+patch test, and its boundary springs get the right share without special cases. A cell gives ``rho h^3 / 8`` of mass to each of its 8 corners.
 
 Thin features: a spring that belongs to no full cell (a one-node-thick wall of the
 voxelization) is given the share of one cell (edge k/4, diagonal k/2), and a node in no full cell

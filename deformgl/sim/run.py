@@ -35,7 +35,7 @@ from deformgl.sim.guards import (API_WORDING, SCENE_WORDING, UNSTABLE_POLICIES, 
 from deformgl.sim.simulation import Simulation
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.scripted import Drag, Load
-from deformgl.sim.terms.volume.energy import describe_inverted
+from deformgl.sim.terms.base import Term
 
 __all__ = ["RunResult", "NumpyWatch", "make_watch", "residual_note", "run"]
 
@@ -54,9 +54,9 @@ class RunResult:
         time: the simulation's clock at the end (s); None when not recorded.
         notes: what the plan and the restarts changed, for a log.
         convergence: the convergence stop's last measures (its ``describe()``), None without one.
-        inverted_cells: the inversion census at the end (:func:`deformgl.sim.terms.volume.energy.describe_inverted`):
-            cells whose trilinear map has a Jacobian <= 0 at a corner; None for a system without
-            cells (springs only).
+        inverted_cells: the inversion census at the end (``Term.inversions`` of the system's terms;
+            the cells': those whose trilinear map has a Jacobian <= 0 at a corner); None for a
+            system whose terms have no elements (springs only).
         inverted: the census's phrase naming the first inverted cell, "" when there is none.
         solver: an implicit integrator's linear solves (its ``solver_stats()``: iterations mean
             and most per step, last and worst relative residual, steps that missed the
@@ -101,16 +101,19 @@ def make_watch(ctx, sim, *, every: int, limit: float, grid=None, source=None, dt
 
 
 def _census(sim, result: RunResult) -> RunResult:
-    """``result`` with the inversion census of the final state (one read-back of the positions;
-    nothing for a system without cells)."""
+    """``result`` with the inversion census of the final state over the system's terms that have
+    elements (``Term.inversions``; one read-back of the positions; nothing for a system whose
+    terms have none, e.g. springs only)."""
     system = getattr(sim, "system", None)
-    cells = getattr(system, "cells", None)
-    if cells is None:
+    counted = [t for t in getattr(system, "terms", ()) if type(t).inversions is not Term.inversions]
+    if not counted:
         return result
+    x = np.asarray(sim.positions(), np.float64)
     grid = getattr(system, "grid", None)
-    count, phrase = describe_inverted(cells, np.asarray(sim.positions(), np.float64),
-                                      None if grid is None else grid.ijk)
-    return replace(result, inverted_cells=count, inverted=phrase)
+    found = [c for c in (t.inversions(x, grid) for t in counted) if c is not None]
+    if not found:
+        return result
+    return replace(result, inverted_cells=sum(c for c, _ in found), inverted="; ".join(p for _, p in found if p))
 
 
 class _NoBar:

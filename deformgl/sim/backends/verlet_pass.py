@@ -19,7 +19,7 @@ from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
 from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
 from deformgl.sim.backends.verlet_data import (HOOD_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
-                                              NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
+                                               NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.clock import SimulationBase

@@ -305,6 +305,13 @@ class Term(ABC):
         ``2 sum k``, N/m), else "": the dt check's message names it (:mod:`deformgl.sim.limits`)."""
         return self.describe() if self.frequency_terms(x_rest, barrier=True)[node] > springs else ""
 
+    def inversions(self, x: np.ndarray, grid: NodeGrid | None) -> tuple[int, str] | None:
+        """The inversion census of the term's elements at positions x (N, 3), m: how many are
+        inverted and a phrase naming the count and the first ("3 of 640 cells inverted (first:
+        ...)"; "" for none), ``grid`` the system's node grid (to name an element by its place) or
+        None; None for a term without elements (the run's census, ``RunResult.inverted_cells``)."""
+        return None
+
     def acts(self) -> bool:
         """Whether the term exerts a force on its system (False: no pass compiles it, e.g. cells
         whose moduli are both 0)."""

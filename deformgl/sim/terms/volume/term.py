@@ -16,8 +16,9 @@ import scipy.sparse as sp
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.volume.hessian import CELL_HESSIAN, cell_matrix
 from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, Term, TermNeeds
-from deformgl.sim.terms.volume.energy import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets, frequency_terms,
-                                 rest_product, rest_stiffness_triplets, volume_energy, volume_forces)
+from deformgl.sim.terms.volume.energy import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets,
+                                              describe_inverted, frequency_terms, rest_product,
+                                              rest_stiffness_triplets, volume_energy, volume_forces)
 from deformgl.sim.terms.volume.chunks import volume_feedback, volume_glsl
 from deformgl.sim.terms.volume.xpbd_form import CellConstraints
 
@@ -91,6 +92,11 @@ class VolumeTerm(Term):
             if envelope > springs:
                 return self.describe()
         return ""
+
+    def inversions(self, x: np.ndarray, grid: NodeGrid | None) -> tuple[int, str]:
+        """:func:`~deformgl.sim.terms.volume.energy.describe_inverted` (a cell is inverted where its
+        trilinear map has a Jacobian <= 0 at a corner)."""
+        return describe_inverted(self.cells, x, None if grid is None else grid.ijk)
 
     def refusal(self, backend: str) -> str | None:
         return None  # (every backend runs it)
