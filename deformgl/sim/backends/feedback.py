@@ -330,7 +330,9 @@ class FeedbackSimulation(SimulationBase, GLOwner):
 
     def _add_pass(self, stage: Stage, defines: dict[str, object]) -> None:
         varyings = tuple(_varying(b) for b in stage.writes)
-        chunks = {FEEDBACK: compose_feedback(self.feedback_terms)} if self.feedback_terms else None
+        chunks = ({FEEDBACK: compose_feedback(self.feedback_terms),
+                   **{f.file: f.source for f in self.feedback_terms if f.source is not None}}
+                  if self.feedback_terms else None)
         program = Program(self.ctx, stage.vertex, defines=defines, varyings=varyings, chunks=chunks)
         self.own(program)
         vao = self.own(self.ctx.vertex_array(program.gl, []))

@@ -191,7 +191,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         for chunk in chunks:
             iterate.update(chunk.sweep_defines())
         self.p_predict = self._program("sim/xpbd/predict.frag", common)
-        self.p_iterate = self._program("sim/xpbd/iterate.frag", iterate, {XPBD: compose_xpbd(chunks)} if chunks else None)
+        sources = {XPBD: compose_xpbd(chunks), **{c.file: c.source for c in chunks if c.source is not None}}
+        self.p_iterate = self._program("sim/xpbd/iterate.frag", iterate, sources if chunks else None)
         self.p_finish = self._program("sim/xpbd/finish.frag", {})
         h_sub = self.dt / self.settings.substeps
         passes = [self.p_predict, self.p_iterate, self.p_finish]
@@ -337,6 +338,8 @@ class XpbdFragment(SimulationBase, GLOwner):
         lam = np.concatenate([self._read(t, 4) for t in self.lambdas[self._last]], axis=1)
         lam = lam[:, : self.nb.shape[1]].astype(np.float64)
         rows, cols = np.nonzero(self.k_columns > 0)
+        once = rows < self.nb[rows, cols]  # each spring once (both ends hold a copy), as the float64 solver counts it
+        rows, cols = rows[once], cols[once]
         rest = np.array([cl[1] for cl in self.classes])[np.where(cols < 6, 0, np.where(cols < 18, 1, 2))]
         c = np.linalg.norm(p[rows] - p[self.nb[rows, cols]], axis=1) - rest
         h = self.dt / self.settings.substeps

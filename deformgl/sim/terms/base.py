@@ -169,8 +169,10 @@ class FeedbackTerm:
     node_slot_texel(i, slots, s), 0)`` (``shaders/lib/node_texel.glsl``). The backend composes the
     chunks into ``terms/feedback.glsl`` (:func:`deformgl.sim.terms.glsl.compose_feedback`), whose
     ``feedback_terms`` every stage calls under ``FEEDBACK_TERMS``. ``defines`` (names starting with
-    PREFIX in capitals), ``uniforms`` and ``sampler`` as :class:`GlslTerm`'s.
-    A term linear in the positions may give :meth:`Term.feedback_pairs` instead (no chunk)."""
+    PREFIX in capitals), ``uniforms`` and ``sampler`` as :class:`GlslTerm`'s; ``source``: the
+    chunk's text, given inline under the include name ``file`` (a term outside the package), else
+    the file is read. Float data travel bit-cast (``intBitsToFloat``). A term linear in the
+    positions may give :meth:`Term.feedback_pairs` instead (no chunk)."""
 
     prefix: str
     file: str
@@ -178,6 +180,7 @@ class FeedbackTerm:
     table: np.ndarray
     defines: dict[str, object] = field(default_factory=dict)
     uniforms: dict[str, object] = field(default_factory=dict)
+    source: str | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.table)

@@ -45,13 +45,15 @@ class XpbdChunk:
 
     and the fragment shaders of the term's own passes (``passes``, drawn with
     ``sim/fullscreen.vert``), compiled with ``defines`` (one of ``variants`` where the pack
-    enumerates them)."""
+    enumerates them). ``source``: the chunk's text, given inline under the include name ``file``
+    (a term outside the package), else the file is read."""
 
     prefix: str
     file: str
     passes: tuple[str, ...] = ()
     defines: dict[str, object] = field(default_factory=dict)
     variants: tuple[dict[str, object], ...] = ()
+    source: str | None = None
 
     def sweep_defines(self) -> dict[str, object]:
         """The defines the node sweep adds for this chunk."""

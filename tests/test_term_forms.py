@@ -1,0 +1,252 @@
+"""A physics term defined only here — a spring from each node to its rest position, stiffness in
+N/m — in the transform-feedback and XPBD forms (issue 43, item 1: each term declares its
+transform-feedback and XPBD forms, and the backends loop over the terms): its feedback chunk
+(``FeedbackTerm``, inline source, float data bit-cast into the integer table) runs on the
+transform-feedback backend with every explicit integrator, and its XPBD form (``TermConstraints``:
+a vector constraint per node of compliance 1 / (w k), Macklin, Müller & Chentanez 2016, eq. 2-4,
+with a pass of its own and a node-sweep chunk) on XPBD in NumPy and on the GPU, each matched to
+its float64 reference with no edit outside this module."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import moderngl
+import numpy as np
+import pytest
+
+from deformgl.gl.es_context import read_texture
+from deformgl.gl.programs import Program
+from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.sim import integrators as I
+from deformgl.sim import springs
+from deformgl.sim.backends.compact_textures import compact_image, float_texture
+from deformgl.sim.backends.feedback import FeedbackSimulation
+from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
+from deformgl.sim.simulation import make_simulation
+from deformgl.sim.terms import FeedbackTerm, Term, TermConstraints, XpbdChunk, XpbdPasses, block_diagonal
+from deformgl.sim.xpbd import XpbdSettings, XpbdSolver, constraint_counts
+
+# The feedback chunk: the rest position and the weight as float bits in one RGBA32I texel per node.
+ANCHOR_FEEDBACK = """
+uniform isampler2D u_anchor_nodes;  // xyz rest position (m), w the node's weight, as float bits
+uniform float u_anchor_k;           // N/m
+void anchor_feedback(inout vec3 f, int i, vec3 xi) {
+    vec4 r = intBitsToFloat(texelFetch(u_anchor_nodes, node_slot_texel(i, 1, 0), 0));
+    f -= (r.w * u_anchor_k) * (xi - r.xyz);
+}
+"""
+
+# The XPBD pass: per node one Jacobi update of the vector constraint C = x - rest (compliance
+# 1 / (w k)) from the iterate, as the springs' (n_i: the static count + the terms' active ones).
+ANCHOR_PASS = """#version 330 core
+#include "lib/node_flags.glsl"
+uniform sampler2D u_node;            // R inverse mass, G flags, A static constraint count
+uniform sampler2D u_p;               // xyz iterate, w the terms' active constraints
+uniform sampler2D u_anchor_rest;     // xyz rest position, w weight
+uniform sampler2D u_anchor_lambda;   // xyz lambda after the last sweep
+uniform float u_anchor_k;            // N/m
+uniform float u_h;                   // substep, s
+uniform float u_omega;
+layout(location = 0) out vec4 o_lambda;
+layout(location = 1) out vec4 o_delta;
+void main() {
+    ivec2 texel = ivec2(gl_FragCoord.xy);
+    vec4 node = texelFetch(u_node, texel, 0);
+    vec4 r = texelFetch(u_anchor_rest, texel, 0);
+    if ((int(node.g) & FLAG_EXISTS) == 0 || !(r.w > 0.0)) {
+        o_lambda = vec4(0.0);
+        o_delta = vec4(0.0);
+        return;
+    }
+    vec4 p = texelFetch(u_p, texel, 0);
+    vec3 lam = texelFetch(u_anchor_lambda, texel, 0).xyz;
+    float at = 1.0 / (r.w * u_anchor_k * u_h * u_h);
+    vec3 dl = -u_omega * (p.xyz - r.xyz + at * lam) / ((node.a + p.w) * node.r + at);
+    o_lambda = vec4(lam + dl, 0.0);
+    o_delta = vec4(dl, 0.0);
+}
+"""
+
+# The node sweep's chunk: the node's correction w_i d_lambda.
+ANCHOR_SWEEP = """
+uniform sampler2D u_anchor_delta;  // xyz d_lambda of this sweep
+void anchor_xpbd(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi) {
+    dx += wi * texelFetch(u_anchor_delta, texel, 0).xyz;
+}
+"""
+
+
+class AnchorConstraints(TermConstraints):
+    """The anchors as XPBD constraints: per node ``C = x - rest`` (m), compliance ``1 / (w k)``."""
+
+    def __init__(self, anchors: "Anchors", inverse_mass: np.ndarray) -> None:
+        self.anchors = anchors
+        self.w = np.asarray(inverse_mass, np.float64)
+
+    def static_counts(self):
+        return (self.anchors.weight > 0).astype(np.float64)
+
+    def start(self):
+        return np.zeros((len(self.w), 3))
+
+    def _at(self, h):
+        return 1.0 / (self.anchors.weight * self.anchors.k * h * h)
+
+    def sweep(self, p, multipliers, counts, h, omega):
+        lam = multipliers
+        at = self._at(h)[:, None]
+        dl = -omega * (p - self.anchors.rest + at * lam) / (counts[:, None] * self.w[:, None] + at)
+        lam += dl
+        return self.w[:, None] * dl
+
+    def residual_terms(self, p, multipliers, h):
+        return (p - self.anchors.rest).reshape(-1), (self._at(h)[:, None] * multipliers).reshape(-1)
+
+    def gpu(self, ctx, grid, layout, omega, first_unit):
+        return AnchorPasses(ctx, grid, layout, self, omega, first_unit)
+
+
+class AnchorPasses(XpbdPasses):
+    """The anchors' multipliers (ping-pong), their changes and the pass that updates them."""
+
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, constraints: AnchorConstraints,
+                 omega: float, first_unit: int) -> None:
+        super().__init__(ctx)
+        anchors = constraints.anchors
+        self.count = grid.count
+        self.chunk = XpbdChunk("anchor", "terms/anchor_xpbd.glsl", ("terms/anchor_xpbd.frag",), source=ANCHOR_SWEEP)
+        self.samplers = {"u_anchor_rest": first_unit, "u_anchor_lambda": first_unit + 1, "u_anchor_delta": first_unit + 2}
+        size = layout.size
+        with self.building():
+            table = np.concatenate([anchors.rest, anchors.weight[:, None]], axis=1)
+            self.rest = float_texture(self, ctx, size, compact_image(size, table))
+            self.lambdas = [float_texture(self, ctx, size) for _ in range(2)]
+            self.delta = float_texture(self, ctx, size)
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", self.chunk.passes[0],
+                                            chunks={self.chunk.passes[0]: ANCHOR_PASS}))
+            self.program.set(u_anchor_k=anchors.k, u_omega=float(omega), **self.sweep_uniforms(self.program))
+            self.vao = self.own(ctx.vertex_array(self.program.gl, []))
+            self.fbos = [self.own(ctx.framebuffer(color_attachments=[self.lambdas[b], self.delta])) for b in range(2)]
+            self.clear_fbo = self.own(ctx.framebuffer(color_attachments=[self.lambdas[0]]))
+        self.bytes_allocated = 4 * size[0] * size[1] * 16
+
+    def programs(self):
+        return [self.program]
+
+    def sweep_uniforms(self, program):
+        return {k: v for k, v in self.samplers.items() if k in program.members}
+
+    def clear(self):
+        self.clear_fbo.clear(0.0, 0.0, 0.0, 0.0)
+
+    def sweep(self, a, b):
+        self.rest.use(self.samplers["u_anchor_rest"])
+        self.lambdas[a].use(self.samplers["u_anchor_lambda"])
+        self.fbos[b].use()
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+        self.delta.use(self.samplers["u_anchor_delta"])
+
+    def read(self, b):
+        data = np.frombuffer(read_texture(self.lambdas[b]), dtype=np.float32).reshape(-1, 4)
+        return data[: self.count, :3].astype(np.float64)
+
+
+class Anchors(Term):
+    """A zero-length spring of stiffness ``weight * k`` (N/m) from each node to its rest position,
+    with transform-feedback and XPBD forms."""
+
+    name = "feedback anchors"
+
+    def __init__(self, rest: np.ndarray, k: float, weight: np.ndarray) -> None:
+        self.rest = np.asarray(rest, np.float64)
+        self.k = float(k)
+        self.weight = np.asarray(weight, np.float64)
+
+    def add_forces(self, x, v, t, out):
+        out -= (self.k * self.weight)[:, None] * (x - self.rest)
+
+    def energy(self, x):
+        return 0.5 * float(np.sum(self.k * self.weight * np.sum((x - self.rest) ** 2, axis=1)))
+
+    def stiffness(self, x):
+        return block_diagonal((self.k * self.weight)[:, None, None] * np.eye(3))
+
+    def feedback(self, grid):
+        table = np.concatenate([self.rest, self.weight[:, None]], axis=1).astype(np.float32).view(np.int32)
+        return FeedbackTerm("anchor", "terms/anchor_feedback.glsl", "u_anchor_nodes", table,
+                            uniforms={"u_anchor_k": self.k}, source=ANCHOR_FEEDBACK)
+
+    def xpbd(self, inverse_mass):
+        return AnchorConstraints(self, inverse_mass)
+
+
+def anchored(n=4, k_anchor=30.0, **options):
+    grid = NodeGrid(np.array([0.2, 0.5, -0.1]), 0.1, np.ones((n, n, n), bool))
+    fixed = np.zeros(grid.count, bool)
+    fixed[[0, n - 1]] = True
+    base = springs.from_grid(grid, k_structural=50.0, k_shear=20.0, mass=0.1, fixed=fixed,
+                             velocity_damping=0.02, **options)
+    weight = np.linspace(0.5, 1.5, grid.count)  # unequal per node: the table is read per node
+    return dataclasses.replace(base, extra_terms=(Anchors(grid.rest_positions, k_anchor, weight),))
+
+
+def start(system, dt):
+    return I.initial_state(system, dt, v=np.random.default_rng(7).normal(size=(system.count, 3)) * 0.3)
+
+
+@pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)
+def test_the_feedback_chunk_matches_float64(ctx, name):
+    system = anchored()
+    dt = 2e-3
+    state = start(system, dt)
+    ref, without = state, state
+    bare = dataclasses.replace(system, extra_terms=())
+    for k in range(100):
+        ref = I.step(system, name, ref, dt, k * dt)
+        without = I.step(bare, name, without, dt, k * dt)
+    assert np.abs(ref.x - without.x).max() > 0.05 * system.spacing  # the anchors act
+    sim = FeedbackSimulation(ctx, system, name, dt, state=state)
+    try:
+        assert [f.prefix for f in sim.feedback_terms] == ["anchor"] and len(sim.term_textures) == 1
+        sim.step(100)
+        x = sim.positions().astype(np.float64)
+    finally:
+        sim.release()
+    assert np.abs(x - ref.x).max() <= 1e-3 * system.spacing
+
+
+def test_the_xpbd_form_is_the_anchor_force_in_the_limit():
+    """A substep solved to convergence is ``M (x - x~) = h^2 f(x)`` with f the springs' and the
+    anchors' force as h -> 0: the constraint potential is the anchors' energy."""
+    system = anchored(gravity=(0.0, 0.0, 0.0))
+    x = system.rest_positions + np.random.default_rng(2).normal(size=(system.count, 3)) * 0.01
+    solver = XpbdSolver(system, XpbdSettings(iterations=400))
+    assert isinstance(solver.term_constraints[0], AnchorConstraints)
+    counts = constraint_counts(system)
+    assert np.array_equal(counts - constraint_counts(dataclasses.replace(system, extra_terms=())), np.ones(system.count))
+    h = 1e-6
+    p, _ = solver.substep(x, np.zeros_like(x), h, 0.0)
+    f = springs.forces(system, p, np.zeros_like(p), 0.0)
+    free = ~system.fixed
+    inertia = system.mass[:, None] * (p - x) / h ** 2
+    assert np.abs(inertia - f)[free].max() < 1e-5 * np.abs(f[free]).max()
+    assert solver.term_multipliers[0].shape == (system.count, 3)
+
+
+def test_the_xpbd_passes_match_numpy(ctx):
+    system = anchored()
+    dt = 1.0 / 60.0
+    state = start(system, dt)
+    options = dict(iterations=3, substeps=2, state=state)  # (few sweeps: a residual well above float32)
+    ref = make_simulation(system, "xpbd", "numpy", dt=dt, **options)
+    bare = make_simulation(dataclasses.replace(system, extra_terms=()), "xpbd", "numpy", dt=dt, **options)
+    with make_simulation(system, "xpbd", "fragment", dt=dt, ctx=ctx, **options) as gpu:
+        assert [type(t) for t in gpu.term_passes] == [AnchorPasses]
+        ref.step(10)
+        bare.step(10)
+        gpu.step(10)
+        moved = np.abs(ref.positions() - state.x).max()
+        assert np.abs(bare.positions() - ref.positions()).max() > 0.05 * moved  # the anchors act
+        assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-4 * moved
+        assert gpu.residual == pytest.approx(ref.residual, rel=1e-3)
