@@ -17,6 +17,7 @@ import pytest
 
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.sim import integrators as I
 from deformgl.sim import springs
@@ -107,7 +108,7 @@ class AnchorConstraints(TermConstraints):
         return AnchorPasses(ctx, grid, layout, self, omega, first_unit)
 
 
-class AnchorPasses(XpbdPasses):
+class AnchorPasses(GLOwner, XpbdPasses):
     """The anchors' multipliers (ping-pong), their changes and the pass that updates them."""
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, constraints: AnchorConstraints,
@@ -250,3 +251,23 @@ def test_the_xpbd_passes_match_numpy(ctx):
         assert np.abs(bare.positions() - ref.positions()).max() > 0.05 * moved  # the anchors act
         assert np.abs(gpu.positions() - ref.positions()).max() <= 1e-4 * moved
         assert gpu.residual == pytest.approx(ref.residual, rel=1e-3)
+
+
+class CpuOnlyConstraints(AnchorConstraints):
+    """The anchors' float64 form without a GPU one."""
+
+    name = "CPU-only anchors"
+    gpu = TermConstraints.gpu
+
+
+class CpuOnlyAnchors(Anchors):
+    def xpbd(self, inverse_mass):
+        return CpuOnlyConstraints(self, inverse_mass)
+
+
+def test_a_form_without_gpu_passes_is_refused_in_one_line(ctx):
+    system = anchored()
+    cpu_only = dataclasses.replace(system, extra_terms=(CpuOnlyAnchors(system.rest_positions, 30.0, np.ones(system.count)),))
+    make_simulation(cpu_only, "xpbd", "numpy", dt=0.01).step(1)  # (the float64 form runs)
+    with pytest.raises(ValueError, match=r"^xpbd: CPU-only anchors have no XPBD form on the GPU$"):
+        make_simulation(cpu_only, "xpbd", "fragment", dt=0.01, ctx=ctx)

@@ -2,8 +2,8 @@
 // (the term's feedback form, deformgl/sim/terms/volume/chunks.py volume_feedback(); compiled with
 // TERM_CELL through terms/feedback.glsl): the node's 3x3x3 neighbourhood and the mask of its full
 // incident cells come from one RGBA32I texture, the forces from terms/cell_forces.glsl (the
-// float32 twin of deformgl/sim/terms/volume/energy.py volume_forces()). Included by feedback/forces.glsl after
-// the stage's eval_x hook.
+// float32 twin of deformgl/sim/terms/volume/energy.py volume_forces()). Included through
+// terms/feedback.glsl by feedback/forces.glsl, after the stage's eval_x hook.
 //
 //   u_cell_nodes (7 NODE_ROW x rows)  node n: texels node_slot_texel(n, 7, s) (lib/node_texel.glsl),
 //                                     s = 0..6; integer m = 4 s + channel (m < 27) is the node at

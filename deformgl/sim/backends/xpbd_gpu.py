@@ -13,7 +13,7 @@ Per substep three kinds of fragment pass (shaders/sim/xpbd/):
 
 Each physics term of the system brings its XPBD passes (``Term.xpbd`` then
 :meth:`~deformgl.sim.terms.constraints.TermConstraints.gpu`: :class:`~deformgl.sim.terms.constraints.XpbdPasses`,
-e.g. the cells' per-cell pass, :class:`deformgl.sim.terms.volume.xpbd_form.XpbdCells`), drawn before each sweep, and
+e.g. the cells' per-cell pass, :class:`deformgl.sim.terms.volume.cell_xpbd.XpbdCells`), drawn before each sweep, and
 its chunk in ``iterate.frag`` (``XPBD_TERMS``: ``terms/xpbd.glsl`` composed of the terms' chunks),
 whose nodes gather the terms' corrections and write their active constraint count into the w of
 the iterate.
@@ -156,12 +156,17 @@ class XpbdFragment(SimulationBase, GLOwner):
         unit = _TERM_UNIT
         self._term_forms = term_constraints(system, inv_mass)  # (their float64 forms: the residual)
         for form in self._term_forms:
-            gpu = self.own(form.gpu(self.ctx, self.grid, self.layout, float(self.settings.omega), unit))
+            try:
+                gpu = self.own(form.gpu(self.ctx, self.grid, self.layout, float(self.settings.omega), unit))
+            except ValueError as err:
+                raise ValueError(f"xpbd: {err}") from None
             self.term_passes.append(gpu)
             unit += len(gpu.samplers)
-        bits = [b for b in (t.node_bits() for t in self.term_passes) if b is not None]
-        if len(bits) > 1:
-            raise ValueError("xpbd: two terms keep node bits; the node data has room for one term's")
+        keep = [(f.name, b) for f, b in zip(self._term_forms, (t.node_bits() for t in self.term_passes)) if b is not None]
+        if len(keep) > 1:
+            raise ValueError(f"xpbd: {keep[0][0]} and {keep[1][0]} both keep node bits; the node data has room for "
+                             f"one term's")
+        bits = [b for _, b in keep]
         flags = 1.0 + 2.0 * system.fixed + (np.asarray(bits[0], np.float64) * float(1 << TERM_SHIFT) if bits else 0.0)
         node = np.stack([inv_mass, flags, self.load_bits, counts], axis=1)
         self.tex_node = self._texture(self._image(node))
@@ -200,7 +205,8 @@ class XpbdFragment(SimulationBase, GLOwner):
             passes += term.programs()
             self.p_iterate.set(**term.sweep_uniforms(self.p_iterate))
         for p in passes:
-            p.set(**{s: u for s, u in _SAMPLERS.items() if s in p.members}, u_h=h_sub)
+            shared = {**_SAMPLERS, "u_h": h_sub}  # (a term's pass sets only those it uses)
+            p.set(**{k: v for k, v in shared.items() if k in p.members})
             if "u_width_log2" in p.members:
                 p.set(**layout_uniforms(self.layout.width))
         self.p_predict.set(u_gravity=tuple(float(g) for g in system.gravity),

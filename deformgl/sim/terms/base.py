@@ -33,13 +33,15 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 
-from deformgl.sim.terms.constraints import TermConstraints
+if TYPE_CHECKING:
+    from deformgl.sim.terms.constraints import TermConstraints
 
 __all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
 

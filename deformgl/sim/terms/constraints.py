@@ -16,17 +16,16 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from deformgl.gl.programs import Program
-from deformgl.gl.resources import GLOwner
 from deformgl.grid.nodes import NodeGrid
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # (the float64 form needs no GL: the GPU side is typed only)
     import moderngl
 
+    from deformgl.gl.programs import Program
     from deformgl.grid.nodes import CompactLayout
 
 __all__ = ["TermConstraints", "XpbdChunk", "XpbdPasses"]
@@ -46,7 +45,13 @@ class XpbdChunk:
     and the fragment shaders of the term's own passes (``passes``, drawn with
     ``sim/fullscreen.vert``), compiled with ``defines`` (one of ``variants`` where the pack
     enumerates them). ``source``: the chunk's text, given inline under the include name ``file``
-    (a term outside the package), else the file is read."""
+    (a term outside the package), else the file is read.
+
+    The chunk is included after the node sweep's own declarations and may read them:
+    ``u_node`` (R inverse mass, G flags, A static constraint count) and ``u_p`` (the iterate, w the
+    terms' active constraints after the last sweep), ``node_texel`` / ``texel_node``
+    (``lib/node_texel.glsl``), ``term_bits(flags)`` (``lib/node_flags.glsl``: the node bits of
+    :meth:`XpbdPasses.node_bits`); its own uniforms and samplers start with ``u_`` + prefix."""
 
     prefix: str
     file: str
@@ -88,15 +93,20 @@ class TermConstraints(ABC):
         """(C, alpha~ lambda) of its constraints at p, in metres (they join the springs' relative
         residual |C + alpha~ lambda| / |C|)."""
 
+    #: the term as messages name it
+    name: str = "a physics term"
+
     def gpu(self, ctx: "moderngl.Context", grid: NodeGrid, layout: "CompactLayout", omega: float,
             first_unit: int) -> XpbdPasses:
         """Its GPU form on the compact ``layout`` of ``grid``, its samplers on units from
-        ``first_unit`` (the backend owns and releases it); NotImplementedError where it has none."""
-        raise NotImplementedError(f"{type(self).__name__} has no XPBD form on the GPU")
+        ``first_unit`` (the backend owns and releases it); ValueError (one line, naming the term)
+        where it has none."""
+        raise ValueError(f"{self.name} have no XPBD form on the GPU")
 
 
-class XpbdPasses(GLOwner, ABC):
-    """A term's XPBD passes on the GPU (see the module docstring).
+class XpbdPasses(Protocol):
+    """A term's XPBD passes on the GPU (see the module docstring): a
+    :class:`~deformgl.gl.resources.GLOwner` (the backend owns it and releases it) with these.
 
     Attributes:
         chunk: its node-sweep chunk and pass shaders (with this instance's defines).
@@ -108,29 +118,33 @@ class XpbdPasses(GLOwner, ABC):
     samplers: dict[str, int]
     bytes_allocated: int
 
-    @abstractmethod
     def programs(self) -> list[Program]:
         """Its own passes' programs: the backend sets on each the node sweep's shared samplers
         (``u_node``, ``u_p``), ``u_h`` and the layout's uniforms where they use them."""
+        ...
 
-    @abstractmethod
     def sweep_uniforms(self, program: Program) -> dict[str, object]:
         """The uniforms its chunk needs in the node sweep ``program`` (its samplers included)."""
+        ...
 
     def node_bits(self) -> np.ndarray | None:
         """(N,) integers 0..255: its bits in the node flags, or None."""
-        return None
+        ...
 
-    @abstractmethod
     def clear(self) -> None:
         """Zero its multipliers of set 0 (a substep's start)."""
+        ...
 
-    @abstractmethod
     def sweep(self, a: int, b: int) -> None:
         """Its passes from multiplier set ``a`` to ``b`` at the iterate bound to ``u_p``; leaves
         bound what the node sweep's chunk reads."""
+        ...
 
-    @abstractmethod
     def read(self, b: int) -> object:
         """Its multipliers of set ``b`` in float64, as :class:`TermConstraints`
         keeps them (the residual's read-back)."""
+        ...
+
+    def release(self) -> None:
+        """Release its GL objects (idempotent)."""
+        ...

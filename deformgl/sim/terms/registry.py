@@ -53,6 +53,7 @@ def main() -> int:
     repository's ``shaders/`` (or under the folder given)."""
     root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[3] / "shaders"
     for name, text in ((ACTIVE, shipped_active()), (FEEDBACK, shipped_feedback()), (XPBD, shipped_xpbd())):
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).write_text(text, encoding="utf-8")
         print(root / name)
     return 0

@@ -23,6 +23,8 @@ from deformgl.sim.terms.volume.energy import CellVolumes
 
 __all__ = ["CELL_FORMS", "CELL_SLOTS", "FEEDBACK", "GLSL", "cell_defines", "volume_feedback", "volume_glsl"]
 
+#: The term as messages name it.
+TERM_NAME = "the cells' volumetric term"
 #: RGBA32I texels per node of the feedback form's cell table: 27 neighbourhood node numbers and the mask.
 CELL_SLOTS = 7
 
@@ -47,7 +49,7 @@ def volume_glsl(cells: CellVolumes, grid: NodeGrid | None) -> GlslTerm:
     """The GLSL form of ``cells`` on ``grid`` (ValueError when they are not the grid's cells)."""
     if grid is None:
         raise ValueError("the cells' volumetric term needs the system's node grid on the GPU")
-    check_cells(grid, cells)  # (a node finds its cells by grid offsets)
+    check_cells(grid, cells, TERM_NAME)  # (a node finds its cells by grid offsets)
     centre = cells.volume_modulus > 0
     uniforms: dict[str, object] = dict(cell_uniforms(cells))
     if not centre:
@@ -63,7 +65,7 @@ def volume_feedback(cells: CellVolumes, grid: NodeGrid | None) -> FeedbackTerm:
     if grid is None:
         raise ValueError("the system has cells (a volumetric term) but no node grid; only grid bodies "
                          "(lattice_system) can carry cells")
-    check_cells(grid, cells)  # (a node finds its cells by grid offsets)
+    check_cells(grid, cells, TERM_NAME)  # (a node finds its cells by grid offsets)
     table = np.zeros((grid.count, 4 * CELL_SLOTS), np.int32)
     table[:, :27] = neighbourhood(grid)
     table[:, -1] = incident_cells(grid, cells)

@@ -41,7 +41,7 @@ def check_cells(grid: NodeGrid, cells: CellVolumes, who: str = "cells") -> None:
         bad = int(np.argmax(wrong.any(axis=1)))
         raise ValueError(f"{who}: cell {bad} (corners {corners[bad].tolist()}) is not a unit cell of the system's "
                          f"node grid (corner {int(np.argmax(wrong[bad]))} is not at corner 0 + (dx, dy, dz), "
-                         f"c = dx + 2 dy + 4 dz); build them with volume.grid_cells on the system's grid")
+                         f"c = dx + 2 dy + 4 dz); build them with terms.volume.energy.grid_cells on the system's grid")
     if len(np.unique(corners[:, 0])) != cells.count:
         raise ValueError(f"{who}: a grid cell is listed more than once")
 

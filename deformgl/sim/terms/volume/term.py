@@ -3,7 +3,7 @@
 the form that goes with the springs' ``geometric`` option: :mod:`deformgl.sim.terms.volume.hessian`), its
 share of the dt bound (the centre term at rest, the barrier's envelope), its GLSL forms
 (:mod:`deformgl.sim.terms.volume.chunks`: the passes' chunk and the transform-feedback chunk) and its
-XPBD form (:mod:`deformgl.sim.terms.volume.xpbd_form`, on the GPU :class:`deformgl.sim.terms.volume.xpbd_form.XpbdCells`). A
+XPBD form (:mod:`deformgl.sim.terms.volume.xpbd_form`, on the GPU :class:`deformgl.sim.terms.volume.cell_xpbd.XpbdCells`). A
 system with ``cells`` holds one as the first of its terms (:class:`~deformgl.sim.springs.SpringSystem`)."""
 
 from __future__ import annotations

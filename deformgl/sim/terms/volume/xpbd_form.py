@@ -1,7 +1,8 @@
 """The cells' volumetric term (:mod:`deformgl.sim.terms.volume.energy`) as XPBD constraints (Macklin, Müller &
-Chentanez 2016): the term's XPBD form, in float64 (:class:`CellConstraints`, a
-:class:`~deformgl.sim.terms.constraints.TermConstraints`) and on the GPU (:class:`XpbdCells`: the
-cell pass ``shaders/terms/cell_xpbd.frag`` and the node sweep's chunk ``shaders/terms/cell_xpbd.glsl``).
+Chentanez 2016): the term's XPBD form in float64 (:class:`CellConstraints`, a
+:class:`~deformgl.sim.terms.constraints.TermConstraints`), the reference of its GPU passes
+(:class:`~deformgl.sim.terms.volume.cell_xpbd.XpbdCells`: the cell pass
+``shaders/terms/cell_xpbd.frag`` and the node sweep's chunk ``shaders/terms/cell_xpbd.glsl``).
 
 Per full cell of rest volume ``V = h^3`` (:class:`~deformgl.sim.terms.volume.energy.CellVolumes`):
 
@@ -40,49 +41,25 @@ switches on during a sweep is counted only from the next one, so for that one sw
 above may not hold at its nodes (the sweep may overshoot there; the next is bounded again). The
 tests' inverted blocks recover (tests/test_cells_xpbd.py); the convergence claim holds for sweeps
 whose active set does not change.
-
-On the GPU (:class:`XpbdCells`, float32)
----------------------------------------
-
-A Jacobi sweep with cells is two passes: the cell pass (one fragment per node; the node at corner
-0 of a full cell owns that cell) reads the iterate and the cell multipliers of the last sweep and
-writes the new multipliers and their changes; the node sweep then reads the same iterate and those
-changes and gathers ``w_i grad_i C d_lambda`` of the constraints of its (up to 8) incident cells.
-
-Textures (compact layout of the nodes, NEAREST, ``texelFetch``; a cell's values at its owner's
-texel, 0 at every other texel; docs/ARCHITECTURE.md):
-
-* neighbourhood: RGBA32I array, 7 layers: column ``4 l + c`` the node at slot
-  ``(dx + 1) + 3 (dy + 1) + 9 (dz + 1)`` of the 3x3x3 neighbourhood
-  (:func:`~deformgl.grid.neighbours.neighbourhood`; the node itself where absent), column
-  27 0; static. A node's full incident cells are its term bits (:meth:`XpbdCells.node_bits`:
-  ``64 << q`` in the XPBD node data's flags);
-* lambda, 2 sets (ping-pong per sweep) of 2 RGBA32F: the barrier multipliers of corners 0..3 and
-  4..7 (>= 0);
-* state, 2 sets of 1 RGBA32F: R the volume multiplier, G its change in this sweep, B the mask of
-  corners whose barrier multiplier is > 0 (8 bits, exact), A 1 where any multiplier of the cell
-  changed in this sweep, else 0 (a node fetches its 27 positions only when one of its cells did);
-* delta, 2 RGBA32F (one set, rewritten every sweep): the barrier multipliers' changes.
-
-All multipliers are cleared at each substep's start (set 0).
 """
 
 from __future__ import annotations
 
-import moderngl
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from deformgl.errors import GLError
-from deformgl.gl.es_context import read_texture
-from deformgl.gl.programs import Program
-from deformgl.grid.neighbours import neighbourhood
-from deformgl.grid.nodes import CompactLayout, NodeGrid
-from deformgl.sim.backends.compact_textures import float_texture, layer_texture
-from deformgl.sim.terms.volume.tables import cell_uniforms, incident_cells
-from deformgl.sim.terms.constraints import TermConstraints, XpbdChunk, XpbdPasses
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.terms.constraints import TermConstraints, XpbdChunk
 from deformgl.sim.terms.volume.energy import CORNER_SIGNS, CellVolumes, cell_state
 
-__all__ = ["CELL_SAMPLERS", "CellConstraints", "TET_NODES", "XPBD", "XpbdCells", "chunk"]
+if TYPE_CHECKING:
+    import moderngl
+
+    from deformgl.grid.nodes import CompactLayout
+    from deformgl.sim.terms.volume.cell_xpbd import XpbdCells
+
+__all__ = ["CellConstraints", "TET_NODES", "XPBD", "chunk"]
 
 
 def chunk(volume: bool, barrier: bool) -> XpbdChunk:
@@ -139,10 +116,16 @@ class CellConstraints(TermConstraints):
         _, lam_barrier = _pair(multipliers)
         return self.barrier_counts(lam_barrier)
 
+    #: the term as messages name it
+    name = "the cells' volumetric term"
+
     def gpu(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, omega: float,
             first_unit: int) -> XpbdCells:
-        """:class:`XpbdCells`."""
-        return XpbdCells(ctx, grid, layout, self, omega, first_unit)
+        """:class:`~deformgl.sim.terms.volume.cell_xpbd.XpbdCells` (imported here: the float64 form
+        needs no GL)."""
+        from deformgl.sim.terms.volume.cell_xpbd import XpbdCells
+
+        return XpbdCells(ctx, grid, layout, self.cells, chunk(self.volume, self.barrier), omega, first_unit)
 
     def volume_counts(self) -> np.ndarray:
         """(N,) float64 volume constraints at each node (0 everywhere where kappa = 0)."""
@@ -288,94 +271,3 @@ def _scatter(out: np.ndarray, nodes: np.ndarray, values: np.ndarray) -> None:
     vals = values.reshape(-1, 3)
     for k in range(3):
         out[:, k] += np.bincount(flat, weights=vals[:, k], minlength=len(out))
-
-
-#: The cells' samplers, in the order of their texture units (from the backend's ``first_unit``).
-CELL_SAMPLERS = ("u_cell_nodes", "u_cell_lambda0", "u_cell_lambda1", "u_cell_state", "u_cell_delta0", "u_cell_delta1")
-_NEIGHBOURHOOD_LAYERS = 7
-_VEC4 = 16
-
-
-class XpbdCells(XpbdPasses):
-    """The cells' multipliers and the cell pass of :class:`XpbdFragment`.
-
-    Args:
-        ctx: the GL context.
-        grid: the system's node grid.
-        layout: its compact layout.
-        constraints: the cell constraints (``VolumeTerm.xpbd``).
-        omega: the relaxation.
-        first_unit: the texture unit of its first sampler (:data:`CELL_SAMPLERS` in order).
-    """
-
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout,
-                 constraints: CellConstraints, omega: float, first_unit: int) -> None:
-        targets = 5
-        if targets > int(ctx.info.get("GL_MAX_DRAW_BUFFERS", 8)):
-            raise GLError(f"xpbd: the cell pass needs {targets} render targets, the context has "
-                          f"{ctx.info.get('GL_MAX_DRAW_BUFFERS')}")
-        super().__init__(ctx)
-        self.constraints, self.layout = constraints, layout
-        self.chunk = chunk(constraints.volume, constraints.barrier)
-        self.samplers = {name: first_unit + k for k, name in enumerate(CELL_SAMPLERS)}
-        cells = constraints.cells
-        self.owners = np.ascontiguousarray(cells.corners[:, 0])   # (C,) each cell's corner-0 node
-        self.mask = incident_cells(grid, cells)
-        with self.building():
-            size = layout.size
-            self.tex_nodes = layer_texture(self, ctx, size, neighbourhood(grid), "i4", _NEIGHBOURHOOD_LAYERS)
-            self.lambdas = [[float_texture(self, ctx, size) for _ in range(2)] for _ in range(2)]
-            self.states = [float_texture(self, ctx, size) for _ in range(2)]
-            self.deltas = [float_texture(self, ctx, size) for _ in range(2)]
-            self.program = self.own(Program(ctx, "sim/fullscreen.vert", self.chunk.passes[0], defines=self.chunk.defines))
-            self.program.set(**self.sweep_uniforms(self.program), u_omega=float(omega))
-            self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-            self._fbos = [self.own(ctx.framebuffer(color_attachments=[*self.lambdas[b], self.states[b],
-                                                                      *self.deltas]))
-                          for b in range(2)]
-            self._clear = self.own(ctx.framebuffer(color_attachments=[*self.lambdas[0], self.states[0]]))
-        w, h_px = size
-        self.bytes_allocated = (_NEIGHBOURHOOD_LAYERS + 8) * w * h_px * _VEC4
-
-    def programs(self) -> list[Program]:
-        """The cell pass."""
-        return [self.program]
-
-    def sweep_uniforms(self, program: Program) -> dict[str, object]:
-        """The uniforms of ``terms/cell_forces.glsl`` and the cells' samplers that ``program``
-        uses (the backend sets ``u_node``, ``u_p``, ``u_h`` and ``u_width_log2`` of every pass)."""
-        values: dict[str, object] = {**cell_uniforms(self.constraints.cells), **self.samplers}
-        return {k: v for k, v in values.items() if k in program.members}
-
-    def node_bits(self) -> np.ndarray:
-        """(N,) the incident-cell mask (bit q: full incident cell q)."""
-        return self.mask
-
-    def clear(self) -> None:
-        """Zero the multipliers of set 0 (a substep's start)."""
-        self._clear.clear(0.0, 0.0, 0.0, 0.0)
-
-    def sweep(self, a: int, b: int) -> None:
-        """The cell pass from multiplier set ``a`` to set ``b`` at the iterate bound to ``u_p``;
-        then binds set b's state and the changes for the node sweep."""
-        units = self.samplers
-        self.tex_nodes.use(units["u_cell_nodes"])
-        self.lambdas[a][0].use(units["u_cell_lambda0"])
-        self.lambdas[a][1].use(units["u_cell_lambda1"])
-        self.states[a].use(units["u_cell_state"])
-        self._fbos[b].use()
-        self.vao.render(moderngl.TRIANGLES, vertices=3)
-        self.states[b].use(units["u_cell_state"])
-        self.deltas[0].use(units["u_cell_delta0"])
-        self.deltas[1].use(units["u_cell_delta1"])
-
-    def read(self, b: int) -> tuple[np.ndarray, np.ndarray]:
-        """The multipliers of set ``b`` in float64: ((C,) volume, (C, 8) barrier)."""
-        n = len(self.mask)
-
-        def texels(tex: moderngl.Texture) -> np.ndarray:
-            data = np.frombuffer(read_texture(tex), dtype=np.float32).reshape(-1, 4)[:n]
-            return data[self.owners].astype(np.float64)
-
-        barrier = np.concatenate([texels(t) for t in self.lambdas[b]], axis=1)
-        return texels(self.states[b])[:, 0].copy(), barrier
