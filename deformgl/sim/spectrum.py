@@ -140,16 +140,6 @@ def _describe(system: SpringSystem, omega2: float, q: np.ndarray, method: str,
     return ExactFrequency(math.sqrt(max(omega2, 0.0)), node, spring, mode, method, tol)
 
 
-def modal_frequencies(system: SpringSystem) -> tuple[np.ndarray, np.ndarray]:
-    """All angular frequencies (ascending, rad/s) and mass-normalised modes (columns), dense.
-
-    ``eigh(M^-1/2 K M^-1/2)``: the undamped linearised system ``M x'' = -K x`` has modes
-    ``x = M^-1/2 q`` with ``w^2`` the eigenvalues. Only for small systems (3N x 3N dense).
-    """
-    lam, vec = np.linalg.eigh(_mass_normalised(system))
-    return np.sqrt(np.clip(lam, 0.0, None)), vec
-
-
 def _lanczos_top(matvec, n: int, tol: float, rng: np.random.Generator, *,
                  block: int = 80, restarts: int = 50) -> tuple[float, np.ndarray, float]:
     """Largest eigenvalue of a symmetric positive semidefinite operator by restarted Lanczos.
