@@ -3,10 +3,12 @@ integrators x two dts, its three errors kept apart, the front, and the CLI."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from deformgl.bench.fem import WORKLOADS, lattice_case, lattice_value
-from deformgl.bench.resolution import FEM_TIP, resolution_study
+from deformgl.bench.resolution import FEM_TIP, ResolutionReport, resolution_study
 
 pytestmark = pytest.mark.slow  # the quick study: ~15 s on 2 cores
 
@@ -68,6 +70,8 @@ def test_bench_trade_resolution_prints_the_study_and_writes_its_files(ctx, tmp_p
     assert "Pareto front" in out and "discr." in out and "float32" in out
     rows = json.loads((tmp_path / "resolution.json").read_text())["rows"]
     assert len(rows) == 8 and {r["across"] for r in rows} == {2, 3}
+    again = ResolutionReport.read_json(tmp_path / "resolution.json")  # (the written report reads back)
+    assert [dataclasses.asdict(r) for r in again.rows] == rows and again.fem_tip > 0
     assert (tmp_path / "resolution.csv").read_text().startswith("across,spacing,nodes")
     try:
         import matplotlib  # noqa: F401
