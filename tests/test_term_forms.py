@@ -1,11 +1,11 @@
-"""A physics term defined only here — a spring from each node to its rest position, stiffness in
-N/m — in the transform-feedback and XPBD forms (issue 43, item 1: each term declares its
-transform-feedback and XPBD forms, and the backends loop over the terms): its feedback chunk
+"""A physics term defined only in the tests — tests/test_term_proof.py's spring from each node to
+its rest position, stiffness in N/m — given here its transform-feedback and XPBD forms (issue 43,
+item 1: each term declares them, and the backends loop over the terms): its feedback chunk
 (``FeedbackTerm``, inline source, float data bit-cast into the integer table) runs on the
 transform-feedback backend with every explicit integrator, and its XPBD form (``TermConstraints``:
 a vector constraint per node of compliance 1 / (w k), Macklin, Müller & Chentanez 2016, eq. 2-4,
 with a pass of its own and a node-sweep chunk) on XPBD in NumPy and on the GPU, each matched to
-its float64 reference with no edit outside this module."""
+its float64 reference, with no edit outside the test modules."""
 
 from __future__ import annotations
 
@@ -25,8 +25,10 @@ from deformgl.sim.backends.compact_textures import compact_image, float_texture
 from deformgl.sim.backends.feedback import FeedbackSimulation
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.simulation import make_simulation
-from deformgl.sim.terms import FeedbackTerm, Term, TermConstraints, XpbdChunk, XpbdPasses, block_diagonal
+from deformgl.sim.terms import FeedbackTerm, TermConstraints, XpbdChunk, XpbdPasses
 from deformgl.sim.xpbd import XpbdSettings, XpbdSolver, constraint_counts
+from test_term_proof import RestAnchors, start  # the term's float64 force, energy and stiffness
+from test_term_proof import anchored as proof_anchored
 
 # The feedback chunk: the rest position and the weight as float bits in one RGBA32I texel per node.
 ANCHOR_FEEDBACK = """
@@ -153,25 +155,11 @@ class AnchorPasses(GLOwner, XpbdPasses):
         return data[: self.count, :3].astype(np.float64)
 
 
-class Anchors(Term):
-    """A zero-length spring of stiffness ``weight * k`` (N/m) from each node to its rest position,
-    with transform-feedback and XPBD forms."""
+class Anchors(RestAnchors):
+    """test_term_proof's rest anchors (a zero-length spring of stiffness ``weight * k``, N/m, from
+    each node to its rest position), with transform-feedback and XPBD forms."""
 
     name = "feedback anchors"
-
-    def __init__(self, rest: np.ndarray, k: float, weight: np.ndarray) -> None:
-        self.rest = np.asarray(rest, np.float64)
-        self.k = float(k)
-        self.weight = np.asarray(weight, np.float64)
-
-    def add_forces(self, x, v, t, out):
-        out -= (self.k * self.weight)[:, None] * (x - self.rest)
-
-    def energy(self, x):
-        return 0.5 * float(np.sum(self.k * self.weight * np.sum((x - self.rest) ** 2, axis=1)))
-
-    def stiffness(self, x):
-        return block_diagonal((self.k * self.weight)[:, None, None] * np.eye(3))
 
     def feedback(self, grid):
         table = np.concatenate([self.rest, self.weight[:, None]], axis=1).astype(np.float32).view(np.int32)
@@ -182,18 +170,11 @@ class Anchors(Term):
         return AnchorConstraints(self, inverse_mass)
 
 
-def anchored(n=4, k_anchor=30.0, **options):
-    grid = NodeGrid(np.array([0.2, 0.5, -0.1]), 0.1, np.ones((n, n, n), bool))
-    fixed = np.zeros(grid.count, bool)
-    fixed[[0, n - 1]] = True
-    base = springs.from_grid(grid, k_structural=50.0, k_shear=20.0, mass=0.1, fixed=fixed,
-                             velocity_damping=0.02, **options)
-    weight = np.linspace(0.5, 1.5, grid.count)  # unequal per node: the table is read per node
-    return dataclasses.replace(base, extra_terms=(Anchors(grid.rest_positions, k_anchor, weight),))
-
-
-def start(system, dt):
-    return I.initial_state(system, dt, v=np.random.default_rng(7).normal(size=(system.count, 3)) * 0.3)
+def anchored(n=4, **options):
+    """test_term_proof's anchored lattice, its anchors given the forms above."""
+    system, _ = proof_anchored(n, **options)
+    rest = system.extra_terms[0]
+    return dataclasses.replace(system, extra_terms=(Anchors(rest.rest, rest.k, rest.weight),))
 
 
 @pytest.mark.parametrize("name", EXPLICIT_INTEGRATORS)

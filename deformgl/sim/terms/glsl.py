@@ -191,43 +191,44 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
     return PassTerms(tuple(forms), implicit)
 
 
+def _compose_hook(parts: Sequence[tuple[str, str]], header: str, signature: str, call: str, guarded: bool) -> str:
+    """A composed hook file: ``header`` (comment lines), each part's include, then ``signature``
+    calling ``call`` (with PREFIX replaced) for each part in turn; ``parts`` are (prefix, include)
+    pairs; ``guarded``: each under ``#ifdef TERM_<PREFIX>`` (the shipped file)."""
+    lines = header.splitlines()
+
+    def each(prefix: str, text: str) -> None:
+        lines.extend([f"#ifdef TERM_{prefix.upper()}", text, "#endif"] if guarded else [text])
+
+    for prefix, include in parts:
+        each(prefix, f'#include "{include}"')
+    lines.append(signature + " {")
+    for prefix, _ in parts:
+        each(prefix, "    " + call.replace("PREFIX", prefix))
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
 def compose_feedback(forms: Sequence[FeedbackTerm], *, guarded: bool = False) -> str:
     """``terms/feedback.glsl`` of ``forms``: each chunk's include, then ``feedback_terms`` calling
     each term's ``PREFIX_feedback`` in turn (``guarded``: each under ``#ifdef TERM_<PREFIX>``, the
     shipped file)."""
-    lines = ["// The physics terms of the transform-feedback stages (deformgl/sim/terms). Composed by",
-             "// deformgl/sim/terms/glsl.py compose_feedback(); do not edit: `python -m deformgl.sim.terms.registry`",
-             "// writes the shipped one. Included by feedback/forces.glsl under FEEDBACK_TERMS."]
-
-    def each(form: FeedbackTerm, text: str) -> None:
-        lines.extend([f"#ifdef TERM_{form.prefix.upper()}", text, "#endif"] if guarded else [text])
-
-    for form in forms:
-        each(form, f'#include "{form.file}"')
-    lines.append("void feedback_terms(inout vec3 f, int i, vec3 xi) {")
-    for form in forms:
-        each(form, f"    {form.prefix}_feedback(f, i, xi);")
-    lines.append("}")
-    return "\n".join(lines) + "\n"
+    header = ("// The physics terms of the transform-feedback stages (deformgl/sim/terms). Composed by\n"
+              "// deformgl/sim/terms/glsl.py compose_feedback(); do not edit: `python -m deformgl.sim.terms.registry`\n"
+              "// writes the shipped one. Included by feedback/forces.glsl under FEEDBACK_TERMS.")
+    return _compose_hook([(f.prefix, f.file) for f in forms], header, "void feedback_terms(inout vec3 f, int i, vec3 xi)",
+                         "PREFIX_feedback(f, i, xi);", guarded)
 
 
 def compose_xpbd(chunks: Sequence[XpbdChunk], *, guarded: bool = False) -> str:
     """``terms/xpbd.glsl`` of ``chunks``: each chunk's include, then ``xpbd_terms`` calling each
     term's ``PREFIX_xpbd`` in turn (``guarded``: each under ``#ifdef TERM_<PREFIX>``, the shipped file)."""
-    lines = ["// The physics terms of the XPBD node sweep (deformgl/sim/terms). Composed by",
-             "// deformgl/sim/terms/glsl.py compose_xpbd(); do not edit: `python -m deformgl.sim.terms.registry`",
-             "// writes the shipped one. Included by sim/xpbd/iterate.frag under XPBD_TERMS."]
-
-    def each(chunk: XpbdChunk, text: str) -> None:
-        lines.extend([f"#ifdef TERM_{chunk.prefix.upper()}", text, "#endif"] if guarded else [text])
-
-    for chunk in chunks:
-        each(chunk, f'#include "{chunk.file}"')
-    lines.append("void xpbd_terms(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi) {")
-    for chunk in chunks:
-        each(chunk, f"    {chunk.prefix}_xpbd(dx, counts, texel, flags, wi);")
-    lines.append("}")
-    return "\n".join(lines) + "\n"
+    header = ("// The physics terms of the XPBD node sweep (deformgl/sim/terms). Composed by\n"
+              "// deformgl/sim/terms/glsl.py compose_xpbd(); do not edit: `python -m deformgl.sim.terms.registry`\n"
+              "// writes the shipped one. Included by sim/xpbd/iterate.frag under XPBD_TERMS.")
+    return _compose_hook([(c.prefix, c.file) for c in chunks], header,
+                         "void xpbd_terms(inout vec3 dx, inout float counts, ivec2 texel, int flags, float wi)",
+                         "PREFIX_xpbd(dx, counts, texel, flags, wi);", guarded)
 
 
 def feedback_terms(terms: Sequence[Term], grid: NodeGrid | None, caller: str) -> tuple[FeedbackTerm, ...]:
