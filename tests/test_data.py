@@ -38,6 +38,24 @@ def test_the_data_folders_hold_what_the_wheel_ships():
     assert read_shader_file("lib/node_texel.glsl").strip()
 
 
+def test_the_wheel_lists_every_package_and_shader():
+    """The wheel is built from pyproject.toml's explicit package list and data globs (an editable
+    install would hide a missing one): every folder of deformgl/ with an __init__.py is listed, and
+    every shader file matches a glob of the shaders' package data."""
+    import fnmatch
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["setuptools"]
+    packages = set(config["packages"])
+    found = {".".join(f.parent.relative_to(ROOT).parts) for f in (ROOT / "deformgl").rglob("__init__.py")}
+    assert found - packages == set(), "packages missing from pyproject.toml [tool.setuptools] packages"
+    globs = config["package-data"]["deformgl.shaders"]
+    for f in (ROOT / "shaders").rglob("*"):
+        if f.suffix in (".glsl", ".vert", ".frag", ".geom", ".md"):
+            rel = f.relative_to(ROOT / "shaders").as_posix()
+            assert any(fnmatch.fnmatch(rel, g) and rel.count("/") == g.count("/") for g in globs), rel
+
+
 def test_missing_package_data_is_one_line_naming_it(monkeypatch):
     def no_package(name):
         raise ModuleNotFoundError(name)
