@@ -104,6 +104,19 @@ def test_the_wheel_holds_at_most_its_budget_of_benchmark_code():
     assert all(p == "deformgl" or p.startswith("deformgl.") for p in packages), packages
 
 
+def test_the_float64_model_needs_no_gl():
+    """The spring system, its terms' float64 forms and the NumPy solvers import no GL: a CPU-only
+    user (the "numpy" backend, the studies' float64 references) loads no moderngl; a term's GPU
+    passes are imported when a GPU backend builds them."""
+    code = ("import sys; import deformgl.sim.springs, deformgl.sim.integrators, deformgl.sim.xpbd, "
+            "deformgl.sim.implicit, deformgl.sim.terms.volume.xpbd_form, deformgl.sim.terms.bending; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('moderngl', 'glcontext') "
+            "or m in ('deformgl.gl.programs', 'deformgl.gl.resources', 'deformgl.gl.context')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]", done.stdout
+
+
 def test_subpackages_mirror_the_shaders():
     """Every shader folder has the package folder that uses it (shaders/sim -> deformgl/sim, ...)."""
     shader_dirs = {p.name for p in (ROOT / "shaders").iterdir() if p.is_dir() and p.name != "lib"}

@@ -235,13 +235,14 @@ def test_the_xpbd_passes_match_numpy(ctx):
 
 
 class CpuOnlyConstraints(AnchorConstraints):
-    """The anchors' float64 form without a GPU one."""
+    """The anchors' float64 form without a GPU one (and without a name: the term's is taken)."""
 
-    name = "CPU-only anchors"
     gpu = TermConstraints.gpu
 
 
 class CpuOnlyAnchors(Anchors):
+    name = "CPU-only anchors"
+
     def xpbd(self, inverse_mass):
         return CpuOnlyConstraints(self, inverse_mass)
 
@@ -250,5 +251,20 @@ def test_a_form_without_gpu_passes_is_refused_in_one_line(ctx):
     system = anchored()
     cpu_only = dataclasses.replace(system, extra_terms=(CpuOnlyAnchors(system.rest_positions, 30.0, np.ones(system.count)),))
     make_simulation(cpu_only, "xpbd", "numpy", dt=0.01).step(1)  # (the float64 form runs)
-    with pytest.raises(ValueError, match=r"^xpbd: CPU-only anchors have no XPBD form on the GPU$"):
+    with pytest.raises(ValueError, match=r"^xpbd: CPU-only anchors: no XPBD form on the GPU$"):
         make_simulation(cpu_only, "xpbd", "fragment", dt=0.01, ctx=ctx)
+
+
+class ShadowingAnchors(Anchors):
+    """Anchors whose inline feedback chunk takes a shipped shader's include name."""
+
+    def feedback(self, grid):
+        return dataclasses.replace(super().feedback(grid), file="terms/cell_feedback.glsl")
+
+
+def test_an_inline_chunk_cannot_replace_a_shipped_shader():
+    system = anchored()
+    shadowing = dataclasses.replace(system, extra_terms=(ShadowingAnchors(system.rest_positions, 30.0, np.ones(system.count)),))
+    with pytest.raises(ValueError, match=r"^FeedbackSimulation: a term's inline chunk is named 'terms/cell_feedback.glsl', "
+                                         r"a shipped shader's name; give it a name of its own$"):
+        FeedbackSimulation(None, shadowing, "rk4", 1e-3)  # (refused before any GL)

@@ -126,6 +126,8 @@ def term_constraints(system: SpringSystem, inverse_mass: np.ndarray) -> tuple[Te
     for term in system.terms:
         form = term.xpbd(inverse_mass) if term.acts() else None
         if form is not None:
+            if not form.name:
+                form.name = term.name
             found.append(form)
     return tuple(found)
 

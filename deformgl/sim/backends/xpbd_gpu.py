@@ -46,8 +46,8 @@ from deformgl.sim.backends.compact_textures import compact_image, float_texture,
 from deformgl.sim.integrators import Constraints, Drag, Load, State
 from deformgl.sim.springs import FLEXION, SHEAR, STRUCTURAL, SpringSystem
 from deformgl.sim.scripted import load_groups
-from deformgl.sim.terms.glsl import TERM_SHIFT, XPBD, compose_xpbd
-from deformgl.sim.terms.constraints import XpbdPasses
+from deformgl.sim.terms.glsl import TERM_SHIFT, XPBD, check_inline, compose_xpbd
+from deformgl.sim.terms.constraints import TermConstraints, XpbdPasses
 from deformgl.sim.xpbd import (
     DEFAULT_ITERATIONS,
     DEFAULT_SUBSTEPS,
@@ -55,7 +55,6 @@ from deformgl.sim.xpbd import (
     OMEGA,
     XpbdSettings,
     _check_drags,
-    check_terms,
     constraint_counts,
     node_terms,
     relative_residual,
@@ -112,7 +111,11 @@ class XpbdFragment(SimulationBase, GLOwner):
         if not dt > 0:
             raise ValueError(f"xpbd: dt must be > 0, got {dt}")
         self.settings = XpbdSettings(iterations, substeps, omega)
-        check_terms(system)
+        #: the terms' float64 XPBD forms (their GPU passes: :attr:`term_passes`; the residual)
+        self._term_forms = term_constraints(system, node_terms(system)[0])
+        for form in self._term_forms:
+            if type(form).gpu is TermConstraints.gpu:
+                raise ValueError(f"xpbd: {form.name}: no XPBD form on the GPU")
         _check_drags(tuple(drags), system.count)
         self.ctx, self.system, self.grid = ctx, system, grid
         self._start_clock(dt, t0)
@@ -154,12 +157,9 @@ class XpbdFragment(SimulationBase, GLOwner):
         #: each term's XPBD passes and multipliers (:class:`~deformgl.sim.terms.constraints.XpbdPasses`)
         self.term_passes: list[XpbdPasses] = []
         unit = _TERM_UNIT
-        self._term_forms = term_constraints(system, inv_mass)  # (their float64 forms: the residual)
         for form in self._term_forms:
-            try:
-                gpu = self.own(form.gpu(self.ctx, self.grid, self.layout, float(self.settings.omega), unit))
-            except ValueError as err:
-                raise ValueError(f"xpbd: {err}") from None
+            gpu = self.own(form.gpu(self.ctx, self.grid, self.layout, float(self.settings.omega), unit))
+            check_inline(gpu.chunk.file, gpu.chunk.source, "xpbd")
             self.term_passes.append(gpu)
             unit += len(gpu.samplers)
         keep = [(f.name, b) for f, b in zip(self._term_forms, (t.node_bits() for t in self.term_passes)) if b is not None]

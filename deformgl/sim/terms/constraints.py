@@ -93,20 +93,23 @@ class TermConstraints(ABC):
         """(C, alpha~ lambda) of its constraints at p, in metres (they join the springs' relative
         residual |C + alpha~ lambda| / |C|)."""
 
-    #: the term as messages name it
-    name: str = "a physics term"
+    #: the term as messages name it (:func:`deformgl.sim.xpbd.term_constraints` sets the term's
+    #: ``Term.name`` where a form leaves it empty)
+    name: str = ""
 
     def gpu(self, ctx: "moderngl.Context", grid: NodeGrid, layout: "CompactLayout", omega: float,
             first_unit: int) -> XpbdPasses:
         """Its GPU form on the compact ``layout`` of ``grid``, its samplers on units from
-        ``first_unit`` (the backend owns and releases it); ValueError (one line, naming the term)
-        where it has none."""
-        raise ValueError(f"{self.name} have no XPBD form on the GPU")
+        ``first_unit`` (the backend owns and releases it). A form without one does not override
+        this: the GPU backend refuses it in one line naming the term before it builds anything."""
+        raise NotImplementedError(f"{self.name or type(self).__name__}: no XPBD form on the GPU")
 
 
 class XpbdPasses(Protocol):
     """A term's XPBD passes on the GPU (see the module docstring): a
-    :class:`~deformgl.gl.resources.GLOwner` (the backend owns it and releases it) with these.
+    :class:`~deformgl.gl.resources.GLOwner` (the backend owns it and releases it) with these;
+    subclass it after GLOwner (``class P(GLOwner, XpbdPasses)``: GLOwner's ``release``), and a
+    method left out is an error when it is built.
 
     Attributes:
         chunk: its node-sweep chunk and pass shaders (with this instance's defines).
@@ -118,33 +121,39 @@ class XpbdPasses(Protocol):
     samplers: dict[str, int]
     bytes_allocated: int
 
+    @abstractmethod
     def programs(self) -> list[Program]:
         """Its own passes' programs: the backend sets on each the node sweep's shared samplers
         (``u_node``, ``u_p``), ``u_h`` and the layout's uniforms where they use them."""
         ...
 
+    @abstractmethod
     def sweep_uniforms(self, program: Program) -> dict[str, object]:
         """The uniforms its chunk needs in the node sweep ``program`` (its samplers included)."""
         ...
 
     def node_bits(self) -> np.ndarray | None:
-        """(N,) integers 0..255: its bits in the node flags, or None."""
-        ...
+        """(N,) integers 0..255: its bits in the node flags, or None (the default)."""
+        return None
 
+    @abstractmethod
     def clear(self) -> None:
         """Zero its multipliers of set 0 (a substep's start)."""
         ...
 
+    @abstractmethod
     def sweep(self, a: int, b: int) -> None:
         """Its passes from multiplier set ``a`` to ``b`` at the iterate bound to ``u_p``; leaves
         bound what the node sweep's chunk reads."""
         ...
 
+    @abstractmethod
     def read(self, b: int) -> object:
         """Its multipliers of set ``b`` in float64, as :class:`TermConstraints`
         keeps them (the residual's read-back)."""
         ...
 
+    @abstractmethod
     def release(self) -> None:
         """Release its GL objects (idempotent)."""
         ...

@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from deformgl.errors import ShaderError
+from deformgl.gl.preprocessor import read_shader_file
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, NodeTable, Term
 from deformgl.sim.terms.constraints import XpbdChunk
@@ -24,8 +26,8 @@ from deformgl.sim.terms.constraints import XpbdChunk
 if TYPE_CHECKING:
     import moderngl
 
-__all__ = ["ACTIVE", "FEEDBACK", "XPBD", "PassTerms", "compose", "compose_feedback", "compose_xpbd", "feedback_terms",
-           "pass_terms", "refuse_terms"]
+__all__ = ["ACTIVE", "FEEDBACK", "XPBD", "PassTerms", "check_inline", "compose", "compose_feedback", "compose_xpbd",
+           "feedback_terms", "pass_terms", "refuse_terms"]
 
 #: The include name of the composed term list.
 ACTIVE = "terms/active.glsl"
@@ -36,6 +38,24 @@ XPBD = "terms/xpbd.glsl"
 #: The first bit of the terms' node bits in the node data's flag word (lib/node_flags.glsl).
 TERM_SHIFT = 6
 _NODE = "lib/term_node.glsl"
+
+
+def check_inline(include: str, source: str | None, caller: str) -> None:
+    """A one-line ValueError where a term's chunk given inline (``source``) would take the include
+    name of a shipped shader or of a composed term list: the inline text would replace it in every
+    file of the pass that includes it."""
+    if source is None:
+        return
+    shipped = include in (ACTIVE, FEEDBACK, XPBD)
+    if not shipped:
+        try:
+            read_shader_file(include)
+            shipped = True
+        except ShaderError:
+            pass
+    if shipped:
+        raise ValueError(f"{caller}: a term's inline chunk is named {include!r}, a shipped shader's name; give it a name "
+                         f"of its own")
 
 
 def refuse_terms(terms: Sequence[Term], backend: str, caller: str) -> None:
@@ -178,6 +198,8 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
         if not term.acts():
             continue
         form = term.glsl(grid)
+        if form is not None:
+            check_inline(form.include, form.source, caller)
         if form is None:
             raise ValueError(f"{caller}: {term.name} have no GLSL form")
         if implicit and not form.implicit:
@@ -246,6 +268,7 @@ def feedback_terms(terms: Sequence[Term], grid: NodeGrid | None, caller: str) ->
             raise ValueError(f"{caller}: {err}") from None
         if form is None:
             raise ValueError(f"{caller}: {term.name} have no transform-feedback form")
+        check_inline(form.file, form.source, caller)
         forms.append(form)
     prefixes = [f.prefix for f in forms]
     if len(set(prefixes)) != len(prefixes):

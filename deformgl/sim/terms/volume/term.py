@@ -19,7 +19,7 @@ from deformgl.sim.terms.base import FeedbackTerm, GlslTerm, Term, TermNeeds
 from deformgl.sim.terms.volume.energy import (CellVolumes, barrier_envelope_product, barrier_envelope_triplets,
                                               describe_inverted, frequency_terms, rest_product,
                                               rest_stiffness_triplets, volume_energy, volume_forces)
-from deformgl.sim.terms.volume.chunks import volume_feedback, volume_glsl
+from deformgl.sim.terms.volume.chunks import TERM_NAME, volume_feedback, volume_glsl
 from deformgl.sim.terms.volume.xpbd_form import CellConstraints
 
 __all__ = ["NEEDS", "VolumeTerm"]
@@ -38,7 +38,7 @@ class VolumeTerm(Term):
 
     cells: CellVolumes
 
-    name = "the cells' volumetric term"
+    name = TERM_NAME
 
     def acts(self) -> bool:
         """At least one cell and a modulus > 0."""

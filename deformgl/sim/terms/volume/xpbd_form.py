@@ -116,9 +116,6 @@ class CellConstraints(TermConstraints):
         _, lam_barrier = _pair(multipliers)
         return self.barrier_counts(lam_barrier)
 
-    #: the term as messages name it
-    name = "the cells' volumetric term"
-
     def gpu(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, omega: float,
             first_unit: int) -> XpbdCells:
         """:class:`~deformgl.sim.terms.volume.cell_xpbd.XpbdCells` (imported here: the float64 form
