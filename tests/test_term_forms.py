@@ -268,3 +268,51 @@ def test_an_inline_chunk_cannot_replace_a_shipped_shader():
     with pytest.raises(ValueError, match=r"^FeedbackSimulation: a term's inline chunk is named 'terms/cell_feedback.glsl', "
                                          r"a shipped shader's name; give it a name of its own$"):
         FeedbackSimulation(None, shadowing, "rk4", 1e-3)  # (refused before any GL)
+
+
+def test_a_feedback_form_is_checked_when_made():
+    table = np.zeros((4, 8), np.int32)
+    form = FeedbackTerm("anchor", "terms/anchor_feedback.glsl", "u_anchor_nodes", table)
+    assert form.slots == 2 and form.row_limit(16) == 8 and not form.table.flags.writeable
+    image = form.image(4, 2)
+    assert image.shape == (2, 8, 4) and image.dtype == np.int32
+    with pytest.raises(ValueError, match=r"table of shape \(4, 6\)"):
+        FeedbackTerm("anchor", "terms/a.glsl", "u_anchor_nodes", np.zeros((4, 6), np.int32))
+    with pytest.raises(ValueError, match="expected \\(N, 4 \\* slots\\) integers"):
+        FeedbackTerm("anchor", "terms/a.glsl", "u_anchor_nodes", np.zeros((4, 4), np.float32))
+    with pytest.raises(ValueError, match="define 'K' must start with ANCHOR_"):
+        FeedbackTerm("anchor", "terms/a.glsl", "u_anchor_nodes", table, defines={"K": 1})
+    with pytest.raises(ValueError, match="uniform 'u_k' must start with u_anchor"):
+        FeedbackTerm("anchor", "terms/a.glsl", "u_anchor_nodes", table, uniforms={"u_k": 1.0})
+    with pytest.raises(ValueError, match="4 nodes do not fit 1 rows of 2"):
+        form.image(2, 1)
+
+
+class BitAnchorPasses(AnchorPasses):
+    """The anchors' passes, keeping node bits as the cells' do."""
+
+    def node_bits(self):
+        return np.ones(self.count, np.int64)
+
+
+class BitAnchorConstraints(AnchorConstraints):
+    def gpu(self, ctx, grid, layout, omega, first_unit):
+        return BitAnchorPasses(ctx, grid, layout, self, omega, first_unit)
+
+
+class BitAnchors(Anchors):
+    name = "bit anchors"
+
+    def xpbd(self, inverse_mass):
+        return BitAnchorConstraints(self, inverse_mass)
+
+
+def test_two_xpbd_forms_with_node_bits_are_refused_naming_both(ctx):
+    from deformgl.sim.materials import ElasticMaterial, lattice_system
+
+    grid = NodeGrid(np.zeros(3), 0.1, np.ones((3, 3, 3), bool))
+    cells, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, poissons_ratio=0.45), fixed=grid.ijk[:, 0] == 0)
+    both = dataclasses.replace(cells, extra_terms=(BitAnchors(grid.rest_positions, 30.0, np.ones(grid.count)),))
+    with pytest.raises(ValueError, match=r"^xpbd: the cells' volumetric term and bit anchors both keep node bits; "
+                                         r"the node data has room for one term's$"):
+        make_simulation(both, "xpbd", "fragment", dt=0.01, ctx=ctx)
