@@ -15,7 +15,8 @@ from pathlib import Path
 
 import moderngl
 
-from deformgl.bench.sim_speed import block_system, fragment_verlet, machine_line, stable_dt, timed
+from deformgl.bench.sim_speed import block_system, machine_line, stable_dt, timed
+from deformgl.sim.backends.verlet_pass import FoundationVerlet
 from deformgl.sim.backends.verlet_data import NodeTextures
 from deformgl.grid.nodes import NEIGHBOUR_UNIT, CompactLayout
 from deformgl.gl.programs import Program
@@ -67,12 +68,12 @@ def profile_step(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32)), p
         system = block_system(spec)
         name = "x".join(map(str, spec))
         for layout, lookup in (("indexed", "index"), ("compact", "offsets")):
-            sim = fragment_verlet(ctx, system, stable_dt(system, 0.2), layout=layout)
+            sim = FoundationVerlet.for_system(ctx, system, stable_dt(system, 0.2), layout=layout)
             try:
                 full = ProfileRow(name, system.count, lookup, "full step",
                                   _median_ms(ctx, sim.step, passes, repeats))
                 # the stages overwrite the state with what they compute: measured after the step
-                textures = sim.foundation.textures
+                textures = sim.textures
                 if not isinstance(textures, NodeTextures):
                     raise TypeError(f"profile: layout {layout!r} gave {type(textures).__name__}")
                 rows.extend(_stages(ctx, textures, name, system.count, lookup, passes, repeats))
@@ -162,7 +163,6 @@ def lattice_weights(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32))
     import numpy as np
 
     from deformgl.grid.nodes import NodeGrid
-    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
     from deformgl.sim.materials import PRESETS, critical_dt, lattice_system
 
     out = []
@@ -170,8 +170,7 @@ def lattice_weights(ctx: moderngl.Context, *, grids=((27, 27, 27), (64, 64, 32))
         grid = NodeGrid(np.zeros(3), 0.002, np.ones(spec, bool))
         system, _ = lattice_system(grid, PRESETS["gelatin"], fixed=grid.ijk[:, 1] == grid.ijk[:, 1].max())
         dt = 0.5 * critical_dt(PRESETS["gelatin"], grid.spacing, barrier=False)
-        sims = {t: FragmentIntegrator(ctx, system, grid, "verlet", dt, path="foundation", weight_texture=t, layout="compact")
-                for t in (True, False)}
+        sims = {t: FoundationVerlet.for_system(ctx, system, dt, weight_texture=t) for t in (True, False)}
         times: dict[bool, list[float]] = {t: [] for t in sims}
         try:
             for sim in sims.values():

@@ -34,7 +34,7 @@ def test_bench_sim_table_has_every_variant_and_the_numpy_ratio(ctx):
 
     rows = bench_sim(ctx, steps=1, grids=((4, 4, 4),), variants=PASS_VARIANTS)
     text = format_sim(rows, machine_line(ctx))
-    for variant in ("compact", "compact+branch", "atlas rects", "atlas quad", "atlas points"):
+    for variant in ("compact", "compact indexed", "blocked 1x2x2"):
         assert variant in text
     assert "speed-up vs numpy" in text and rows[0].numpy_ms > 0
 

@@ -17,6 +17,7 @@ from deformgl.grid.blocks import BLOCK_SHAPES, CORNER_OFFSETS, BlockedLayout, pa
 from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, NodeGrid
 from deformgl.sim.backends.blocked import BLOCK_TABLE, blocked_refusal, default_block
 from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
+from deformgl.sim.backends.verlet_pass import FoundationVerlet
 from deformgl.sim.integrators import initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.springs import from_grid
@@ -121,12 +122,18 @@ def pulls(grid):
     return (Load(left, lambda t: (-0.02 * (1 + 100 * t), 0.01, 0.0)), Load(low, lambda t: (0.0, 0.0, 0.015)))
 
 
-def run(ctx, system, grid, steps, state, **kwargs):
-    sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
+def run(ctx, system, grid, steps, state, *, weight_texture=False, **kwargs):
+    if weight_texture:  # (a switch the user options leave out: the pass itself)
+        assert system.grid is grid
+        layout = kwargs.pop("layout", "auto")
+        sim = FoundationVerlet.for_system(ctx, system, 1e-4, state=state, layout=layout, weight_texture=True, **kwargs)
+    else:
+        sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
     try:
         sim.step(steps)
         view = np.frombuffer(sim.position_texture.read(), "f4").reshape(-1, 4)[: grid.count]
-        return sim.positions(), sim.foundation.normals(), sim.velocities(), view, sim.block
+        normals = sim.normals() if weight_texture else sim.foundation.normals()
+        return sim.positions(), normals, sim.velocities(), view, sim.block
     finally:
         sim.release()
 
@@ -200,16 +207,6 @@ def test_the_view_follows_the_steps_and_pads_with_zeros(ctx):
 
 
 @pytest.mark.gl
-def test_branch_variant_bit_identical(ctx):
-    grid = holed()
-    system = springs_system(grid)
-    state = perturbed(system, grid)
-    x = run(ctx, system, grid, 20, state, layout="compact", branch=True)[0]
-    for shape in ((1, 2, 2), (2, 2, 2)):
-        np.testing.assert_array_equal(run(ctx, system, grid, 20, state, branch=True, block=shape)[0], x)
-
-
-@pytest.mark.gl
 @pytest.mark.parametrize("kind, nu, shapes", [("holed", 0.45, "default"), ("box", 0.45, "default"),
                                               ("box", 0.25, "default"), ("holed", 0.25, "all"), ("box", 0.45, "all")])
 def test_lattice_with_cells_bit_identical(ctx, nu, kind, shapes):
@@ -256,19 +253,16 @@ def test_spring_weights_bit_identical(ctx, weight_texture):
 
 @pytest.mark.gl
 def test_auto_layout_and_refusals(ctx):
-    """"auto" takes the table's block (one-node draw variants: the compact layout); a general-path
-    simulation refuses a block."""
+    """"auto" takes the table's block, "compact" none; a general-path simulation refuses a block."""
     grid = box((32, 32, 9))
     system = springs_system(grid)
     with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4) as sim:
         assert sim.block == default_block(grid) is not None and sim.packed_normals
     with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, layout="compact") as sim:
         assert sim.block is None
-    with FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="foundation", draw="points") as sim:
-        assert sim.block is None
     with FragmentIntegrator(ctx, system, grid, "semi-implicit", 1e-4) as sim:
         assert sim.block is None
-    with pytest.raises(ValueError, match="variants of the foundation pass"):
+    with pytest.raises(ValueError, match="the blocked layout is the foundation pass's"):
         FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="general", block=(1, 2, 2))
 
 

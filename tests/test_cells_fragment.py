@@ -13,6 +13,7 @@ import pytest
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.volume.check_pass import NodeCellForces, check_cells
 from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
+from deformgl.sim.backends.verlet_pass import FoundationVerlet
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS, initial_state
 from deformgl.sim.materials import ElasticMaterial, lattice_system
 from deformgl.sim.simulation import NumpySimulation
@@ -143,30 +144,28 @@ def test_corners_inside_the_barrier(ctx, name, holes):
         assert np.mean(after < system.cells.barrier_j) < below - 0.2  # it really un-squashed
 
 
-@pytest.mark.parametrize("variant", [dict(layout="indexed"), dict(draw="points"), dict(branch=True),
-                                     dict(weight_texture=True)], ids=lambda v: "+".join(f"{k}={x}" for k, x in v.items()))
+@pytest.mark.parametrize("variant", [dict(layout="indexed"), dict(weight_texture=True)],
+                         ids=lambda v: "+".join(f"{k}={x}" for k, x in v.items()))
 def test_foundation_pass_variants_carry_the_cells(ctx, variant):
-    """The Verlet fast path's variants (neighbour table instead of strides, points, branch, weight
-    texture) run the volumetric term as the default pass does: 50 steps from a squashed start agree
-    to float32 rounding (bit for bit where only the data path differs)."""
+    """The Verlet fast path's other data paths (the neighbour table instead of strides, the weight
+    texture instead of the levels code) run the volumetric term as the default pass does: 50 steps
+    from a squashed start agree bit for bit."""
     system, grid = lattice((), 0.45)
+    assert system.grid is grid
     x0 = squashed(grid, np.random.default_rng(5))
     x0[system.fixed] = grid.rest_positions[system.fixed]
     state = initial_state(system, 1e-4, x=x0)
     out = []
     for kwargs in ({}, variant):
-        sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
+        sim = FoundationVerlet.for_system(ctx, system, 1e-4, state=state, **kwargs)
         try:
-            assert sim.fast.textures.hood_diagonals is None or kwargs.get("layout") == "indexed"
+            assert sim.textures.hood_diagonals is None or kwargs.get("layout") == "indexed"
             sim.step(50)
             out.append(sim.positions())
         finally:
             sim.release()
     assert np.abs(out[0] - x0).max() > 0.1 * H
-    if "branch" in variant:
-        assert np.abs(out[1] - out[0]).max() <= 1e-5 * H
-    else:
-        np.testing.assert_array_equal(out[1], out[0])
+    np.testing.assert_array_equal(out[1], out[0])
 
 
 def test_generated_source_and_tables_follow_the_terms(ctx):
@@ -198,8 +197,6 @@ def test_generated_source_and_tables_follow_the_terms(ctx):
 
 def test_refusals(ctx):
     system, grid = lattice(())
-    with pytest.raises(ValueError, match="atlas layout keeps no neighbourhood"):
-        FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, path="foundation", layout="atlas")
     shifted = CellVolumes(system.cells.corners[:, [1, 0, 2, 3, 4, 5, 6, 7]], H, 1.0, 1.0)
     with pytest.raises(ValueError, match="is not a unit cell of the system's node grid"):
         check_cells(grid, shifted)

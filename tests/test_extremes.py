@@ -303,16 +303,16 @@ def test_a_grid_spacing_of_1e_4_runs_the_same_scene_scaled(ctx, jelly_image, tmp
 def test_a_nan_node_spreads_only_to_its_springs_on_dense_and_indexed_grids(ctx, layout):
     """Absent neighbours read the node itself (d = 0), never an unrelated node across a row
     wrap, so a NaN reaches exactly the nodes connected to it, the same on both lookups."""
-    from deformgl.sim.simulation import make_simulation
+    from deformgl.sim.backends.verlet_pass import FoundationVerlet
 
     grid = NodeGrid(np.zeros(3), 0.1, np.ones((3, 4, 3), bool))
     system = from_grid(grid, k_structural=10.0, k_shear=10.0, mass=0.01, gravity=(0.0, 0.0, 0.0))
-    sim = make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-3, path="foundation", layout=layout)
+    sim = FoundationVerlet.for_system(ctx, system, 1e-3, layout=layout)
     try:
         bad = int(grid.index[1, 0, 1])
-        state = sim.fast.read_state()
+        state = sim.read_state()
         state[bad, 0] = np.nan
-        textures = sim.fast.textures
+        textures = sim.textures
         image = textures.layout.scatter(grid.ijk, state)
         for t in textures.state[:2]:
             t.write(np.ascontiguousarray(image, np.float32).tobytes())

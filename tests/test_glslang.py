@@ -21,7 +21,7 @@ def test_enumeration_covers_every_builder_and_its_switches():
     variants = all_variants()
     assert len(variants) == len({v.key for v in variants}) > 6000
     by_file = {(v.vertex, v.fragment) for v in variants}
-    for pair in [("sim/fullscreen.vert", "sim/integrators/step.frag"), ("sim/node_points.vert", "sim/verlet.frag"),
+    for pair in [("sim/fullscreen.vert", "sim/integrators/step.frag"), ("sim/fullscreen.vert", "sim/verlet.frag"),
                  ("feedback/rk4_stage.vert", None), ("render/mapped_mesh.vert", "render/mapped_mesh.frag"),
                  ("trilinear/transform.vert", None), ("sim/fullscreen.vert", "census/census.frag"),
                  ("sim/fullscreen.vert", "sim/node_normals.frag")]:

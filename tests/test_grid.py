@@ -1,10 +1,10 @@
-"""Node grid, 18-neighbour connectivity, atlas layout and the drawable surface. No GL needed."""
+"""Node grid, 18-neighbour connectivity, the compact layout and the drawable surface. No GL needed."""
 
 import numpy as np
 import pytest
 import trimesh
 
-from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, REST_LENGTH_UNITS, AtlasLayout, NodeGrid
+from deformgl.grid.nodes import NEIGHBOUR_OFFSETS, REST_LENGTH_UNITS, CompactLayout, NodeGrid
 from deformgl.grid.surface import grid_surface
 
 
@@ -60,24 +60,23 @@ def test_grid_data_is_immutable():
 
 
 @pytest.mark.parametrize("shape", [(1, 1, 1), (5, 3, 7), (64, 64, 32), (200, 3, 1)])
-def test_atlas_round_trip_and_padding(shape):
-    layout = AtlasLayout.for_grid(shape, 16384)
+def test_compact_layout_round_trip(shape):
+    """Node n at texel (n % width, n // width), every node its own texel, values scattered and
+    gathered back unchanged."""
     g = make_grid(np.ones(shape))
+    layout = CompactLayout.for_grid(g, 16384)
     w, h = layout.size
     t = layout.texel(g.ijk)
-    assert t.min() >= 1 and t[:, 0].max() < w - 1 and t[:, 1].max() < h - 1
-    assert len(np.unique(t[:, 0] * h + t[:, 1])) == g.count
+    n = np.arange(g.count)
+    np.testing.assert_array_equal(t, np.stack([n % w, n // w], axis=1))
+    assert t[:, 1].max() < h and len(np.unique(t[:, 0] * h + t[:, 1])) == g.count
     values = np.arange(g.count * 4, dtype=np.float32).reshape(-1, 4)
     assert np.array_equal(layout.gather(g.ijk, layout.scatter(g.ijk, values)), values)
-    # every neighbour texel (including padding) is inside the texture and distinct from the node
-    for off in NEIGHBOUR_OFFSETS:
-        tn = layout.texel(g.ijk + off)
-        assert tn.min() >= 0 and tn[:, 0].max() < w and tn[:, 1].max() < h
 
 
-def test_atlas_too_large_is_an_error():
+def test_compact_layout_too_large_is_an_error():
     with pytest.raises(ValueError, match="texture limit"):
-        AtlasLayout.for_grid((5000, 5000, 20), 16384)
+        CompactLayout.for_grid(make_grid(np.ones((20, 20, 1))), 16)
 
 
 def test_surface_of_block_is_closed_outward_box():

@@ -388,16 +388,21 @@ def test_the_verlet_fast_path_runs_the_lattice_with_weights_and_unweighted_norma
     per-spring weights, as the levels code in the node texture (the default for the lattice) or as
     the weight texture: the same positions as the reference, and normals that are still the
     unweighted unit-vector sums of Mosegaard & Sørensen 2005, eq. 3."""
-    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
+    from deformgl.sim.backends.verlet_pass import FoundationVerlet
     from deformgl.sim.normals import unit_sums, unpack_normals
     occ = np.ones((6, 4, 3), bool)
     occ[5, 3, 2] = False
     grid = NodeGrid(np.zeros(3), 0.01, occ)
     system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0, mass_damping=4.0), fixed=grid.ijk[:, 0] == 0)
     ref = make_simulation(system, "verlet", "numpy", dt=1e-4)
-    sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, weight_texture=weight_texture)
+    if not weight_texture:  # the backend picks the pass by itself, with the levels code (the texture: a switch of the pass)
+        picked = make_simulation(system, "verlet", "fragment", ctx=ctx, dt=1e-4)
+        try:
+            assert picked.fast is not None and picked.textures.weight_levels
+        finally:
+            picked.release()
+    sim = FoundationVerlet.for_system(ctx, system, 1e-4, weight_texture=weight_texture)
     try:
-        assert sim.fast is not None
         assert sim.textures.weight_levels is not weight_texture
         assert (sim.textures.weights is not None) is weight_texture
         ref.step(150)
@@ -467,18 +472,18 @@ def test_the_levels_code_takes_shares_that_float64_rounds_off_a_quarter():
 def test_the_verlet_pass_steps_the_same_with_levels_as_with_the_weight_texture(ctx):
     """The two stores of the lattice's weights are the same function: bit-identical positions
     and normals after 60 steps."""
-    from deformgl.sim.backends.explicit_gpu import FragmentIntegrator
+    from deformgl.sim.backends.verlet_pass import FoundationVerlet
     occ = np.ones((7, 5, 4), bool)
     occ[6, 4, 3] = False
     grid = NodeGrid(np.zeros(3), 0.01, occ)
     system, _ = lattice_system(grid, ElasticMaterial(1e4, 1000.0), fixed=grid.ijk[:, 0] == 0)
-    sims = [FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, weight_texture=t) for t in (False, True)]
+    sims = [FoundationVerlet.for_system(ctx, system, 1e-4, weight_texture=t) for t in (False, True)]
     try:
         assert sims[0].textures.weight_levels and sims[0].textures.weights is None
         assert not sims[1].textures.weight_levels and sims[1].textures.weights is not None
         for sim in sims:
             sim.step(60)
-        a, b = (sim.fast.read_state() for sim in sims)
+        a, b = (sim.read_state() for sim in sims)
         assert np.abs(a[:, :3] - system.rest_positions).max() > 1e-6
         assert np.array_equal(a, b)
     finally:

@@ -19,8 +19,8 @@ ROOT = Path(__file__).resolve().parent.parent
 SHADERS = ROOT / "shaders"
 GLSL_SUFFIXES = {".glsl", ".vert", ".frag"}
 
-#: The layouts' own libraries: the node layout, and the z-slice atlas (its tile arithmetic).
-LAYOUT_LIBRARIES = {"lib/node_texel.glsl", "lib/atlas.glsl"}
+#: The layout's own library: the one place a texel is computed from a node number.
+LAYOUT_LIBRARIES = {"lib/node_texel.glsl"}
 
 #: Texel arithmetic on node numbers: a row's width in a ``%`` or ``/`` (the feedback backend's
 #: NODE_ROW and SPRING_ROW, the census's row, a texture's width or size), a shift by a width's

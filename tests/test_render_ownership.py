@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from deformgl.gl.resources import GLOwner, is_released
-from deformgl.grid.nodes import AtlasLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.render.mapped import MappedMeshPass, MappedVertices, StaticMeshPass
 from deformgl.render.passes import FeedbackCapture, GridSurfacePass, RenderTarget
 from deformgl.mapping.node_drivers import DrivenNodes
@@ -34,9 +34,9 @@ class _Created:
             monkeypatch.setattr(ctx, name, make)
 
 
-def _grid_and_data() -> tuple[NodeGrid, AtlasLayout, np.ndarray, MappedVertices]:
+def _grid_and_data() -> tuple[NodeGrid, CompactLayout, np.ndarray, MappedVertices]:
     grid = NodeGrid(np.zeros(3), 1.0, np.ones((2, 2, 2), bool))
-    layout = AtlasLayout.for_grid(grid.shape, 256)
+    layout = CompactLayout.for_grid(grid, 256)
     v = 3
     data = MappedVertices(tri_nodes=np.array([[0, 1, 2]] * v), weights=np.full((v, 3), 1 / 3),
                           offset=np.zeros((v, 3)), offset_world=np.zeros((v, 3)),

@@ -78,10 +78,19 @@ def block_system(spec: tuple[int, int, int] | str, spacing: float = 0.01, *, k_f
                      velocity_damping=damping)
 
 
-def fragment_verlet(ctx: moderngl.Context, system: SpringSystem, dt: float, **variant) -> FragmentIntegrator:
+def fragment_verlet(ctx: moderngl.Context, system: SpringSystem, dt: float, **layout) -> FragmentIntegrator:
     """The fragment backend's Verlet fast path (Mosegaard & Sørensen 2005, section 3.1) of ``system``
-    in a pass variant (``draw``, ``branch``, ``layout``)."""
-    return FragmentIntegrator(ctx, system, None, "verlet", dt, path="foundation", **variant)
+    in a node layout (``layout``, ``block``: :class:`FragmentIntegrator`'s)."""
+    return FragmentIntegrator(ctx, system, None, "verlet", dt, path="foundation", **layout)
+
+
+#: A way to build the timed simulation of a system at a step (s): (ctx, system, dt) -> Simulation.
+SimFactory = Callable[[moderngl.Context, SpringSystem, float], Simulation]
+
+
+def compact_verlet(ctx: moderngl.Context, system: SpringSystem, dt: float) -> Simulation:
+    """:func:`fragment_verlet` on the compact layout (one node per fragment)."""
+    return fragment_verlet(ctx, system, dt, layout="compact")
 
 
 def stable_dt(system: SpringSystem, fraction: float) -> float:
@@ -99,18 +108,19 @@ class SimRow:
     numpy_ms: float
 
 
-def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS, variants=None) -> list[SimRow]:
+def bench_sim(ctx: moderngl.Context, *, steps: int = 40, grids=SIM_GRIDS,
+              variants: dict[str, SimFactory] | None = None) -> list[SimRow]:
     """Fragment-pass Verlet step against the float64 NumPy reference on the same grids, in each
-    of ``variants`` ({name: FragmentIntegrator options}; default: the compact layout, and the
-    blocked layout the backend picks by itself, as a scene gets it)."""
-    variants = variants or {"compact": dict(layout="compact"), "blocked (default)": {}}
+    of ``variants`` ({name: :data:`SimFactory`}; default: the compact layout, and the blocked
+    layout the backend picks by itself, as a scene gets it)."""
+    variants = variants or {"compact": compact_verlet, "blocked (default)": fragment_verlet}
     rows = []
     for spec in grids:
         system = block_system(spec)
         dt = stable_dt(system, 0.2)
         per_variant = {}
-        for name, kw in variants.items():
-            sim = fragment_verlet(ctx, system, dt, **kw)
+        for name, build in variants.items():
+            sim = build(ctx, system, dt)
             sim.step(3)
             ctx.finish()
 

@@ -1,4 +1,4 @@
-"""The node grid: which nodes exist, their 18 implicit neighbours, and the texture atlas layout.
+"""The node grid: which nodes exist, their 18 implicit neighbours, and the compact texture layout.
 
 Mosegaard & Sørensen 2005, section 3.1: particles on a regular 3D grid, each connected to the
 18 nearest neighbours that exist: 6 at distance h (set D1) and 12 at distance h*sqrt(2) (set D2).
@@ -170,68 +170,6 @@ class TexelImages:
         return image[t[:, 1], t[:, 0]]
 
 
-@dataclass(frozen=True)
-class AtlasLayout(TexelImages):
-    """How the 3D grid lies in a 2D texture: padded z-slices as tiles in rows.
-
-    The grid is padded by one empty node on every side, so every neighbour fetch of an existing
-    node lands inside the texture and no branch is needed to stay in range. Padded slice k (grid
-    z index k-1) is the tile at column ``k % tiles_x`` and row ``k // tiles_x``; inside a tile,
-    texel (x, y) is padded grid position (x, y). Texture size is (width, height) =
-    (tiles_x * (nx+2), tiles_y * (ny+2)).
-    """
-
-    nx: int
-    ny: int
-    nz: int
-    tiles_x: int
-    tiles_y: int
-
-    @classmethod
-    def for_grid(cls, shape: tuple[int, int, int], max_size: int) -> "AtlasLayout":
-        """Choose the tile arrangement: as square as possible, within ``max_size`` texels.
-
-        Raises:
-            ValueError: the grid does not fit in a ``max_size`` x ``max_size`` texture.
-        """
-        nx, ny, nz = shape
-        px, py, pz = nx + 2, ny + 2, nz + 2
-        best = None
-        for tiles_x in range(1, pz + 1):
-            tiles_y = -(-pz // tiles_x)
-            w, h = tiles_x * px, tiles_y * py
-            if w > max_size or h > max_size:
-                continue
-            score = (max(w, h), w * h)
-            if best is None or score < best[0]:
-                best = (score, tiles_x, tiles_y)
-        if best is None:
-            raise ValueError(
-                f"a {nx}x{ny}x{nz} node grid needs more than {max_size}x{max_size} texels "
-                f"(the GL texture limit)")
-        return cls(nx, ny, nz, best[1], best[2])
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """Texture (width, height) in texels."""
-        return self.tiles_x * (self.nx + 2), self.tiles_y * (self.ny + 2)
-
-    def shader_defines(self) -> dict[str, object]:
-        """Defines selecting this layout in ``shaders/lib/springs.glsl``."""
-        return {}
-
-    def shader_uniforms(self) -> dict[str, object]:
-        """Uniforms of ``shaders/lib/atlas.glsl``."""
-        return {"u_grid": (self.nx, self.ny, self.nz), "u_tiles_x": self.tiles_x}
-
-    def texel(self, ijk: np.ndarray) -> np.ndarray:
-        """(N, 2) int64 texel (x, y) of grid indices ``ijk`` (N, 3) (unpadded, may be -1 or n)."""
-        p = np.asarray(ijk) + 1
-        tile_x, tile_y = p[:, 2] % self.tiles_x, p[:, 2] // self.tiles_x
-        return np.stack([tile_x * (self.nx + 2) + p[:, 0], tile_y * (self.ny + 2) + p[:, 1]], axis=1)
-
-
-
 def texture_width(count: int, max_size: int, what: str) -> int:
     """A near-square texture's width for ``count`` texels, a power of two (at least 16, at most
     ``max_size``).
@@ -283,7 +221,7 @@ class CompactLayout(TexelImages):
     index: np.ndarray  # (nx, ny, nz) node number, -1 where absent (NodeGrid.index)
     count: int
     width: int
-    arithmetic: bool = True  # False: the index texture even on dense grids (to benchmark it)
+    arithmetic: bool = True  # False: the index texture even on dense grids (the tests and studies that compare them)
 
     @classmethod
     def for_grid(cls, grid: NodeGrid, max_size: int, *, arithmetic: bool = True) -> "CompactLayout":

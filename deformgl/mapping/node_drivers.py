@@ -15,8 +15,8 @@ import numpy as np
 
 from deformgl.errors import InputError
 from deformgl.inputs import max_mesh_bytes
-from deformgl.sim.backends.verlet_data import NodeTextures, tile_rectangles
-from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.sim.backends.verlet_data import NodeTextures
+from deformgl.grid.nodes import NodeGrid
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 
@@ -182,20 +182,11 @@ class DrivenNodes(GLOwner):
         super().__init__(ctx)
         self.textures, self.grid = textures, grid
         layout = textures.layout
-        compact = isinstance(layout, CompactLayout)
-        vert = "sim/fullscreen.vert" if compact else "sim/node_rects.vert"
-        self.vbo: moderngl.Buffer | None = None
         with self.building():
-            self.program = self.own(Program(ctx, vert, "sim/node_normals.frag", defines=layout.shader_defines()))
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/node_normals.frag",
+                                            defines=layout.shader_defines()))
             self.program.set(u_position=0, u_node=1, **layout.shader_uniforms())
-            if isinstance(layout, CompactLayout):
-                self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-                self.vertices = 3
-            else:
-                self.program.set(u_target_size=textures.size)
-                self.vbo = self.own(ctx.buffer(tile_rectangles(layout, grid.ijk).astype("f4").tobytes()))
-                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")]))
-                self.vertices = self.vbo.size // 8
+            self.vao = self.own(ctx.vertex_array(self.program.gl, []))
 
     @property
     def position_texture(self) -> moderngl.Texture:
@@ -210,4 +201,4 @@ class DrivenNodes(GLOwner):
         self.textures.state[1].use(0)
         self.textures.bind_static(1)
         self.textures.framebuffers[0].use()
-        self.vao.render(moderngl.TRIANGLES, vertices=self.vertices)
+        self.vao.render(moderngl.TRIANGLES, vertices=3)

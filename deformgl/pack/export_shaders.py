@@ -28,9 +28,10 @@ __all__ = ["LICENSE_HEADER", "PACK_VERSION", "add_parser", "export_shaders", "pa
 #: define has a default, so every stage compiles standalone; 1.3.0: the lattice's volumetric
 #: term, CELLS, CELL_CENTRE, CELL_BARRIER, sim/cells/; 2.0.0: the physics terms as chunks,
 #: terms/active.glsl, terms/feedback.glsl, terms/xpbd.glsl with TERMS, TERM_<PREFIX>,
-#: FEEDBACK_TERMS and XPBD_TERMS in place of CELLS, every term's files under terms/);
-#: shaders/README.md states it too, a test keeps them equal.
-PACK_VERSION = "2.0.0"
+#: FEEDBACK_TERMS and XPBD_TERMS in place of CELLS, every term's files under terms/; 3.0.0: the
+#: compact layout only, no z-slice atlas, NEIGHBOUR_BRANCH, DRAW_POINTS, sim/node_points.vert or
+#: sim/node_rects.vert); shaders/README.md states it too, a test keeps them equal.
+PACK_VERSION = "3.0.0"
 LICENSE_HEADER = ("// deformgl shader pack {version}, profile {profile} (GLSL {language}).\n"
                   "// SPDX-License-Identifier: MIT. Copyright (c) the deformgl authors.\n"
                   "// Contract (inputs, outputs, defines, extensions): README.md of this folder.\n")

@@ -29,7 +29,7 @@ import numpy as np
 from deformgl.grid.blocks import BLOCK_SHAPES
 from deformgl.scene.spec import MAX_DRAGS, MAX_SPHERES
 from deformgl.sim.backends.feedback import NODE_ROW_MAX, SPRING_ROW_MAX, _varying
-from deformgl.sim.backends.verlet_data import DRAW_MODES, MAX_PULLS
+from deformgl.sim.backends.verlet_data import MAX_PULLS
 from deformgl.sim.integrators import EXPLICIT_INTEGRATORS
 from deformgl.sim.scripted import MAX_LOADS
 from deformgl.sim.stages import spec
@@ -135,7 +135,7 @@ def _term_sets(count: int, implicit: bool = False, *, neighbours: bool = True,
     shipped term in each of its forms (:data:`deformgl.sim.terms.registry.VARIANTS`) whose grid
     neighbours the table of ``count`` neighbours holds; ``neighbours`` False: none that is called
     per neighbour (the foundation pass), ``hood`` False: none that reads the node's neighbourhood
-    (the z-slice atlas, a sheet)."""
+    (a sheet)."""
     from deformgl.sim.terms.glsl import PassTerms
     from deformgl.sim.terms.registry import VARIANTS
 
@@ -211,34 +211,28 @@ def feedback_backend() -> Iterator[Variant]:
                          tuple(_varying(b) for b in stage.writes))
 
 
-_LAYOUTS: tuple[dict[str, object], ...] = ({}, {"COMPACT": True, "COMPACT_DENSE": False},
+#: The compact layout's two lookups (deformgl/grid/nodes.py CompactLayout.shader_defines).
+_LAYOUTS: tuple[dict[str, object], ...] = ({"COMPACT": True, "COMPACT_DENSE": False},
                                            {"COMPACT": True, "COMPACT_DENSE": True})
 
 
 def foundation() -> Iterator[Variant]:
-    """``VerletPass`` (draw modes; a compact layout draws "rects" as "quad"; the physics terms on
-    compact layouts only) and ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``)."""
-    verts = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert", "quad": "sim/fullscreen.vert"}
+    """``VerletPass`` and ``NodeNormalsPass`` (``deformgl.mapping.node_drivers``), on both
+    lookups of the compact layout."""
     # weights: none, the weight texture, the levels code (SPRING_WEIGHT_LEVELS)
-    for draw, branch, pulls, layout, weights, terms in itertools.product(
-            DRAW_MODES, (False, True), _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"),
-            list(_term_sets(18, neighbours=False))):
-        if layout and draw == "rects":
-            continue  # built as "quad"
-        if terms and not layout:
-            continue  # the atlas has no terms
-        yield _v(verts[draw], "sim/verlet.frag", {"NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points",
-                                                  "PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
-                                                  "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **terms})
+    for pulls, layout, weights, terms in itertools.product(
+            _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"), list(_term_sets(18, neighbours=False))):
+        yield _v("sim/fullscreen.vert", "sim/verlet.frag", {"PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
+                                                           "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **terms})
     for layout in _LAYOUTS:
-        yield _v("sim/fullscreen.vert" if layout else "sim/node_rects.vert", "sim/node_normals.frag", layout)
+        yield _v("sim/fullscreen.vert", "sim/node_normals.frag", layout)
 
 
 def blocked() -> Iterator[Variant]:
     """``BlockedVerletPass`` and the compact view's copy (``deformgl.sim.backends.blocked``):
     every block shape, its blocks by strides or from the table, the foundation's switches."""
-    for shape, dense, branch, pulls, weights, terms, flat in itertools.product(
-            BLOCK_SHAPES, (False, True), (False, True), _counts("PULLS"), (None, "texture", "levels"),
+    for shape, dense, pulls, weights, terms, flat in itertools.product(
+            BLOCK_SHAPES, (False, True), _counts("PULLS"), (None, "texture", "levels"),
             list(_term_sets(18, neighbours=False)), itertools.product((False, True), repeat=3)):
         # (flat: the axes a grid is one node thick along; it has no full cell, no term that reads the neighbourhood)
         if any(flat) and terms.get("TERMS_HOOD"):
@@ -246,7 +240,7 @@ def blocked() -> Iterator[Variant]:
         block = {"BLOCKED": True, "BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2],
                  **{f"BLOCK_FLAT_{a}": f for a, f in zip("XYZ", flat)}}
         yield _v("sim/fullscreen.vert", "sim/verlet_block.frag", {
-            **block, "BLOCKED_DENSE": dense, "NEIGHBOUR_BRANCH": branch, "PULLS": pulls,
+            **block, "BLOCKED_DENSE": dense, "PULLS": pulls,
             "SPRING_WEIGHTS": weights is not None, "SPRING_WEIGHT_LEVELS": weights == "levels", **terms})
     for shape in BLOCK_SHAPES:
         yield _v("sim/fullscreen.vert", "sim/unblock.frag", {"BLOCK_X": shape[0], "BLOCK_Y": shape[1], "BLOCK_Z": shape[2]})

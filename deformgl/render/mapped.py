@@ -23,7 +23,7 @@ import moderngl
 import numpy as np
 
 from deformgl.render.camera import View
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner
 from deformgl.render.passes import FeedbackCapture, Lighting
@@ -118,7 +118,7 @@ class MappedMeshPass(GLOwner):
             None (default) draws every face.
     """
 
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, faces: np.ndarray,
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, faces: np.ndarray,
                  data: MappedVertices, *, normal_map: np.ndarray | None = None,
                  normal_map_strength: float = 1.0, mapping_pass: str = "vertex",
                  front_face: str | None = None) -> None:

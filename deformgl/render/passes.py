@@ -9,7 +9,7 @@ import numpy as np
 
 from deformgl.render.camera import View
 from deformgl.errors import GLError
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.gl.programs import Program, profile_of
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.render.fxaa import FxaaPass
@@ -165,7 +165,7 @@ class GridSurfacePass(GLOwner):
         overlay: also draw nodes and surface springs as points and lines.
     """
 
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout, *,
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout, *,
                  overlay: bool = False) -> None:
         super().__init__(ctx)
         self.surface = grid_surface(grid)

@@ -29,7 +29,7 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid, layout_uniforms
+from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
 from deformgl.render.mapped_data import MappedVertices
 
 #: Texture units the premapped draw reads its inputs from (after the mapped mesh's 0 and 1).
@@ -47,7 +47,7 @@ class FragmentPremap(GLOwner):
         defines: the mapping variant (``CURVATURE``, ``NORMAL_MAP``), as the draw's.
     """
 
-    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: AtlasLayout | CompactLayout,
+    def __init__(self, ctx: moderngl.Context, grid: NodeGrid, layout: CompactLayout,
                  data: MappedVertices, defines: dict[str, object]) -> None:
         super().__init__(ctx)
         count = len(data.weights)

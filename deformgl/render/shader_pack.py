@@ -11,13 +11,13 @@ import numpy as np
 
 from deformgl.gl.es_context import read_texture
 from deformgl.render.camera import View
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid
 from deformgl.files import write_atomic
 from deformgl.render.mapped import MappedVertices
 from deformgl.render.passes import Lighting
 
 
-def pack_inputs(state: moderngl.Texture, grid: NodeGrid, layout: AtlasLayout | CompactLayout,
+def pack_inputs(state: moderngl.Texture, grid: NodeGrid, layout: CompactLayout,
                 data: MappedVertices, faces: np.ndarray, view: View, lighting: Lighting,
                 size: tuple[int, int], background: tuple[float, float, float]) -> dict[str, np.ndarray | np.float32]:
     """The example's inputs (see its docstring for the keys); reads the state texture once."""

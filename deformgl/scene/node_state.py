@@ -94,7 +94,7 @@ class NodeState:
 
     @property
     def layout(self):
-        """The layout of the node textures (compact or atlas)."""
+        """The compact layout of the node textures."""
         return self.textures.layout
 
     def release(self) -> None:

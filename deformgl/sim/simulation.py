@@ -207,9 +207,6 @@ def make_simulation(system: SpringSystem, integrator: str = "verlet", backend: s
                                        f"deformgl.GuardedSimulation(...) makes one of its own")
         args = (ctx, system)
     if backend == "fragment":
-        if options.get("layout") == "atlas":
-            raise SimulationSetupError("layout 'atlas' is a benchmark variant of the foundation pass: the run "
-                                       "loop's census reads compact layouts only ('compact' or 'indexed')")
         grid = system.grid if grid is None else grid
         if grid is None:
             raise SimulationSetupError("the fragment backend needs a system built on a node grid "

@@ -8,9 +8,8 @@
 //   S = sum of unit vectors (p_i - p_j)/|p_i - p_j|, P = sum of (p_i - p_j).
 // S1 + S2 is the unnormalised approximate normal of Mosegaard & Sorensen 2005, eq. 3.
 // Neighbour j exists when bit j of the node's mask is set; offsets in the order of
-// deformgl/grid/nodes.py NEIGHBOUR_OFFSETS. Without NEIGHBOUR_BRANCH the sum is branchless: an absent
-// neighbour (an empty, padded atlas texel, or in COMPACT layouts the node itself, both holding a
-// finite position) is weighted by 0.
+// deformgl/grid/nodes.py NEIGHBOUR_OFFSETS. The sum is branchless: an absent neighbour (the node
+// itself in COMPACT layouts, its own position in BLOCKED ones: a finite position) is weighted by 0.
 
 #include "lib/node_texel.glsl"
 
@@ -26,8 +25,11 @@ struct SpringSum {
 // Where neighbour J lies: COMPACT layouts look its node number up in the neighbour-index
 // texture (deformgl/grid/nodes.py CompactLayout); COMPACT_DENSE ones (every node of the box exists) compute it,
 // n + DX sx + DY sy + DZ sz, or take the node itself where mask bit J says the neighbour is
-// absent (as the index texture does: d = 0, so not even a NaN elsewhere can leak in);
-// the z-slice atlas computes it from the tile arithmetic.
+// absent (as the index texture does: d = 0, so not even a NaN elsewhere can leak in).
+// BLOCKED layouts read the block's fetched neighbourhood instead (below); there is no other layout.
+#if !defined(COMPACT) && !defined(BLOCKED)
+#error "lib/springs.glsl needs a node layout: COMPACT (deformgl/grid/nodes.py CompactLayout) or BLOCKED"
+#endif
 #ifdef COMPACT
 #ifdef COMPACT_DENSE
 uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
@@ -37,8 +39,6 @@ uniform ivec3 u_strides;               // node-number step of +1 along x, y, z
 uniform isampler2DArray u_neighbours;  // 5 layers RGBA32I: node numbers of neighbours 0..17
 #define NB_TEXEL(J, DX, DY, DZ) node_texel(nb[J])
 #endif
-#else
-#define NB_TEXEL(J, DX, DY, DZ) (origin[DZ + 1] + local + ivec2(DX, DY))
 #endif
 
 // The position of neighbour J. BLOCKED layouts (deformgl/grid/blocks.py BlockedLayout: one
@@ -76,8 +76,6 @@ vec3 node_hood[27];
 uniform sampler2DArray u_weights;
 #endif
 #define NB_ACCUM(S, P, J, DX, DY, DZ) { float m = float((mask >> J) & 1u); float w = wt[J]; vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) float inv = inversesqrt(max(dot(d, d), 1e-37)); U += (m * inv) * d; S += (w * inv) * d; P += w * d; }
-#elif defined(NEIGHBOUR_BRANCH)
-#define NB_ACCUM(S, P, J, DX, DY, DZ) if ((mask & (1u << J)) != 0u) { vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) S += inversesqrt(max(dot(d, d), 1e-37)) * d; P += d; }
 #else
 #define NB_ACCUM(S, P, J, DX, DY, DZ) { float w = float((mask >> J) & 1u); vec3 d = p - NB_POSITION(J, DX, DY, DZ); HOOD_KEEP(DX, DY, DZ, d) S += (w * inversesqrt(max(dot(d, d), 1e-37))) * d; P += w * d; }
 #endif
@@ -101,10 +99,6 @@ SpringSum spring_sum(sampler2D positions, ivec2 texel, vec3 p, uint mask, uint l
     ivec4 n4 = texelFetch(u_neighbours, ivec3(texel, 4), 0);
     int nb[18] = int[18](n0.x, n0.y, n0.z, n0.w, n1.x, n1.y, n1.z, n1.w, n2.x, n2.y, n2.z, n2.w,
                          n3.x, n3.y, n3.z, n3.w, n4.x, n4.y);
-#else
-    int pz = atlas_slice(texel);
-    ivec2 local = texel - atlas_tile_origin(pz);
-    ivec2 origin[3] = ivec2[3](atlas_tile_origin(pz - 1), atlas_tile_origin(pz), atlas_tile_origin(pz + 1));
 #endif
     vec3 s1 = vec3(0.0), p1 = vec3(0.0), s2 = vec3(0.0), p2 = vec3(0.0);
 #ifdef TERMS_HOOD

@@ -7,7 +7,7 @@
 // four times, the difference is zero and it keeps the packed normal.
 #include "lib/octahedral.glsl"
 
-in ivec2 in_texel;              // the node's texel in the atlas
+in ivec2 in_texel;              // the node's texel in the layout
 in ivec4 in_across_u;           // texels of its neighbours after (xy) and before (zw) it along the sheet's u
 in ivec4 in_across_v;           // the same along v (u x v: the side the sheet's squares face)
 uniform sampler2D u_position;   // RGBA32F: xyz position, w packed normal

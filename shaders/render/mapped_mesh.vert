@@ -7,7 +7,7 @@
 // (carry tangents and UVs for tangent-space normal mapping).
 #include "lib/map_vertex.glsl"
 
-in ivec2 in_texel1;         // atlas texels of the vertex's three nodes
+in ivec2 in_texel1;         // node texels of the vertex's three nodes
 in ivec2 in_texel2;
 in ivec2 in_texel3;
 in vec3 in_weights;         // Mosegaard & Sorensen 2005, eq. 4

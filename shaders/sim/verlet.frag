@@ -2,13 +2,12 @@
 // One position-Verlet step of the grid spring-mass system, one node per fragment (Mosegaard &
 // Sorensen 2005, 3.1; the update is sim/verlet_node.glsl). Writes the new position and, in alpha,
 // the packed normal at x (Mosegaard & Sorensen 2005, eq. 3).
-// Variants: NEIGHBOUR_BRANCH and SPRING_WEIGHTS (per-spring stiffness; with SPRING_WEIGHT_LEVELS from the node
-// texture's alpha; see springs.glsl), DRAW_POINTS (only existing nodes are drawn, so
-// no empty-node test), PULLS = number of scripted pull groups (0 compiles no pull code), TERMS: the system's
-// physics terms (sim/verlet_node.glsl), with TERMS_HOOD (compact layouts only; HOOD_DIAGONALS) the
+// Drawn over the compact layout's texture (sim/fullscreen.vert); texels past the last node are
+// empty and keep their value. Variants: SPRING_WEIGHTS (per-spring stiffness; with
+// SPRING_WEIGHT_LEVELS from the node texture's alpha; see springs.glsl), PULLS = number of scripted pull groups (0 compiles no pull code), TERMS: the system's
+// physics terms (sim/verlet_node.glsl), with TERMS_HOOD (HOOD_DIAGONALS) the
 // node's 3x3x3 neighbourhood kept for them from the neighbour positions the springs fetched and the 8
 // body diagonals (lib/node_hood.glsl).
-#include "lib/atlas.glsl"
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"
 #include "lib/springs.glsl"
@@ -17,9 +16,6 @@ uniform sampler2D u_position;   // RGBA32F: xyz position at t, w packed normal
 uniform sampler2D u_previous;   // RGBA32F: xyz position at t - dt
 uniform sampler2D u_node;       // RGBA32F static node data (node_flags.glsl)
 #ifdef TERMS_HOOD
-#ifndef COMPACT
-#error "TERMS_HOOD needs a compact layout (COMPACT): the z-slice atlas keeps no neighbourhood"
-#endif
 #define HOOD_POSITION(T) texelFetch(u_position, T, 0).xyz
 #include "lib/node_hood.glsl"
 #endif
@@ -34,12 +30,10 @@ void main() {
     ivec2 texel = ivec2(gl_FragCoord.xy);
     vec4 x = texelFetch(u_position, texel, 0);
     vec4 node = texelFetch(u_node, texel, 0);
-#ifndef DRAW_POINTS
     if ((int(node.g) & FLAG_EXISTS) == 0) {
         o_position = x;
         return;
     }
-#endif
     SpringSum s = spring_sum(u_position, texel, x.xyz, uint(node.b), uint(node.a));
     o_position = verlet_node(texel, x, texelFetch(u_previous, texel, 0).xyz, node, s);
 }

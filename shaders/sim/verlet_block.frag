@@ -5,7 +5,7 @@
 // same constant positions and the compiler fetches each once) and writes member m's new state
 // to render target m. Every node's update is sim/verlet_node.glsl, as in sim/verlet.frag, so the
 // positions are bit for bit those of the one-node pass.
-// Variants: NEIGHBOUR_BRANCH, SPRING_WEIGHTS (u_weights: 5 layers per member, member m's at 5 m ..
+// Variants: SPRING_WEIGHTS (u_weights: 5 layers per member, member m's at 5 m ..
 // 5 m + 4) or with SPRING_WEIGHT_LEVELS, PULLS, TERMS with TERMS_HOOD
 // and HOOD_DIAGONALS (as sim/verlet.frag; the body diagonals come from the block's neighbourhood);
 // BLOCKED_DENSE: every block of the box exists, neighbour blocks by block strides, else from the

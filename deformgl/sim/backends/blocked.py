@@ -228,18 +228,16 @@ class BlockedVerletPass(GLOwner):
         textures: the blocked textures it reads and writes.
         weight_levels: the node data's alpha holds the lattice's levels code (else any weights are
             the textures' weight texture).
-        branch: test each neighbour's mask bit with a branch instead of weighting by it.
     """
 
-    def __init__(self, ctx: moderngl.Context, terms, textures: BlockedTextures, *, weight_levels: bool,
-                 branch: bool = False) -> None:
+    def __init__(self, ctx: moderngl.Context, terms, textures: BlockedTextures, *, weight_levels: bool) -> None:
         weighted = weight_levels or textures.weights is not None
         super().__init__(ctx)
         self.n_pulls = terms.n_pulls
         layout = textures.blocks
         with self.building():
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/verlet_block.frag", defines={
-                "NEIGHBOUR_BRANCH": branch, "PULLS": terms.n_pulls, "SPRING_WEIGHTS": weighted,
+                "PULLS": terms.n_pulls, "SPRING_WEIGHTS": weighted,
                 "SPRING_WEIGHT_LEVELS": weight_levels, **layout.shader_defines(),
                 **terms.extra.defines()}, chunks=terms.extra.chunks()))
             units = {f"u_position{m}": m for m in range(layout.members)}

@@ -71,10 +71,12 @@ from deformgl.sim.terms.glsl import pass_terms
 from deformgl.sim.backends.compact_textures import compact_image, float_texture, layer_texture
 from deformgl.grid.neighbours import diagonal_table
 
-__all__ = ["FragmentIntegrator", "PATHS"]
+__all__ = ["FOUNDATION_LAYOUTS", "FragmentIntegrator", "PATHS"]
 
 #: How the fragment backend runs Verlet (see :class:`FragmentIntegrator`).
 PATHS = ("auto", "general", "foundation")
+#: The foundation pass's node layouts (``layout=``, see :class:`FragmentIntegrator`).
+FOUNDATION_LAYOUTS = ("auto", "compact", "blocked")
 
 _VEC4 = 16
 _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, "u_xs": 4,
@@ -115,14 +117,11 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         layout: the foundation pass's node layout: "auto" (default): several nodes per fragment
             (the blocked layout, :mod:`~deformgl.sim.backends.blocked`) where
             :func:`~deformgl.sim.backends.blocked.default_block` measured it faster and the pass
-            models the system in blocks, else "compact"; "compact", "indexed", "atlas", or
-            "blocked" with ``block``. The general stages always use the compact layout.
+            models the system in blocks, else "compact"; "compact" (one node per fragment), or
+            "blocked" with ``block`` (which needs ``path="foundation"`` or a system the pass
+            models). The general stages always use the compact layout.
         block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`): the
             blocked layout in that shape (node positions bit for bit those of "compact").
-        draw, branch, layout other than "auto" and "compact", weight_texture, block: variants of the
-            foundation pass (:class:`~deformgl.sim.backends.verlet_pass.VerletPass`,
-            :class:`~deformgl.sim.backends.verlet_data.NodeTextures`); other values than the
-            defaults need ``path="foundation"``.
 
     Raises:
         ValueError: unknown integrator or path, dt <= 0, a drag on a node that does not exist,
@@ -136,8 +135,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid | None,
                  integrator: str, dt: float, *, constraints: Constraints | None = None,
                  drags: tuple[Drag, ...] = (), loads: tuple[Load, ...] = (),
-                 state: State | None = None, t0: float = 0.0, path: str = "auto", draw: str = "rects",
-                 branch: bool = False, layout: str = "auto", weight_texture: bool = False,
+                 state: State | None = None, t0: float = 0.0, path: str = "auto", layout: str = "auto",
                  block: tuple[int, int, int] | None = None) -> None:
         grid = system.grid if grid is None else grid
         if grid is None:
@@ -172,17 +170,18 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         self.fast: FoundationVerlet | None = None
         self._fbos: dict[tuple[int, ...], moderngl.Framebuffer] = {}
         self.passes: dict[str, Program] = {}
+        if layout not in FOUNDATION_LAYOUTS:
+            raise ValueError(f"FragmentIntegrator: layout must be one of {', '.join(FOUNDATION_LAYOUTS)}, got {layout!r}")
         if block is not None and layout == "auto":
             layout = "blocked"
-        terms = self._fast_path(path, draw, branch, layout, weight_texture)
+        terms = self._fast_path(path, layout)
         if terms is not None:
             GLOwner.__init__(self, ctx)
             start = (initial_state(system, self.dt, t=self.t, drags=self.drags, loads=self.loads)
                      if state is None else state)
             with self.building():
                 self.fast = self.own(FoundationVerlet(ctx, system, grid, terms, self.dt, start, loads=self.loads,
-                                                      t0=self.t, draw=draw, branch=branch, layout=layout,
-                                                      weight_texture=weight_texture, block=block))
+                                                      t0=self.t, layout=layout, block=block))
             return
         self.layout = compact_layout(grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
         #: every node of the box exists: neighbours by node-number offsets, no index texture
@@ -195,15 +194,13 @@ class FragmentIntegrator(SimulationBase, GLOwner):
 
     # -- construction ------------------------------------------------------------------------
 
-    def _fast_path(self, path: str, draw: str, branch: bool, layout: str,
-                   weight_texture: bool) -> VerletTerms | None:
+    def _fast_path(self, path: str, layout: str) -> VerletTerms | None:
         """The foundation pass's terms when it runs this simulation, None for the stages."""
-        variant = (draw, branch, weight_texture) != ("rects", False, False) or layout not in ("auto", "compact")
+        variant = layout == "blocked"  # (the general stages run the compact layout only)
         verlet = self.spec is FoundationVerlet.spec  # the one integrator the pass implements
         if path == "general" or (path == "auto" and not verlet):
             if variant:
-                raise ValueError("FragmentIntegrator: draw, branch, layout and weight_texture are variants of the foundation "
-                                 "pass (path='foundation')")
+                raise ValueError("FragmentIntegrator: the blocked layout is the foundation pass's (path='foundation')")
             return None
         if not verlet:
             raise ValueError(f"FragmentIntegrator: the foundation pass is {FoundationVerlet.integrator}, "

@@ -23,9 +23,8 @@ Textures (channel layouts are also listed in docs/ARCHITECTURE.md):
   (:func:`~deformgl.grid.neighbours.diagonal_table`), the node itself where absent. The
   pass computes the terms with the springs (define ``TERMS``, ``TERMS_HOOD``:
   ``shaders/lib/node_hood.glsl``, the 18 neighbours the springs fetched and the 8 diagonals).
-  Compact layouts only: the z-slice atlas (a benchmark variant) refuses a system with terms.
 
-Texels outside the grid (padding, empty nodes) hold position 0 and are never changed.
+Texels past the last node hold position 0 and are never changed.
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ import numpy as np
 from deformgl.gl.es_context import read_texture
 from deformgl.errors import GLError
 from deformgl.gl.resources import GLOwner
-from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import NEIGHBOUR_UNIT, REST_LENGTH_UNITS, CompactLayout, NodeGrid
 from deformgl.grid.neighbours import diagonal_table
 from deformgl.sim.backends.compact_textures import layer_texture
 from deformgl.sim.backends.grid_springs import spring_weights, weight_layers, weight_levels
@@ -49,11 +48,13 @@ from deformgl.sim.scripted import LOAD_PER_KG_BIT, MAX_LOADS, Drag, Load, load_g
 
 from deformgl.sim.terms.glsl import PassTerms, pass_terms
 
-__all__ = ["DRAW_MODES", "LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
-           "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures", "tile_rectangles"]
+__all__ = ["LAYOUTS", "FLAG_EXISTS", "FLAG_FIXED", "PULL_SHIFT", "MAX_PULLS",
+           "VerletTerms", "verlet_terms", "node_data", "node_flags", "NodeTextures"]
 
-DRAW_MODES = ("rects", "points", "quad")
-LAYOUTS = ("compact", "indexed", "atlas")
+#: The one-node layouts of :class:`NodeTextures`: "compact", and "indexed" (the compact layout
+#: with its neighbour-index texture even on a dense grid: the tests that check both lookups agree
+#: and the study that times them; the product picks by :attr:`CompactLayout.dense`).
+LAYOUTS = ("compact", "indexed")
 #: Node flag bits, stored in the G channel of the static node texture.
 FLAG_EXISTS = 1
 FLAG_FIXED = 2
@@ -161,17 +162,6 @@ def node_flags(fixed: np.ndarray, load_bits: np.ndarray | None = None) -> np.nda
     return bits
 
 
-def tile_rectangles(layout: AtlasLayout, ijk: np.ndarray) -> np.ndarray:
-    """(6 * tiles, 2) triangle corners, in texels, of the rectangle around each tile's nodes."""
-    texels = layout.texel(ijk)
-    corners = []
-    for k in np.unique(ijk[:, 2]):
-        t = texels[ijk[:, 2] == k]
-        (x0, y0), (x1, y1) = t.min(axis=0), t.max(axis=0) + 1
-        corners += [(x0, y0), (x1, y0), (x1, y1), (x0, y0), (x1, y1), (x0, y1)]
-    return np.array(corners, dtype=np.float64)
-
-
 class NodeTextures(GLOwner):
     """The GL textures of a node grid: one static node-data texture and the rotating state.
 
@@ -182,9 +172,8 @@ class NodeTextures(GLOwner):
         flags: (N,) flag bits (:func:`node_flags`; default: every node exists, none fixed).
         n_state: number of state textures (3 for position Verlet).
         layout: "compact" (existing nodes packed densely, neighbours from an index texture, or
-            by node-number offsets on dense grids), "indexed" (compact with the index texture
-            always, to measure what the offsets save) or "atlas" (z-slices as tiles, neighbours
-            by tile arithmetic); see docs/ARCHITECTURE.md.
+            by node-number offsets on dense grids) or "indexed" (:data:`LAYOUTS`); see
+            docs/ARCHITECTURE.md.
         positions: (n_state, N, 3) start positions of each state texture (default: the rest
             positions in all); the w channel gets the packed Mosegaard & Sørensen 2005, eq. 3 normal of those positions.
         weights: (N, 18) spring weights (:class:`VerletTerms`), or None. Cell shares of the
@@ -192,11 +181,11 @@ class NodeTextures(GLOwner):
             (:func:`weight_levels`; ``weight_levels`` is then True); other weights are stored as a
             5-layer RGBA32F texture array in the layout (bound to :data:`WEIGHT_UNIT`).
         weight_texture: store the weights in the texture array even where levels could hold
-            them (to measure what the levels save, and test they match).
+            them (the tests that check both give the same step, and the study that times them).
         hood: how much of the node's 3x3x3 neighbourhood the pass keeps for its terms
             (:attr:`~deformgl.sim.terms.glsl.PassTerms.hood`): 0, 1 (the 18 neighbours) or 2 (and
             the body diagonals, which on a compact layout that is not dense need their node numbers
-            in :attr:`hood_diagonals`, bound to :data:`HOOD_DIAGONAL_UNIT`); the atlas refuses 1 and 2.
+            in :attr:`hood_diagonals`, bound to :data:`HOOD_DIAGONAL_UNIT`).
     """
 
     def __init__(self, ctx: moderngl.Context, grid: NodeGrid, *, mass: np.ndarray | None = None,
@@ -208,9 +197,7 @@ class NodeTextures(GLOwner):
         super().__init__(ctx)
         max_size = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
         try:
-            self.layout: AtlasLayout | CompactLayout = (
-                CompactLayout.for_grid(grid, max_size, arithmetic=layout == "compact")
-                if layout in ("compact", "indexed") else AtlasLayout.for_grid(grid.shape, max_size))
+            self.layout = CompactLayout.for_grid(grid, max_size, arithmetic=layout == "compact")
         except ValueError as exc:
             raise GLError(f"{exc}; use a coarser grid") from None
         n = grid.count
@@ -226,16 +213,13 @@ class NodeTextures(GLOwner):
         self.hood_diagonals: moderngl.TextureArray | None = None
         if hood not in (0, 1, 2):
             raise ValueError(f"hood must be 0, 1 or 2, got {hood!r}")
-        if hood and not isinstance(self.layout, CompactLayout):
-            raise ValueError("NodeTextures: the atlas layout keeps no neighbourhood (a system whose terms read it runs on the compact "
-                             "layout)")
         node, levels = node_data(grid, mass, flags, weights, weight_texture)
         #: the spring weights are the levels code in the node texture's alpha (SPRING_WEIGHT_LEVELS)
         self.weight_levels = levels
         self.state: list[moderngl.Texture] = []
         self.framebuffers: list[moderngl.Framebuffer] = []
         with self.building():
-            if isinstance(self.layout, CompactLayout) and not self.layout.dense:
+            if not self.layout.dense:
                 layers = self.layout.neighbour_layers(grid.neighbours)
                 w, h = self.layout.size
                 self.neighbours = self.own(ctx.texture_array((w, h, 5), 4, layers.tobytes(), dtype="i4"))
@@ -266,7 +250,7 @@ class NodeTextures(GLOwner):
 
     @property
     def bytes_allocated(self) -> int:
-        """GPU bytes of every texture (padding texels included)."""
+        """GPU bytes of every texture (the texels past the last node included)."""
         w, h = self.size
         static = w * h * 16 + (0 if self.neighbours is None else w * h * 5 * 16) + \
             (0 if self.weights is None else w * h * 5 * 16) + (0 if self.hood_diagonals is None else w * h * 2 * 16)

@@ -16,14 +16,14 @@ import numpy as np
 
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import AtlasLayout, CompactLayout, NodeGrid
+from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.backends.blocked import BlockedTextures, BlockedVerletPass, blocked_refusal, default_block
-from deformgl.sim.backends.verlet_data import (HOOD_DIAGONAL_UNIT, DRAW_MODES, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
-                                               NodeTextures, VerletTerms, node_data, node_flags, tile_rectangles)
+from deformgl.sim.backends.verlet_data import (HOOD_DIAGONAL_UNIT, MAX_PULLS, TERM_UNITS, WEIGHT_UNIT,
+                                               NodeTextures, VerletTerms, node_data, node_flags, verlet_terms)
 from deformgl.sim.backends.term_tables import TermTables
 from deformgl.sim.backends.uniforms import pull_uniforms
 from deformgl.sim.clock import SimulationBase
-from deformgl.sim.integrators import State
+from deformgl.sim.integrators import State, initial_state
 from deformgl.sim.stages import spec
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.scripted import Load, load_groups
@@ -32,38 +32,23 @@ __all__ = ["FoundationVerlet", "VerletPass"]
 
 
 class VerletPass(GLOwner):
-    """The position-Verlet fragment pass: one program, one draw per step.
+    """The position-Verlet fragment pass: one program, one draw per step, one triangle over the
+    compact layout's texture (existing nodes packed in node order: one rectangle of texels).
 
     Args:
         ctx: GL context.
         terms: the pass's uniforms (decide the compiled variant: pulls).
         grid: the node grid.
         textures: the textures it reads and writes.
-        draw: ``"rects"`` (default) draws, per z-slice tile, the rectangle around its existing
-            nodes and skips empty texels inside it with a test; ``"points"`` draws one point per
-            existing node (no test, but llvmpipe pays per primitive); ``"quad"`` covers the
-            whole atlas, padding included. ``python -m studies.pass_variants`` measures all three.
-        branch: test each neighbour's mask bit with a branch instead of weighting by it.
     """
 
-    def __init__(self, ctx: moderngl.Context, terms: VerletTerms, grid: NodeGrid, textures: NodeTextures, *,
-                 draw: str = "rects", branch: bool = False) -> None:
-        if draw not in DRAW_MODES:
-            raise ValueError(f"draw must be one of {DRAW_MODES}, got {draw!r}")
+    def __init__(self, ctx: moderngl.Context, terms: VerletTerms, grid: NodeGrid, textures: NodeTextures) -> None:
         super().__init__(ctx)
         layout = textures.layout
-        if terms.extra and not isinstance(layout, CompactLayout):
-            raise ValueError("VerletPass: the physics terms' tables need a compact layout, not the z-slice atlas")
-        if isinstance(layout, CompactLayout) and draw == "rects":
-            draw = "quad"  # a compact layout is one rectangle of existing nodes already
-        self.draw = draw
         self.n_pulls = terms.n_pulls
-        vert = {"points": "sim/node_points.vert", "rects": "sim/node_rects.vert",
-                "quad": "sim/fullscreen.vert"}[draw]
-        self.vbo: moderngl.Buffer | None = None
         with self.building():
-            self.program = self.own(Program(ctx, vert, "sim/verlet.frag", defines={
-                "NEIGHBOUR_BRANCH": branch, "DRAW_POINTS": draw == "points", "PULLS": terms.n_pulls,
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "sim/verlet.frag", defines={
+                "PULLS": terms.n_pulls,
                 "SPRING_WEIGHTS": textures.weights is not None or textures.weight_levels,
                 "SPRING_WEIGHT_LEVELS": textures.weight_levels, **layout.shader_defines(),
                 **terms.extra.defines()}, chunks=terms.extra.chunks()))
@@ -75,24 +60,7 @@ class VerletPass(GLOwner):
                              u_gravity=terms.gravity, u_position=0, u_previous=1, u_node=2)
             if textures.weights is not None:
                 self.program.set(u_weights=WEIGHT_UNIT)
-            if draw == "points":
-                self.program.set(u_target_size=textures.size)
-                texels = layout.texel(grid.ijk).astype("i4")
-                self.vbo = self.own(ctx.buffer(texels.tobytes()))
-                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2i", "in_texel")]))
-                self.vertices = len(texels)
-                self.mode = moderngl.POINTS
-            elif draw == "rects" and isinstance(layout, AtlasLayout):  # (compact: "quad", above)
-                self.program.set(u_target_size=textures.size)
-                corners = tile_rectangles(layout, grid.ijk)
-                self.vbo = self.own(ctx.buffer(corners.astype("f4").tobytes()))
-                self.vao = self.own(ctx.vertex_array(self.program.gl, [(self.vbo, "2f", "in_texel_corner")]))
-                self.vertices = len(corners)
-                self.mode = moderngl.TRIANGLES
-            else:
-                self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-                self.vertices = 3
-                self.mode = moderngl.TRIANGLES
+            self.vao = self.own(ctx.vertex_array(self.program.gl, []))
         self._dt: float | None = None
 
     def run(self, textures: NodeTextures, current: int, previous: int, target: int, dt: float,
@@ -106,7 +74,7 @@ class VerletPass(GLOwner):
         textures.state[previous].use(1)
         textures.bind_static(2)
         textures.framebuffers[target].use()
-        self.vao.render(self.mode, vertices=self.vertices)
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
 
 
 class FoundationVerlet(SimulationBase, GLOwner):
@@ -121,16 +89,16 @@ class FoundationVerlet(SimulationBase, GLOwner):
         state: the start state (x and x_prev are uploaded; fixed nodes get x_prev = x).
         loads: the scripted loads (pull groups), evaluated at ``t0 + steps * dt`` before each step.
         t0: time of the start state.
-        draw, branch: pass variants, see :class:`VerletPass`; weight_texture: see :class:`NodeTextures`.
-        layout: "compact", "indexed", "atlas" (:class:`NodeTextures`), "blocked" (``block`` nodes per
+        weight_texture: see :class:`NodeTextures` (the tests and the study that compare the two).
+        layout: "compact", "indexed" (:class:`NodeTextures`), "blocked" (``block`` nodes per
             fragment, :mod:`~deformgl.sim.backends.blocked`) or "auto" (``block`` if given, else
             :func:`~deformgl.sim.backends.blocked.default_block`, where the renderer can run it;
             else "compact").
         block: (x, y, z) nodes per fragment (:data:`~deformgl.grid.blocks.BLOCK_SHAPES`).
 
     Raises:
-        ValueError: dt <= 0; the atlas layout with physics terms; "blocked" without a block, a block with
-            another layout or a draw other than "rects", a block the renderer cannot run
+        ValueError: dt <= 0; "blocked" without a block, a block with another layout, a block the
+            renderer cannot run
             (:func:`~deformgl.sim.backends.blocked.blocked_refusal`).
     """
 
@@ -141,16 +109,13 @@ class FoundationVerlet(SimulationBase, GLOwner):
 
     def __init__(self, ctx: moderngl.Context, system: SpringSystem, grid: NodeGrid, terms: VerletTerms,
                  dt: float, state: State, *, loads: tuple[Load, ...] = (), t0: float = 0.0,
-                 draw: str = "rects", branch: bool = False, layout: str = "compact",
-                 weight_texture: bool = False, block: tuple[int, int, int] | None = None) -> None:
+                 layout: str = "compact", weight_texture: bool = False, block: tuple[int, int, int] | None = None) -> None:
         if not dt > 0:
             raise ValueError(f"dt must be > 0, got {dt}")
         if layout == "blocked" and block is None:
             raise ValueError("FoundationVerlet: the blocked layout takes a block shape")
         if layout not in ("auto", "blocked") and block is not None:
             raise ValueError(f"FoundationVerlet: layout {layout!r} takes no block shape")
-        if block is not None and draw != "rects":
-            raise ValueError(f"FoundationVerlet: draw {draw!r} is a variant of the one-node pass, not of a block")
         GLOwner.__init__(self, ctx)
         self.system, self.grid = system, grid
         self._start_clock(dt, t0)
@@ -159,7 +124,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         flags = node_flags(system.fixed, load_groups(self.loads, grid.count)) | terms.extra.node_bits(grid.count)
         x = np.asarray(state.x, np.float64)
         x_prev = np.where(system.fixed[:, None], x, np.asarray(state.x_prev, np.float64))
-        if layout == "auto" and block is None and draw == "rects":  # (points, quad: one-node variants)
+        if layout == "auto" and block is None:
             block = default_block(grid)
         why = None if block is None else blocked_refusal(ctx.info, block)
         if why is None and block is not None and terms.extra.others:
@@ -183,7 +148,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
                                                    weights=None if levels else terms.weights))
                 units = range(blocked.units["weights"] + 1, int(ctx.info.get("GL_MAX_TEXTURE_IMAGE_UNITS", 16)))
                 self.term_tables = self.own(TermTables(ctx, terms.extra, grid, blocked.blocks, units))
-                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels, branch=branch))
+                block_pass = self.own(BlockedVerletPass(ctx, terms, blocked, weight_levels=levels))
                 block_pass.program.set(**self.term_tables.active_uniforms(block_pass.program))
                 self.textures, self.verlet = blocked, block_pass
                 #: one step: (current, previous, target, dt, pull forces)
@@ -192,14 +157,35 @@ class FoundationVerlet(SimulationBase, GLOwner):
                 textures = self.own(NodeTextures(ctx, grid, mass=system.mass, flags=flags, layout=layout,
                                                  positions=np.stack([x, x_prev, x]), weights=terms.weights,
                                                  weight_texture=weight_texture, hood=terms.extra.hood))
-                one_pass = self.own(VerletPass(ctx, terms, grid, textures, draw=draw, branch=branch))
-                if terms.extra and isinstance(textures.layout, CompactLayout):  # (VerletPass refused the atlas)
+                one_pass = self.own(VerletPass(ctx, terms, grid, textures))
+                if terms.extra:
                     self.term_tables = self.own(TermTables(ctx, terms.extra, grid, textures.layout, TERM_UNITS))
                     one_pass.program.set(**self.term_tables.active_uniforms(one_pass.program))
                 self.textures, self.verlet = textures, one_pass
                 self._draw_step = partial(one_pass.run, textures)
         self.current, self.previous, self.spare = 0, 1, 2
         self._pull = np.zeros((MAX_PULLS, 3))
+
+    @classmethod
+    def for_system(cls, ctx: moderngl.Context, system: SpringSystem, dt: float, *, loads: tuple[Load, ...] = (),
+                   state: State | None = None, layout: str = "compact", weight_texture: bool = False,
+                   block: tuple[int, int, int] | None = None) -> "FoundationVerlet":
+        """The pass on ``system``'s own grid from rest (or ``state``), with the switches the user
+        options leave out: ``layout="indexed"`` and ``weight_texture`` (the tests that check both
+        lookups give the same step, and the studies that time them); ``block`` as
+        :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`'s (with ``layout="auto"``).
+
+        Raises:
+            ValueError: the system has no grid, or the pass does not model it (naming what).
+        """
+        if system.grid is None:
+            raise ValueError("FoundationVerlet.for_system: the system has no node grid")
+        terms = verlet_terms(system, system.grid, loads=loads)
+        if isinstance(terms, str):
+            raise ValueError(f"FoundationVerlet.for_system: the pass does not model {terms}")
+        start = initial_state(system, dt, loads=loads) if state is None else state
+        return cls(ctx, system, system.grid, terms, dt, start, loads=loads, layout=layout,
+                   weight_texture=weight_texture, block=block)
 
     @property
     def position_texture(self) -> moderngl.Texture:
@@ -209,10 +195,8 @@ class FoundationVerlet(SimulationBase, GLOwner):
 
     def position_slot(self) -> tuple[moderngl.Texture, int, int, int]:
         """(texture, nodes per row, texels per node, slot) of the latest positions, for
-        :class:`~deformgl.sim.census.NodeCensus` (compact layouts only: node n is texel
-        (n % width, n // width); w, the packed normal, is not looked at)."""
-        if not isinstance(self.textures.layout, CompactLayout):
-            raise ValueError("position_slot: the atlas layout does not store node n at (n % width, n // width)")
+        :class:`~deformgl.sim.census.NodeCensus` (node n is texel (n % width, n // width), the
+        blocked layout's compact view included; w, the packed normal, is not looked at)."""
         return self.position_texture, self.textures.layout.width, 1, 0
 
     def step(self, n: int = 1) -> None:
