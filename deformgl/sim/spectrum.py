@@ -61,6 +61,7 @@ def stiffness_product(system: SpringSystem, dx: np.ndarray, *, barrier: bool = F
     ends = np.concatenate([system.i, system.j])
     signed = np.concatenate([f, -f])
     out = np.stack([np.bincount(ends, weights=signed[:, c], minlength=n) for c in range(3)], axis=1)
+    out = out.astype(np.float64, copy=False)  # (a system without springs: bincount of nothing is int)
     for term in system.terms:
         out += term.dt_product(system.rest_positions, dx, barrier=barrier)
     return out

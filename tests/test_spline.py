@@ -1,0 +1,250 @@
+"""Spline cells (issue 44): the quadratic B-spline body on the node grid, float64.
+
+The basis (partition of unity, linear precision, gradients), the body's integrals (mass and
+volume exact at any grid offset, rigid motions free of force, forces the energy's gradient, the
+assembled K the forces' linearisation), the corotational term (rotation invariance, inversion
+pushed back), and physics against finite elements: the 1 x 0.1 x 0.1 m cantilever of
+docs/ACCURACY.md section 2 within 1 % of its Q2 FEM at 3 and 5 nodes across (9 across in the slow
+run), and at ν = 0.45 and 0.49 against the mixed FEM of section 3."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spl
+
+from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, axis_basis, gauss_box, span_basis
+from deformgl.sim.terms.spline.body import DILATATIONS, SplineBody
+from deformgl.sim.terms.spline.term import SplineAnchor, SplineCells, polar_rotations, spline_system
+
+#: The cantilever of docs/ACCURACY.md section 2: 1 x 0.1 x 0.1 m, clamped at x = 0, its own weight,
+#: E = 1e8 Pa, rho = 1000 kg/m^3; the end face's mean sag over rho g L^4 / (E w^2) by the FEM of
+#: each nu: the Q2 FEM extrapolated at 1/4 (1.477008e-2 m), the mixed Q2/Q1 FEM at 0.45 and 0.49
+#: (studies/tissue_accuracy.py CANTILEVER_FEM).
+CANTILEVER_FEM = {0.25: 1.477008e-2 / 9.81e-3, 0.45: 1.48561, 0.49: 1.47930}
+E, RHO, G = 1.0e8, 1000.0, 9.81
+
+
+def box(across: int = 3, nu: float = 0.25, *, size=(1.0, 0.1, 0.1), origin=None, dilatation: str = "p1") -> SplineBody:
+    h = min(size) / (across - 1)
+    return SplineBody.from_box([0.0, 0.0, 0.0], size, h, youngs_modulus=E, poissons_ratio=nu, density=RHO,
+                               origin=origin, dilatation=dilatation)
+
+
+def cantilever_sag(body: SplineBody, beta: float = 1.0e3, size=(1.0, 0.1, 0.1)) -> float:
+    """The static cantilever: clamped by a penalty beta E / h on the x = 0 face, the end face's
+    area-mean sag over rho g L^4 / (E w^2)."""
+    (lx, ly, lz), h = size, body.spacing
+    points, weights = body.face_points(0, 0.0, [0, 0, 0], [lx, ly, lz])
+    anchor = SplineAnchor(body, points, weights, beta * E / h)
+    k = SplineCells(body).dt_stiffness(body.rest_positions) + anchor.matrix
+    f = np.zeros((body.count, 3))
+    f[:, 1] = -body.lumped_mass * G
+    u = spl.spsolve(k.tocsc(), f.ravel()).reshape(-1, 3)
+    tip, tip_w = body.face_points(0, lx, [0, 0, 0], [lx, ly, lz])
+    sag = -float((tip_w * body.field(tip, u)[:, 1]).sum() / tip_w.sum())
+    return sag / (RHO * G * lx ** 4 / (E * ly * lz))
+
+
+# -- the basis ---------------------------------------------------------------------------------
+
+def test_the_basis_is_a_partition_of_unity_with_linear_precision_and_its_gradients():
+    s = np.random.default_rng(0).uniform(-0.5, 0.5, (50, 3))
+    h = 0.013
+    values, gradients = span_basis(s, h)
+    np.testing.assert_allclose(values.sum(axis=1), 1.0, atol=1e-14)
+    assert values.min() >= 0.0
+    nodes = SPAN_OFFSETS * h  # a span's 27 nodes about its centre
+    np.testing.assert_allclose(values @ nodes, s * h, atol=1e-15)  # sum X_a N_a(x) = x
+    np.testing.assert_allclose(gradients.sum(axis=1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("pai,aj->pij", gradients, nodes), np.broadcast_to(np.eye(3), (50, 3, 3)),
+                               atol=1e-12)
+    eps = 1e-6
+    for d in range(3):
+        step = np.zeros(3)
+        step[d] = eps
+        numeric = (span_basis(s + step, h)[0] - span_basis(s - step, h)[0]) / (2 * eps * h)
+        np.testing.assert_allclose(gradients[:, :, d], numeric, atol=1e-6)
+    # C1 across the knot: node c's function seen from span c (s = 1/2) and from span c + 1 (s = -1/2)
+    left, left_slope = axis_basis(np.array(0.5))
+    right, right_slope = axis_basis(np.array(-0.5))
+    np.testing.assert_allclose(left[1:], right[:2])
+    np.testing.assert_allclose(left_slope[1:], right_slope[:2])
+
+
+def test_gauss_boxes_integrate_their_volume():
+    points, weights = gauss_box(np.array([[-0.5, -0.5, -0.5], [0.1, -0.2, 0.0]]), np.array([[0.5, 0.5, 0.5], [0.3, 0.5, 0.5]]))
+    np.testing.assert_allclose(weights.sum(axis=1), [1.0, 0.2 * 0.7 * 0.5])
+    assert points[1, :, 0].min() > 0.1 and points[1, :, 0].max() < 0.3
+
+
+# -- the body ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("origin", [None, (0.013, -0.02, 0.031), (-0.5, -0.5, -0.5)])
+def test_mass_and_volume_are_exact_at_any_grid_offset(origin):
+    """The spans hold the box exactly wherever the grid lies: volume and mass to rounding (the
+    issue asks 0.5 %), the mass the row sums of the consistent mass."""
+    body = SplineBody.from_box([0.0, 0.0, 0.0], [0.3, 0.2, 0.1], 0.05, youngs_modulus=1e5, poissons_ratio=0.3,
+                               density=1100.0, origin=None if origin is None else np.array(origin) * 0.05)
+    assert body.volume == pytest.approx(0.006, rel=1e-12)
+    assert body.lumped_mass.sum() == pytest.approx(1100.0 * 0.006, rel=1e-12)
+    assert body.lumped_mass.min() > 0.0
+    # the field of the rest positions is the identity (linear precision through the body)
+    p = np.random.default_rng(1).uniform([0, 0, 0], [0.3, 0.2, 0.1], (40, 3))
+    np.testing.assert_allclose(body.field(p, body.rest_positions), p, atol=1e-14)
+
+
+@pytest.mark.parametrize("dilatation", DILATATIONS)
+def test_the_body_is_free_of_rigid_motion_and_its_forces_are_the_energy_gradient(dilatation):
+    body = SplineBody.from_box([0.0, 0.0, 0.0], [0.3, 0.2, 0.1], 0.05, youngs_modulus=1e5, poissons_ratio=0.45,
+                               density=1000.0, origin=[0.013, -0.02, 0.031], dilatation=dilatation)
+    rng = np.random.default_rng(2)
+    u = rng.normal(size=(body.count, 3)) * 1e-3
+    k = body.assemble()
+    f = body.linear_forces(u)
+    np.testing.assert_allclose(f.ravel(), -(k @ u.ravel()), atol=1e-12 * np.abs(f).max())
+    assert abs(k - k.T).max() <= 1e-14 * abs(k).max()
+    scale = np.abs(f).max()
+    assert np.abs(body.linear_forces(np.tile([1.0, 2.0, 3.0], (body.count, 1)))).max() < 1e-9 * scale
+    assert np.abs(body.linear_forces(np.cross([0.0, 0.0, 1e-3], body.rest_positions))).max() < 1e-9 * scale
+    d = rng.normal(size=u.shape) * 1e-7
+    _, e_plus = body.span_forces((u + d)[body.span_nodes])
+    _, e_minus = body.span_forces((u - d)[body.span_nodes])
+    assert (e_plus - e_minus) / 2 == pytest.approx(-(f * d).sum(), rel=1e-6)
+    assert body.span_forces(u[body.span_nodes])[1] == pytest.approx(0.5 * u.ravel() @ (k @ u.ravel()), rel=1e-12)
+    # the two ways to the sums: each kind of span's matrix, and the stresses at the Gauss points
+    by_matrix, e_matrix = body.span_forces(u[body.span_nodes], by_points=False)
+    by_points, e_points = body.span_forces(u[body.span_nodes], by_points=True)
+    np.testing.assert_allclose(by_matrix, by_points, atol=1e-12 * np.abs(by_points).max())
+    assert e_matrix == pytest.approx(e_points, rel=1e-12)
+
+
+def test_a_uniform_strain_stores_the_continuum_energy():
+    """A linear displacement field is reproduced exactly; its energy is V (mu e_dev:e_dev +
+    kappa/2 tr(e)^2) with every dilatation (the projection of a constant is the constant)."""
+    eps = np.array([[1.0, 0.3, 0.0], [0.3, -0.4, 0.2], [0.0, 0.2, 0.5]]) * 1e-3
+    for dilatation in DILATATIONS:
+        body = box(3, 0.4, size=(0.3, 0.2, 0.1), origin=[0.01, 0.02, -0.03], dilatation=dilatation)
+        u = body.rest_positions @ eps.T
+        mu, kappa = body.moduli
+        dev = eps - np.trace(eps) / 3 * np.eye(3)
+        expected = body.volume * (mu * np.sum(dev * dev) + 0.5 * kappa * np.trace(eps) ** 2)
+        assert body.span_forces(u[body.span_nodes])[1] == pytest.approx(expected, rel=1e-10)
+
+
+def test_bad_bodies_are_refused_in_one_line():
+    with pytest.raises(ValueError, match="Poisson's ratio must be in"):
+        box(3, 0.5)
+    with pytest.raises(ValueError, match="dilatation must be one of p1, p0, full"):
+        box(3, dilatation="mean")
+    with pytest.raises(ValueError, match="an empty box"):
+        SplineBody.from_box([0, 0, 0], [0.1, 0.0, 0.1], 0.05, youngs_modulus=1e5, poissons_ratio=0.3, density=1.0)
+    with pytest.raises(ValueError, match="point 0 at .* outside the control grid's spans"):
+        box(3).field(np.array([[5.0, 0.0, 0.0]]), box(3).rest_positions)
+
+
+# -- the corotational term ---------------------------------------------------------------------
+
+def test_the_corotational_forces_follow_a_rotation_and_tend_to_the_linear_ones():
+    body = box(3, 0.3, size=(0.3, 0.1, 0.1))
+    cells = SplineCells(body)
+    rng = np.random.default_rng(3)
+    theta = 0.7
+    r = np.array([[np.cos(theta), -np.sin(theta), 0.0], [np.sin(theta), np.cos(theta), 0.0], [0.0, 0.0, 1.0]])
+    rigid = body.rest_positions @ r.T + [0.3, -1.0, 2.0]
+    out = np.zeros_like(rigid)
+    cells.add_forces(rigid, rigid * 0, 0.0, out)
+    assert np.abs(out).max() < 1e-6 and cells.energy(rigid) < 1e-18
+    x = body.rest_positions + rng.normal(size=(body.count, 3)) * 2e-3
+    f1, f2 = np.zeros_like(x), np.zeros_like(x)
+    cells.add_forces(x, x * 0, 0.0, f1)
+    cells.add_forces(x @ r.T, x * 0, 0.0, f2)
+    np.testing.assert_allclose(f1 @ r.T, f2, atol=1e-10 * np.abs(f1).max())
+    assert cells.energy(x) == pytest.approx(cells.energy(x @ r.T), rel=1e-9)
+    u = rng.normal(size=(body.count, 3))
+    errors = []
+    for scale in (1e-3, 1e-4):  # second order: the gap to the linear forces shrinks as scale^2
+        f = np.zeros_like(u)
+        cells.add_forces(body.rest_positions + scale * u, u * 0, 0.0, f)
+        errors.append(np.abs(f - body.linear_forces(scale * u)).max())
+    assert errors[1] < 0.02 * errors[0]
+    k = cells.stiffness(x)
+    assert abs(k - k.T).max() <= 1e-12 * abs(k).max()
+    # at a rigid placement the rotations' own derivative multiplies zero local forces: K is exact
+    d = rng.normal(size=u.shape) * 1e-7
+    fp, fm = np.zeros_like(u), np.zeros_like(u)
+    cells.add_forces(rigid + d, u * 0, 0.0, fp)
+    cells.add_forces(rigid - d, u * 0, 0.0, fm)
+    kd = (cells.stiffness(rigid) @ d.ravel()).reshape(-1, 3)
+    np.testing.assert_allclose(-(fp - fm) / 2, kd, atol=1e-4 * np.abs(kd).max())
+
+
+def test_an_inverted_span_is_counted_and_pushed_back():
+    body = box(3, 0.3, size=(0.3, 0.1, 0.1))
+    cells = SplineCells(body)
+    assert cells.inversions(body.rest_positions, body.grid) == (0, "")
+    x = body.rest_positions.copy()
+    x[:, 1] = 0.05 - 0.5 * (x[:, 1] - 0.05)  # squashed through y = 0.05 to half: every span inverted
+    count, phrase = cells.inversions(x, body.grid)
+    assert count == len(body.span_nodes) and "spline spans inverted (first: the span of node" in phrase
+    r = polar_rotations(cells.deformation(x))
+    np.testing.assert_allclose(np.linalg.det(r), 1.0)
+    f = np.zeros_like(x)
+    cells.add_forces(x, x * 0, 0.0, f)
+    assert np.sum(f[:, 1] * (x[:, 1] - 0.05)) < 0  # pushed back through the plane, not kept mirrored
+    assert cells.energy(x) > 0
+
+
+def test_the_gpu_backends_refuse_the_term_in_one_line():
+    cells = SplineCells(box(3))
+    for backend, form in (("fragment", "GLSL"), ("implicit", "implicit-Euler"), ("feedback", "transform-feedback"),
+                          ("xpbd", "XPBD")):
+        assert cells.refusal(backend) == f"spline cells have no {form} form yet (the NumPy reference runs them)"
+    assert cells.refusal("numpy") is None
+
+
+# -- against finite elements -------------------------------------------------------------------
+
+@pytest.mark.parametrize("across", [3, 5])
+def test_the_cantilever_is_within_1_percent_of_fem(across):
+    """docs/ACCURACY.md section 2's cantilever (the lattice: 0.90 and 0.98 of FEM at 3 and 5 across)."""
+    assert cantilever_sag(box(across)) / CANTILEVER_FEM[0.25] == pytest.approx(1.0, abs=0.01)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("nu", [0.25, 0.45, 0.49])
+def test_the_cantilever_at_9_across_is_within_1_percent_of_fem_at_any_nu(nu):
+    """At 9 across (10,043 control points) against the FEM of its ν (the issue asks 2 % at 0.45
+    and 0.49): no volumetric locking."""
+    assert cantilever_sag(box(9, nu)) / CANTILEVER_FEM[nu] == pytest.approx(1.0, abs=0.01)
+
+
+def test_the_clamp_penalty_converges():
+    """The clamp's penalty beta E / h: ten times stiffer moves the sag by less than 0.5 %."""
+    body = box(3)
+    assert cantilever_sag(body, 1e4) / cantilever_sag(body, 1e3) == pytest.approx(1.0, abs=0.005)
+
+
+def test_the_numpy_reference_runs_the_body_and_settles_on_its_static_sag():
+    """The spline system on the NumPy reference: dt_limit from the term (Lanczos on its mass and
+    stiffness), semi-implicit Euler at 0.9 of it, damped, settles within 1 % of the static solve of
+    the same penalty (a small, stiff cantilever: the linear regime)."""
+    from deformgl.sim.limits import dt_limit
+    from deformgl.sim.simulation import make_simulation
+
+    size = (0.08, 0.04, 0.04)
+    body = SplineBody.from_box([0, 0, 0], size, 0.02, youngs_modulus=1e6, poissons_ratio=0.3, density=RHO)
+    points, weights = body.face_points(0, 0.0, [0, 0, 0], size)
+    anchor = SplineAnchor(body, points, weights, 30 * 1e6 / 0.02)
+    system = spline_system(body, anchors=(anchor,), gravity=(0.0, -G, 0.0), mass_damping=150.0)
+    k = system.extra_terms[0].dt_stiffness(body.rest_positions) + anchor.matrix
+    f = np.zeros((body.count, 3))
+    f[:, 1] = -body.lumped_mass * G
+    static = spl.spsolve(k.tocsc(), f.ravel()).reshape(-1, 3)
+    limit = dt_limit(system, "semi-implicit")
+    assert 1e-6 < limit.dt < 1e-3
+    sim = make_simulation(system, "semi-implicit", "numpy", dt=0.9 * limit.dt)
+    sim.step(int(0.12 / sim.dt))
+    tip, tip_w = body.face_points(0, size[0], [0, 0, 0], size)
+    dynamic = body.field(tip, sim.positions() - body.rest_positions)[:, 1] @ tip_w
+    assert dynamic / (body.field(tip, static)[:, 1] @ tip_w) == pytest.approx(1.0, abs=0.01)
