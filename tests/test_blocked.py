@@ -125,8 +125,7 @@ def pulls(grid):
 def run(ctx, system, grid, steps, state, *, weight_texture=False, **kwargs):
     if weight_texture:  # (a switch the user options leave out: the pass itself)
         assert system.grid is grid
-        layout = kwargs.pop("layout", "auto")
-        sim = FoundationVerlet.for_system(ctx, system, 1e-4, state=state, layout=layout, weight_texture=True, **kwargs)
+        sim = FoundationVerlet.for_system(ctx, system, 1e-4, state=state, weight_texture=True, **kwargs)
     else:
         sim = FragmentIntegrator(ctx, system, grid, "verlet", 1e-4, state=state, path="foundation", **kwargs)
     try:

@@ -31,7 +31,7 @@ _DEFINITION = re.compile(r"^[ \t]*([A-Za-z_]\w*)[ \t]+([A-Za-z_]\w*)[ \t]*\(([^;
 # The first author of each paper and the co-authors (the three papers of the system, and XPBD:
 # Macklin, Müller & Chentanez 2016); one of them must precede an equation number.
 AUTHORS = re.compile(r"Mosegaard|S(?:ø|o)rensen|Movania|Feng|Knuth|Kohlhammer|Kuijper|Macklin|M(?:ü|u)ller|Chentanez"
-                     r"|Smith, de Goes|Bonet|Hughes|Baraff|Witkin|Timoshenko|Bergou")
+                     r"|Smith, de Goes|Bonet|Hughes|Baraff|Witkin|Timoshenko|Bergou|Piegl|Tiller")
 # "eq. 3", "eqs. 4-7", "eq 3", "equation 3"; not identifiers such as ``eq1`` or ``EQ2``
 EQUATION = re.compile(r"\b(?:eqs?\.[ \t]*|eqs?[ \t]+|equations?[ \t]*)\(?\d", re.IGNORECASE)
 AUTHOR_WINDOW = 60  # characters before the line that may still name the paper

@@ -3,7 +3,7 @@
 A :class:`Variant` is one program: its vertex and fragment files, its defines and its
 transform-feedback varyings, as :class:`deformgl.gl.programs.Program` receives them. The spaces
 come from the builders' own tables (the integrator specs of :mod:`deformgl.sim.stages`, the
-foundation pass's draw modes, the layouts' defines, the census modes, the mapping passes, the
+layouts' defines, the census modes, the mapping passes, the
 trilinear draw paths and normal modes), so a new stage or switch there adds
 its variants here.
 

@@ -168,8 +168,8 @@ async function main() {
   gl.useProgram(verlet);
   for (const [k, v] of Object.entries(info.verlet.uniforms)) {
     const loc = gl.getUniformLocation(verlet, k);
-    if (k === "u_width_log2" || k === "u_tiles_x") gl.uniform1i(loc, v);
-    else if (k === "u_strides" || k === "u_grid") gl.uniform3iv(loc, v);
+    if (k === "u_width_log2") gl.uniform1i(loc, v);
+    else if (k === "u_strides") gl.uniform3iv(loc, v);
     else setUniform(gl, verlet, k, v);
   }
   gl.uniform1i(gl.getUniformLocation(verlet, "u_position"), 0);

@@ -2,6 +2,9 @@
 // Mosegaard & Sorensen 2005, eq. 3: normals for node positions that come from outside (a file, an analytic motion, another
 // simulator): copies each position and packs the normalised sum of neighbour unit vectors into
 // alpha, exactly as the simulation pass does (Mosegaard & Sorensen 2005, 3.2).
+#ifndef COMPACT
+#define COMPACT  // (the layout this pass reads; a standalone compile gets it too)
+#endif
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"
 #include "lib/springs.glsl"

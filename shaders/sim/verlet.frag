@@ -8,6 +8,9 @@
 // physics terms (sim/verlet_node.glsl), with TERMS_HOOD (HOOD_DIAGONALS) the
 // node's 3x3x3 neighbourhood kept for them from the neighbour positions the springs fetched and the 8
 // body diagonals (lib/node_hood.glsl).
+#ifndef COMPACT
+#define COMPACT  // (the one layout of the one-node pass; a standalone compile gets it too)
+#endif
 #include "lib/node_flags.glsl"
 #include "lib/octahedral.glsl"
 #include "lib/springs.glsl"

@@ -168,12 +168,13 @@ class FoundationVerlet(SimulationBase, GLOwner):
 
     @classmethod
     def for_system(cls, ctx: moderngl.Context, system: SpringSystem, dt: float, *, loads: tuple[Load, ...] = (),
-                   state: State | None = None, layout: str = "compact", weight_texture: bool = False,
+                   state: State | None = None, layout: str | None = None, weight_texture: bool = False,
                    block: tuple[int, int, int] | None = None) -> "FoundationVerlet":
         """The pass on ``system``'s own grid from rest (or ``state``), with the switches the user
         options leave out: ``layout="indexed"`` and ``weight_texture`` (the tests that check both
         lookups give the same step, and the studies that time them); ``block`` as
-        :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`'s (with ``layout="auto"``).
+        :class:`~deformgl.sim.backends.explicit_gpu.FragmentIntegrator`'s. ``layout`` None:
+        "compact", or "auto" with a ``block``.
 
         Raises:
             ValueError: the system has no grid, or the pass does not model it (naming what).
@@ -184,6 +185,7 @@ class FoundationVerlet(SimulationBase, GLOwner):
         if isinstance(terms, str):
             raise ValueError(f"FoundationVerlet.for_system: the pass does not model {terms}")
         start = initial_state(system, dt, loads=loads) if state is None else state
+        layout = layout or ("compact" if block is None else "auto")
         return cls(ctx, system, system.grid, terms, dt, start, loads=loads, layout=layout,
                    weight_texture=weight_texture, block=block)
 

@@ -34,6 +34,8 @@ __all__ = ["DILATATIONS", "SplineBody", "lame"]
 
 #: Spans per chunk of the vectorised sums (bounds the temporaries: 27 x 27 x 3 floats a point).
 CHUNK = 1024
+#: A face within this many spans of a knot plane lies on it (the span beyond it holds no material).
+KNOT_TOLERANCE = 1e-9
 #: Up to this many kinds of span the forces are summed with each kind's matrix, beyond it at the
 #: Gauss points (:meth:`SplineBody.span_forces`).
 MAX_PATTERNS = 64
@@ -89,6 +91,8 @@ class SplineBody:
             raise ValueError(f"spline body: density must be > 0 kg/m^3, got {self.density}")
         if self.span_nodes.ndim != 2 or self.span_nodes.shape[1] != 27 or np.any(self.span_nodes < 0):
             raise ValueError("spline body: every knot span needs its 27 nodes on the control grid")
+        if np.any(np.diff(self.point_span) < 0):
+            raise ValueError("spline body: the Gauss points must be sorted by span")
         for name in ("span_nodes", "point_span", "point_s", "point_weight"):
             getattr(self, name).setflags(write=False)
 
@@ -111,11 +115,11 @@ class SplineBody:
         if lo.shape != (3,) or hi.shape != (3,) or np.any(hi <= lo):
             raise ValueError(f"spline body: an empty box {lo.tolist()}..{hi.tolist()}")
         origin = lo if origin is None else np.asarray(origin, np.float64)
-        # span c holds material where X_c + h/2 > lo and X_c - h/2 < hi (X_c = origin + c h)
-        first = np.floor((lo - origin) / spacing + 0.5).astype(np.int64)
-        last = np.ceil((hi - origin) / spacing - 0.5).astype(np.int64)
-        first += ((origin + first * spacing + 0.5 * spacing) <= lo).astype(np.int64)
-        last -= ((origin + last * spacing - 0.5 * spacing) >= hi).astype(np.int64)
+        # span c holds material where c + 1/2 > t_lo and c - 1/2 < t_hi (t = (x - origin) / h), by
+        # more than a rounding error: a face on a knot plane adds no empty layer of spans
+        t_lo, t_hi = (lo - origin) / spacing, (hi - origin) / spacing
+        first = np.floor(t_lo - 0.5 + KNOT_TOLERANCE).astype(np.int64) + 1
+        last = np.ceil(t_hi + 0.5 - KNOT_TOLERANCE).astype(np.int64) - 1
         spans_shape = last - first + 1
         shape = tuple(int(n) for n in spans_shape + 2)
         grid = NodeGrid(origin + (first - 1) * spacing, spacing, np.ones(shape, bool))
@@ -245,8 +249,14 @@ class SplineBody:
             ValueError: a point whose span's nodes are not all on the control grid.
         """
         p = np.asarray(points, np.float64)
-        centre = np.rint((p - self.grid.origin) / self.spacing).astype(np.int64)
-        s = (p - self.grid.origin) / self.spacing - centre
+        t = (p - self.grid.origin) / self.spacing
+        # the nearest node, kept where its span's 27 nodes fit the grid (a point on a knot plane
+        # at the body's face belongs to the span inside: rint would round half to even)
+        centre = np.clip(np.rint(t).astype(np.int64), 1, np.array(self.grid.shape) - 2)
+        s = t - centre
+        if np.any(np.abs(s) > 0.5 + KNOT_TOLERANCE):
+            bad = int(np.argmax(np.any(np.abs(s) > 0.5 + KNOT_TOLERANCE, axis=1)))
+            raise ValueError(f"spline body: point {bad} at {p[bad].tolist()} m is outside the control grid's spans")
         ijk = centre[:, None, :] + SPAN_OFFSETS[None]
         inside = np.all((ijk >= 0) & (ijk < np.array(self.grid.shape)), axis=2)
         nodes = np.full(ijk.shape[:2], -1, np.int64)
@@ -321,7 +331,7 @@ class SplineBody:
         (a few kinds of span: a box body) or the stresses at the Gauss points (``by_points``; the
         default where there are more than :data:`MAX_PATTERNS` kinds)."""
         ids, first = self.span_patterns
-        if not (by_points if by_points is not None else len(first) > MAX_PATTERNS):
+        if by_points is False or (by_points is None and len(first) <= MAX_PATTERNS):
             flat = np.asarray(local, np.float64).reshape(len(local), 81)
             forces = np.empty_like(flat)
             for p, k in enumerate(self.pattern_matrices):
@@ -366,13 +376,18 @@ class SplineBody:
     @cached_property
     def pattern_matrices(self) -> np.ndarray:
         """(U, 81, 81) the stiffness matrix of each :attr:`span_patterns` pattern, N/m (row 3a + i:
-        the span's node a, axis i)."""
+        the span's node a, axis i); built where there are at most :data:`MAX_PATTERNS`."""
         return np.stack([self._span_matrix(int(span)) for span in self.span_patterns[1]])
+
+    @cached_property
+    def _span_starts(self) -> np.ndarray:
+        """(S + 1,) where each span's Gauss points start."""
+        return np.searchsorted(self.point_span, np.arange(len(self.span_nodes) + 1))
 
     def _span_matrix(self, span: int) -> np.ndarray:
         """(81, 81) one span's stiffness matrix, N/m."""
         mu, kappa = self.moduli
-        pts = np.nonzero(self.point_span == span)[0]
+        pts = np.arange(self._span_starts[span], self._span_starts[span + 1])
         g = span_basis(self.point_s[pts], self.spacing)[1]
         w = self.point_weight[pts]
         dots = np.einsum("q,qad,qbd->ab", w, g, g)
@@ -386,8 +401,11 @@ class SplineBody:
         return k.reshape(81, 81)
 
     def span_matrices(self, spans: slice) -> np.ndarray:
-        """(s, 81, 81) the stiffness matrices of the spans ``spans``, N/m."""
-        return self.pattern_matrices[self.span_patterns[0][spans]]
+        """(s, 81, 81) the stiffness matrices of the spans ``spans``, N/m (each kind's once where
+        there are few kinds, else span by span)."""
+        if len(self.span_patterns[1]) <= MAX_PATTERNS:
+            return self.pattern_matrices[self.span_patterns[0][spans]]
+        return np.stack([self._span_matrix(s) for s in range(spans.start, spans.stop)])
 
     def assemble(self, rotations: np.ndarray | None = None) -> sp.csr_matrix:
         """The stiffness (3N, 3N), N/m: the spans' matrices, each turned by its rotation (S, 3, 3)

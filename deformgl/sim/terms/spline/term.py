@@ -87,8 +87,9 @@ class SplineCells(Term):
         return self.body.assemble(polar_rotations(self.deformation(x)))
 
     def dt_stiffness(self, x_rest: np.ndarray, *, barrier: bool = False) -> sp.csr_matrix:
-        """K at rest (the linear stiffness; the corotational one is the same turned, with the same
-        eigenvalues, so the envelope is K at rest too)."""
+        """K at rest, the linear stiffness (each span's corotational ``R K_e R^T`` has the
+        eigenvalues of its ``K_e``; assembled with different R the largest stayed at or below the
+        rest value where measured)."""
         if self._rest_k is None:
             self._rest_k = self.body.assemble()
         return self._rest_k
@@ -119,14 +120,13 @@ class SplineCells(Term):
 
 class SplineAnchor(Term):
     """A region of the material held at its rest place by a penalty (issue 44, item 3): the energy
-    ``k/2 int_region |u(x)|^2`` over the region's Gauss points, k in N/m^3 for a volume region (N/m^3
-    times m of thickness for a face's points), forces ``-K_p (x - X)``.
+    ``k/2 int_region |u(x)|^2`` over the region's Gauss points, forces ``-K_p (x - X)``.
 
     Args:
         body: the spline body.
         points: (P, 3) the region's quadrature points at rest, m.
         weights: (P,) their weights (m^3 for a volume, m^2 for a face).
-        stiffness: k, N/m^3 for a volume region (N/m^3 * m = N/m^3 per m^2 of face: pass k h for a face).
+        stiffness: k, N/m^4 for a volume region, N/m^3 for a face (β E / h: Pa per m).
     """
 
     name = "spline anchor"
