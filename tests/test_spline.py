@@ -207,10 +207,11 @@ def test_the_cantilever_is_within_1_percent_of_fem(across):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("nu", [0.25, 0.45, 0.49])
+@pytest.mark.parametrize("nu", [pytest.param(0.25, marks=pytest.mark.soak), 0.45, 0.49])
 def test_the_cantilever_at_9_across_is_within_1_percent_of_fem_at_any_nu(nu):
-    """At 9 across (10,043 control points) against the FEM of its ν (the issue asks 2 % at 0.45
-    and 0.49): no volumetric locking."""
+    """At 9 across (10,043 control points, about 30 s a case) against the FEM of its ν (the issue
+    asks 2 % at 0.45 and 0.49): no volumetric locking. ν = 1/4 (1.0000 measured; 3 and 5 across
+    run in the fast suite) is a soak run, outside CI's time budget."""
     assert cantilever_ratio(9, nu) == pytest.approx(1.0, abs=0.01)
 
 
