@@ -189,12 +189,17 @@ def test_an_inverted_span_is_counted_and_pushed_back():
     assert cells.energy(x) > 0
 
 
-def test_the_gpu_backends_refuse_the_term_in_one_line():
-    cells = SplineCells(box(3))
-    for backend, form in (("fragment", "GLSL"), ("implicit", "implicit-Euler"), ("feedback", "transform-feedback"),
-                          ("xpbd", "XPBD")):
+def test_the_backends_without_a_form_refuse_the_terms_in_one_line():
+    """The fragment backend runs the cells (tests/test_spline_gpu.py); implicit Euler, transform
+    feedback and XPBD refuse them, and every GPU backend the anchor, in one line naming the term."""
+    body = box(3)
+    cells = SplineCells(body)
+    for backend, form in (("implicit", "implicit-Euler"), ("feedback", "transform-feedback"), ("xpbd", "XPBD")):
         assert cells.refusal(backend) == f"spline cells have no {form} form yet (the NumPy reference runs them)"
-    assert cells.refusal("numpy") is None
+    assert cells.refusal("numpy") is None and cells.refusal("fragment") is None
+    points, weights = body.face_points(0, 0.0, [0, 0, 0], [1.0, 0.1, 0.1])
+    anchor = SplineAnchor(body, points, weights, 1e9)
+    assert anchor.refusal("fragment") == "spline anchors have no GLSL form yet (the NumPy reference runs them)"
 
 
 # -- against finite elements -------------------------------------------------------------------

@@ -130,19 +130,19 @@ def _forces() -> Iterator[dict[str, object]]:
 
 
 def _term_sets(count: int, implicit: bool = False, *, neighbours: bool = True,
-               hood: bool = True) -> Iterator[dict[str, object]]:
+               hood: bool = True, prepass: bool = True) -> Iterator[dict[str, object]]:
     """The physics terms' defines (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`): none, or one
     shipped term in each of its forms (:data:`deformgl.sim.terms.registry.VARIANTS`) whose grid
     neighbours the table of ``count`` neighbours holds; ``neighbours`` False: none that is called
     per neighbour (the foundation pass), ``hood`` False: none that reads the node's neighbourhood
-    (a sheet)."""
+    (a sheet), ``prepass`` False: none with passes of its own (the foundation pass refuses them)."""
     from deformgl.sim.terms.glsl import PassTerms
     from deformgl.sim.terms.registry import VARIANTS
 
     yield {}
     for form in VARIANTS:
         if form.neighbours > count or (implicit and not form.implicit) or (form.neighbours and not neighbours) \
-                or (form.hood and not hood):
+                or (form.hood and not hood) or (form.passes and not prepass):
             continue
         defines = PassTerms((form,), implicit).defines()
         if implicit and form.hood:
@@ -165,6 +165,11 @@ def fragment_backend() -> Iterator[Variant]:
                 for c in (_constraints() if stage.final else [{}]):
                     yield _v("sim/fullscreen.vert", "sim/integrators/step.frag",
                              {**common, **c, **stage.fragment_defines()})
+    from deformgl.sim.terms.registry import VARIANTS
+
+    # the terms' own passes (GlslTerm.passes: the pre-passes the stages run)
+    for fragment in sorted({f for form in VARIANTS for f in form.passes}):
+        yield _v("sim/fullscreen.vert", fragment, {})
 
 
 def xpbd() -> Iterator[Variant]:
@@ -221,7 +226,7 @@ def foundation() -> Iterator[Variant]:
     lookups of the compact layout."""
     # weights: none, the weight texture, the levels code (SPRING_WEIGHT_LEVELS)
     for pulls, layout, weights, terms in itertools.product(
-            _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"), list(_term_sets(18, neighbours=False))):
+            _counts("PULLS"), _LAYOUTS, (None, "texture", "levels"), list(_term_sets(18, neighbours=False, prepass=False))):
         yield _v("sim/fullscreen.vert", "sim/verlet.frag", {"PULLS": pulls, "SPRING_WEIGHTS": weights is not None,
                                                            "SPRING_WEIGHT_LEVELS": weights == "levels", **layout, **terms})
     for layout in _LAYOUTS:
@@ -233,7 +238,7 @@ def blocked() -> Iterator[Variant]:
     every block shape, its blocks by strides or from the table, the foundation's switches."""
     for shape, dense, pulls, weights, terms, flat in itertools.product(
             BLOCK_SHAPES, (False, True), _counts("PULLS"), (None, "texture", "levels"),
-            list(_term_sets(18, neighbours=False)), itertools.product((False, True), repeat=3)):
+            list(_term_sets(18, neighbours=False, prepass=False)), itertools.product((False, True), repeat=3)):
         # (flat: the axes a grid is one node thick along; it has no full cell, no term that reads the neighbourhood)
         if any(flat) and terms.get("TERMS_HOOD"):
             continue

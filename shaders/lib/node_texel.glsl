@@ -58,6 +58,12 @@ ivec2 node_slot_texel(int n, int slots, int slot) {
     return slot_texel(node_texel(n), slots, slot);
 }
 
+// The item and slot (x: item, y: slot) of a texel of a table of items `row` to a row, `slots`
+// texels each: the inverse of slot_texel(row_texel(item, row), slots, slot).
+ivec2 texel_item_slot(ivec2 texel, int slots, int row) {
+    return ivec2(texel.y * row + texel.x / slots, texel.x % slots);
+}
+
 // A texel the host packed into one int as x | y << 16 (deformgl/render/premap.py).
 ivec2 packed_texel(int code) {
     return ivec2(code & 0xffff, code >> 16);

@@ -7,12 +7,18 @@
 #ifdef TERM_BENDING
 #include "terms/bending.glsl"
 #endif
+#ifdef TERM_SPLINE
+#include "terms/spline.glsl"
+#endif
 void terms_force(inout vec3 f, TermNode n) {
 #ifdef TERM_CELL
     cell_force(f, n);
 #endif
 #ifdef TERM_BENDING
     bending_force(f, n);
+#endif
+#ifdef TERM_SPLINE
+    spline_force(f, n);
 #endif
 }
 #ifdef TERMS_NEIGHBOURS

@@ -272,9 +272,13 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         if weights is not None:
             self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
         #: the system's physics terms as this backend's passes compile them (deformgl.sim.terms)
-        self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator", self.grid)
-        self.term_textures = self.terms.textures(
-            lambda t: layer_texture(self, self.ctx, (w, h), t.values, "f4", t.layers))
+        self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator", self.grid, prepass=True)
+        self.term_textures: list[moderngl.Texture | moderngl.TextureArray] = list(self.terms.textures(
+            lambda t: layer_texture(self, self.ctx, (w, h), t.values, "f4", t.layers)))
+        #: the terms' own passes, run before each stage on its evaluation positions (GlslTerm.prepass)
+        self.term_passes = [self.own(form.prepass(self.ctx, layout_uniforms(self.layout.width)))
+                            for form in self.terms.prepasses if form.prepass is not None]
+        self.term_textures += [tex for p in self.term_passes for tex in p.textures()]
         #: the body diagonals of the node's neighbourhood, for a term that reads them on a grid
         #: that is not dense (HOOD_DIAGONALS, lib/node_hood.glsl), or None
         self.tex_hood_diagonals: moderngl.TextureArray | None = None
@@ -321,6 +325,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             (0 if self.tex_weights is None else w * h * layers * _VEC4) + \
             (0 if self.tex_hood_diagonals is None else w * h * 2 * _VEC4)
         static += sum(w * h * t.layers * _VEC4 for t in self.terms.tables)
+        static += sum(p.bytes_allocated for p in self.term_passes)
         self.bytes_allocated = self.state_bytes + static
 
     def _add(self, key: str, defines: dict[str, object]) -> None:
@@ -386,10 +391,28 @@ class FragmentIntegrator(SimulationBase, GLOwner):
                                                     np.asarray(d.target(t), float))
                                               for d in self.drags]))
 
+    def _bind_static(self) -> None:
+        """The static textures on their units (the stages' own state is bound per pass)."""
+        self.tex_node.use(_SAMPLERS["u_node"])
+        if self.tex_neighbours is not None:
+            self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
+        if self.tex_weights is not None:
+            self.tex_weights.use(_SAMPLERS["u_weights"])
+        if self.tex_hood_diagonals is not None:
+            self.tex_hood_diagonals.use(_HOOD_DIAGONAL_UNIT)
+        for tex, unit in zip(self.term_textures, _TERM_UNITS):
+            tex.use(unit)
+
     def _run(self, stage: Stage, t: float) -> None:
-        """One pass: ``stage.reads`` sampled, ``stage.writes`` rendered (current roles)."""
+        """One pass: ``stage.reads`` sampled, ``stage.writes`` rendered (current roles); the
+        terms' own passes first, on the stage's evaluation positions."""
         program = self.passes[stage.name]
         r, index = self.roles, self._index
+        if self.term_passes:
+            where = next((b for b in stage.reads if BUFFERS[b] == ("stage", "x")), "x")
+            for term_pass in self.term_passes:
+                term_pass.run(self.pool[r[index[where]]])
+            self._bind_static()
         self._set_time(program, t)
         if stage.final:
             self._set_spheres(program)
@@ -407,15 +430,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.steps_done, self.t = self.fast.steps_done, self.fast.t
             return
         previous = self.ctx.fbo
-        self.tex_node.use(_SAMPLERS["u_node"])
-        if self.tex_neighbours is not None:
-            self.tex_neighbours.use(_SAMPLERS["u_neighbours"])
-        if self.tex_weights is not None:
-            self.tex_weights.use(_SAMPLERS["u_weights"])
-        if self.tex_hood_diagonals is not None:
-            self.tex_hood_diagonals.use(_HOOD_DIAGONAL_UNIT)
-        for tex, unit in zip(self.term_textures, _TERM_UNITS):
-            tex.use(unit)
+        self._bind_static()
         try:
             for _ in range(n):
                 for stage in self.spec.stages:

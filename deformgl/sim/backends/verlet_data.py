@@ -134,11 +134,14 @@ def verlet_terms(system: SpringSystem, grid: NodeGrid, *, loads: tuple[Load, ...
         rest = grid.spacing * np.where(c == STRUCTURAL, REST_LENGTH_UNITS[0], REST_LENGTH_UNITS[-1])
         if np.any(sel) and not np.allclose(system.rest_length[sel], rest, rtol=1e-9, atol=0.0):
             return f"{name} rest lengths other than the grid's"
+    extra = pass_terms(system.terms, "fragment", "FragmentIntegrator", grid, prepass=True)
+    if extra.prepasses:  # (the pass evaluates its forces once per step, in one draw)
+        return f"a term with a pass of its own ({extra.prepasses[0].prefix})"
     weights = spring_weights(system, grid.neighbours, [k[0] or 0.0, k[1] or 0.0, 0.0])
     return VerletTerms(k_structural=k[0] or 0.0, k_shear=k[1] or 0.0, damping=float(system.velocity_damping),
                        gravity=(float(system.gravity[0]), float(system.gravity[1]), float(system.gravity[2])),
                        spacing=float(grid.spacing), n_pulls=len(loads), mass_damping=float(system.mass_damping),
-                       weights=weights, extra=pass_terms(system.terms, "fragment", "FragmentIntegrator", grid))
+                       weights=weights, extra=extra)
 
 
 def node_data(grid: NodeGrid, mass: np.ndarray, flags: np.ndarray, weights: np.ndarray | None,

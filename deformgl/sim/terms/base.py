@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,9 +41,13 @@ import scipy.sparse as sp
 from deformgl.grid.nodes import NodeGrid
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    import moderngl
+
     from deformgl.sim.terms.constraints import TermConstraints
 
-__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "block_diagonal"]
+__all__ = ["FeedbackTerm", "GlslTerm", "NodeTable", "Term", "TermNeeds", "TermPass", "block_diagonal"]
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,23 @@ class NodeTable:
     def layer(self, l: int) -> np.ndarray:
         """(N, 4) layer l."""
         return self.values[:, 4 * l: 4 * l + 4]
+
+
+class TermPass(Protocol):
+    """A term's own GPU pass (:attr:`GlslTerm.prepass`), owned and released by the backend that
+    built it."""
+
+    #: GPU bytes of its textures
+    bytes_allocated: int
+
+    def run(self, positions: "moderngl.Texture") -> None:
+        """Render its outputs from the node positions (xyz, m) in the node layout."""
+
+    def textures(self) -> "tuple[moderngl.Texture, ...]":
+        """Its outputs, in the order of :attr:`GlslTerm.prepass_samplers`."""
+
+    def release(self) -> None:
+        """Release its GL objects (idempotent)."""
 
 
 @dataclass(frozen=True)
@@ -116,6 +137,15 @@ class GlslTerm:
     variants (names starting with PREFIX in capitals). ``uniforms`` are set on every pass that
     compiles the chunk; their names, the tables' samplers and every function must start with
     ``prefix`` (or ``u_`` + prefix).
+
+    A term whose force needs work shared by many nodes (a per-cell stress, a per-span rotation)
+    gives ``prepass``: a factory ``prepass(ctx, layout) -> TermPass`` (``layout``: the node layout's
+    uniforms, :func:`deformgl.grid.nodes.layout_uniforms`) of a GPU pass of its own that the
+    explicit gathers run before each force evaluation on the evaluation state's positions, and
+    whose output textures its chunk samples as ``prepass_samplers`` (bound after the tables). The
+    passes that do not run it (the foundation pass, implicit Euler) refuse the term in one line.
+    ``passes`` names the fragment shaders of its own passes (drawn with ``sim/fullscreen.vert``,
+    no defines), which the shader pack compiles.
     """
 
     prefix: str
@@ -130,8 +160,13 @@ class GlslTerm:
     uniforms: dict[str, object] = field(default_factory=dict)
     tables: tuple[NodeTable, ...] = ()
     node_bits: np.ndarray | None = field(default=None, repr=False)
+    prepass: "Callable[[moderngl.Context, dict[str, int]], TermPass] | None" = field(default=None, repr=False)
+    prepass_samplers: tuple[str, ...] = ()
+    passes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        if (self.prepass is None) != (not self.prepass_samplers):
+            raise ValueError(f"GlslTerm {self.prefix}: a pre-pass and its samplers come together")
         if (self.source is None) == (self.file is None):
             raise ValueError(f"GlslTerm {self.prefix}: give the chunk as source or as file, not both")
         if not self.prefix.isidentifier():
@@ -147,7 +182,7 @@ class GlslTerm:
             bits = np.asarray(self.node_bits)
             if bits.ndim != 1 or bits.dtype.kind not in "iu" or (len(bits) and (bits.min() < 0 or bits.max() > 255)):
                 raise ValueError(f"GlslTerm {self.prefix}: node_bits must be (N,) integers in 0..255")
-        for name in (*self.uniforms, *(t.sampler for t in self.tables)):
+        for name in (*self.uniforms, *(t.sampler for t in self.tables), *self.prepass_samplers):
             if not name.startswith(f"u_{self.prefix}"):
                 raise ValueError(f"GlslTerm {self.prefix}: uniform {name!r} must start with u_{self.prefix}")
 

@@ -124,17 +124,28 @@ class PassTerms:
         """Every node table the pass samples, in order."""
         return tuple(t for form in self.forms for t in form.tables)
 
+    @property
+    def prepasses(self) -> tuple[GlslTerm, ...]:
+        """The terms with a pass of their own before each force evaluation (:attr:`GlslTerm.prepass`)."""
+        return tuple(f for f in self.forms if f.prepass is not None)
+
+    @property
+    def samplers(self) -> tuple[str, ...]:
+        """Every sampler of the terms' chunks, in the order units are given: the tables', then the
+        pre-passes' outputs."""
+        return (*(t.sampler for t in self.tables), *(s for f in self.forms for s in f.prepass_samplers))
+
     def uniforms(self, units: Sequence[int]) -> dict[str, object]:
-        """The terms' uniform values and their tables' samplers on ``units`` (one each, in the
-        order of :attr:`tables`)."""
-        tables = self.tables
-        if len(tables) > len(units):
-            raise ValueError(f"the terms sample {len(tables)} node tables; this pass has {len(units)} texture units "
+        """The terms' uniform values and their samplers on ``units`` (one each, in the order of
+        :attr:`samplers`: the node tables, then the pre-passes' outputs)."""
+        samplers = self.samplers
+        if len(samplers) > len(units):
+            raise ValueError(f"the terms sample {len(samplers)} textures; this pass has {len(units)} texture units "
                              f"left for them")
         out: dict[str, object] = {}
         for form in self.forms:
             out.update(form.uniforms)
-        out.update({t.sampler: unit for t, unit in zip(tables, units)})
+        out.update(dict(zip(samplers, units)))
         return out
 
     def textures(self, make: Callable[[NodeTable], "moderngl.TextureArray"]) -> list["moderngl.TextureArray"]:
@@ -188,10 +199,11 @@ def compose(forms: Sequence[GlslTerm], *, guarded: bool = False) -> str:
 
 
 def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid | None, *,
-               implicit: bool = False) -> PassTerms:
+               implicit: bool = False, prepass: bool = False) -> PassTerms:
     """The GLSL forms on ``grid`` of the ``terms`` that act, for a pass of ``backend``
     ("fragment" or "implicit"), after :func:`refuse_terms`; a one-line ValueError for a term
-    without the implicit product in an implicit pass, two terms with node bits or one prefix."""
+    without the implicit product in an implicit pass, a term with a pre-pass where the caller
+    does not run one (``prepass`` False), two terms with node bits or one prefix."""
     refuse_terms(terms, backend, caller)
     forms = []
     for term in terms:
@@ -204,6 +216,9 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
             raise ValueError(f"{caller}: {term.name} have no GLSL form")
         if implicit and not form.implicit:
             raise ValueError(f"{caller}: {term.name} have no implicit product in GLSL")
+        if form.prepass is not None and not prepass:
+            raise ValueError(f"{caller}: {term.name} need a pass of their own before each force evaluation, "
+                             f"which this pass does not run")
         forms.append(form)
     prefixes = [f.prefix for f in forms]
     if len(set(prefixes)) != len(prefixes):

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from deformgl.sim.terms import bending
+from deformgl.sim.terms.spline import glsl_form as spline_form
 from deformgl.sim.terms.volume import chunks as volume_chunks, xpbd_form as volume_xpbd
 from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
 from deformgl.sim.terms.constraints import XpbdChunk
@@ -23,9 +24,9 @@ __all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "XPBD_SHIPPED", "shipped_a
            "shipped_xpbd"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
-SHIPPED: tuple[GlslTerm, ...] = (volume_chunks.GLSL, bending.GLSL)
+SHIPPED: tuple[GlslTerm, ...] = (volume_chunks.GLSL, bending.GLSL, spline_form.GLSL)
 #: Every form of each, as the shader pack enumerates them.
-VARIANTS: tuple[GlslTerm, ...] = (*volume_chunks.CELL_FORMS, bending.GLSL)
+VARIANTS: tuple[GlslTerm, ...] = (*volume_chunks.CELL_FORMS, bending.GLSL, spline_form.GLSL)
 #: The transform-feedback chunks of the shipped terms that have one (the rest give
 #: ``Term.feedback_pairs`` or are refused).
 FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_chunks.FEEDBACK,)

@@ -21,14 +21,17 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.terms.base import Term
+from deformgl.sim.terms.base import GlslTerm, Term
 from deformgl.sim.terms.spline.basis import span_basis
 from deformgl.sim.terms.spline.body import SplineBody
+from deformgl.sim.terms.spline.glsl_form import spline_glsl
 
 __all__ = ["SplineAnchor", "SplineCells", "polar_rotations", "spline_system"]
 
-#: The backends' forms the spline cells do not have yet, each with the phrase a refusal gives.
+#: The backends' forms the spline terms do not have yet, each with the phrase a refusal gives.
 _NO_FORM = {"fragment": "GLSL", "implicit": "implicit-Euler", "feedback": "transform-feedback", "xpbd": "XPBD"}
+#: The spline cells have a GLSL form (the fragment backend's explicit stages).
+_CELLS_NO_FORM = {k: v for k, v in _NO_FORM.items() if k != "fragment"}
 
 
 def polar_rotations(f: np.ndarray) -> np.ndarray:
@@ -54,6 +57,7 @@ class SplineCells(Term):
         #: (S, 27, 3) the basis gradients at each span's material centroid, 1/m (where R is taken)
         self.centroid_gradients = span_basis(body.span_centroids, body.spacing)[1]
         self._rest_k: sp.csr_matrix | None = None
+        self._glsl: GlslTerm | None = None
 
     def describe(self) -> str:
         b = self.body
@@ -113,8 +117,15 @@ class SplineCells(Term):
         where = b.grid.ijk[b.span_nodes[first, 13]].tolist()
         return count, f"{count} of {len(bad)} spline spans inverted (first: the span of node {where})"
 
+    def glsl(self, grid: NodeGrid | None) -> GlslTerm:
+        """The span pass and the gather (:mod:`deformgl.sim.terms.spline.glsl_form`); ValueError
+        (one line) for a body whose spans are not one 3 x 3 x 3 grid of Gauss points each."""
+        if self._glsl is None:
+            self._glsl = spline_glsl(self.body)
+        return self._glsl
+
     def refusal(self, backend: str) -> str | None:
-        form = _NO_FORM.get(backend)
+        form = _CELLS_NO_FORM.get(backend)
         return None if form is None else f"{self.name} have no {form} form yet (the NumPy reference runs them)"
 
 
