@@ -3,7 +3,7 @@
 // evaluation) of the up to 27 knot spans whose node it is.
 // Table u_spline_spans: 7 RGBA32F layers per node, channel c of layer l the span whose node
 // a = 4 l + c this node is (a = 9 (dx + 1) + 3 (dy + 1) + (dz + 1), dx.. its offset from the span's
-// centre node), -1 where none (deformgl/sim/terms/spline/glsl_form.py SpanTables.node_spans).
+// centre node), -1 where none (deformgl/sim/terms/spline/tables.py SpanTables.node_spans).
 // u_spline_f0..3: the span pass's forces, node a = 4 l + c of span s in u_spline_f<c> at texel
 // slot_texel(row_texel(s, u_spline_row), 7, l), xyz in N.
 uniform sampler2DArray u_spline_spans;

@@ -10,7 +10,7 @@
 // points and writes the forces on the span's nodes a = 4 g + o (o = 0..3, a < 27) to output o,
 // N (xyz; w 0), in the world frame.
 //
-// Per span (deformgl/sim/terms/spline/glsl_form.py SpanTables):
+// Per span (deformgl/sim/terms/spline/tables.py SpanTables):
 //   u_span_nodes RGBA32I, 7 texels: its 27 node numbers, node a in channel a % 4 of texel a / 4
 //     (a = 9 (dx + 1) + 3 (dy + 1) + (dz + 1), the offset from the span's centre node, a = 13);
 //   u_span_data RGBA32F, 15 texels: 0-2 the Gauss points' span coordinates along x, y, z (rgb:
@@ -18,7 +18,8 @@
 //     m^3, channel q % 4 of texel 3 + q / 4; 10 rgb the material's centroid (span coordinates,
 //     where the rotation is taken), a the projection's function count P (0: the volumetric strain
 //     itself, 1: its mean, 4: its linear L2 projection); 11-14 the inverse Gram matrix of those
-//     functions, m^-3, row k in texel 11 + k.
+//     functions, m^-3, row k in texel 11 + k; 15-17 the Gauss points' coordinates along x, y, z
+//     minus the centroid's (rgb; the projection's linear functions, rounded once from float64).
 //
 // Quadratic B-spline per axis at span coordinate s in [-1/2, 1/2] (body.py, basis.py): the values
 // ((1/2 - s)^2 / 2, 3/4 - s^2, (1/2 + s)^2 / 2) of the nodes at -1, 0, +1, slopes d/ds
@@ -44,7 +45,7 @@ layout(location = 2) out vec4 o_f2;
 layout(location = 3) out vec4 o_f3;
 
 const int SPAN_GROUPS = 7;
-const int SPAN_DATA = 15;
+const int SPAN_DATA = 18;
 
 ivec3 span_offset(int a) {
     return ivec3(a / 9, (a / 3) % 3, a % 3) - ivec3(1);
@@ -63,7 +64,8 @@ void jacobi(inout mat3 A, inout mat3 V, int p, int q) {
         return;
     }
     float theta = (A[q][q] - A[p][p]) / (2.0 * apq);
-    float t = (theta >= 0.0 ? 1.0 : -1.0) / (abs(theta) + sqrt(theta * theta + 1.0));
+    // (theta^2 would overflow: t ~ 1 / (2 theta), Numerical Recipes 11.1.8's guard)
+    float t = abs(theta) > 1e18 ? 0.5 / theta : (theta >= 0.0 ? 1.0 : -1.0) / (abs(theta) + sqrt(theta * theta + 1.0));
     float c = inversesqrt(t * t + 1.0);
     float s = t * c;
     mat3 J = mat3(1.0);
@@ -150,6 +152,10 @@ void main() {
         axes[d] = texelFetch(u_span_data, span_texel(s, SPAN_DATA, d), 0).xyz;
     }
     vec4 mid = texelFetch(u_span_data, span_texel(s, SPAN_DATA, 10), 0);
+    vec3 rel[3];  // the points' coordinates about the centroid, per axis
+    for (int d = 0; d < 3; ++d) {
+        rel[d] = texelFetch(u_span_data, span_texel(s, SPAN_DATA, 15 + d), 0).xyz;
+    }
 
     // the rotation at the centroid (mid)
     vec3 cv[3];
@@ -170,20 +176,46 @@ void main() {
         p[a] = Rt * p[a] - u_h * vec3(span_offset(a));  // local displacements u~_a
     }
 
-    // strains and volumetric strains at the Gauss points
+    // the basis along each axis at the Gauss points: component i of V*[l] / D*[l] the value / slope
+    // of the function of offset i - 1 at the axis's point l
+    vec3 VX[3], DX[3], VY[3], DY[3], VZ[3], DZ[3];
+    for (int l = 0; l < 3; ++l) {
+        axis_basis(axes[0][l], VX[l], DX[l]);
+        axis_basis(axes[1][l], VY[l], DY[l]);
+        axis_basis(axes[2][l], VZ[l], DZ[l]);
+    }
+    // strains at the Gauss points, by sum factorisation (one axis at a time): H_q = sum_a u~_a
+    // grad N_a(x_q)^T, its columns sum_ijk u~_ijk (D_i V_j V_k, V_i D_j V_k, V_i V_j D_k) / h
+    vec3 A[27];   // [(3 i + j) 3 + n]: sum_k V_k(z_n) u~_ijk
+    vec3 B[27];   //                    sum_k D_k(z_n) u~_ijk
+    for (int ij = 0; ij < 9; ++ij) {
+        for (int n = 0; n < 3; ++n) {
+            A[3 * ij + n] = VZ[n].x * p[3 * ij] + VZ[n].y * p[3 * ij + 1] + VZ[n].z * p[3 * ij + 2];
+            B[3 * ij + n] = DZ[n].x * p[3 * ij] + DZ[n].y * p[3 * ij + 1] + DZ[n].z * p[3 * ij + 2];
+        }
+    }
+    vec3 AV[27];  // [(3 i + m) 3 + n]: sum_j V_j(y_m) A_ij(n)
+    vec3 AD[27];  //                    sum_j D_j(y_m) A_ij(n)
+    vec3 BV[27];  //                    sum_j V_j(y_m) B_ij(n)
+    for (int i = 0; i < 3; ++i) {
+        for (int m = 0; m < 3; ++m) {
+            for (int n = 0; n < 3; ++n) {
+                int k0 = 9 * i + n;
+                AV[9 * i + 3 * m + n] = VY[m].x * A[k0] + VY[m].y * A[k0 + 3] + VY[m].z * A[k0 + 6];
+                AD[9 * i + 3 * m + n] = DY[m].x * A[k0] + DY[m].y * A[k0 + 3] + DY[m].z * A[k0 + 6];
+                BV[9 * i + 3 * m + n] = VY[m].x * B[k0] + VY[m].y * B[k0 + 3] + VY[m].z * B[k0 + 6];
+            }
+        }
+    }
     mat3 eps[27];
     float theta[27];
     for (int q = 0; q < 27; ++q) {
-        vec3 vx, dx, vy, dy, vz, dz;
-        axis_basis(axes[0][q / 9], vx, dx);
-        axis_basis(axes[1][(q / 3) % 3], vy, dy);
-        axis_basis(axes[2][q % 3], vz, dz);
-        mat3 H = mat3(0.0);
-        for (int a = 0; a < 27; ++a) {
-            ivec3 o = span_offset(a) + ivec3(1);
-            vec3 grad = vec3(dx[o.x] * vy[o.y] * vz[o.z], vx[o.x] * dy[o.y] * vz[o.z], vx[o.x] * vy[o.y] * dz[o.z]) / u_h;
-            H += outerProduct(p[a], grad);
-        }
+        int l = q / 9;
+        int mn = q % 9;
+        vec3 c0 = DX[l].x * AV[mn] + DX[l].y * AV[9 + mn] + DX[l].z * AV[18 + mn];
+        vec3 c1 = VX[l].x * AD[mn] + VX[l].y * AD[9 + mn] + VX[l].z * AD[18 + mn];
+        vec3 c2 = VX[l].x * BV[mn] + VX[l].y * BV[9 + mn] + VX[l].z * BV[18 + mn];
+        mat3 H = mat3(c0, c1, c2) / u_h;  // (column j: sum_a u~_a dN_a/dx_j)
         eps[q] = 0.5 * (H + transpose(H));
         theta[q] = H[0][0] + H[1][1] + H[2][2];
     }
@@ -194,7 +226,7 @@ void main() {
     float w[27];
     for (int q = 0; q < 27; ++q) {
         w[q] = span_weight(s, q);
-        vec4 phi = vec4(1.0, axes[0][q / 9] - mid.x, axes[1][(q / 3) % 3] - mid.y, axes[2][q % 3] - mid.z);
+        vec4 phi = vec4(1.0, rel[0][q / 9], rel[1][(q / 3) % 3], rel[2][q % 3]);
         rhs += w[q] * theta[q] * phi;
     }
     vec4 coefficients = vec4(0.0);
@@ -209,7 +241,7 @@ void main() {
     // weighted stresses w_q sigma_q
     mat3 sigma[27];
     for (int q = 0; q < 27; ++q) {
-        vec4 phi = vec4(1.0, axes[0][q / 9] - mid.x, axes[1][(q / 3) % 3] - mid.y, axes[2][q % 3] - mid.z);
+        vec4 phi = vec4(1.0, rel[0][q / 9], rel[1][(q / 3) % 3], rel[2][q % 3]);
         float volumetric = functions == 0 ? theta[q] : dot(phi, coefficients);
         mat3 dev = eps[q] - (theta[q] / 3.0) * mat3(1.0);
         sigma[q] = w[q] * (2.0 * u_mu * dev + (u_kappa * volumetric) * mat3(1.0));
@@ -223,13 +255,14 @@ void main() {
         if (a < 27) {
             ivec3 k = span_offset(a) + ivec3(1);
             for (int q = 0; q < 27; ++q) {
-                vec3 vx, dx, vy, dy, vz, dz;
-                axis_basis(axes[0][q / 9], vx, dx);
-                axis_basis(axes[1][(q / 3) % 3], vy, dy);
-                axis_basis(axes[2][q % 3], vz, dz);
-                vec3 grad = vec3(dx[k.x] * vy[k.y] * vz[k.z], vx[k.x] * dy[k.y] * vz[k.z], vx[k.x] * vy[k.y] * dz[k.z]) / u_h;
+                int l = q / 9;
+                int m = (q / 3) % 3;
+                int n = q % 3;
+                vec3 grad = vec3(DX[l][k.x] * VY[m][k.y] * VZ[n][k.z], VX[l][k.x] * DY[m][k.y] * VZ[n][k.z],
+                                 VX[l][k.x] * VY[m][k.y] * DZ[n][k.z]);
                 f -= sigma[q] * grad;
             }
+            f /= u_h;
         }
         out_f[o] = vec4(R * f, 0.0);
     }

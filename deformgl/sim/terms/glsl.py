@@ -216,6 +216,8 @@ def pass_terms(terms: Sequence[Term], backend: str, caller: str, grid: NodeGrid 
             raise ValueError(f"{caller}: {term.name} have no GLSL form")
         if implicit and not form.implicit:
             raise ValueError(f"{caller}: {term.name} have no implicit product in GLSL")
+        if form.passes and form.prepass is None:
+            raise ValueError(f"{caller}: {term.name}'s GLSL form names passes of its own but has no pre-pass to run them")
         if form.prepass is not None and not prepass:
             raise ValueError(f"{caller}: {term.name} need a pass of their own before each force evaluation, "
                              f"which this pass does not run")

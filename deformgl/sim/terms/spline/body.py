@@ -197,6 +197,48 @@ class SplineBody:
         return cls(grid, nodes, span[keep], points[keep], weights[keep] * h3,
                    float(youngs_modulus), float(poissons_ratio), float(density), dilatation)
 
+    def moment_fitted(self) -> "SplineBody":
+        """The same body with each span that holds more than one grid of Gauss points (a cut span of
+        :meth:`from_inside`: a grid per sub-box) integrated by one 3 x 3 x 3 grid instead: the Gauss
+        points of the bounding box of its points, their weights fitted so that the grid integrates
+        every polynomial of degree <= 2 per axis over the span's material as its points did
+        (moment fitting, Joulaian et al. 2016, section 3: 27 Legendre moments, 27 weights). The
+        mass (``rho int N_a``, degree 2 per axis), volume, centroid and second moments are kept to
+        rounding; the stiffness (degree 4 per axis) is approximated in those spans. Spans that are
+        one grid already (a box's, a full span) are kept as they are. Weights may be negative."""
+        starts = self._span_starts
+        count = len(self.span_nodes)
+        per = np.diff(starts)
+        cut = per != 27
+        if not cut.any():
+            return self
+        spans = np.nonzero(cut)[0]
+        selector = np.repeat(cut, per)
+        s, w, sp_of = self.point_s[selector], self.point_weight[selector], self.point_span[selector]
+        local = np.searchsorted(spans, sp_of)  # each point's cut span, 0..C-1
+        lo = np.full((len(spans), 3), np.inf)
+        hi = np.full((len(spans), 3), -np.inf)
+        np.minimum.at(lo, local, s)
+        np.maximum.at(hi, local, s)
+        mid, half = (hi + lo) / 2.0, np.maximum((hi - lo) / 2.0, 1e-12)
+        t = (s - mid[local]) / half[local]  # in [-1, 1]
+        legendre = np.stack([np.ones_like(t), t, 1.5 * t * t - 0.5], axis=-1)  # (P, 3 axes, 3 degrees)
+        moments = np.zeros((len(spans), 3, 3, 3))
+        np.add.at(moments, local, w[:, None, None, None] * legendre[:, 0, :, None, None]
+                  * legendre[:, 1, None, :, None] * legendre[:, 2, None, None, :])
+        g = np.polynomial.legendre.leggauss(3)[0]
+        inverse = np.linalg.inv(np.stack([np.ones(3), g, 1.5 * g * g - 0.5]))  # [point, degree]
+        fitted = np.einsum("la,mb,nc,sabc->slmn", inverse, inverse, inverse, moments).reshape(len(spans), 27)
+        unit = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(27, 3)
+        fitted_s = mid[:, None, :] + half[:, None, :] * unit[None]
+        keep = ~selector
+        point_s = np.concatenate([self.point_s[keep], fitted_s.reshape(-1, 3)])
+        point_weight = np.concatenate([self.point_weight[keep], fitted.ravel()])
+        point_span = np.concatenate([self.point_span[keep], np.repeat(spans, 27)])
+        order = np.argsort(point_span, kind="stable")
+        return SplineBody(self.grid, self.span_nodes, point_span[order], point_s[order], point_weight[order],
+                          self.youngs_modulus, self.poissons_ratio, self.density, self.dilatation)
+
     # -- what the sums share ----------------------------------------------------------------
 
     @property

@@ -18,7 +18,7 @@ __all__ = ["SPAN_DATA_TEXELS", "SPAN_GROUPS", "SPAN_NODE_TEXELS", "SpanTables", 
 #: GL 3.3 or OpenGL ES 3.0 context has).
 SPAN_GROUPS = 7
 #: RGBA32F texels per span of the span data.
-SPAN_DATA_TEXELS = 15
+SPAN_DATA_TEXELS = 18
 #: RGBA32I texels per span of its node numbers.
 SPAN_NODE_TEXELS = 7
 _FUNCTIONS = {"full": 0, "p0": 1, "p1": 4}
@@ -30,7 +30,7 @@ class SpanTables:
 
     Attributes:
         nodes: (S, 28) int32 each span's 27 node numbers and a pad.
-        data: (S, 60) float32 each span's Gauss points, weights, centroid and projection.
+        data: (S, 72) float32 each span's Gauss points, weights, centroid and projection.
         node_spans: (N, 28) float32 per node and slot a the span whose node a it is, -1 none.
         row: spans per row of the span textures.
         mu, kappa: the shear and bulk moduli, Pa; spacing: h, m.
@@ -61,8 +61,8 @@ def span_tables(body: SplineBody) -> SpanTables:
     if np.any(per_span != 27):
         bad = int(np.argmax(per_span != 27))
         raise ValueError(f"spline cells: span {bad} (of node {body.grid.ijk[body.span_nodes[bad, 13]].tolist()}) holds "
-                         f"{per_span[bad]} Gauss points; the GLSL form takes one 3 x 3 x 3 grid a span (cut spans of "
-                         f"a sampled shape are not moment-fitted yet)")
+                         f"{per_span[bad]} Gauss points; the GLSL form takes one 3 x 3 x 3 grid a span "
+                         f"(SplineBody.moment_fitted() gives one)")
     points = body.point_s.reshape(count, 3, 3, 3, 3)
     axes = np.stack([points[:, :, 0, 0, 0], points[:, 0, :, 0, 1], points[:, 0, 0, :, 2]], axis=1)  # (S, 3, 3)
     grid = np.stack(np.meshgrid(np.arange(3), np.arange(3), np.arange(3), indexing="ij"), axis=-1)
@@ -73,6 +73,7 @@ def span_tables(body: SplineBody) -> SpanTables:
     data = np.zeros((count, 4 * SPAN_DATA_TEXELS))
     for d in range(3):
         data[:, 4 * d: 4 * d + 3] = axes[:, d]
+        data[:, 60 + 4 * d: 60 + 4 * d + 3] = axes[:, d] - body.span_centroids[:, d: d + 1]
     data[:, 12:39] = body.point_weight.reshape(count, 27)
     data[:, 40:43] = body.span_centroids
     functions = _FUNCTIONS[body.dilatation]
