@@ -358,3 +358,12 @@ def test_moment_fitting_keeps_the_mass_and_the_sag_of_a_cut_body():
     assert sag(fitted) / sag(sampled) == pytest.approx(1.0, abs=1e-3)
     exact = box(3)
     assert exact.moment_fitted() is exact
+
+
+def test_the_gershgorin_rows_bound_the_assembled_ones_without_assembling():
+    """The dt bound's row sums, span by span: at least the assembled K's and within 2x of them."""
+    cells = SplineCells(box(3, origin=[-0.013, 0.02, 0.0]))
+    k = abs(cells.body.assemble()).tocsr()
+    assembled = np.asarray(k.sum(axis=1)).reshape(-1, 3).max(axis=1)
+    rows = cells.frequency_terms(cells.body.rest_positions)
+    assert np.all(rows >= assembled * (1 - 1e-12)) and np.all(rows <= 2.0 * assembled)
