@@ -182,3 +182,56 @@ def test_the_span_tables_hold_what_the_shader_reads():
 def test_a_prepass_comes_with_its_samplers():
     with pytest.raises(ValueError, match="a pre-pass and its samplers come together"):
         GlslTerm("thing", source="", prepass_samplers=("u_thing_f",))
+
+
+# -- the mapping: a detailed mesh drawn through the body's field ---------------------------------
+
+def mapped(ctx, body: SplineBody, x: np.ndarray, vertices: np.ndarray, normals: np.ndarray):
+    from deformgl.render.spline_premap import SplinePremap
+
+    layout = CompactLayout.for_grid(body.grid, int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+    with GLOwner(ctx) as owner:
+        positions = float_texture(owner, ctx, layout.size, compact_image(layout.size, x))
+        premap = owner.own(SplinePremap(ctx, body, layout_uniforms(layout.width), vertices, normals))
+        premap.run(positions)
+        return premap.read()
+
+
+def mesh_points(count: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(11)
+    vertices = rng.uniform([0, 0, 0], [0.12, 0.04, 0.04], (count, 3))
+    vertices[:40, 1] = 0.04  # (on the top face)
+    normals = rng.normal(size=(count, 3))
+    return vertices, normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def test_the_mapping_draws_the_field_the_body_was_solved_with(ctx):
+    """Mapped vertices against the float64 field at a turned, strained state, 2 m from the origin
+    (within 1e-6 m: float32 there carries 1e-7), their normals against cof(F) n (within 1e-4 rad);
+    at rest every vertex at its place (the basis reproduces linear functions)."""
+    body = bar()
+    rest = body.rest_positions
+    turn = Rotation.from_rotvec([0.3, 0.8, -0.5]).as_matrix()
+    x = (rest - rest.mean(0)) @ turn.T + rest.mean(0) + [0.1, -0.3, 2.0]
+    x += 2e-3 * np.random.default_rng(1).standard_normal(x.shape)
+    vertices, normals = mesh_points()
+    world, normal = mapped(ctx, body, x, vertices, normals)
+    np.testing.assert_allclose(world, body.field(vertices, x), rtol=0, atol=1e-6)
+    nodes, _, gradients = body.locate(vertices)
+    f = np.einsum("vai,vaj->vij", x[nodes], gradients)
+    expected = np.einsum("vij,vj->vi", np.linalg.inv(f).transpose(0, 2, 1), normals)
+    sine = np.linalg.norm(np.cross(normal, expected), axis=1) / np.linalg.norm(normal, axis=1) / np.linalg.norm(expected, axis=1)
+    assert np.all(sine < 1e-4) and np.all(np.einsum("vi,vi->v", normal, expected) > 0)
+    still, still_normal = mapped(ctx, body, rest, vertices, normals)
+    np.testing.assert_allclose(still, vertices, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(still_normal, normals, rtol=0, atol=1e-6)
+
+
+def test_a_vertex_outside_the_bodys_spans_is_refused_in_one_line(ctx):
+    from deformgl.render.spline_premap import SplinePremap
+
+    body = bar()
+    vertices, normals = mesh_points(5)
+    vertices[3] = [0.5, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"^spline mapping: vertex 3 at \[0.5, 0.0, 0.0\] m is outside the control grid's spans$"):
+        SplinePremap(ctx, body, layout_uniforms(16), vertices, normals)

@@ -280,6 +280,7 @@ def render() -> Iterator[Variant]:
         names = ("v_world", "v_normal") + (("v_tangent", "v_handedness", "v_uv") if normal_map else ())
         yield _v("render/mapped_mesh.vert", None, d, names)
         yield _v("sim/fullscreen.vert", "render/mapped_premap.frag", d)  # mapping_pass = "fragment"
+    yield _v("sim/fullscreen.vert", "render/spline_premap.frag", {})  # a spline body's mapping
     for normal_map in (False, True):
         yield _v("render/mapped_cached.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})
         yield _v("render/mapped_premapped.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})

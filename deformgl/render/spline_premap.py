@@ -1,0 +1,122 @@
+"""A detailed mesh drawn through a spline body's field (issue 44, item 4): one fragment per vertex
+(``shaders/render/spline_premap.frag``) evaluates the quadratic B-spline field the body was solved
+with at the vertex's rest place, ``x(X) = sum_a N_a(X) x_a`` over its knot span's 27 control points,
+and turns its rest normal by the field's cofactor ``det(F) F^-T``; what was solved is what is drawn.
+Its outputs are :class:`~deformgl.render.premap.FragmentPremap`'s (the mapped position and the
+unnormalised normal, vertex v at texel (v % W, v // W)), so ``render/mapped_premapped.vert`` draws
+them.
+
+Textures (the channel layouts: ``shaders/render/spline_premap.frag``): the vertices' span nodes,
+RGBA32I array of 7 layers; their span coordinates and rest normals, RGBA32F array of 2 layers; the
+two RGBA32F outputs, rewritten by every :meth:`SplinePremap.run`.
+"""
+
+from __future__ import annotations
+
+import moderngl
+import numpy as np
+
+from deformgl.gl.es_context import read_texture
+from deformgl.gl.programs import Program
+from deformgl.gl.resources import GLOwner, restore_framebuffer
+from deformgl.grid.nodes import layout_uniforms
+from deformgl.render.premap import OUTPUT_UNITS
+from deformgl.sim.terms.spline.body import SplineBody
+
+__all__ = ["SplinePremap"]
+
+
+class SplinePremap(GLOwner):
+    """Maps the vertices of a detailed mesh through ``body``'s field in one fragment pass.
+
+    Args:
+        ctx: GL context.
+        body: the spline body (its control points are the nodes of the position textures).
+        layout: the node layout's uniforms of the position textures
+            (:func:`deformgl.grid.nodes.layout_uniforms`).
+        vertices: (V, 3) the vertices' rest positions, m.
+        normals: (V, 3) their rest normals.
+
+    Raises:
+        ValueError: one line naming the first vertex outside the body's knot spans, or arrays of
+            the wrong shape or not finite.
+    """
+
+    def __init__(self, ctx: moderngl.Context, body: SplineBody, layout: dict[str, int], vertices: np.ndarray,
+                 normals: np.ndarray) -> None:
+        vertices = np.asarray(vertices, np.float64)
+        normals = np.asarray(normals, np.float64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or normals.shape != vertices.shape:
+            raise ValueError(f"spline mapping: vertices {vertices.shape} and normals {normals.shape}, expected (V, 3) each")
+        if not (np.isfinite(vertices).all() and np.isfinite(normals).all()):
+            raise ValueError("spline mapping: vertices or normals not finite")
+        try:
+            nodes, _, _ = body.locate(vertices)
+        except ValueError as err:
+            raise ValueError(str(err).replace("spline body: point ", "spline mapping: vertex ", 1)) from None
+        spans = (vertices - body.rest_positions[nodes[:, 13]]) / body.spacing
+        super().__init__(ctx)
+        count = len(vertices)
+        self.count = count
+        max_size = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
+        width = 1 << max(4, int(np.ceil(np.log2(np.sqrt(max(count, 1))))))
+        width = min(width, 1 << int(np.floor(np.log2(max_size))))
+        height = max(1, -(-count // width))
+        if height > max_size:
+            raise ValueError(f"spline mapping: {count} vertices need more than {max_size}x{max_size} texels")
+        self.size = (width, height)
+        table = np.zeros((7, width * height, 4), np.int32)
+        padded = np.zeros((count, 28), np.int32)
+        padded[:, :27] = nodes
+        table[:, :count] = padded.reshape(count, 7, 4).transpose(1, 0, 2)
+        data = np.zeros((2, width * height, 4), np.float32)
+        data[0, :count, :3] = spans
+        data[1, :count, :3] = normals
+        with self.building():
+            self.nodes = self.own(ctx.texture_array((width, height, 7), 4, table.tobytes(), dtype="i4"))
+            self.data = self.own(ctx.texture_array((width, height, 2), 4, data.tobytes(), dtype="f4"))
+            for t in (self.nodes, self.data):
+                t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self.outputs = []
+            for _ in range(2):
+                out = self.own(ctx.texture(self.size, 4, dtype="f4"))
+                out.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                self.outputs.append(out)
+            self.fbo = self.own(ctx.framebuffer(color_attachments=self.outputs))
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "render/spline_premap.frag"))
+            self.program.set(u_position=0, u_vertex_nodes=1, u_vertex_data=2, u_h=body.spacing, **layout)
+            self.vao = self.own(ctx.vertex_array(self.program.gl, []))
+
+    @property
+    def layout_uniforms(self) -> dict[str, int]:
+        """The node layout's uniforms of the outputs (vertex v at texel node_texel(v))."""
+        return layout_uniforms(self.size[0])
+
+    def run(self, positions: moderngl.Texture) -> None:
+        """Map every vertex with node positions from ``positions`` (texture units 0-2 are left
+        bound to the pass's inputs); the caller's framebuffer and depth test come back."""
+        previous = self.ctx.fbo
+        self.fbo.use()
+        self.ctx.disable(moderngl.DEPTH_TEST)
+        try:
+            positions.use(0)
+            self.nodes.use(1)
+            self.data.use(2)
+            self.vao.render(moderngl.TRIANGLES, vertices=3)
+        finally:
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            restore_framebuffer(self.ctx, previous)
+
+    def bind(self) -> dict[str, int]:
+        """Bind the outputs to :data:`~deformgl.render.premap.OUTPUT_UNITS`; the premapped draw's
+        sampler uniforms."""
+        for out, unit in zip(self.outputs, OUTPUT_UNITS):
+            out.use(unit)
+        return {"u_vertex_world": OUTPUT_UNITS[0], "u_vertex_normal": OUTPUT_UNITS[1]}
+
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """(V, 3) float32 positions and normals of the last :meth:`run` (one read-back each)."""
+        w, h = self.size
+        images = [np.frombuffer(read_texture(t), dtype="f4").reshape(h * w, 4)[: self.count, :3].copy()
+                  for t in self.outputs]
+        return images[0], images[1]
