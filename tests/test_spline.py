@@ -16,6 +16,7 @@ import scipy.sparse.linalg as spl
 
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, axis_basis, gauss_box, span_basis
 from deformgl.sim.terms.spline.body import DILATATIONS, SplineBody
+from deformgl.sim.terms.spline.cut import fitted_body, inside_body, sample_body
 from deformgl.sim.terms.spline.term import SplineAnchor, SplineCells, polar_rotations, spline_system
 from studies.spline_dilatation import cantilever_ratio, column_ratio
 
@@ -190,8 +191,8 @@ def test_an_inverted_span_is_counted_and_pushed_back():
 
 
 def test_the_backends_without_a_form_refuse_the_terms_in_one_line():
-    """The fragment backend runs the cells (tests/test_spline_gpu.py); implicit Euler, transform
-    feedback and XPBD refuse them, and every GPU backend the anchor, in one line naming the term."""
+    """The fragment backend runs the cells and the anchor (tests/test_spline_gpu.py); implicit
+    Euler, transform feedback and XPBD refuse them in one line naming the term."""
     body = box(3)
     cells = SplineCells(body)
     for backend, form in (("implicit", "implicit-Euler"), ("feedback", "transform-feedback"), ("xpbd", "XPBD")):
@@ -199,7 +200,8 @@ def test_the_backends_without_a_form_refuse_the_terms_in_one_line():
     assert cells.refusal("numpy") is None and cells.refusal("fragment") is None
     points, weights = body.face_points(0, 0.0, [0, 0, 0], [1.0, 0.1, 0.1])
     anchor = SplineAnchor(body, points, weights, 1e9)
-    assert anchor.refusal("fragment") == "spline anchors have no GLSL form yet (the NumPy reference runs them)"
+    assert anchor.refusal("fragment") is None
+    assert anchor.refusal("xpbd") == "spline anchors have no XPBD form yet (the NumPy reference runs them)"
 
 
 # -- against finite elements -------------------------------------------------------------------
@@ -270,8 +272,8 @@ def test_the_numpy_reference_runs_the_body_and_settles_on_its_static_sag():
 # -- a body of any shape: spans cut by sampling ------------------------------------------------
 
 def ball(h: float = 0.02, radius: float = 0.05, subdivisions: int = 4) -> SplineBody:
-    return SplineBody.from_inside(lambda p: np.linalg.norm(p, axis=1) <= radius, [-radius] * 3, [radius] * 3, h,
-                                  youngs_modulus=1e4, poissons_ratio=0.3, density=1000.0, subdivisions=subdivisions)
+    return inside_body(lambda p: np.linalg.norm(p, axis=1) <= radius, [-radius] * 3, [radius] * 3, h,
+                       youngs_modulus=1e4, poissons_ratio=0.3, density=1000.0, subdivisions=subdivisions)
 
 
 def test_a_sampled_ball_holds_its_volume_and_its_mass():
@@ -288,8 +290,8 @@ def test_a_sampled_ball_holds_its_volume_and_its_mass():
     p *= 0.045 * np.random.default_rng(5).uniform(0, 1, (30, 1)) / np.linalg.norm(p, axis=1, keepdims=True)
     np.testing.assert_allclose(body.field(p, body.rest_positions), p, atol=1e-14)
     with pytest.raises(ValueError, match="no material inside the box"):
-        SplineBody.from_inside(lambda q: np.zeros(len(q), bool), [0, 0, 0], [0.1, 0.1, 0.1], 0.02,
-                               youngs_modulus=1e4, poissons_ratio=0.3, density=1.0)
+        inside_body(lambda q: np.zeros(len(q), bool), [0, 0, 0], [0.1, 0.1, 0.1], 0.02,
+                    youngs_modulus=1e4, poissons_ratio=0.3, density=1.0)
 
 
 @pytest.mark.slow
@@ -340,10 +342,9 @@ def test_moment_fitting_keeps_the_mass_and_the_sag_of_a_cut_body():
 
     size = np.array([1.0, 0.1, 0.1])
     h = 0.05
-    sampled = SplineBody.from_inside(lambda p: np.all((p >= 0) & (p <= size), axis=1), [0, 0, 0], size, h,
-                                     youngs_modulus=E, poissons_ratio=0.25, density=RHO,
-                                     origin=[-0.3 * h, -0.3 * h, -0.2 * h])
-    fitted = sampled.moment_fitted()
+    sampled = inside_body(lambda p: np.all((p >= 0) & (p <= size), axis=1), [0, 0, 0], size, h,
+                          youngs_modulus=E, poissons_ratio=0.25, density=RHO, origin=[-0.3 * h, -0.3 * h, -0.2 * h])
+    fitted = fitted_body(sampled)
     assert len(fitted.point_s) == 27 * len(fitted.span_nodes) < len(sampled.point_s)
     np.testing.assert_allclose(fitted.lumped_mass, sampled.lumped_mass, rtol=1e-11, atol=1e-14 * RHO)
     np.testing.assert_allclose(fitted.span_centroids, sampled.span_centroids, atol=1e-12)
@@ -357,7 +358,7 @@ def test_moment_fitting_keeps_the_mass_and_the_sag_of_a_cut_body():
 
     assert sag(fitted) / sag(sampled) == pytest.approx(1.0, abs=1e-3)
     exact = box(3)
-    assert exact.moment_fitted() is exact
+    assert fitted_body(exact) is exact
 
 
 def test_the_gershgorin_rows_bound_the_assembled_ones_without_assembling():
@@ -367,3 +368,48 @@ def test_the_gershgorin_rows_bound_the_assembled_ones_without_assembling():
     assembled = np.asarray(k.sum(axis=1)).reshape(-1, 3).max(axis=1)
     rows = cells.frequency_terms(cells.body.rest_positions)
     assert np.all(rows >= assembled * (1 - 1e-12)) and np.all(rows <= 2.0 * assembled)
+
+
+def box_samples(size, h: float, s: int, origin):
+    """The inside test of a fill's sample lattice (``s`` a cell edge, cells from ``origin``) on the
+    box [0, size], and the box its inside sample boxes make."""
+    size, origin = np.asarray(size, float), np.asarray(origin, float)
+    n = (np.ceil((size - origin) / h).astype(int) + 1) * s
+    idx = np.indices(n).reshape(3, -1).T
+    inside = np.all((origin + (idx + 0.5) / s * h >= 0) & (origin + (idx + 0.5) / s * h <= size), axis=1)
+    lo, hi = origin + idx[inside].min(0) / s * h, origin + (idx[inside].max(0) + 1) / s * h
+    return inside.reshape(n), lo, hi
+
+
+@pytest.mark.parametrize("s", [5, 6])
+def test_a_fills_samples_make_the_body_of_their_material(s):
+    """A body from a fill's samples (the lattice's material: s points a cell edge, odd or even):
+    full spans one exact grid, cut spans one grid moment-fitted to the sample boxes' exact moments;
+    on a box it is the exact body of the box the samples make, span by span (points and weights),
+    at a grid offset that cuts every face."""
+    h = 0.05
+    origin = np.array([-0.3 * h, -0.3 * h, -0.2 * h])
+    inside, lo, hi = box_samples([0.4, 0.1, 0.1], h, s, origin)
+    body = sample_body(origin, h, s, inside, youngs_modulus=E, poissons_ratio=0.25, density=RHO)
+    exact = SplineBody.from_box(lo, hi, h, youngs_modulus=E, poissons_ratio=0.25, density=RHO, origin=origin)
+    assert body.count == exact.count and np.array_equal(body.span_nodes, exact.span_nodes)
+    np.testing.assert_allclose(body.point_s, exact.point_s, atol=1e-12)
+    np.testing.assert_allclose(body.point_weight, exact.point_weight, rtol=1e-9, atol=1e-12 * h ** 3)
+    assert body.volume == pytest.approx(inside.sum() * (h / s) ** 3, rel=1e-12)
+
+
+def test_a_fills_samples_of_a_ball_keep_its_sampled_volume_and_run_on_the_gpu_form():
+    from deformgl.sim.terms.spline.tables import span_tables
+
+    h, s, r = 0.02, 8, 0.05
+    origin = np.full(3, -0.07)
+    n = np.full(3, 7 * s)
+    centres = origin + (np.indices(n).reshape(3, -1).T + 0.5) / s * h
+    inside = (np.linalg.norm(centres, axis=1) <= r).reshape(n)
+    body = sample_body(origin, h, s, inside, youngs_modulus=1e4, poissons_ratio=0.3, density=1000.0)
+    assert body.volume == pytest.approx(inside.sum() * (h / s) ** 3, rel=1e-12)
+    assert body.lumped_mass.sum() == pytest.approx(1000.0 * body.volume, rel=1e-12)
+    assert np.all(np.bincount(body.point_span) == 27)
+    span_tables(body)  # (one grid a span: the GLSL form takes it)
+    with pytest.raises(ValueError, match="no sample inside the mesh"):
+        sample_body(origin, h, s, np.zeros_like(inside), youngs_modulus=1e4, poissons_ratio=0.3, density=1000.0)

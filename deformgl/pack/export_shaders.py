@@ -30,7 +30,8 @@ __all__ = ["LICENSE_HEADER", "PACK_VERSION", "add_parser", "export_shaders", "pa
 #: terms/active.glsl, terms/feedback.glsl, terms/xpbd.glsl with TERMS, TERM_<PREFIX>,
 #: FEEDBACK_TERMS and XPBD_TERMS in place of CELLS, every term's files under terms/; 3.0.0: the
 #: compact layout only, no z-slice atlas, NEIGHBOUR_BRANCH, DRAW_POINTS, sim/node_points.vert or
-#: sim/node_rects.vert; 3.1.0: the spline cells, terms/spline.glsl, terms/spline_span.frag,
+#: sim/node_rects.vert; 3.1.0: the spline cells and their anchor, terms/spline*.{glsl,frag},
+#: render/bspline_premap.frag,
 #: TERM_SPLINE, texel_item_slot); shaders/README.md states it too, a test keeps them equal.
 PACK_VERSION = "3.1.0"
 LICENSE_HEADER = ("// deformgl shader pack {version}, profile {profile} (GLSL {language}).\n"

@@ -131,21 +131,22 @@ def _forces() -> Iterator[dict[str, object]]:
 
 def _term_sets(count: int, implicit: bool = False, *, neighbours: bool = True,
                hood: bool = True, prepass: bool = True) -> Iterator[dict[str, object]]:
-    """The physics terms' defines (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`): none, or one
-    shipped term in each of its forms (:data:`deformgl.sim.terms.registry.VARIANTS`) whose grid
+    """The physics terms' defines (:meth:`deformgl.sim.terms.glsl.PassTerms.defines`): none, one
+    shipped term in each of its forms (:data:`deformgl.sim.terms.registry.VARIANTS`) or a set of
+    forms a system holds together (:data:`~deformgl.sim.terms.registry.TOGETHER`) whose grid
     neighbours the table of ``count`` neighbours holds; ``neighbours`` False: none that is called
     per neighbour (the foundation pass), ``hood`` False: none that reads the node's neighbourhood
     (a sheet), ``prepass`` False: none with passes of its own (the foundation pass refuses them)."""
     from deformgl.sim.terms.glsl import PassTerms
-    from deformgl.sim.terms.registry import VARIANTS
+    from deformgl.sim.terms.registry import TOGETHER, VARIANTS
 
     yield {}
-    for form in VARIANTS:
-        if form.neighbours > count or (implicit and not form.implicit) or (form.neighbours and not neighbours) \
-                or (form.hood and not hood) or (form.passes and not prepass):
+    for forms in (*((form,) for form in VARIANTS), *TOGETHER):
+        if any(form.neighbours > count or (implicit and not form.implicit) or (form.neighbours and not neighbours)
+               or (form.hood and not hood) or (form.passes and not prepass) for form in forms):
             continue
-        defines = PassTerms((form,), implicit).defines()
-        if implicit and form.hood:
+        defines = PassTerms(tuple(forms), implicit).defines()
+        if implicit and any(form.hood for form in forms):
             defines["HOOD_NODES"] = True  # (implicit_passes.pass_defines)
         yield {k: v for k, v in defines.items() if v is not False}
 
@@ -280,7 +281,7 @@ def render() -> Iterator[Variant]:
         names = ("v_world", "v_normal") + (("v_tangent", "v_handedness", "v_uv") if normal_map else ())
         yield _v("render/mapped_mesh.vert", None, d, names)
         yield _v("sim/fullscreen.vert", "render/mapped_premap.frag", d)  # mapping_pass = "fragment"
-    yield _v("sim/fullscreen.vert", "render/spline_premap.frag", {})  # a spline body's mapping
+    yield _v("sim/fullscreen.vert", "render/bspline_premap.frag", {})  # a spline body's mapping
     for normal_map in (False, True):
         yield _v("render/mapped_cached.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})
         yield _v("render/mapped_premapped.vert", "render/mapped_mesh.frag", {"NORMAL_MAP": normal_map})

@@ -206,6 +206,9 @@ class Body:
         elif material is not None and not isinstance(material, (ElasticMaterial, SheetMaterial)):
             raise ArgumentError(f"{caller}: material must be an ElasticMaterial, a SheetMaterial or one of "
                                 f"{', '.join(PRESETS)}, got {material!r}")
+        if isinstance(material, ElasticMaterial) and material.model == "spline":
+            raise ArgumentError(f'{caller}: material: model = "spline" runs from a scene for now (dg.load_scene and '
+                                f"dg.render_scene, or deformgl render); Body builds the lattice")
         scale = _real(caller, "scale", scale, above=0.0)
         g = _vec3(caller, "gravity", gravity)
         regions = _regions(caller, fixed)

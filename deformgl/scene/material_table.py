@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from deformgl.scene.checks import Check, _fail, _join, _num, _str, _table
-from deformgl.sim.materials import MAX_POISSON, MIN_POISSON, PRESETS, ElasticMaterial, SheetMaterial
+from deformgl.sim.materials import MAX_POISSON, MIN_POISSON, MODELS, PRESETS, ElasticMaterial, SheetMaterial
 
 __all__ = ["_BODY_MATERIAL", "_MATERIAL_KEYS"]
 
@@ -24,6 +24,7 @@ _MATERIAL_KEYS: dict[str, tuple[Check, Any]] = {
     "poissons_ratio": (_num(), None),  # the range and why: _build_body_material
     "mass_damping": (_num(lo=0.0, sane=(0.0, 1e6), unit="1/s"), 0.0),
     "stiffness_damping": (_num(lo=0.0, sane=(0.0, 1e3), unit="s"), 0.0),
+    "model": (_str(MODELS), None),
 }
 
 
@@ -31,7 +32,7 @@ def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMater
     """``[material]``: a solid (a preset and/or youngs_modulus + density) or a sheet
     (stretch_modulus + areal_density, for cloth; bending_stiffness in N*m or flexion_ratio)."""
     sheet = [k for k in ("stretch_modulus", "areal_density", "flexion_ratio", "bending_stiffness") if d[k] is not None]
-    solid = [k for k in ("preset", "youngs_modulus", "density", "poissons_ratio") if d[k] is not None]
+    solid = [k for k in ("preset", "youngs_modulus", "density", "poissons_ratio", "model") if d[k] is not None]
     if sheet and solid:
         _fail(file, _join(key, sheet[0]), f"a sheet (cloth) key; not used with {solid[0]!r} (a solid)")
     if sheet:
@@ -61,7 +62,7 @@ def _build_body_material(file: str, key: str, d: dict[str, Any]) -> ElasticMater
     same = base is not None and d["youngs_modulus"] is None and d["density"] is None and d["poissons_ratio"] is None
     return ElasticMaterial(values["youngs_modulus"], values["density"], d["mass_damping"], d["stiffness_damping"],
                            name=base.name if same and base is not None else "", source=base.source if base is not None else "",
-                           poissons_ratio=nu)
+                           poissons_ratio=nu, model=d["model"] or "lattice")
 
 
 _BODY_MATERIAL = _table(_MATERIAL_KEYS, _build_body_material)

@@ -96,6 +96,14 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
         raise InputError(f"{job.output}: {plan.frames} frames need an animation output (.mp4, .gif, .webp or "
                          f"frames/%04d.png), not a single .png")
     check_encoder(job.output)
+    if getattr(scene.physics.material, "model", None) == "spline":  # (what reads the lattice's mapping or cells)
+        for flag, path in (("--export-mesh", job.export), ("--export-grid", job.grid), ("--pack-inputs", job.pack)):
+            if path is not None:
+                raise InputError(f'{path}: {flag} is not written for material.model = "spline" yet (the mesh is '
+                                 f"drawn through the body's field)")
+        if job.modes:
+            raise InputError(f'{scene.source}: --compare draws the lattice\'s mappings; material.model = "spline" '
+                             f"draws the mesh through its field")
     if is_interchange(job.export):
         assert job.export is not None
         check_format(job.export, "--export-mesh", plan.frames)

@@ -128,6 +128,9 @@ def scene_system(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: 
     Raises:
         SceneError: a fixed region that catches no node (``source: physics.fixed[i]: ...``).
     """
+    if getattr(physics.material, "model", "lattice") != "lattice":  # (deformgl.scene.spline_model builds it)
+        raise SceneError(f"{source}: material.model: scene_system builds the lattice, not a "
+                         f"{physics.material.model!r} body")  # type: ignore[union-attr]
     fixed = np.zeros(grid.count, bool)
     for i, region in enumerate(physics.fixed):
         fixed |= _caught(region, grid, bbox, source, f"{keys}fixed[{i}]")

@@ -22,7 +22,7 @@ from deformgl.render.camera import View, frame_box
 from deformgl.scene.budget import check_scene
 from deformgl.scene.obstacles import draw_obstacles
 from deformgl.errors import InputError, SimulationError
-from deformgl.grid.nodes import CompactLayout, NodeGrid
+from deformgl.grid.nodes import CompactLayout, NodeGrid, layout_uniforms
 from deformgl.files import OutputSet, write_png_atomic
 from deformgl.render.mapped import MappedMeshPass, closed_front_face
 from deformgl.render.mapped_setup import export_mesh, get_binding, mapped_vertices, mesh_uv, normal_map_image
@@ -41,6 +41,9 @@ from deformgl.grid.surface import grid_surface
 from deformgl.grid.fill import fill_cells
 from deformgl.grid.voxelize import voxelize
 from deformgl.sim.materials import ElasticMaterial, LatticeReport, SheetMaterial
+from deformgl.render.bspline_premap import FieldMeshPass
+from deformgl.scene.spline_model import spline_scene
+from deformgl.sim.terms.spline.body import SplineBody
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,6 +58,8 @@ class SceneModel:
         loads: the ``[[physics.pull]]`` loads (:func:`~deformgl.scene.physics.scene_loads`).
         bbox: (2, 3) recentred bounding box of the mesh, for regions and the camera.
         lattice: what the cell assembly of a ``[material]`` scene found, or None.
+        spline: the spline body of a ``model = "spline"`` scene (its control points are the
+            grid's nodes), or None.
     """
 
     mesh: trimesh.Trimesh
@@ -64,12 +69,19 @@ class SceneModel:
     loads: tuple[Load, ...]
     bbox: np.ndarray
     lattice: LatticeReport | None = None
+    spline: SplineBody | None = None
 
     @classmethod
     def build(cls, scene: Scene, mesh: trimesh.Trimesh, centre: np.ndarray, grid: NodeGrid,
               bbox: np.ndarray) -> SceneModel:
         """The model of ``scene``'s physics on ``grid`` (regions are fractions of ``bbox``)."""
         source = scene.source.name
+        material = scene.physics.material
+        if isinstance(material, ElasticMaterial) and material.model == "spline":
+            system, body = spline_scene(grid, scene.physics, bbox, source=source)
+            return cls(mesh=mesh, centre=centre, grid=body.grid, system=system,
+                       loads=scene_loads(body.grid, scene.physics, bbox, source=source, mass=system.mass), bbox=bbox,
+                       spline=body)
         report: list[LatticeReport] = []
         system = scene_system(grid, scene.physics, bbox, source=source, report=report)
         return cls(mesh=mesh, centre=centre, grid=grid, system=system,
@@ -241,6 +253,11 @@ def make_draw_pass(ctx: moderngl.Context, scene: Scene, built: SceneModel, layou
         log: receives the binding's report lines (what it could not do well), if given.
     """
     mode = scene.mapping.mode
+    if built.spline is not None:  # (drawn through the field it was solved with; the schema refused the rest)
+        mesh = built.mesh
+        return FieldMeshPass(ctx, built.spline, layout_uniforms(layout.width), mesh.vertices, mesh.vertex_normals,
+                             mesh.faces, front_face=closed_front_face(mesh.vertices, mesh.faces) if scene.render.cull
+                             else None)
     if mode == "one-to-one":
         return GridSurfacePass(ctx, built.grid, layout, overlay=scene.render.show_grid)
     surface = grid_surface(built.grid)
@@ -364,6 +381,11 @@ def render(ctx: moderngl.Context, scene: Scene, *, progress: bool = False, mesh:
             if built.lattice is not None:
                 log(f"{scene.name}: {material_line(scene.physics.material, built.grid.spacing)}: "
                     f"{built.lattice.summary()}")
+            if built.spline is not None:
+                body = built.spline
+                log(f"{scene.name}: model spline: {material_line(scene.physics.material, built.grid.spacing)}: "
+                    f"{len(body.span_nodes)} knot spans, {body.count} control points, volume {body.volume:.4g} m^3, "
+                    f"drawn through the field")
         if state.run is not None:
             if log is not None:
                 log(f"{scene.name}: {state.run.summary(scene.physics)}")

@@ -46,6 +46,12 @@ def material_fields(scene) -> dict[str, Any]:
     return fields
 
 
+def model_of(scene) -> str | None:
+    """The body model that ran: "lattice" or "spline" for a solid material, None otherwise."""
+    material = getattr(scene.physics, "material", None)
+    return getattr(material, "model", None)
+
+
 def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, wall: float = 0.0,
                ctx=None) -> dict[str, Any]:
     """The record of one render of ``scene`` (its :class:`~deformgl.scene.pipeline.SceneModel`
@@ -70,7 +76,8 @@ def run_record(scene, built, run, *, frames: int = 1, fps: float | None = None, 
         "convergence": getattr(run, "convergence", None) if simulated else None,
         "inverted_cells": getattr(run, "inverted_cells", None) if simulated else None,
         "solver": getattr(run, "solver", None) if simulated else None,
-        "mapping": scene.mapping.mode,
+        "mapping": scene.mapping.mode if getattr(built, "spline", None) is None else "field",
+        "model": model_of(scene),
         **material_fields(scene),
         "size": list(scene.render.size),
         "wall_time_s": round(float(wall), 4),

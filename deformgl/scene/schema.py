@@ -34,7 +34,8 @@ from deformgl.scene.spec import (AA_CHOICES, AXES, MAX_DRAGS, MAX_GRID_NODES, MA
 from deformgl.sim.equilibrium import CRITERIA as CONVERGE_CRITERIA
 from deformgl.sim.implicit import DEFAULT_PRECONDITIONER, PRECONDITIONERS
 from deformgl.scene.material_table import _BODY_MATERIAL
-from deformgl.sim.materials import SheetMaterial
+from deformgl.sim.materials import ElasticMaterial, SheetMaterial
+from deformgl.scene.spline_model import spline_refusal
 from deformgl.sim.scripted import MAX_LOADS as MAX_PULLS
 
 __all__ = ["apply_overrides", "load_scene"]
@@ -421,6 +422,17 @@ def load_scene(path: str | PathLike[str], overrides: dict[str, Any] | None = Non
             for needs in material.term_needs:  # a term the integrator has no form of, before the build
                 if (why := needs.refusal(d["physics"].integrator)) is not None:
                     _fail(file, needs.key, why)
+            if isinstance(material, ElasticMaterial) and material.model == "spline":
+                refused = spline_refusal(dataclasses.replace(d["physics"], material=material))
+                raw_mapping = data.get("mapping", {})
+                mode = raw_mapping.get("mode") if isinstance(raw_mapping, dict) else None
+                if refused is None and mode not in (None, "auto"):
+                    refused = ("mapping.mode", f'{mode!r} is a mapping to the lattice\'s nodes; model = "spline" draws '
+                               'the mesh through its field (leave mapping.mode out, or "auto")')
+                if refused is None and d["mapping"].normal_map is not None:
+                    refused = ("mapping.normal_map", 'not drawn with model = "spline" yet')
+                if refused is not None:
+                    _fail(file, refused[0], refused[1])
             d["physics"] = dataclasses.replace(d["physics"], material=material, damping=0.0)
         return Scene(source, **d)
 

@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike
 from deformgl.errors import ArgumentError
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms import bending as _bending
+from deformgl.sim.terms.spline import term as _spline_term
 from deformgl.sim.terms.volume import term as _volume_term
 from deformgl.sim.terms.bending import sheet_bending
 from deformgl.sim.terms.base import TermNeeds
@@ -70,10 +71,12 @@ from deformgl.sim.springs import FLEXION, STRUCTURAL, SpringSystem, from_grid
 from deformgl.sim.terms.volume.energy import BARRIER_SCALE, CellVolumes, grid_cells
 
 #: the Poisson's ratios the lattice offers: 1/4 (springs alone) up to nearly incompressible
+#: The body models of an elastic solid (:attr:`ElasticMaterial.model`).
+MODELS = ("lattice", "spline")
 MIN_POISSON = 0.25
 MAX_POISSON = 0.499
 
-__all__ = ["MIN_POISSON", "MAX_POISSON", "ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
+__all__ = ["MODELS", "MIN_POISSON", "MAX_POISSON", "ElasticMaterial", "SheetMaterial", "PRESETS", "LatticeReport", "lattice_system",
            "sheet_system", "lattice_stiffness", "critical_dt", "cell_counts", "cell_weights", "fill_shares",
            "EVEN_SHARE"]
 
@@ -107,6 +110,9 @@ class ElasticMaterial:
             shear modulus mu; a volumetric term per full cell (:mod:`deformgl.sim.terms.volume.energy`) adds
             the lambda - mu that central springs cannot give (0 at nu = 1/4). Below 1/4 a
             lattice would need lambda < mu, which central springs cannot give: refused.
+        model: the body model (:data:`MODELS`): "lattice" (default), the calibrated spring lattice
+            with its volumetric term; "spline", the quadratic B-spline finite-element body on the
+            same nodes (:mod:`deformgl.sim.terms.spline`; docs/EQUATIONS.md "Spline cells").
     """
 
     youngs_modulus: float
@@ -116,8 +122,11 @@ class ElasticMaterial:
     name: str = ""
     source: str = ""
     poissons_ratio: float = 0.25
+    model: str = "lattice"
 
     def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ArgumentError(f"ElasticMaterial: model must be one of {', '.join(MODELS)}, got {self.model!r}")
         _check_numbers(self, "ElasticMaterial", {"youngs_modulus": "> 0 Pa", "density": "> 0 kg/m^3",
                                                   "mass_damping": ">= 0 1/s", "stiffness_damping": ">= 0 s",
                                                   "poissons_ratio": ""})
@@ -158,7 +167,7 @@ class ElasticMaterial:
     def term_needs(self) -> tuple[TermNeeds, ...]:
         """What the terms its lattice holds besides the springs will need (the cells' volumetric
         term), known before the lattice is built."""
-        return (_volume_term.NEEDS,)
+        return (_spline_term.NEEDS,) if self.model == "spline" else (_volume_term.NEEDS,)
 
     @property
     def summary(self) -> str:

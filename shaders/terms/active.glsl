@@ -10,6 +10,9 @@
 #ifdef TERM_SPLINE
 #include "terms/spline.glsl"
 #endif
+#ifdef TERM_SPLINE_ANCHOR
+#include "terms/spline_anchor.glsl"
+#endif
 void terms_force(inout vec3 f, TermNode n) {
 #ifdef TERM_CELL
     cell_force(f, n);
@@ -19,6 +22,9 @@ void terms_force(inout vec3 f, TermNode n) {
 #endif
 #ifdef TERM_SPLINE
     spline_force(f, n);
+#endif
+#ifdef TERM_SPLINE_ANCHOR
+    spline_anchor_force(f, n);
 #endif
 }
 #ifdef TERMS_NEIGHBOURS

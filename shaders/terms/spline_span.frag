@@ -29,11 +29,12 @@
 // strain, B-bar projected volumetric strain, stress 2 mu dev(eps) + kappa theta~ I; forces
 // f_a = -R sum_q w_q sigma_q grad N_a(x_q).
 #include "lib/node_texel.glsl"
+#include "lib/bspline.glsl"
+#include "terms/spline_spans.glsl"
 
 uniform sampler2D u_x;             // RGBA32F positions at the evaluation state (node_texel), m
 uniform isampler2D u_span_nodes;   // RGBA32I span nodes (above)
 uniform sampler2D u_span_data;     // RGBA32F span data (above)
-uniform int u_span_row;            // spans per row of the span tables
 uniform int u_spans;               // spans
 uniform float u_h;                 // grid spacing h, m
 uniform float u_mu;                // shear modulus, Pa
@@ -46,16 +47,6 @@ layout(location = 3) out vec4 o_f3;
 
 const int SPAN_GROUPS = 7;
 const int SPAN_DATA = 18;
-
-ivec3 span_offset(int a) {
-    return ivec3(a / 9, (a / 3) % 3, a % 3) - ivec3(1);
-}
-
-// The values and slopes (d/ds) of the three functions of one axis at s.
-void axis_basis(float s, out vec3 value, out vec3 slope) {
-    value = vec3(0.5 * (0.5 - s) * (0.5 - s), 0.75 - s * s, 0.5 * (0.5 + s) * (0.5 + s));
-    slope = vec3(s - 0.5, -2.0 * s, s + 0.5);
-}
 
 // One Jacobi rotation of the symmetric A zeroing A[p][q], accumulated into V (Numerical Recipes, 11.1).
 void jacobi(inout mat3 A, inout mat3 V, int p, int q) {
@@ -114,10 +105,6 @@ mat3 polar_rotation(mat3 F) {
     return U * transpose(V);
 }
 
-ivec2 span_texel(int s, int slots, int slot) {
-    return slot_texel(row_texel(s, u_span_row), slots, slot);
-}
-
 float span_weight(int s, int q) {
     return texelFetch(u_span_data, span_texel(s, SPAN_DATA, 3 + q / 4), 0)[q % 4];
 }
@@ -160,29 +147,29 @@ void main() {
     // the rotation at the centroid (mid)
     vec3 cv[3];
     vec3 cd[3];
-    axis_basis(mid.x, cv[0], cd[0]);
-    axis_basis(mid.y, cv[1], cd[1]);
-    axis_basis(mid.z, cv[2], cd[2]);
+    bspline_axis(mid.x, cv[0], cd[0]);
+    bspline_axis(mid.y, cv[1], cd[1]);
+    bspline_axis(mid.z, cv[2], cd[2]);
     mat3 F = mat3(1.0);
     for (int a = 0; a < 27; ++a) {
-        ivec3 o = span_offset(a) + ivec3(1);
+        ivec3 o = bspline_offset(a) + ivec3(1);
         vec3 grad = vec3(cd[0][o.x] * cv[1][o.y] * cv[2][o.z], cv[0][o.x] * cd[1][o.y] * cv[2][o.z],
                          cv[0][o.x] * cv[1][o.y] * cd[2][o.z]) / u_h;
-        F += outerProduct(p[a] - u_h * vec3(span_offset(a)), grad);
+        F += outerProduct(p[a] - u_h * vec3(bspline_offset(a)), grad);
     }
     mat3 R = polar_rotation(F);
     mat3 Rt = transpose(R);
     for (int a = 0; a < 27; ++a) {
-        p[a] = Rt * p[a] - u_h * vec3(span_offset(a));  // local displacements u~_a
+        p[a] = Rt * p[a] - u_h * vec3(bspline_offset(a));  // local displacements u~_a
     }
 
     // the basis along each axis at the Gauss points: component i of V*[l] / D*[l] the value / slope
     // of the function of offset i - 1 at the axis's point l
     vec3 VX[3], DX[3], VY[3], DY[3], VZ[3], DZ[3];
     for (int l = 0; l < 3; ++l) {
-        axis_basis(axes[0][l], VX[l], DX[l]);
-        axis_basis(axes[1][l], VY[l], DY[l]);
-        axis_basis(axes[2][l], VZ[l], DZ[l]);
+        bspline_axis(axes[0][l], VX[l], DX[l]);
+        bspline_axis(axes[1][l], VY[l], DY[l]);
+        bspline_axis(axes[2][l], VZ[l], DZ[l]);
     }
     // strains at the Gauss points, by sum factorisation (one axis at a time): H_q = sum_a u~_a
     // grad N_a(x_q)^T, its columns sum_ijk u~_ijk (D_i V_j V_k, V_i D_j V_k, V_i V_j D_k) / h
@@ -253,7 +240,7 @@ void main() {
         int a = 4 * g + o;
         vec3 f = vec3(0.0);
         if (a < 27) {
-            ivec3 k = span_offset(a) + ivec3(1);
+            ivec3 k = bspline_offset(a) + ivec3(1);
             for (int q = 0; q < 27; ++q) {
                 int l = q / 9;
                 int m = (q / 3) % 3;

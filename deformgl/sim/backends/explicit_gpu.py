@@ -19,7 +19,7 @@ system's springs are exactly the grid's.
 
 The system's physics terms (``system.terms``, :mod:`deformgl.sim.terms`) are compiled into the
 same passes (define ``TERMS``, their chunks composed by
-:mod:`deformgl.sim.terms.glsl`), their node tables bound on :data:`_TERM_UNITS`; a term that reads
+:mod:`deformgl.sim.terms.glsl`), their node tables and pre-pass outputs bound from :data:`_TERM_UNIT`; a term that reads
 the grid neighbours is gathered in the same loop as the springs, and one that reads the node's
 3x3x3 neighbourhood from the 18 neighbour positions the springs fetched and, where it needs them,
 the 8 body diagonals (``shaders/lib/node_hood.glsl``).
@@ -83,8 +83,9 @@ _SAMPLERS = {"u_node": 0, "u_neighbours": 1, "u_x": 2, "u_v": 3, "u_x_prev": 3, 
              "u_vs": 5, "u_sum_x": 6, "u_sum_v": 7, "u_weights": 8}
 #: texture unit of the neighbourhood's body-diagonal table (HOOD_DIAGONALS on grids that are not dense)
 _HOOD_DIAGONAL_UNIT = 9
-#: texture units of the physics terms' node tables (deformgl.sim.terms)
-_TERM_UNITS = (10, 11, 12, 13, 14, 15)
+#: the first texture unit of the physics terms' tables and pre-pass outputs (deformgl.sim.terms):
+#: they take the units from it to the context's GL_MAX_TEXTURE_IMAGE_UNITS (16 at least)
+_TERM_UNIT = 10
 
 
 def _sampler(buffer: str) -> str:
@@ -271,6 +272,8 @@ class FragmentIntegrator(SimulationBase, GLOwner):
         weights = spring_weights(system, nb, [c[0] for c in self.classes])
         if weights is not None:
             self.tex_weights = layer_texture(self, self.ctx, (w, h), weights, "f4", layers)
+        #: the texture units of the terms' tables and pre-pass outputs
+        self._term_units = tuple(range(_TERM_UNIT, int(self.ctx.info["GL_MAX_TEXTURE_IMAGE_UNITS"])))
         #: the system's physics terms as this backend's passes compile them (deformgl.sim.terms)
         self.terms = pass_terms(system.terms, "fragment", "FragmentIntegrator", self.grid, prepass=True)
         self.term_textures: list[moderngl.Texture | moderngl.TextureArray] = list(self.terms.textures(
@@ -356,7 +359,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             uniforms["u_hood_diagonals"] = _HOOD_DIAGONAL_UNIT
         if self.terms:
             # (a term's uniform may be used in its implicit functions only: set where active)
-            uniforms.update({k: v for k, v in self.terms.uniforms(_TERM_UNITS).items() if k in members})
+            uniforms.update({k: v for k, v in self.terms.uniforms(self._term_units).items() if k in members})
         if defines.get("GROUND"):  # (set only with a ground plane)
             c = self.constraints
             if c is None or c.ground is None:
@@ -400,7 +403,7 @@ class FragmentIntegrator(SimulationBase, GLOwner):
             self.tex_weights.use(_SAMPLERS["u_weights"])
         if self.tex_hood_diagonals is not None:
             self.tex_hood_diagonals.use(_HOOD_DIAGONAL_UNIT)
-        for tex, unit in zip(self.term_textures, _TERM_UNITS):
+        for tex, unit in zip(self.term_textures, self._term_units):
             tex.use(unit)
 
     def _run(self, stage: Stage, t: float) -> None:

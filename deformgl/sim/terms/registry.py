@@ -20,13 +20,16 @@ from deformgl.sim.terms.base import FeedbackTerm, GlslTerm
 from deformgl.sim.terms.constraints import XpbdChunk
 from deformgl.sim.terms.glsl import ACTIVE, FEEDBACK, XPBD, compose, compose_feedback, compose_xpbd
 
-__all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "VARIANTS", "XPBD_SHIPPED", "shipped_active", "shipped_feedback",
+__all__ = ["FEEDBACK_SHIPPED", "SHIPPED", "TOGETHER", "VARIANTS", "XPBD_SHIPPED", "shipped_active", "shipped_feedback",
            "shipped_xpbd"]
 
 #: The GLSL forms of the shipped terms, in the order a system's terms are summed.
-SHIPPED: tuple[GlslTerm, ...] = (volume_chunks.GLSL, bending.GLSL, spline_form.GLSL)
+SHIPPED: tuple[GlslTerm, ...] = (volume_chunks.GLSL, bending.GLSL, spline_form.GLSL, spline_form.ANCHOR_GLSL)
 #: Every form of each, as the shader pack enumerates them.
-VARIANTS: tuple[GlslTerm, ...] = (*volume_chunks.CELL_FORMS, bending.GLSL, spline_form.GLSL)
+VARIANTS: tuple[GlslTerm, ...] = (*volume_chunks.CELL_FORMS, bending.GLSL, spline_form.GLSL, spline_form.ANCHOR_GLSL)
+#: Forms a system holds together (a spline body and its held regions), which the shader pack also
+#: compiles as one set.
+TOGETHER: tuple[tuple[GlslTerm, ...], ...] = ((spline_form.GLSL, spline_form.ANCHOR_GLSL),)
 #: The transform-feedback chunks of the shipped terms that have one (the rest give
 #: ``Term.feedback_pairs`` or are refused).
 FEEDBACK_SHIPPED: tuple[FeedbackTerm, ...] = (volume_chunks.FEEDBACK,)

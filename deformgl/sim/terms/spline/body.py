@@ -132,49 +132,6 @@ class SplineBody:
                                    density=density, dilatation=dilatation)
 
     @classmethod
-    def from_inside(cls, inside, lo, hi, spacing: float, *, youngs_modulus: float, poissons_ratio: float,
-                    density: float, origin=None, subdivisions: int = 4, dilatation: str = "p1") -> "SplineBody":
-        """A body of the material where ``inside(points (P, 3)) -> (P,) bool`` holds, within the box
-        [lo, hi] (m): each knot span is cut into ``subdivisions``^3 sub-boxes, those whose centre
-        is inside kept (a span all inside is one box). The sampled geometry, not the exact one: its
-        volume converges as the sub-boxes shrink (issue 44, item 2, asks exact or moment-fitted
-        integrals for thin features).
-
-        Raises:
-            ValueError: no material inside the box, h <= 0, subdivisions < 1.
-        """
-        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-        if not spacing > 0 or subdivisions < 1:
-            raise ValueError(f"spline body: spacing must be > 0 m and subdivisions >= 1, got {spacing}, {subdivisions}")
-        origin = lo if origin is None else np.asarray(origin, np.float64)
-        first = np.floor((lo - origin) / spacing - 0.5 + KNOT_TOLERANCE).astype(np.int64) + 1
-        last = np.ceil((hi - origin) / spacing + 0.5 - KNOT_TOLERANCE).astype(np.int64) - 1
-        centres = np.argwhere(np.ones(tuple(int(n) for n in last - first + 1), bool)) + first
-        k = subdivisions
-        sub = (np.argwhere(np.ones((k, k, k), bool)) + 0.5) / k - 0.5  # sub-box centres, span units
-        x_c = origin + centres * spacing
-        samples = x_c[:, None, :] + sub[None] * spacing
-        flags = np.asarray(inside(samples.reshape(-1, 3)), bool).reshape(len(centres), k ** 3)
-        flags &= np.all((samples >= lo) & (samples <= hi), axis=2)
-        keep = flags.any(axis=1)
-        if not keep.any():
-            raise ValueError("spline body: no material inside the box")
-        centres, flags = centres[keep], flags[keep]
-        full = flags.all(axis=1)
-        span_of = np.concatenate([np.nonzero(full)[0], np.nonzero(~full)[0][np.nonzero(flags[~full])[0]]])
-        cut_sub = sub[np.nonzero(flags[~full])[1]]
-        box_lo = np.concatenate([np.full((int(full.sum()), 3), -0.5), cut_sub - 0.5 / k])
-        box_hi = np.concatenate([np.full((int(full.sum()), 3), 0.5), cut_sub + 0.5 / k])
-        low = centres.min(axis=0) - 1
-        shape = tuple(int(n) for n in centres.max(axis=0) - low + 2)
-        occupied = np.zeros(shape, bool)
-        for offset in SPAN_OFFSETS:
-            occupied[tuple((centres - low + offset).T)] = True
-        grid = NodeGrid(origin + low * spacing, spacing, occupied)
-        return cls.from_span_boxes(grid, centres - low, box_lo, box_hi, span_of, youngs_modulus=youngs_modulus,
-                                   poissons_ratio=poissons_ratio, density=density, dilatation=dilatation)
-
-    @classmethod
     def from_span_boxes(cls, grid: NodeGrid, centres: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray,
                         box_span: np.ndarray, *, youngs_modulus: float, poissons_ratio: float,
                         density: float, dilatation: str = "p1") -> "SplineBody":
@@ -196,48 +153,6 @@ class SplineBody:
         h3 = grid.spacing ** 3
         return cls(grid, nodes, span[keep], points[keep], weights[keep] * h3,
                    float(youngs_modulus), float(poissons_ratio), float(density), dilatation)
-
-    def moment_fitted(self) -> "SplineBody":
-        """The same body with each span that holds more than one grid of Gauss points (a cut span of
-        :meth:`from_inside`: a grid per sub-box) integrated by one 3 x 3 x 3 grid instead: the Gauss
-        points of the bounding box of its points, their weights fitted so that the grid integrates
-        every polynomial of degree <= 2 per axis over the span's material as its points did
-        (moment fitting, Joulaian et al. 2016, section 3: 27 Legendre moments, 27 weights). The
-        mass (``rho int N_a``, degree 2 per axis), volume, centroid and second moments are kept to
-        rounding; the stiffness (degree 4 per axis) is approximated in those spans. Spans that are
-        one grid already (a box's, a full span) are kept as they are. Weights may be negative."""
-        starts = self._span_starts
-        count = len(self.span_nodes)
-        per = np.diff(starts)
-        cut = per != 27
-        if not cut.any():
-            return self
-        spans = np.nonzero(cut)[0]
-        selector = np.repeat(cut, per)
-        s, w, sp_of = self.point_s[selector], self.point_weight[selector], self.point_span[selector]
-        local = np.searchsorted(spans, sp_of)  # each point's cut span, 0..C-1
-        lo = np.full((len(spans), 3), np.inf)
-        hi = np.full((len(spans), 3), -np.inf)
-        np.minimum.at(lo, local, s)
-        np.maximum.at(hi, local, s)
-        mid, half = (hi + lo) / 2.0, np.maximum((hi - lo) / 2.0, 1e-12)
-        t = (s - mid[local]) / half[local]  # in [-1, 1]
-        legendre = np.stack([np.ones_like(t), t, 1.5 * t * t - 0.5], axis=-1)  # (P, 3 axes, 3 degrees)
-        moments = np.zeros((len(spans), 3, 3, 3))
-        np.add.at(moments, local, w[:, None, None, None] * legendre[:, 0, :, None, None]
-                  * legendre[:, 1, None, :, None] * legendre[:, 2, None, None, :])
-        g = np.polynomial.legendre.leggauss(3)[0]
-        inverse = np.linalg.inv(np.stack([np.ones(3), g, 1.5 * g * g - 0.5]))  # [point, degree]
-        fitted = np.einsum("la,mb,nc,sabc->slmn", inverse, inverse, inverse, moments).reshape(len(spans), 27)
-        unit = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(27, 3)
-        fitted_s = mid[:, None, :] + half[:, None, :] * unit[None]
-        keep = ~selector
-        point_s = np.concatenate([self.point_s[keep], fitted_s.reshape(-1, 3)])
-        point_weight = np.concatenate([self.point_weight[keep], fitted.ravel()])
-        point_span = np.concatenate([self.point_span[keep], np.repeat(spans, 27)])
-        order = np.argsort(point_span, kind="stable")
-        return SplineBody(self.grid, self.span_nodes, point_span[order], point_s[order], point_weight[order],
-                          self.youngs_modulus, self.poissons_ratio, self.density, self.dilatation)
 
     # -- what the sums share ----------------------------------------------------------------
 

@@ -17,22 +17,35 @@ import functools
 
 from deformgl.sim.terms.base import GlslTerm, NodeTable
 from deformgl.sim.terms.spline.body import SplineBody
-from deformgl.sim.terms.spline.tables import span_tables
+from deformgl.sim.terms.spline.tables import SpanTables, anchor_tables, span_tables
 
-__all__ = ["GLSL", "SAMPLERS", "spline_glsl"]
+__all__ = ["ANCHOR_GLSL", "GLSL", "SAMPLERS", "anchor_glsl", "spline_glsl"]
 
 #: The samplers of the span pass's outputs in the chunk.
 SAMPLERS = ("u_spline_f0", "u_spline_f1", "u_spline_f2", "u_spline_f3")
 #: The term's GLSL form without its data (the shader pack's; :func:`spline_glsl` gives a body's).
 GLSL = GlslTerm("spline", file="terms/spline.glsl", passes=("terms/spline_span.frag",))
+#: A penalty anchor's form without its data (its chunk gathers what its span pass computes).
+ANCHOR_GLSL = GlslTerm("spline_anchor", file="terms/spline_anchor.glsl", passes=("terms/spline_anchor.frag",))
+
+
+def _with_pass(form: GlslTerm, tables: SpanTables) -> GlslTerm:
+    """``form`` with ``tables``' node table, its row uniform and its span pass."""
+    from deformgl.sim.terms.spline import span_pass  # (GL: imported where a GPU backend builds it)
+
+    p = form.prefix
+    return dataclasses.replace(form, tables=(NodeTable(f"u_{p}_spans", tables.node_spans),),
+                               uniforms={f"u_{p}_row": tables.row},
+                               prepass=functools.partial(span_pass.SplineSpanPass, tables=tables),
+                               prepass_samplers=tuple(f"u_{p}_f{c}" for c in range(4)))
 
 
 def spline_glsl(body: SplineBody) -> GlslTerm:
     """:data:`GLSL` with ``body``'s node table, its row uniform and its span pass."""
-    from deformgl.sim.terms.spline import span_pass  # (GL: imported where a GPU backend builds it)
+    return _with_pass(GLSL, span_tables(body))
 
-    tables = span_tables(body)
-    return dataclasses.replace(GLSL, tables=(NodeTable("u_spline_spans", tables.node_spans),),
-                               uniforms={"u_spline_row": tables.row},
-                               prepass=functools.partial(span_pass.SplineSpanPass, tables=tables),
-                               prepass_samplers=SAMPLERS)
+
+def anchor_glsl(body: SplineBody, points, weights) -> GlslTerm:
+    """:data:`ANCHOR_GLSL` of a penalty at ``points`` (P, 3), m, with ``weights`` (P,) times its
+    stiffness, N/m."""
+    return _with_pass(ANCHOR_GLSL, anchor_tables(body, points, weights))

@@ -1,8 +1,8 @@
-"""The spline cells' span pass on the GPU (``shaders/terms/spline_span.frag``): every knot span's
-corotational forces on its 27 nodes from the node positions, into four force textures that the
-term's chunk (``shaders/terms/spline.glsl``) gathers. The explicit gathers run it before each force
-evaluation (:attr:`deformgl.sim.terms.base.GlslTerm.prepass`); :meth:`SplineSpanPass.forces`
-reads the node forces back (the check against float64)."""
+"""A spline term's span pass on the GPU (the cells': ``shaders/terms/spline_span.frag``, a penalty
+anchor's: ``shaders/terms/spline_anchor.frag``): every knot span's forces on its 27 nodes from the
+node positions, into four force textures that the term's chunk gathers. The explicit gathers run
+it before each force evaluation (:attr:`deformgl.sim.terms.base.GlslTerm.prepass`);
+:meth:`SplineSpanPass.forces` reads the node forces back (the check against float64)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
 from deformgl.gl.resources import GLOwner, restore_framebuffer
 from deformgl.sim.backends.compact_textures import float_texture
-from deformgl.sim.terms.spline.tables import SPAN_DATA_TEXELS, SPAN_GROUPS, SPAN_NODE_TEXELS, SpanTables
+from deformgl.sim.terms.spline.tables import SPAN_GROUPS, SPAN_NODE_TEXELS, SpanTables
 
 __all__ = ["SplineSpanPass"]
 
@@ -31,7 +31,7 @@ def _span_image(values: np.ndarray, row: int, texels: int) -> np.ndarray:
 
 
 class SplineSpanPass(GLOwner):
-    """The span pass of a spline body (see the module docstring).
+    """The span pass of a spline term (see the module docstring).
 
     Args:
         ctx: the GL context.
@@ -45,7 +45,7 @@ class SplineSpanPass(GLOwner):
         self.tables = tables
         row, spans = tables.row, tables.spans
         rows = -(-spans // row)
-        widest = row * SPAN_DATA_TEXELS
+        widest = row * tables.data_texels
         limit = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
         if widest > limit or rows > limit:
             raise GLError(f"spline cells: {spans} spans need a {widest} x {rows} texture; this GL allows {limit}")
@@ -53,15 +53,14 @@ class SplineSpanPass(GLOwner):
             nodes = _span_image(tables.nodes, row, SPAN_NODE_TEXELS)
             self.nodes = self.own(ctx.texture((row * SPAN_NODE_TEXELS, rows), 4, nodes.tobytes(), dtype="i4"))
             self.nodes.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self.data = float_texture(self, ctx, (widest, rows), _span_image(tables.data, row, SPAN_DATA_TEXELS))
+            self.data = float_texture(self, ctx, (widest, rows), _span_image(tables.data, row, tables.data_texels))
             size = (row * SPAN_GROUPS, rows)
             self.outputs = tuple(float_texture(self, ctx, size) for _ in range(4))
             self.fbo = self.own(ctx.framebuffer(color_attachments=list(self.outputs)))
-            self.program = self.own(Program(ctx, "sim/fullscreen.vert", "terms/spline_span.frag"))
-            self.program.set(**_UNITS, **layout, u_span_row=row, u_spans=spans, u_h=tables.spacing,
-                             u_mu=tables.mu, u_kappa=tables.kappa)
+            self.program = self.own(Program(ctx, "sim/fullscreen.vert", tables.fragment))
+            self.program.set(**_UNITS, **layout, u_span_row=row, u_spans=spans, **tables.uniforms)
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-        self.bytes_allocated = 16 * rows * row * (SPAN_NODE_TEXELS + SPAN_DATA_TEXELS + 4 * SPAN_GROUPS)
+        self.bytes_allocated = 16 * rows * row * (SPAN_NODE_TEXELS + tables.data_texels + 4 * SPAN_GROUPS)
 
     def run(self, positions: moderngl.Texture) -> None:
         """The spans' forces on their nodes at ``positions`` (RGBA32F, xyz in m, node layout)."""

@@ -1,7 +1,8 @@
-"""The spline cells' span tables: what the span pass (``shaders/terms/spline_span.frag``) reads
-per knot span and what the gather (``shaders/terms/spline.glsl``) reads per node, built from a
-:class:`~deformgl.sim.terms.spline.body.SplineBody` (no GL here). The channel layouts are
-documented once, in those two shader files."""
+"""The spline terms' span tables: what a span pass reads per knot span (the cells':
+``shaders/terms/spline_span.frag``; a penalty anchor's: ``shaders/terms/spline_anchor.frag``) and
+what its gather reads per node (``shaders/terms/spline.glsl``, ``shaders/terms/spline_anchor.glsl``),
+built from a :class:`~deformgl.sim.terms.spline.body.SplineBody` (no GL here). The channel layouts
+are documented once, in those shader files."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from deformgl.sim.terms.spline.body import SplineBody
 
-__all__ = ["SPAN_DATA_TEXELS", "SPAN_GROUPS", "SPAN_NODE_TEXELS", "SpanTables", "span_tables"]
+__all__ = ["SPAN_DATA_TEXELS", "SPAN_GROUPS", "SPAN_NODE_TEXELS", "SpanTables", "anchor_tables", "span_tables"]
 
 #: Fragments per span in the span pass (4 of its 27 nodes each: 4 render targets, the least a
 #: GL 3.3 or OpenGL ES 3.0 context has).
@@ -26,27 +27,50 @@ _FUNCTIONS = {"full": 0, "p0": 1, "p1": 4}
 
 @dataclass(frozen=True, eq=False)
 class SpanTables:
-    """A body's span tables (the channel layouts: ``shaders/terms/spline_span.frag``).
+    """What a span pass reads (``fragment``: its shader; the channel layouts are in it) and what its
+    gather reads per node.
 
     Attributes:
+        fragment: the span pass's fragment shader, under ``shaders/``.
         nodes: (S, 28) int32 each span's 27 node numbers and a pad.
-        data: (S, 72) float32 each span's Gauss points, weights, centroid and projection.
+        data: (S, 4 * data_texels) float32 each span's data.
         node_spans: (N, 28) float32 per node and slot a the span whose node a it is, -1 none.
         row: spans per row of the span textures.
-        mu, kappa: the shear and bulk moduli, Pa; spacing: h, m.
+        uniforms: the pass's own uniforms (material constants, h in m, ...).
     """
 
+    fragment: str
     nodes: np.ndarray
     data: np.ndarray
     node_spans: np.ndarray
     row: int
-    mu: float
-    kappa: float
-    spacing: float
+    uniforms: dict[str, object]
 
     @property
     def spans(self) -> int:
         return int(len(self.nodes))
+
+    @property
+    def data_texels(self) -> int:
+        """RGBA32F texels of data a span."""
+        return int(self.data.shape[1] // 4)
+
+
+def _node_spans(span_nodes: np.ndarray, count: int) -> np.ndarray:
+    """(N, 28) float32: per node and slot a the span whose node a it is, -1 none."""
+    out = np.full((count, 28), -1.0, np.float32)
+    out[span_nodes, np.arange(27)[None, :]] = np.arange(len(span_nodes))[:, None]
+    return out
+
+
+def _padded(span_nodes: np.ndarray) -> np.ndarray:
+    nodes = np.zeros((len(span_nodes), 28), np.int32)
+    nodes[:, :27] = span_nodes
+    return nodes
+
+
+def _row(count: int) -> int:
+    return max(1, math.ceil(math.sqrt(count)))
 
 
 def span_tables(body: SplineBody) -> SpanTables:
@@ -54,7 +78,7 @@ def span_tables(body: SplineBody) -> SpanTables:
 
     Raises:
         ValueError: a span whose material is not one 3 x 3 x 3 grid of Gauss points (a span of
-            :meth:`SplineBody.from_inside` cut by the surface holds a grid per sub-box).
+            :func:`~deformgl.sim.terms.spline.cut.inside_body` cut by the surface holds a grid per sub-box).
     """
     count = len(body.span_nodes)
     per_span = np.bincount(body.point_span, minlength=count)
@@ -62,7 +86,7 @@ def span_tables(body: SplineBody) -> SpanTables:
         bad = int(np.argmax(per_span != 27))
         raise ValueError(f"spline cells: span {bad} (of node {body.grid.ijk[body.span_nodes[bad, 13]].tolist()}) holds "
                          f"{per_span[bad]} Gauss points; the GLSL form takes one 3 x 3 x 3 grid a span "
-                         f"(SplineBody.moment_fitted() gives one)")
+                         f"(deformgl.sim.terms.spline.cut.fitted_body gives one)")
     points = body.point_s.reshape(count, 3, 3, 3, 3)
     axes = np.stack([points[:, :, 0, 0, 0], points[:, 0, :, 0, 1], points[:, 0, 0, :, 2]], axis=1)  # (S, 3, 3)
     grid = np.stack(np.meshgrid(np.arange(3), np.arange(3), np.arange(3), indexing="ij"), axis=-1)
@@ -82,11 +106,34 @@ def span_tables(body: SplineBody) -> SpanTables:
         inverse = body._projection[1]  # (S, P, P)
         for k in range(functions):
             data[:, 44 + 4 * k: 44 + 4 * k + functions] = inverse[:, k]
-    nodes = np.zeros((count, 28), np.int32)
-    nodes[:, :27] = body.span_nodes
-    node_spans = np.full((body.count, 28), -1.0)
-    node_spans[body.span_nodes, np.arange(27)[None, :]] = np.arange(count)[:, None]
     mu, kappa = body.moduli
-    return SpanTables(nodes=nodes, data=data.astype(np.float32), node_spans=node_spans.astype(np.float32),
-                      row=max(1, math.ceil(math.sqrt(count))), mu=float(mu), kappa=float(kappa),
-                      spacing=body.spacing)
+    return SpanTables(fragment="terms/spline_span.frag", nodes=_padded(body.span_nodes), data=data.astype(np.float32),
+                      node_spans=_node_spans(body.span_nodes, body.count), row=_row(count),
+                      uniforms={"u_h": body.spacing, "u_mu": float(mu), "u_kappa": float(kappa)})
+
+
+def anchor_tables(body: SplineBody, points: np.ndarray, weights: np.ndarray) -> SpanTables:
+    """The span tables of a penalty on ``body``'s field at quadrature ``points`` (P, 3), m, with
+    ``weights`` (P,) times the penalty's stiffness (N/m each): the knot spans that hold a point
+    (the span :meth:`SplineBody.locate` gives it, as the float64 term sums it), each with its
+    points (``shaders/terms/spline_anchor.frag``: texel 0 the span centre's rest position, m, and
+    its point count; then one texel a point, its span coordinates and weight)."""
+    nodes, _, _ = body.locate(points)
+    centres, span_of = np.unique(nodes[:, 13], return_inverse=True)
+    first = np.zeros(len(centres), np.int64)
+    first[span_of[::-1]] = np.arange(len(points))[::-1]
+    span_nodes = nodes[first]
+    counts = np.bincount(span_of, minlength=len(centres))
+    order = np.argsort(span_of, kind="stable")
+    slot = np.arange(len(points)) - np.repeat(np.cumsum(counts) - counts, counts)
+    texels = 1 + int(counts.max())
+    data = np.zeros((len(centres), texels, 4))
+    data[:, 0, :3] = body.rest_positions[centres]
+    data[:, 0, 3] = counts
+    s = (points - body.rest_positions[nodes[:, 13]]) / body.spacing
+    data[span_of[order], 1 + slot, :3] = s[order]
+    data[span_of[order], 1 + slot, 3] = weights[order]
+    return SpanTables(fragment="terms/spline_anchor.frag", nodes=_padded(span_nodes),
+                      data=data.reshape(len(centres), 4 * texels).astype(np.float32),
+                      node_spans=_node_spans(span_nodes, body.count), row=_row(len(centres)),
+                      uniforms={"u_h": body.spacing, "u_span_texels": texels})

@@ -21,17 +21,26 @@ import scipy.sparse as sp
 
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.springs import SpringSystem
-from deformgl.sim.terms.base import GlslTerm, Term
+from deformgl.sim.terms.base import GlslTerm, Term, TermNeeds
 from deformgl.sim.terms.spline.basis import span_basis
 from deformgl.sim.terms.spline.body import SplineBody
-from deformgl.sim.terms.spline.glsl_form import spline_glsl
+from deformgl.sim.terms.spline.glsl_form import anchor_glsl, spline_glsl
 
-__all__ = ["SplineAnchor", "SplineCells", "polar_rotations", "spline_system"]
+__all__ = ["NEEDS", "SplineAnchor", "SplineCells", "polar_rotations", "spline_system"]
 
 #: The backends' forms the spline terms do not have yet, each with the phrase a refusal gives.
 _NO_FORM = {"fragment": "GLSL", "implicit": "implicit-Euler", "feedback": "transform-feedback", "xpbd": "XPBD"}
-#: The spline cells have a GLSL form (the fragment backend's explicit stages).
-_CELLS_NO_FORM = {k: v for k, v in _NO_FORM.items() if k != "fragment"}
+#: What a spline body costs and refuses, from the scene alone (:class:`~deformgl.sim.terms.TermNeeds`,
+#: ``[material] model = "spline"``): on the host its Gauss points (27 a span, a span a node at
+#: most: 27 x 4 float64) and span tables; on the GPU its node tables (7 RGBA32F layers each for the
+#: cells and an anchor) and the span pass's textures (53 texels a span, counted per node texel).
+#: Implicit Euler and XPBD have no form of it.
+NEEDS = TermNeeds("material.model", host_bytes_per_node=27 * 4 * 8 + 28 * 4 + 72 * 4, node_layers=14, texel_bytes=53 * 16,
+                  refused=(("implicit-euler", "model = \"spline\" has no implicit-Euler form yet (the explicit "
+                            "integrators run it)"),
+                           ("xpbd", "model = \"spline\" has no XPBD form yet (the explicit integrators run it)")))
+#: The spline terms have a GLSL form (the fragment backend's explicit stages).
+_GPU_NO_FORM = {k: v for k, v in _NO_FORM.items() if k != "fragment"}
 
 
 def polar_rotations(f: np.ndarray) -> np.ndarray:
@@ -137,7 +146,7 @@ class SplineCells(Term):
         return self._glsl
 
     def refusal(self, backend: str) -> str | None:
-        form = _CELLS_NO_FORM.get(backend)
+        form = _GPU_NO_FORM.get(backend)
         return None if form is None else f"{self.name} have no {form} form yet (the NumPy reference runs them)"
 
 
@@ -164,6 +173,9 @@ class SplineAnchor(Term):
         scalar = sp.coo_matrix(((w[:, None, None] * values[:, :, None] * values[:, None, :]).ravel(),
                                 (rows, cols)), shape=(body.count, body.count)).tocsr()
         self.body, self.stiffness_value = body, float(stiffness)
+        #: (P, 3) the quadrature points, m, and (P,) their weights
+        self.points, self.weights = np.asarray(points, np.float64), np.asarray(weights, np.float64)
+        self._glsl: GlslTerm | None = None
         #: (3N, 3N) the penalty's constant stiffness, N/m
         self.matrix = sp.kron(scalar, sp.eye(3), format="csr")
 
@@ -181,8 +193,14 @@ class SplineAnchor(Term):
     def stiffness(self, x: np.ndarray) -> sp.csr_matrix:
         return self.matrix
 
+    def glsl(self, grid: NodeGrid | None) -> GlslTerm:
+        """The anchor's span pass and gather (:func:`~deformgl.sim.terms.spline.glsl_form.anchor_glsl`)."""
+        if self._glsl is None:
+            self._glsl = anchor_glsl(self.body, self.points, self.weights * self.stiffness_value)
+        return self._glsl
+
     def refusal(self, backend: str) -> str | None:
-        form = _NO_FORM.get(backend)
+        form = _GPU_NO_FORM.get(backend)
         return None if form is None else f"{self.name}s have no {form} form yet (the NumPy reference runs them)"
 
 

@@ -1,5 +1,5 @@
 #version 330 core
-// The spline body's mapping (deformgl/render/spline_premap.py; docs/EQUATIONS.md "Spline cells"):
+// The spline body's mapping (deformgl/render/bspline_premap.py; docs/EQUATIONS.md "Spline cells"):
 // one fragment per detailed-mesh vertex, vertex v at texel node_texel(v) of the outputs, drawn
 // through the B-spline field the body was solved with: x(X) = sum_a N_a(X) x_a over the 27 control
 // points of the vertex's knot span, its normal the rest normal turned by the field's cofactor
@@ -12,6 +12,7 @@
 // u_vertex_data RGBA32F array, 2 layers: 0 xyz the vertex's span coordinates (in [-1/2, 1/2]:
 //   (X - X_centre) / h), 1 xyz its rest normal.
 #include "lib/node_texel.glsl"
+#include "lib/bspline.glsl"
 
 uniform sampler2D u_position;           // RGBA32F node positions (xyz, m), node layout
 uniform isampler2DArray u_vertex_nodes;
@@ -21,20 +22,14 @@ uniform float u_h;                      // grid spacing h, m
 layout(location = 0) out vec4 o_world;   // xyz mapped position, m
 layout(location = 1) out vec4 o_normal;  // xyz mapped normal (not normalised)
 
-// The values and slopes (d/ds) of the three functions of one axis at s (terms/spline_span.frag's).
-void axis_basis(float s, out vec3 value, out vec3 slope) {
-    value = vec3(0.5 * (0.5 - s) * (0.5 - s), 0.75 - s * s, 0.5 * (0.5 + s) * (0.5 + s));
-    slope = vec3(s - 0.5, -2.0 * s, s + 0.5);
-}
-
 void main() {
     ivec2 t = ivec2(gl_FragCoord.xy);
     vec3 s = texelFetch(u_vertex_data, ivec3(t, 0), 0).xyz;
     vec3 rest_normal = texelFetch(u_vertex_data, ivec3(t, 1), 0).xyz;
     vec3 vx, dx, vy, dy, vz, dz;
-    axis_basis(s.x, vx, dx);
-    axis_basis(s.y, vy, dy);
-    axis_basis(s.z, vz, dz);
+    bspline_axis(s.x, vx, dx);
+    bspline_axis(s.y, vy, dy);
+    bspline_axis(s.z, vz, dz);
     // about the centre node (the basis sums to 1, its gradients to 0): float32 at the scale of h
     int centre = texelFetch(u_vertex_nodes, ivec3(t, 3), 0)[1];
     vec3 xc = texelFetch(u_position, node_texel(centre), 0).xyz;

@@ -1,0 +1,190 @@
+"""A spline body of any shape: knot spans cut by the material, sampled and moment-fitted.
+
+* :func:`inside_body`: the material where an ``inside`` test holds, each span cut into sub-boxes
+  whose centres are tested (a grid of Gauss points per sub-box inside);
+* :func:`sample_body`: the material of a mesh's fill (:class:`deformgl.grid.fill.CellFill`: the
+  inside test of ``s`` sample points along each cell edge, what the lattice's cells integrate),
+  a full span by one exact grid of Gauss points, a cut span by one moment-fitted grid;
+* :func:`fitted_body`: a body whose cut spans hold a grid per sub-box brought to one fitted grid
+  a span.
+
+Moment fitting (Joulaian et al. 2016, section 3): a cut span's material is integrated by the 3 x 3
+x 3 Gauss points of its bounding box, their weights solved so that the grid integrates the 27
+tensor Legendre polynomials of degree <= 2 per axis over the material as the fine quadrature does:
+the mass (``rho int N_a``, degree 2 per axis), the volume, the centroid and the second moments are
+kept; the stiffness (degree 4 per axis) is approximated in cut spans. Weights may be negative.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deformgl.grid.nodes import NodeGrid
+from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box
+from deformgl.sim.terms.spline.body import KNOT_TOLERANCE, SplineBody
+
+__all__ = ["fitted_body", "inside_body", "sample_body"]
+
+_GAUSS = np.polynomial.legendre.leggauss(3)[0]
+#: [point, degree]^-1 of the Legendre polynomials 1, t, (3 t^2 - 1)/2 at the 3 Gauss points
+_INVERSE = np.linalg.inv(np.stack([np.ones(3), _GAUSS, 1.5 * _GAUSS * _GAUSS - 0.5]))
+_UNIT = np.stack(np.meshgrid(_GAUSS, _GAUSS, _GAUSS, indexing="ij"), axis=-1).reshape(27, 3)
+
+
+def _control_grid(origin: np.ndarray, spacing: float, centres: np.ndarray) -> tuple[NodeGrid, np.ndarray]:
+    """The control grid of spans centred on the grid indices ``centres`` (S, 3) of nodes at
+    ``origin + i h`` (their 27 nodes each) and the centres in its indices."""
+    low = centres.min(axis=0) - 1
+    shape = tuple(int(n) for n in centres.max(axis=0) - low + 2)
+    occupied = np.zeros(shape, bool)
+    for offset in SPAN_OFFSETS:
+        occupied[tuple((centres - low + offset).T)] = True
+    return NodeGrid(origin + low * spacing, spacing, occupied), centres - low
+
+
+def _fit(local: np.ndarray, s: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+         widths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One fitted grid per span: points (C, 27, 3) at the Gauss points of [lo, hi] (C, 3) and
+    weights (C, 27) reproducing the 27 Legendre moments of the points ``s`` (P, 3) with weights
+    ``w`` (P,), point p in span ``local[p]``; ``widths`` (P, 3): each point the centre of a box of
+    those sides (span units) whose moments are integrated exactly (``w`` its volume)."""
+    mid, half = (hi + lo) / 2.0, np.maximum((hi - lo) / 2.0, 1e-12)
+    t = (s - mid[local]) / half[local]  # in [-1, 1]
+    # per axis the mean of 1, t, (3 t^2 - 1)/2 over the point's extent (a box: t^2 gains its
+    # variance, (width / 2 half)^2 / 3)
+    spread = 0.0 if widths is None else (widths / (2.0 * half[local])) ** 2 / 3.0
+    legendre = np.stack([np.ones_like(t), t, 1.5 * (t * t + spread) - 0.5], axis=-1)  # (P, 3 axes, 3 degrees)
+    moments = np.zeros((len(lo), 3, 3, 3))
+    np.add.at(moments, local, w[:, None, None, None] * legendre[:, 0, :, None, None]
+              * legendre[:, 1, None, :, None] * legendre[:, 2, None, None, :])
+    weights = np.einsum("la,mb,nc,sabc->slmn", _INVERSE, _INVERSE, _INVERSE, moments).reshape(len(lo), 27)
+    return mid[:, None, :] + half[:, None, :] * _UNIT[None], weights
+
+
+def fitted_body(body: SplineBody) -> SplineBody:
+    """``body`` with each span that holds other than one grid of 27 Gauss points integrated by one
+    moment-fitted grid on the bounding box of its points (the module docstring); ``body`` itself
+    where every span holds one grid."""
+    starts = np.searchsorted(body.point_span, np.arange(len(body.span_nodes) + 1))
+    per = np.diff(starts)
+    cut = per != 27
+    if not cut.any():
+        return body
+    spans = np.nonzero(cut)[0]
+    selector = np.repeat(cut, per)
+    s, w = body.point_s[selector], body.point_weight[selector]
+    local = np.searchsorted(spans, body.point_span[selector])  # each point's cut span, 0..C-1
+    lo = np.full((len(spans), 3), np.inf)
+    hi = np.full((len(spans), 3), -np.inf)
+    np.minimum.at(lo, local, s)
+    np.maximum.at(hi, local, s)
+    points, weights = _fit(local, s, w, lo, hi)
+    keep = ~selector
+    point_s = np.concatenate([body.point_s[keep], points.reshape(-1, 3)])
+    point_weight = np.concatenate([body.point_weight[keep], weights.ravel()])
+    point_span = np.concatenate([body.point_span[keep], np.repeat(spans, 27)])
+    order = np.argsort(point_span, kind="stable")
+    return SplineBody(body.grid, body.span_nodes, point_span[order], point_s[order], point_weight[order],
+                      body.youngs_modulus, body.poissons_ratio, body.density, body.dilatation)
+
+
+def inside_body(inside, lo, hi, spacing: float, *, youngs_modulus: float, poissons_ratio: float, density: float,
+                origin=None, subdivisions: int = 4, dilatation: str = "p1") -> SplineBody:
+    """A body of the material where ``inside(points (P, 3)) -> (P,) bool`` holds, within the box
+    [lo, hi] (m): each knot span is cut into ``subdivisions``^3 sub-boxes, those whose centre
+    is inside kept (a span all inside is one box). The sampled geometry, not the exact one: its
+    volume converges as the sub-boxes shrink.
+
+    Raises:
+        ValueError: no material inside the box, h <= 0, subdivisions < 1.
+    """
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    if not spacing > 0 or subdivisions < 1:
+        raise ValueError(f"spline body: spacing must be > 0 m and subdivisions >= 1, got {spacing}, {subdivisions}")
+    origin = lo if origin is None else np.asarray(origin, np.float64)
+    first = np.floor((lo - origin) / spacing - 0.5 + KNOT_TOLERANCE).astype(np.int64) + 1
+    last = np.ceil((hi - origin) / spacing + 0.5 - KNOT_TOLERANCE).astype(np.int64) - 1
+    centres = np.argwhere(np.ones(tuple(int(n) for n in last - first + 1), bool)) + first
+    k = subdivisions
+    sub = (np.argwhere(np.ones((k, k, k), bool)) + 0.5) / k - 0.5  # sub-box centres, span units
+    x_c = origin + centres * spacing
+    samples = x_c[:, None, :] + sub[None] * spacing
+    flags = np.asarray(inside(samples.reshape(-1, 3)), bool).reshape(len(centres), k ** 3)
+    flags &= np.all((samples >= lo) & (samples <= hi), axis=2)
+    keep = flags.any(axis=1)
+    if not keep.any():
+        raise ValueError("spline body: no material inside the box")
+    centres, flags = centres[keep], flags[keep]
+    full = flags.all(axis=1)
+    span_of = np.concatenate([np.nonzero(full)[0], np.nonzero(~full)[0][np.nonzero(flags[~full])[0]]])
+    cut_sub = sub[np.nonzero(flags[~full])[1]]
+    box_lo = np.concatenate([np.full((int(full.sum()), 3), -0.5), cut_sub - 0.5 / k])
+    box_hi = np.concatenate([np.full((int(full.sum()), 3), 0.5), cut_sub + 0.5 / k])
+    grid, local = _control_grid(origin, spacing, centres)
+    return SplineBody.from_span_boxes(grid, local, box_lo, box_hi, span_of, youngs_modulus=youngs_modulus,
+                                      poissons_ratio=poissons_ratio, density=density, dilatation=dilatation)
+
+
+def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, youngs_modulus: float,
+                poissons_ratio: float, density: float, dilatation: str = "p1") -> SplineBody:
+    """The body of a fill's samples: ``inside`` (bool, ``samples`` per cell edge along each axis)
+    the inside test of the sample points ``origin + h (i + 1/2) / samples``, each the centre of a
+    sample box of side ``h / samples`` (the fill's volume). A knot span all of whose sample centres
+    are inside is one exact grid of Gauss points; a cut one is one grid moment-fitted to its inside
+    samples (each its box's volume at its centre) on their bounding box within the span.
+
+    Raises:
+        ValueError: no sample inside, h <= 0 or samples < 1.
+    """
+    inside = np.asarray(inside, bool)
+    s = int(samples)
+    if not spacing > 0 or s < 1:
+        raise ValueError(f"spline body: spacing must be > 0 m and samples >= 1, got {spacing}, {samples}")
+    origin = np.asarray(origin, np.float64)
+    where = np.argwhere(inside)
+    if not len(where):
+        raise ValueError("spline body: no sample inside the mesh")
+    t = (where + 0.5) / s  # node units from origin
+    centre = np.floor(t + 0.5).astype(np.int64)  # the nearest node: the span holding the sample
+    local_s = t - centre
+    widths = np.full(t.shape, 1.0 / s)
+    # (odd s: a sample whose centre lies on a knot plane is split there, half to each span)
+    for d in range(3):
+        on = np.abs(local_s[:, d] + 0.5) < 1e-9
+        if on.any():
+            lower_centre, lower_s, lower_w = centre[on].copy(), local_s[on].copy(), widths[on].copy()
+            lower_centre[:, d] -= 1
+            lower_s[:, d] = 0.5 - 0.25 / s
+            lower_w[:, d] = 0.5 / s
+            local_s[on, d] = -0.5 + 0.25 / s
+            widths[on, d] = 0.5 / s
+            centre = np.concatenate([centre, lower_centre])
+            local_s = np.concatenate([local_s, lower_s])
+            widths = np.concatenate([widths, lower_w])
+    volume = np.prod(widths, axis=1)
+    centres, span_of = np.unique(centre, axis=0, return_inverse=True)
+    span_of = span_of.ravel()
+    # a span all of whose material is inside is full: its pieces tile it (volume 1 in span units)
+    full = np.abs(np.bincount(span_of, volume, minlength=len(centres)) - 1.0) < 1e-9
+    cut = np.nonzero(~full)[0]
+    # full spans: one exact Gauss box each
+    points_full, weights_full = gauss_box(np.full((int(full.sum()), 3), -0.5), np.full((int(full.sum()), 3), 0.5))
+    # cut spans: moment-fitted to their sample boxes' exact moments, on the boxes' extent
+    is_cut = ~full[span_of]
+    local = np.searchsorted(cut, span_of[is_cut])
+    cs, cw = local_s[is_cut], widths[is_cut]
+    lo = np.full((len(cut), 3), np.inf)
+    hi = np.full((len(cut), 3), -np.inf)
+    np.minimum.at(lo, local, cs - cw / 2.0)
+    np.maximum.at(hi, local, cs + cw / 2.0)
+    points_cut, weights_cut = _fit(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    grid, local_centres = _control_grid(origin, spacing, centres)
+    ijk = local_centres[:, None, :] + SPAN_OFFSETS[None]
+    span_nodes = grid.index[ijk[..., 0], ijk[..., 1], ijk[..., 2]]
+    spans = np.concatenate([np.nonzero(full)[0], cut])
+    point_s = np.concatenate([points_full.reshape(-1, 3), points_cut.reshape(-1, 3)])
+    point_w = np.concatenate([weights_full.ravel(), weights_cut.ravel()]) * spacing ** 3
+    point_span = np.repeat(spans, 27)
+    order = np.argsort(point_span, kind="stable")
+    return SplineBody(grid, span_nodes, point_span[order], point_s[order], point_w[order], float(youngs_modulus),
+                      float(poissons_ratio), float(density), dilatation)

@@ -1,0 +1,87 @@
+"""The spline body of a real mesh against the mesh's own FEM (issue 44, item 6; docs/ACCURACY.md
+section 9's workload): ``python -m studies.spline_mesh_accuracy``.
+
+The same workload as :mod:`studies.mesh_accuracy` (the mesh made one watertight solid, E = 1 MPa,
+rho = 1000 kg/m^3, nu = 1/4, its lowest 5 % in y held, gravity along -y; the FEM references its
+refined P2 level gave, :data:`studies.mesh_accuracy.FEM_REFERENCE`), on the product's scene path
+with ``[material] model = "spline"`` (the fill's material, cut spans moment-fitted, the held region
+a penalty of 10^3 E / h^2 on the material in it): the linear static solve ``K u = f`` of its rest
+stiffness in float64 (the FEM is linear too), read at the mesh's vertices through the B-spline
+field (what the renderer draws).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse.linalg as spl
+import trimesh
+
+from studies.mesh_accuracy import (DENSITY, FEM_REFERENCE, G, HOLD, LATTICE_FIGURES, MESHES, POISSON, YOUNGS_MODULUS,
+                                   MeshSag, _figures, repaired_mesh)
+
+
+def spline_sag(mesh: trimesh.Trimesh, nodes_along: int) -> tuple[MeshSag, int]:
+    """The spline body's static sag at the mesh's vertices at ``nodes_along`` nodes along the
+    longest side, and its knot spans."""
+    from deformgl.render.bspline_premap import vertex_spans
+    from deformgl.scene.pipeline import build_scene_model
+    from deformgl.scene.schema import load_scene
+    from deformgl.sim.terms.spline.basis import span_basis
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "mesh.ply"
+        mesh.export(path)
+        scene_file = Path(folder) / "scene.toml"
+        scene_file.write_text(
+            f'[mesh]\npath = "mesh.ply"\n[grid]\nnodes_along_longest = {int(nodes_along)}\n'
+            f"[material]\nyoungs_modulus = {YOUNGS_MODULUS}\ndensity = {DENSITY}\npoissons_ratio = {POISSON}\n"
+            f'model = "spline"\n[physics]\nintegrator = "semi-implicit"\ngravity = [0.0, {-G}, 0.0]\n'
+            f'[[physics.fixed]]\nregion = "below"\naxis = "y"\nat = {HOLD}\n')
+        model = build_scene_model(load_scene(scene_file))
+    body, system = model.spline, model.system
+    assert body is not None
+    k = None
+    for term in system.terms:
+        part = term.dt_stiffness(body.rest_positions) if term.name == "spline cells" else term.stiffness(body.rest_positions)
+        k = part if k is None else k + part
+    f = np.zeros((body.count, 3))
+    f[:, 1] = -body.lumped_mass * G
+    u = spl.spsolve(k.tocsc(), f.ravel()).reshape(-1, 3)
+    vertices = np.asarray(model.mesh.vertices, np.float64)
+    nodes, s = vertex_spans(body, vertices)
+    values = span_basis(s, body.spacing)[0]
+    sag = -np.einsum("va,va->v", values, u[nodes, 1])
+    mean, largest, top = _figures(vertices, sag)
+    mass_ratio = float(body.lumped_mass.sum() / (DENSITY * mesh.volume))
+    return MeshSag(mean, largest, top, body.count, mass_ratio, time.perf_counter() - start), len(body.span_nodes)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the spline body's table against the FEM references, with the lattice's beside it."""
+    parser = argparse.ArgumentParser(prog="python -m studies.spline_mesh_accuracy", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--mesh", choices=sorted(MESHES), action="append", help="the meshes (default: all)")
+    parser.add_argument("--nodes", default="12,16,24,32", help="nodes along the longest side, comma separated")
+    args = parser.parse_args(argv)
+    for name in args.mesh or sorted(MESHES):
+        mesh = repaired_mesh(name)
+        fem = FEM_REFERENCE[name]
+        print(f"\n{name}: FEM (P2, the refined level) mean {fem[0] * 1e6:.2f} um, largest {fem[1] * 1e6:.2f} um, "
+              f"top {fem[2] * 1e6:.4g} um; ratios to it, spline (lattice)")
+        for n in (int(v) for v in args.nodes.split(",")):
+            r, spans = spline_sag(mesh, n)
+            lattice = LATTICE_FIGURES[name].get(n)
+            beside = "" if lattice is None else f"  (lattice {lattice[0]:.3f} / {lattice[1]:.3f})"
+            print(f"  {n:>3} along: {r.size:>6} control points, {spans:>6} spans: mean {r.mean / fem[0]:.3f}, "
+                  f"largest {r.largest / fem[1]:.3f}, top {r.top / fem[2]:.3f}, mass / mesh {r.mass_ratio:.4f}"
+                  f"{beside}  [{r.seconds:.0f} s]", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
