@@ -62,11 +62,44 @@ def spline_sag(mesh: trimesh.Trimesh, nodes_along: int) -> tuple[MeshSag, int]:
     return MeshSag(mean, largest, top, body.count, mass_ratio, time.perf_counter() - start), len(body.span_nodes)
 
 
+def diagnosis(mesh: trimesh.Trimesh, nodes_along: int) -> tuple[float, float]:
+    """The spline body's explicit dt limit (semi-implicit, free, no anchor) over a full box's at the
+    same spacing (issue 44: within 2x), and the share of control points whose support (the 3 x 3 x 3
+    spans around the node) holds the fill's material in more than one connected piece (material
+    a support may glue together; an upper bound: pieces may connect outside the support)."""
+    from scipy import ndimage
+
+    from deformgl.grid.fill import fill_cells
+    from deformgl.sim.limits import dt_limit
+    from deformgl.sim.terms.spline.body import SplineBody
+    from deformgl.sim.terms.spline.cut import sample_body
+    from deformgl.sim.terms.spline.term import spline_system
+
+    vox, fill = fill_cells(mesh, nodes_along_longest=nodes_along)
+    s, inside = fill.samples, fill.inside
+    constants = {"youngs_modulus": YOUNGS_MODULUS, "poissons_ratio": POISSON, "density": DENSITY}
+    body = sample_body(vox.origin, vox.spacing, s, inside, **constants)
+    cube = SplineBody.from_box([0.0] * 3, [8 * vox.spacing] * 3, vox.spacing, **constants)
+    ratio = (dt_limit(spline_system(body, gravity=(0.0, 0.0, 0.0)), "semi-implicit").dt
+             / dt_limit(spline_system(cube, gravity=(0.0, 0.0, 0.0)), "semi-implicit").dt)
+    held = pieces = 0
+    for ijk in np.argwhere(np.ones(tuple(np.array(inside.shape) // s + 1), bool)):
+        lo = np.maximum(((ijk - 1.5) * s).astype(int), 0)
+        hi = np.minimum(((ijk + 1.5) * s).astype(int), inside.shape)
+        block = inside[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+        if block.any():
+            held += 1
+            pieces += ndimage.label(block)[1] > 1
+    return ratio, pieces / held
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the spline body's table against the FEM references, with the lattice's beside it."""
     parser = argparse.ArgumentParser(prog="python -m studies.spline_mesh_accuracy", description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", choices=sorted(MESHES), action="append", help="the meshes (default: all)")
     parser.add_argument("--nodes", default="12,16,24,32", help="nodes along the longest side, comma separated")
+    parser.add_argument("--diagnose", action="store_true",
+                        help="also the dt limit against a full box's and the supports holding several pieces")
     args = parser.parse_args(argv)
     for name in args.mesh or sorted(MESHES):
         mesh = repaired_mesh(name)
@@ -80,6 +113,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {n:>3} along: {r.size:>6} control points, {spans:>6} spans: mean {r.mean / fem[0]:.3f}, "
                   f"largest {r.largest / fem[1]:.3f}, top {r.top / fem[2]:.3f}, mass / mesh {r.mass_ratio:.4f}"
                   f"{beside}  [{r.seconds:.0f} s]", flush=True)
+            if args.diagnose:
+                dt_ratio, glued = diagnosis(mesh, n)
+                print(f"       dt limit / a full box's {dt_ratio:.3f}; control points whose support holds material in "
+                      f"more than one piece: {glued:.1%}", flush=True)
     return 0
 
 
