@@ -223,26 +223,33 @@ def settled_displacement(system, *, dt: float = 0.05, steps: int = 1000, toleran
     raise DeformglError(f"the lattice did not come to rest in {steps} steps of {dt} s (last step moved {moved:.2e} m)")
 
 
+def scene_model(mesh: trimesh.Trimesh, nodes_along: int, *, material: str = "", physics: str = ""):
+    """The product's scene model of the workload (module docstring) at ``nodes_along`` nodes along
+    the longest side; ``material`` and ``physics``: further lines of those tables."""
+    from deformgl.scene.pipeline import build_scene_model
+    from deformgl.scene.schema import load_scene
+
+    with tempfile.TemporaryDirectory() as folder:
+        mesh.export(Path(folder) / "mesh.ply")
+        scene_file = Path(folder) / "scene.toml"
+        scene_file.write_text(
+            f'[mesh]\npath = "mesh.ply"\n[grid]\nnodes_along_longest = {int(nodes_along)}\n'
+            f"[material]\nyoungs_modulus = {YOUNGS_MODULUS}\ndensity = {DENSITY}\npoissons_ratio = {POISSON}\n{material}"
+            f'[physics]\n{physics}gravity = [0.0, {-G}, 0.0]\n[[physics.fixed]]\nregion = "below"\naxis = "y"\n'
+            f"at = {HOLD}\n")
+        return build_scene_model(load_scene(scene_file))
+
+
 def lattice_sag(mesh: trimesh.Trimesh, nodes_along: int) -> MeshSag:
     """The lattice of the product's scene path at ``nodes_along`` nodes along the longest side
     (module docstring), read at the mesh's vertices through the auto mapping."""
     from deformgl.grid.surface import grid_surface
     from deformgl.mapping.bases import map_vertices
     from deformgl.render.mapped_setup import get_binding
-    from deformgl.scene.pipeline import build_scene_model
-    from deformgl.scene.schema import load_scene
     from deformgl.sim.normals import unit_sums
 
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "mesh.ply"
-        mesh.export(path)
-        scene_file = Path(folder) / "scene.toml"
-        scene_file.write_text(
-            f'[mesh]\npath = "mesh.ply"\n[grid]\nnodes_along_longest = {int(nodes_along)}\n'
-            f"[material]\nyoungs_modulus = {YOUNGS_MODULUS}\ndensity = {DENSITY}\npoissons_ratio = {POISSON}\n"
-            f'[physics]\ngravity = [0.0, {-G}, 0.0]\n[[physics.fixed]]\nregion = "below"\naxis = "y"\nat = {HOLD}\n')
-        model = build_scene_model(load_scene(scene_file))
+    model = scene_model(mesh, nodes_along)
     system, grid = model.system, model.grid
     u = settled_displacement(system)
     binding = get_binding(model.mesh, grid, grid_surface(grid), use_cache=False, uv=None)

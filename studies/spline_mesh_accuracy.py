@@ -13,37 +13,24 @@ field (what the renderer draws).
 from __future__ import annotations
 
 import argparse
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse.linalg as spl
 import trimesh
 
-from studies.mesh_accuracy import (DENSITY, FEM_REFERENCE, G, HOLD, LATTICE_FIGURES, MESHES, POISSON, YOUNGS_MODULUS,
-                                   MeshSag, _figures, repaired_mesh)
+from studies.mesh_accuracy import (DENSITY, FEM_REFERENCE, G, LATTICE_FIGURES, MESHES, POISSON, YOUNGS_MODULUS, MeshSag,
+                                   _figures, repaired_mesh, scene_model)
 
 
 def spline_sag(mesh: trimesh.Trimesh, nodes_along: int) -> tuple[MeshSag, int]:
     """The spline body's static sag at the mesh's vertices at ``nodes_along`` nodes along the
     longest side, and its knot spans."""
     from deformgl.render.bspline_premap import vertex_spans
-    from deformgl.scene.pipeline import build_scene_model
-    from deformgl.scene.schema import load_scene
     from deformgl.sim.terms.spline.basis import span_basis
 
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "mesh.ply"
-        mesh.export(path)
-        scene_file = Path(folder) / "scene.toml"
-        scene_file.write_text(
-            f'[mesh]\npath = "mesh.ply"\n[grid]\nnodes_along_longest = {int(nodes_along)}\n'
-            f"[material]\nyoungs_modulus = {YOUNGS_MODULUS}\ndensity = {DENSITY}\npoissons_ratio = {POISSON}\n"
-            f'model = "spline"\n[physics]\nintegrator = "semi-implicit"\ngravity = [0.0, {-G}, 0.0]\n'
-            f'[[physics.fixed]]\nregion = "below"\naxis = "y"\nat = {HOLD}\n')
-        model = build_scene_model(load_scene(scene_file))
+    model = scene_model(mesh, nodes_along, material='model = "spline"\n', physics='integrator = "semi-implicit"\n')
     body, system = model.spline, model.system
     assert body is not None
     k = None

@@ -16,14 +16,12 @@ from __future__ import annotations
 import moderngl
 import numpy as np
 
-from deformgl.gl.es_context import read_texture
 from deformgl.gl.programs import Program
-from deformgl.gl.resources import GLOwner, restore_framebuffer
-from deformgl.grid.nodes import layout_uniforms
+from deformgl.gl.resources import GLOwner
 from deformgl.render.camera import View
 from deformgl.render.mapped import culled
 from deformgl.render.passes import Lighting
-from deformgl.render.premap import OUTPUT_UNITS
+from deformgl.render.premap import PremapPass
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS
 from deformgl.sim.terms.spline.body import SplineBody
 
@@ -62,7 +60,7 @@ def vertex_spans(body: SplineBody, vertices: np.ndarray) -> tuple[np.ndarray, np
     return nodes, t - grid.ijk[nodes[:, 13]]
 
 
-class BSplinePremap(GLOwner):
+class BSplinePremap(PremapPass):
     """Maps the vertices of a detailed mesh through ``body``'s field in one fragment pass.
 
     Args:
@@ -118,40 +116,7 @@ class BSplinePremap(GLOwner):
             self.program = self.own(Program(ctx, "sim/fullscreen.vert", "render/bspline_premap.frag"))
             self.program.set(u_position=0, u_vertex_nodes=1, u_vertex_data=2, u_h=body.spacing, **layout)
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-
-    @property
-    def layout_uniforms(self) -> dict[str, int]:
-        """The node layout's uniforms of the outputs (vertex v at texel node_texel(v))."""
-        return layout_uniforms(self.size[0])
-
-    def run(self, positions: moderngl.Texture) -> None:
-        """Map every vertex with node positions from ``positions`` (texture units 0-2 are left
-        bound to the pass's inputs); the caller's framebuffer and depth test come back."""
-        previous = self.ctx.fbo
-        self.fbo.use()
-        self.ctx.disable(moderngl.DEPTH_TEST)
-        try:
-            positions.use(0)
-            self.nodes.use(1)
-            self.data.use(2)
-            self.vao.render(moderngl.TRIANGLES, vertices=3)
-        finally:
-            self.ctx.enable(moderngl.DEPTH_TEST)
-            restore_framebuffer(self.ctx, previous)
-
-    def bind(self) -> dict[str, int]:
-        """Bind the outputs to :data:`~deformgl.render.premap.OUTPUT_UNITS`; the premapped draw's
-        sampler uniforms."""
-        for out, unit in zip(self.outputs, OUTPUT_UNITS):
-            out.use(unit)
-        return {"u_vertex_world": OUTPUT_UNITS[0], "u_vertex_normal": OUTPUT_UNITS[1]}
-
-    def read(self) -> tuple[np.ndarray, np.ndarray]:
-        """(V, 3) float32 positions and normals of the last :meth:`run` (one read-back each)."""
-        w, h = self.size
-        images = [np.frombuffer(read_texture(t), dtype="f4").reshape(h * w, 4)[: self.count, :3].copy()
-                  for t in self.outputs]
-        return images[0], images[1]
+        self.inputs = [self.nodes, self.data]
 
 
 class FieldMeshPass(GLOwner):

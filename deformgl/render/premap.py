@@ -36,7 +36,54 @@ from deformgl.render.mapped_data import MappedVertices
 OUTPUT_UNITS = (2, 3, 4, 5)
 
 
-class FragmentPremap(GLOwner):
+class PremapPass(GLOwner):
+    """What a mapping run as a fragment pass shares (one fragment per vertex into the output
+    textures the premapped draw reads): the subclass builds ``outputs``, ``fbo``, ``vao``,
+    ``size``, ``count`` and the ``inputs`` it binds on units 1, 2, ... after the positions on 0."""
+
+    count: int
+    size: tuple[int, int]
+    outputs: list[moderngl.Texture]
+    inputs: list[moderngl.Texture | moderngl.TextureArray]
+    fbo: moderngl.Framebuffer
+    vao: moderngl.VertexArray
+
+    @property
+    def layout_uniforms(self) -> dict[str, int]:
+        """The node layout's uniforms of the outputs (vertex v at texel node_texel(v))."""
+        return layout_uniforms(self.size[0])
+
+    def run(self, positions: moderngl.Texture) -> None:
+        """Map every vertex with node positions from ``positions`` (texture units 0 and the inputs'
+        are left bound); the caller's framebuffer and depth test come back."""
+        previous = self.ctx.fbo
+        self.fbo.use()
+        self.ctx.disable(moderngl.DEPTH_TEST)
+        try:
+            positions.use(0)
+            for unit, tex in enumerate(self.inputs, start=1):
+                tex.use(unit)
+            self.vao.render(moderngl.TRIANGLES, vertices=3)
+        finally:
+            self.ctx.enable(moderngl.DEPTH_TEST)
+            restore_framebuffer(self.ctx, previous)
+
+    def bind(self) -> dict[str, int]:
+        """Bind the outputs to :data:`OUTPUT_UNITS`; the premapped draw's sampler uniforms."""
+        names = ["u_vertex_world", "u_vertex_normal", "u_vertex_tangent", "u_vertex_uv"]
+        for out, unit in zip(self.outputs, OUTPUT_UNITS):
+            out.use(unit)
+        return {name: unit for name, unit, _ in zip(names, OUTPUT_UNITS, self.outputs)}
+
+    def read(self) -> tuple[np.ndarray, np.ndarray]:
+        """(V, 3) float32 positions and normals of the last :meth:`run` (one read-back each)."""
+        w, h = self.size
+        images = [np.frombuffer(read_texture(t), dtype="f4").reshape(h * w, 4)[: self.count, :3].copy()
+                  for t in self.outputs[:2]]
+        return images[0], images[1]
+
+
+class FragmentPremap(PremapPass):
     """Maps every vertex of ``data`` from a state texture into the output textures in one
     fragment pass; :meth:`bind` gives them to the premapped draw.
 
@@ -88,37 +135,4 @@ class FragmentPremap(GLOwner):
                                             defines=defines))
             self.program.set(u_position=0, u_vertex_texels=1, u_vertex_data=2)
             self.vao = self.own(ctx.vertex_array(self.program.gl, []))
-
-    @property
-    def layout_uniforms(self) -> dict[str, int]:
-        """The node layout's uniforms of the outputs (vertex v at texel node_texel(v))."""
-        return layout_uniforms(self.size[0])
-
-    def run(self, positions: moderngl.Texture) -> None:
-        """Map every vertex with node positions from ``positions`` (texture units 0-2 are left
-        bound to the pass's inputs); the caller's framebuffer and depth test come back."""
-        previous = self.ctx.fbo
-        self.fbo.use()
-        self.ctx.disable(moderngl.DEPTH_TEST)
-        try:
-            positions.use(0)
-            self.texels.use(1)
-            self.data.use(2)
-            self.vao.render(moderngl.TRIANGLES, vertices=3)
-        finally:
-            self.ctx.enable(moderngl.DEPTH_TEST)
-            restore_framebuffer(self.ctx, previous)
-
-    def bind(self) -> dict[str, int]:
-        """Bind the outputs to :data:`OUTPUT_UNITS`; the premapped draw's sampler uniforms."""
-        names = ["u_vertex_world", "u_vertex_normal", "u_vertex_tangent", "u_vertex_uv"]
-        for out, unit in zip(self.outputs, OUTPUT_UNITS):
-            out.use(unit)
-        return {name: unit for name, unit, _ in zip(names, OUTPUT_UNITS, self.outputs)}
-
-    def read(self) -> tuple[np.ndarray, np.ndarray]:
-        """(V, 3) float32 positions and normals of the last :meth:`run` (one read-back each)."""
-        w, h = self.size
-        images = [np.frombuffer(read_texture(t), dtype="f4").reshape(h * w, 4)[: self.count, :3].copy()
-                  for t in self.outputs[:2]]
-        return images[0], images[1]
+        self.inputs = [self.texels, self.data]
