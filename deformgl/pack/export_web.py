@@ -132,6 +132,9 @@ def _remove_new_empty_folders(out: Path, top: Path | None, before: set[Path]) ->
 def _export(scene: Scene, out: Path) -> list[Path]:
     shaders = pack_contents(out / "shaders", "es")
     OutputSet(list(shaders) + [out / "scene.json"], "web export file")  # every path checked before the GL work
+    if getattr(scene.physics.material, "model", None) == "spline":
+        raise InputError(f'{scene.source}: material.model: export-web runs the lattice\'s foundation pass; a spline '
+                         f"body has no web client yet")
     ctx = create_context()
     try:
         built = build_scene_model(scene)

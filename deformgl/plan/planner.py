@@ -399,6 +399,9 @@ def plan_scene(path: str | Path, tolerance: float, load: str = "bending",
     found = getattr(scene.physics, "material", None)
     if found is not None and not isinstance(found, ElasticMaterial):
         raise InputError(f"{path}: material: plan needs a solid (youngs_modulus, density)")
+    if found is not None and found.model != "lattice":
+        raise InputError(f'{path}: material.model: the planner\'s error and cost models are the lattice\'s; '
+                         f'"{found.model}" is not planned yet')
     chosen = found or material
     if chosen is None:
         raise InputError(f"{path}: material: the scene has no [material] table; give --preset "
@@ -440,6 +443,9 @@ def planned_scene(scene: Any, tolerance: float, load: str = "bending") -> tuple[
     if scene.mesh is None or not isinstance(material, ElasticMaterial):
         raise InputError(f"{scene.source.name}: --tolerance: needs a volume body with a solid [material] "
                          f"(youngs_modulus, density); see deformgl plan --help")
+    if material.model != "lattice":
+        raise InputError(f'{scene.source.name}: --tolerance: the planner\'s error and cost models are the lattice\'s; '
+                         f'material.model = "{material.model}" is not planned yet')
     mesh = load_mesh(scene.mesh.path)
     extent = (mesh.bounds[1] - mesh.bounds[0]) * float(scene.mesh.scale)
     refusal = implicit_refusal(scene)

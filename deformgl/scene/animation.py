@@ -180,6 +180,9 @@ class _Drawer:
     def __init__(self, ctx: moderngl.Context, scene: Scene, built: SceneModel, layout, modes: Sequence[str],
                  log: Callable[[str], None] | None) -> None:
         self.ctx, self.scene, self.built = ctx, scene, built
+        if getattr(built, "spline", None) is not None and len(modes) > 1:
+            raise InputError(f'{scene.source}: modes: a spline body (material.model = "spline") is drawn through its '
+                             f"field: one panel, not one per mapping mode")
         self.passes: dict[str, Any] = {}
         self.target: RenderTarget | None = None
         try:

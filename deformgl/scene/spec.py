@@ -467,6 +467,16 @@ class Scene:
                 _fail(file, "--mapping", "one-to-one draws no detailed mesh, which the scene's attach entries need")
             if scene.cloth is not None and mapping != "one-to-one":
                 _fail(file, "--mapping", "a cloth scene has no detailed mesh: only one-to-one")
+        if getattr(material, "model", None) == "spline":  # (what load_scene refused, the overrides may give)
+            from deformgl.scene.spline_model import spline_refusal
+
+            refused = spline_refusal(scene.physics)
+            if refused is not None:
+                flag = {"physics.backend": "--backend", "physics.layout": "--layout"}.get(refused[0], refused[0])
+                _fail(file, flag, refused[1])
+            if mapping is not None and mapping != "auto":
+                _fail(file, "--mapping", f'{mapping!r} is a mapping to the lattice\'s nodes; model = "spline" draws '
+                      "the mesh through its field")
         return scene
 
 

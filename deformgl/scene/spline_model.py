@@ -2,7 +2,7 @@
 B-spline body of the mesh's fill on the scene's grid (:func:`deformgl.sim.terms.spline.cut.sample_body`:
 the lattice's material, its cut spans moment-fitted), the ``[[physics.fixed]]`` regions as one
 penalty on the material in them (:class:`~deformgl.sim.terms.spline.term.SplineAnchor` at the
-body's Gauss points in a region, those of positive weight, ``k = HOLD_PENALTY E / h^2`` per unit
+body's Gauss points of positive weight in a region, ``k = HOLD_PENALTY E / h^2`` per unit
 volume), gravity and the material's mass damping.
 
 What the lattice's scenes have and a spline body does not yet: stiffness (Rayleigh beta) damping,
@@ -13,11 +13,12 @@ kilogram as on the lattice.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from deformgl.errors import SceneError
 from deformgl.grid.nodes import NodeGrid
-from deformgl.scene.spec import Physics
 from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.terms.spline.body import SplineBody
@@ -31,8 +32,9 @@ __all__ = ["HOLD_PENALTY", "spline_refusal", "spline_scene"]
 HOLD_PENALTY = 1.0e3
 
 
-def spline_refusal(physics: Physics) -> tuple[str, str] | None:
-    """(key, why) for the first option of ``physics`` a spline body does not run, or None."""
+def spline_refusal(physics: Any) -> tuple[str, str] | None:
+    """(key, why) for the first option of ``physics`` (a :class:`deformgl.scene.spec.Physics`) a
+    spline body does not run, or None."""
     material = physics.material
     if physics.backend == "feedback":
         return "physics.backend", 'model = "spline" has no transform-feedback form yet (the fragment and numpy backends run it)'
@@ -51,7 +53,7 @@ def spline_refusal(physics: Physics) -> tuple[str, str] | None:
     return None
 
 
-def spline_scene(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: str = "scene") -> tuple[SpringSystem, SplineBody]:
+def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, source: str = "scene") -> tuple[SpringSystem, SplineBody]:
     """The spline body of the mesh's fill on ``grid`` and its system (the module docstring).
 
     Raises:
@@ -71,13 +73,13 @@ def spline_scene(grid: NodeGrid, physics: Physics, bbox: np.ndarray, *, source: 
     world = body.grid.origin + (body.grid.ijk[body.span_nodes[body.point_span, 13]] + body.point_s) * h
     fractions = body.grid.bbox_fraction(world, bbox[0], bbox[1])
     held = np.zeros(len(world), bool)
+    weighted = body.point_weight > 0  # (a non-negative fit leaves some points weightless)
     for i, region in enumerate(physics.fixed):
-        inside = region.contains(fractions)
+        inside = region.contains(fractions) & weighted
         if not inside.any():
             raise SceneError(f"{source}: physics.fixed[{i}]: the region holds none of the mesh's material "
                              f"({len(world)} quadrature points at spacing {h:.4g}); widen it or refine the grid")
         held |= inside
-    held &= body.point_weight > 0  # (a moment-fitted weight may be negative: the penalty stays positive)
     anchors = (SplineAnchor(body, world[held], body.point_weight[held], HOLD_PENALTY * material.youngs_modulus / h ** 2),
                ) if held.any() else ()
     system = spline_system(body, anchors=anchors, gravity=tuple(physics.gravity), mass_damping=material.mass_damping)

@@ -12,7 +12,10 @@ Moment fitting (Joulaian et al. 2016, section 3): a cut span's material is integ
 x 3 Gauss points of its bounding box, their weights solved so that the grid integrates the 27
 tensor Legendre polynomials of degree <= 2 per axis over the material as the fine quadrature does:
 the mass (``rho int N_a``, degree 2 per axis), the volume, the centroid and the second moments are
-kept; the stiffness (degree 4 per axis) is approximated in cut spans. Weights may be negative.
+kept; the stiffness (degree 4 per axis) is approximated in cut spans. Where that exact fit has a
+negative weight (a span's stiffness would be indefinite: modes that grow at any dt), the weights
+are the non-negative least-squares fit instead, the volume kept exactly and the centroid and
+higher moments as nearly as non-negative weights allow.
 """
 
 from __future__ import annotations
@@ -58,7 +61,34 @@ def _fit(local: np.ndarray, s: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np
     np.add.at(moments, local, w[:, None, None, None] * legendre[:, 0, :, None, None]
               * legendre[:, 1, None, :, None] * legendre[:, 2, None, None, :])
     weights = np.einsum("la,mb,nc,sabc->slmn", _INVERSE, _INVERSE, _INVERSE, moments).reshape(len(lo), 27)
+    negative = np.nonzero((weights < 0).any(axis=1))[0]
+    if len(negative):
+        weights[negative] = _nonnegative(moments[negative].reshape(len(negative), 27))
     return mid[:, None, :] + half[:, None, :] * _UNIT[None], weights
+
+
+#: The Legendre moments' matrix on the Gauss grid, [moment (a, b, c), point (l, m, n)]
+_MOMENTS = np.einsum("al,bm,cn->abclmn", *(np.stack([np.ones(3), _GAUSS, 1.5 * _GAUSS * _GAUSS - 0.5]),) * 3).reshape(27, 27)
+#: Each moment's row weight in the non-negative fit: the volume first, then the first moments
+#: (the centroid), then the rest (the degree of a moment: the sum of its three degrees)
+_ROW_WEIGHT = np.array([100.0 if d == 0 else 10.0 if d == 1 else 1.0
+                        for d in np.indices((3, 3, 3)).reshape(3, 27).sum(axis=0)])
+
+
+def _nonnegative(moments: np.ndarray) -> np.ndarray:
+    """(C, 27) weights >= 0 of the Gauss grid nearest to the moments (C, 27) in the row-weighted
+    least-squares sense (scipy's NNLS; Lawson & Hanson 1974), scaled to keep the volume exactly:
+    a rule with a negative weight makes the span's stiffness indefinite (modes that grow at any
+    dt), so where the exact fit has one the rule trades higher moments for positivity."""
+    from scipy.optimize import nnls
+
+    a = _ROW_WEIGHT[:, None] * _MOMENTS
+    out = np.empty_like(moments)
+    for k, m in enumerate(moments):
+        w = nnls(a, _ROW_WEIGHT * m)[0]
+        total = float(w @ _MOMENTS[0])
+        out[k] = w * (m[0] / total if total > 0 else 0.0)
+    return out
 
 
 def fitted_body(body: SplineBody) -> SplineBody:

@@ -32,10 +32,12 @@ __all__ = ["NEEDS", "SplineAnchor", "SplineCells", "polar_rotations", "spline_sy
 _NO_FORM = {"fragment": "GLSL", "implicit": "implicit-Euler", "feedback": "transform-feedback", "xpbd": "XPBD"}
 #: What a spline body costs and refuses, from the scene alone (:class:`~deformgl.sim.terms.TermNeeds`,
 #: ``[material] model = "spline"``): on the host its Gauss points (27 a span, a span a node at
-#: most: 27 x 4 float64) and span tables; on the GPU its node tables (7 RGBA32F layers each for the
+#: most: 27 x 4 float64), span tables and the volumetric projection's moments (4 x 27 x 3 float64
+#: a span) and functions (27 x 4); on the GPU its node tables (7 RGBA32F layers each for the
 #: cells and an anchor) and the span pass's textures (53 texels a span, counted per node texel).
 #: Implicit Euler and XPBD have no form of it.
-NEEDS = TermNeeds("material.model", host_bytes_per_node=27 * 4 * 8 + 28 * 4 + 72 * 4, node_layers=14, texel_bytes=53 * 16,
+NEEDS = TermNeeds("material.model", host_bytes_per_node=27 * 4 * 8 + 28 * 4 + 72 * 4 + (4 * 27 * 3 + 27 * 4) * 8,
+                  node_layers=14, texel_bytes=53 * 16,
                   refused=(("implicit-euler", "model = \"spline\" has no implicit-Euler form yet (the explicit "
                             "integrators run it)"),
                            ("xpbd", "model = \"spline\" has no XPBD form yet (the explicit integrators run it)")))
