@@ -1,9 +1,8 @@
 // A spline body's penalty anchor (deformgl/sim/terms/spline/term.py SplineAnchor): a node's force,
-// gathered (terms/spline_gather.glsl) from the anchor's span pass (terms/spline_anchor.frag, run
+// gathered (lib/term_node.glsl span_gather) from the anchor's span pass (terms/spline_anchor.frag, run
 // before each force evaluation) of the up to 27 knot spans holding the anchor's points whose node
 // it is. u_spline_anchor_spans: the node table (deformgl/sim/terms/spline/tables.py anchor_tables);
 // u_spline_anchor_f0..3: the span pass's forces; u_spline_anchor_row: spans per row of those.
-#include "terms/spline_gather.glsl"
 uniform sampler2DArray u_spline_anchor_spans;
 uniform sampler2D u_spline_anchor_f0;
 uniform sampler2D u_spline_anchor_f1;
