@@ -333,6 +333,7 @@ def test_every_explicit_integrator_runs_the_body_at_0_9_of_its_dt_limit(integrat
     assert not np.isfinite(grown).all() or np.abs(grown - body.rest_positions).max() > 1.0
 
 
+@pytest.mark.slow
 def test_moment_fitting_keeps_the_mass_and_the_sag_of_a_cut_body():
     """A sampled body's cut spans fitted to one 3 x 3 x 3 grid each (their 27 moments of degree <= 2
     per axis): every node's mass and the body's volume to rounding; the static sag of the section 2

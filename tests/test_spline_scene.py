@@ -64,7 +64,8 @@ def test_a_spline_scene_builds_the_body_of_the_fill_and_holds_its_base(tmp_path)
     assert anchor.points[:, 1].max() <= low + 1e-9 and len(anchor.points) > 0
 
 
-@pytest.mark.parametrize("integrator", ["semi-implicit", "verlet", "rk4"])
+@pytest.mark.parametrize("integrator", ["semi-implicit", pytest.param("verlet", marks=pytest.mark.slow),
+                                        pytest.param("rk4", marks=pytest.mark.slow)])
 def test_a_spline_dragon_renders_from_the_cli(ctx, tmp_path, capsys, integrator):
     scene = dragon(tmp_path, **{"gravity = [0.0, -9.81, 0.0]": f'integrator = "{integrator}"\ngravity = [0.0, -9.81, 0.0]'})
     out = tmp_path / f"{integrator}.png"
@@ -104,6 +105,7 @@ def test_lattice_outputs_are_refused_for_a_spline_scene(ctx, tmp_path, capsys):
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow
 def test_the_api_renders_a_spline_scene_and_body_refuses_the_model_in_one_line(ctx, tmp_path):
     import deformgl as dg
 
@@ -127,6 +129,7 @@ def test_overrides_that_a_spline_scene_does_not_run_are_refused_in_one_line(ctx,
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.slow
 def test_the_dragons_spline_body_has_no_growing_mode(tmp_path):
     """The dragon's body at 12 along, held by its penalty: every mode of (K, M) at rest has
     w^2 > 0 (no rigid mode left, none negative: with the exact moment fit's negative weights 35
