@@ -19,10 +19,8 @@ from deformgl.sim.terms.base import GlslTerm, NodeTable
 from deformgl.sim.terms.spline.body import SplineBody
 from deformgl.sim.terms.spline.tables import SpanTables, anchor_tables, span_tables
 
-__all__ = ["ANCHOR_GLSL", "GLSL", "SAMPLERS", "anchor_glsl", "spline_glsl"]
+__all__ = ["ANCHOR_GLSL", "GLSL", "anchor_glsl", "spline_glsl"]
 
-#: The samplers of the span pass's outputs in the chunk.
-SAMPLERS = ("u_spline_f0", "u_spline_f1", "u_spline_f2", "u_spline_f3")
 #: The term's GLSL form without its data (the shader pack's; :func:`spline_glsl` gives a body's).
 GLSL = GlslTerm("spline", file="terms/spline.glsl", passes=("terms/spline_span.frag",))
 #: A penalty anchor's form without its data (its chunk gathers what its span pass computes).
