@@ -84,6 +84,8 @@ class MeshSag:
     size: int
     mass_ratio: float
     seconds: float
+    #: (V,) each vertex's sag, m, where the model gives it (the FEM), else None
+    vertex_sag: np.ndarray | None = None
 
 
 def repaired_mesh(name: str) -> trimesh.Trimesh:
@@ -198,7 +200,7 @@ def fem_sag(mesh: trimesh.Trimesh, *, refine: int = 0) -> MeshSag:
     u[free] = u_free
     sag = -u[basis.nodal_dofs[1, :len(v)]]
     mean, largest, top = _figures(v, sag)
-    return MeshSag(mean, largest, top, int(elems.shape[0]), 1.0, time.perf_counter() - start)
+    return MeshSag(mean, largest, top, int(elems.shape[0]), 1.0, time.perf_counter() - start, sag)
 
 
 def settled_displacement(system, *, dt: float = 0.05, steps: int = 1000, tolerance: float = 1e-9) -> np.ndarray:

@@ -78,7 +78,7 @@ class SceneModel:
         source = scene.source.name
         material = scene.physics.material
         if isinstance(material, ElasticMaterial) and material.model == "spline":
-            system, body = spline_scene(grid, scene.physics, bbox, source=source)
+            system, body = spline_scene(grid, scene.physics, bbox, mesh=mesh, source=source)
             return cls(mesh=mesh, centre=centre, grid=body.grid, system=system,
                        loads=scene_loads(body.grid, scene.physics, bbox, source=source, mass=system.mass), bbox=bbox,
                        spline=body)

@@ -1,6 +1,7 @@
 """A scene's body as spline cells (``[material] model = "spline"``; issue 44): the quadratic
 B-spline body of the mesh's fill on the scene's grid (:func:`deformgl.sim.terms.spline.cut.sample_body`:
-the lattice's material, its cut spans moment-fitted), the ``[[physics.fixed]]`` regions as one
+the lattice's material, its surface samples measured against the mesh along lines, its cut spans
+moment-fitted), the ``[[physics.fixed]]`` regions as one
 penalty on the material in them (:class:`~deformgl.sim.terms.spline.term.SplineAnchor` at the
 body's Gauss points of positive weight in a region, ``k = HOLD_PENALTY E / h^2`` per unit
 volume), gravity and the material's mass damping.
@@ -16,8 +17,10 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import trimesh
 
 from deformgl.errors import SceneError
+from deformgl.grid.line_fill import surface_samples
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.springs import SpringSystem
@@ -53,8 +56,12 @@ def spline_refusal(physics: Any) -> tuple[str, str] | None:
     return None
 
 
-def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, source: str = "scene") -> tuple[SpringSystem, SplineBody]:
+def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, mesh: trimesh.Trimesh | None = None,
+                 source: str = "scene") -> tuple[SpringSystem, SplineBody]:
     """The spline body of the mesh's fill on ``grid`` and its system (the module docstring).
+    With ``mesh`` (in the grid's coordinates) the fill's surface samples are measured against it
+    (:func:`deformgl.grid.line_fill.surface_samples`, out to the knot planes beyond the outermost
+    nodes), so thin features and the body's mass are integrated exactly along lines.
 
     Raises:
         SceneError: the grid has no fill (the body needs the mesh's material), an option a spline
@@ -67,8 +74,12 @@ def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, source: str 
     if refused is not None:
         raise SceneError(f"{source}: {refused[0]}: {refused[1]}")
     fill = grid.fill
+    surface = None
+    if mesh is not None:
+        triangles = (np.asarray(mesh.triangles, np.float64) - grid.origin) / grid.spacing * fill.samples - 0.5
+        surface = surface_samples(triangles, fill.inside, fill.samples / 2.0)
     body = sample_body(grid.origin, grid.spacing, fill.samples, fill.inside, youngs_modulus=material.youngs_modulus,
-                       poissons_ratio=material.poissons_ratio, density=material.density)
+                       poissons_ratio=material.poissons_ratio, density=material.density, surface=surface)
     h = body.spacing
     world = body.grid.origin + (body.grid.ijk[body.span_nodes[body.point_span, 13]] + body.point_s) * h
     fractions = body.grid.bbox_fraction(world, bbox[0], bbox[1])

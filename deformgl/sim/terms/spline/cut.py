@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from deformgl.grid.line_fill import SurfaceSamples
 from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box
 from deformgl.sim.terms.spline.body import KNOT_TOLERANCE, SplineBody
 
-__all__ = ["fitted_body", "inside_body", "sample_body"]
+__all__ = ["fitted_body", "inside_body", "sample_body", "span_samples"]
 
 _GAUSS = np.polynomial.legendre.leggauss(3)[0]
 #: [point, degree]^-1 of the Legendre polynomials 1, t, (3 t^2 - 1)/2 at the 3 Gauss points
@@ -155,8 +156,57 @@ def inside_body(inside, lo, hi, spacing: float, *, youngs_modulus: float, poisso
                                       poissons_ratio=poissons_ratio, density=density, dilatation=dilatation)
 
 
+def span_samples(samples: int, inside: np.ndarray, surface: SurfaceSamples | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The fill's material as boxes in knot spans: each box's span (the grid index of its centre
+    node, (M, 3)), its centre in span coordinates (M, 3), its sides in span units (M, 3) and the
+    inside sample it is of (M,), a row of ``np.argwhere(inside)`` (-1: a measured box whose
+    centre is outside). Sample ``p`` is the box of side ``1 / samples`` centred on
+    ``(p + 1/2) / samples`` node units from the fill's origin; with ``surface`` the boxes it
+    measured hold their measured share instead, narrowed along its axis about its centroid
+    (:mod:`deformgl.grid.line_fill`). A box across a knot plane (odd ``samples``) is split there."""
+    s = int(samples)
+    where = np.argwhere(inside)
+    t = (where + 0.5) / s  # node units from origin
+    widths = np.full(t.shape, 1.0 / s)
+    index = np.arange(len(where))
+    if surface is not None and len(surface.index):
+        row = np.full(inside.shape, -1, np.int64)
+        row[tuple(where.T)] = index
+        rows = row[tuple(surface.index.T)]
+        measured = rows >= 0
+        t[rows[measured], surface.axis[measured]] += surface.centre[measured] / s
+        widths[rows[measured], surface.axis[measured]] = surface.fraction[measured] / s
+        extra = ~measured & (surface.fraction > 0)
+        t_extra = (surface.index[extra] + 0.5) / s
+        w_extra = np.full(t_extra.shape, 1.0 / s)
+        added = np.arange(len(t_extra))
+        t_extra[added, surface.axis[extra]] += surface.centre[extra] / s
+        w_extra[added, surface.axis[extra]] = surface.fraction[extra] / s
+        keep = widths.min(axis=1) > 0
+        t = np.concatenate([t[keep], t_extra])
+        widths = np.concatenate([widths[keep], w_extra])
+        index = np.concatenate([index[keep], np.full(len(t_extra), -1, np.int64)])
+    for d in range(3):
+        lo, hi = t[:, d] - widths[:, d] / 2.0, t[:, d] + widths[:, d] / 2.0
+        knot = np.floor(hi - 0.5) + 0.5  # the highest knot plane below the box's top
+        on = (lo < knot - 1e-9) & (knot < hi - 1e-9)
+        if on.any():
+            lower_t, lower_w = t[on].copy(), widths[on].copy()
+            lower_t[:, d] = (lo[on] + knot[on]) / 2.0
+            lower_w[:, d] = knot[on] - lo[on]
+            t[on, d] = (knot[on] + hi[on]) / 2.0
+            widths[on, d] = hi[on] - knot[on]
+            t = np.concatenate([t, lower_t])
+            widths = np.concatenate([widths, lower_w])
+            index = np.concatenate([index, index[on]])
+    centre = np.floor(t + 0.5).astype(np.int64)  # the span holding the box
+    return centre, t - centre, widths, index
+
+
 def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, youngs_modulus: float,
-                poissons_ratio: float, density: float, dilatation: str = "p1") -> SplineBody:
+                poissons_ratio: float, density: float, dilatation: str = "p1",
+                surface: SurfaceSamples | None = None) -> SplineBody:
     """The body of a fill's samples: ``inside`` (bool, ``samples`` per cell edge along each axis)
     the inside test of the sample points ``origin + h (i + 1/2) / samples``, each the centre of a
     sample box of side ``h / samples`` (the fill's volume). A knot span all of whose sample centres
@@ -171,26 +221,9 @@ def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, you
     if not spacing > 0 or s < 1:
         raise ValueError(f"spline body: spacing must be > 0 m and samples >= 1, got {spacing}, {samples}")
     origin = np.asarray(origin, np.float64)
-    where = np.argwhere(inside)
-    if not len(where):
+    if not inside.any():
         raise ValueError("spline body: no sample inside the mesh")
-    t = (where + 0.5) / s  # node units from origin
-    centre = np.floor(t + 0.5).astype(np.int64)  # the nearest node: the span holding the sample
-    local_s = t - centre
-    widths = np.full(t.shape, 1.0 / s)
-    # (odd s: a sample whose centre lies on a knot plane is split there, half to each span)
-    for d in range(3):
-        on = np.abs(local_s[:, d] + 0.5) < 1e-9
-        if on.any():
-            lower_centre, lower_s, lower_w = centre[on].copy(), local_s[on].copy(), widths[on].copy()
-            lower_centre[:, d] -= 1
-            lower_s[:, d] = 0.5 - 0.25 / s
-            lower_w[:, d] = 0.5 / s
-            local_s[on, d] = -0.5 + 0.25 / s
-            widths[on, d] = 0.5 / s
-            centre = np.concatenate([centre, lower_centre])
-            local_s = np.concatenate([local_s, lower_s])
-            widths = np.concatenate([widths, lower_w])
+    centre, local_s, widths, _ = span_samples(s, inside, surface)
     volume = np.prod(widths, axis=1)
     centres, span_of = np.unique(centre, axis=0, return_inverse=True)
     span_of = span_of.ravel()
