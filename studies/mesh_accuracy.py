@@ -225,9 +225,11 @@ def settled_displacement(system, *, dt: float = 0.05, steps: int = 1000, toleran
     raise DeformglError(f"the lattice did not come to rest in {steps} steps of {dt} s (last step moved {moved:.2e} m)")
 
 
-def scene_model(mesh: trimesh.Trimesh, nodes_along: int, *, material: str = "", physics: str = ""):
+def scene_model(mesh: trimesh.Trimesh, nodes_along: int, *, material: str = "", physics: str = "",
+                with_scene: bool = False):
     """The product's scene model of the workload (module docstring) at ``nodes_along`` nodes along
-    the longest side; ``material`` and ``physics``: further lines of those tables."""
+    the longest side; ``material`` and ``physics``: further lines of those tables. ``with_scene``:
+    the pair (model, the loaded scene)."""
     from deformgl.scene.pipeline import build_scene_model
     from deformgl.scene.schema import load_scene
 
@@ -239,7 +241,9 @@ def scene_model(mesh: trimesh.Trimesh, nodes_along: int, *, material: str = "", 
             f"[material]\nyoungs_modulus = {YOUNGS_MODULUS}\ndensity = {DENSITY}\npoissons_ratio = {POISSON}\n{material}"
             f'[physics]\n{physics}gravity = [0.0, {-G}, 0.0]\n[[physics.fixed]]\nregion = "below"\naxis = "y"\n'
             f"at = {HOLD}\n")
-        return build_scene_model(load_scene(scene_file))
+        scene = load_scene(scene_file)
+        model = build_scene_model(scene)
+        return (model, scene) if with_scene else model
 
 
 def lattice_sag(mesh: trimesh.Trimesh, nodes_along: int) -> MeshSag:

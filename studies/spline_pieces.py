@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box, span_basis
 from deformgl.sim.terms.spline.body import SplineBody
-from deformgl.sim.terms.spline.cut import _control_grid, _fit, span_samples
+from deformgl.sim.terms.spline.cut import _control_grid, fit_boxes, span_samples
 from studies.mesh_accuracy import (DENSITY, FEM_REFERENCE, G, HOLD, MESHES, POISSON, YOUNGS_MODULUS, fem_sag,
                                    repaired_mesh)
 
@@ -60,11 +60,18 @@ class CopiedBody(SplineBody):
         return self.grid.rest_positions[self.copy_node]
 
 
-def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, split_spans: bool, copies: bool):
-    """The body of a fill (module docstring); also each sample piece's span piece and world centre."""
+def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, split_spans: bool, copies: bool,
+               surface=None, connect: np.ndarray = _CONNECT):
+    """The body of a fill (module docstring); also each sample piece's span piece and world centre.
+    ``surface``: the fill's measured surface boxes (:mod:`deformgl.grid.line_fill`); ``connect``
+    the samples' connectivity."""
     s = int(samples)
-    centre, local_s, widths, index = span_samples(s, inside)
-    where = np.argwhere(inside)
+    centre, local_s, widths, index = span_samples(s, inside, surface)
+    # each box's sample (a measured box whose centre is outside is its sample's too)
+    sample = np.clip(np.floor((centre + local_s) * s).astype(np.int64), 0, np.array(inside.shape) - 1)
+    inside = inside.copy()
+    inside[tuple(sample.T)] = True
+    where, index = sample, np.arange(len(sample))
     volume = np.prod(widths, axis=1)
     centres, span_of = np.unique(centre, axis=0, return_inverse=True)
     span_of = span_of.ravel()
@@ -79,7 +86,7 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
             lo = ijk.min(axis=0)
             block = np.zeros(tuple(ijk.max(axis=0) - lo + 1), bool)
             block[tuple((ijk - lo).T)] = True
-            labels = ndimage.label(block, _CONNECT)[0]
+            labels = ndimage.label(block, connect)[0]
             piece[rows] = labels[tuple((ijk - lo).T)] - 1
     keys, sp_of = np.unique(np.stack([span_of, piece], axis=1), axis=0, return_inverse=True)
     sp_of = sp_of.ravel()
@@ -95,7 +102,7 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
     hi = np.full((len(cut), 3), -np.inf)
     np.minimum.at(lo, local, cs - cw / 2.0)
     np.maximum.at(hi, local, cs + cw / 2.0)
-    points_cut, weights_cut = _fit(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    points_cut, weights_cut = fit_boxes(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
     grid, local_centres = _control_grid(np.asarray(origin, np.float64), spacing, centres)
     low = centres[0] - local_centres[0]  # the control grid's first node, global node index
     ijk = local_centres[sp_span][:, None, :] + SPAN_OFFSETS[None]
@@ -117,7 +124,7 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
                 continue
             first = np.maximum(np.ceil((node_ijk[a] - 1.5) * s - 0.5 - 1e-9).astype(np.int64), 0)
             last = np.minimum(np.floor((node_ijk[a] + 1.5) * s - 0.5 + 1e-9).astype(np.int64) + 1, inside.shape)
-            labels = ndimage.label(inside[first[0]:last[0], first[1]:last[1], first[2]:last[2]], _CONNECT)[0]
+            labels = ndimage.label(inside[first[0]:last[0], first[1]:last[1], first[2]:last[2]], connect)[0]
             at = rep_ijk[pairs_sp[rows]] - first
             label[rows] = labels[tuple(at.T)]
         assert np.all(label > 0)
@@ -152,7 +159,8 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
     return body, sp_of, sample_world, local_centres[sp_span]
 
 
-def static_sag(mesh, nodes_along: int, *, split_spans: bool, copies: bool):
+def static_sag(mesh, nodes_along: int, *, split_spans: bool, copies: bool, measured: bool = False,
+               connectivity: int = 26):
     """(mean, largest, top sag at the vertices (m), per-vertex sag, control points, span pieces)."""
     from deformgl.grid.fill import fill_cells
 
@@ -161,8 +169,16 @@ def static_sag(mesh, nodes_along: int, *, split_spans: bool, copies: bool):
     # which copies would set free)
     labels, count = ndimage.label(fill.inside, _CONNECT)
     inside = labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:])) if count > 1 else fill.inside
+    surface = None
+    if measured:
+        from deformgl.grid.line_fill import surface_samples
+
+        triangles = (np.asarray(mesh.triangles, np.float64) - vox.origin) / vox.spacing * fill.samples - 0.5
+        surface = surface_samples(triangles, inside, fill.samples / 2.0)
+    connect = ndimage.generate_binary_structure(3, 1 if connectivity == 6 else 3)
     body, sp_of, sample_world, sp_centre = piece_body(vox.origin, vox.spacing, fill.samples, inside,
-                                                      split_spans=split_spans, copies=copies)
+                                                      split_spans=split_spans, copies=copies, surface=surface,
+                                                      connect=connect)
     h = body.spacing
     k = body.assemble()
     # the held band: the material below HOLD of the mesh's height, a penalty of 10^3 E / h^2
@@ -200,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m studies.spline_pieces", description=__doc__.split("\n\n")[0])
     parser.add_argument("--mesh", choices=sorted(MESHES), action="append", help="the meshes (default: dragon)")
     parser.add_argument("--nodes", default="12,16,24,32", help="nodes along the longest side, comma separated")
+    parser.add_argument("--measured", action="store_true",
+                        help="the fill's surface boxes measured against the mesh (the scene path's body)")
+    parser.add_argument("--connectivity", type=int, choices=(6, 26), default=26,
+                        help="samples that touch by a face (6) or by a face, edge or corner (26) are connected")
     args = parser.parse_args(argv)
     for name in args.mesh or ["dragon"]:
         mesh = repaired_mesh(name)
@@ -214,7 +234,9 @@ def main(argv: list[str] | None = None) -> int:
         for n in (int(v) for v in args.nodes.split(",")):
             for label, split, copy in (("spans", False, False), ("span pieces", True, False), ("copies", True, True)):
                 start = time.perf_counter()
-                mean, largest, top, sag, count, pieces = static_sag(mesh, n, split_spans=split, copies=copy)
+                mean, largest, top, sag, count, pieces = static_sag(mesh, n, split_spans=split, copies=copy,
+                                                                      measured=args.measured,
+                                                                      connectivity=args.connectivity)
                 print(f"  {n:>3} along, {label:<11}: {count:>6} control points, {pieces:>6} span pieces: mean "
                       f"{mean / fem[0]:.3f}, largest {largest / fem[1]:.3f}, top {top / fem[2]:.3f}"
                       f"  [{time.perf_counter() - start:.0f} s]", flush=True)

@@ -141,11 +141,12 @@ class CellFill:
 
 
 def fill_cells(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None = None, spacing: float | None = None,
-               source: str = "mesh") -> tuple[Voxelization, CellFill]:
+               source: str = "mesh", offset=None) -> tuple[Voxelization, CellFill]:
     """The grid of the cells that hold the mesh's material, and their fill.
 
-    The frame (spacing, origin) is :func:`~deformgl.grid.voxelize.voxelize`'s; the nodes are the
-    corners of the cells with material (module docstring), trimmed to them.
+    The frame (spacing, origin) is :func:`~deformgl.grid.voxelize.voxelize`'s (moved by ``-offset``
+    cells, :func:`~deformgl.grid.voxelize.grid_frame`); the nodes are the corners of the cells with
+    material (module docstring), trimmed to them.
 
     Raises:
         InputError: as :func:`~deformgl.grid.voxelize.voxelize`; or the samples would be more
@@ -153,7 +154,7 @@ def fill_cells(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None = None,
             thinner than the sample spacing), naming ``source``.
     """
     triangles, shape, origin, h = grid_frame(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing,
-                                             source=source)
+                                             source=source, offset=offset)
     cells = np.array(shape) - 1
     along = max(int(max(shape)) - 3, 1)  # cells along the longest side of the mesh's box
     s = max(MIN_SAMPLES, min(MAX_PER_CELL, math.ceil(SAMPLES_ALONG_LONGEST / along)))

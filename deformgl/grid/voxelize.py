@@ -151,8 +151,10 @@ def voxelize(
 
 
 def grid_frame(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacing: float | None,
-               source: str) -> tuple[np.ndarray, tuple[int, int, int], np.ndarray, float]:
+               source: str, offset=None) -> tuple[np.ndarray, tuple[int, int, int], np.ndarray, float]:
     """The padded node grid :func:`voxelize` builds around a mesh, before any node is occupied.
+    ``offset`` (3,), in cells, each in [0, 1): the nodes moved by ``-offset h`` against the mesh
+    (one more plane of padding on the high side): the same body on a shifted grid.
 
     Returns:
         ``(triangles, shape, origin, h)``: ``(F, 3, 3)`` triangle vertices in index space (node
@@ -193,6 +195,12 @@ def grid_frame(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None, spacin
     # One empty plane of padding on every side, so the outside is connected around the mesh.
     shape = tuple(int(n) + 2 for n in nodes)
     origin = (low + high) / 2 - h * ((nodes - 1) / 2 + 1)
+    if offset is not None:
+        shift = np.asarray(offset, np.float64)
+        if shift.shape != (3,) or not np.all((shift >= 0.0) & (shift < 1.0)):
+            raise ValueError(f"grid offset must be 3 fractions of a cell in [0, 1), got {offset}")
+        origin = origin - h * shift
+        shape = tuple(n + int(d > 0) for n, d in zip(shape, shift))
     index_space = (triangles - origin) / h  # node (i, j, k) is at integer point (i, j, k)
     return index_space, shape, origin, h  # type: ignore[return-value]  # shape has 3 entries
 

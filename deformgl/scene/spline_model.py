@@ -25,7 +25,7 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.materials import ElasticMaterial
 from deformgl.sim.springs import SpringSystem
 from deformgl.sim.terms.spline.body import SplineBody
-from deformgl.sim.terms.spline.cut import sample_body
+from deformgl.sim.terms.spline.cut import fit_boxes, sample_body, span_samples
 from deformgl.sim.terms.spline.term import SplineAnchor, spline_system
 
 __all__ = ["HOLD_PENALTY", "spline_refusal", "spline_scene"]
@@ -81,17 +81,80 @@ def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, mesh: trimes
     body = sample_body(grid.origin, grid.spacing, fill.samples, fill.inside, youngs_modulus=material.youngs_modulus,
                        poissons_ratio=material.poissons_ratio, density=material.density, surface=surface)
     h = body.spacing
-    world = body.grid.origin + (body.grid.ijk[body.span_nodes[body.point_span, 13]] + body.point_s) * h
-    fractions = body.grid.bbox_fraction(world, bbox[0], bbox[1])
-    held = np.zeros(len(world), bool)
-    weighted = body.point_weight > 0  # (a non-negative fit leaves some points weightless)
-    for i, region in enumerate(physics.fixed):
-        inside = region.contains(fractions) & weighted
-        if not inside.any():
-            raise SceneError(f"{source}: physics.fixed[{i}]: the region holds none of the mesh's material "
-                             f"({len(world)} quadrature points at spacing {h:.4g}); widen it or refine the grid")
-        held |= inside
-    anchors = (SplineAnchor(body, world[held], body.point_weight[held], HOLD_PENALTY * material.youngs_modulus / h ** 2),
-               ) if held.any() else ()
+    points, weights = _held(grid, fill.samples, span_samples(fill.samples, fill.inside, surface), physics.fixed, bbox,
+                            source)
+    anchors = (SplineAnchor(body, points, weights, HOLD_PENALTY * material.youngs_modulus / h ** 2),
+               ) if len(points) else ()
     system = spline_system(body, anchors=anchors, gravity=tuple(physics.gravity), mass_damping=material.mass_damping)
     return system, body
+
+
+def _region_box(region: Any, bbox: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A region's space as a world box [lo, hi] (m; unbounded sides infinite)."""
+    lo, hi = np.asarray(bbox[0], np.float64), np.asarray(bbox[1], np.float64)
+    extent = np.where(hi - lo > 0, hi - lo, 1.0)  # (as NodeGrid.bbox_fraction)
+    if region.kind == "box":
+        return lo + np.asarray(region.lo) * extent, lo + np.asarray(region.hi) * extent
+    low, high = np.full(3, -np.inf), np.full(3, np.inf)
+    plane = lo[region.axis] + region.at * extent[region.axis]
+    if region.kind == "below":
+        high[region.axis] = plane
+    else:
+        low[region.axis] = plane
+    return low, high
+
+
+def _held(grid: NodeGrid, samples: int, boxes: tuple, regions: tuple, bbox: np.ndarray,
+          source: str) -> tuple[np.ndarray, np.ndarray]:
+    """The quadrature of the material in the fixed ``regions``: the fill's material boxes
+    (:func:`~deformgl.sim.terms.spline.cut.span_samples`) cut on every region's faces, the pieces
+    inside a region kept, and each knot span's pieces integrated by one moment-fitted grid of 27
+    points (as the body's cut spans): world points (P, 3), m, and weights (P,), m^3, of the held
+    material itself, wherever the grid lies against the region's faces.
+
+    Raises:
+        SceneError: a region that holds none of the material.
+    """
+    centre, s, widths, _ = boxes
+    h = grid.spacing
+    lo = grid.origin + (centre + s - widths / 2.0) * h
+    hi = grid.origin + (centre + s + widths / 2.0) * h
+    spans = centre
+    faces = [_region_box(region, bbox) for region in regions]
+    for box_lo, box_hi in faces:  # cut every box on every finite face of every region
+        for d in range(3):
+            for plane in (box_lo[d], box_hi[d]):
+                if not np.isfinite(plane):
+                    continue
+                cut = (lo[:, d] < plane) & (plane < hi[:, d])
+                if cut.any():
+                    upper_lo = lo[cut].copy()
+                    upper_lo[:, d] = plane
+                    lo = np.concatenate([lo, upper_lo])
+                    hi = np.concatenate([hi, hi[cut]])
+                    spans = np.concatenate([spans, spans[cut]])
+                    hi[np.nonzero(cut)[0], d] = plane
+    middle = (lo + hi) / 2.0
+    held = np.zeros(len(lo), bool)
+    for i, (box_lo, box_hi) in enumerate(faces):
+        inside = np.all((middle >= box_lo) & (middle <= box_hi), axis=1)
+        if not inside.any():
+            raise SceneError(f"{source}: physics.fixed[{i}]: the region holds none of the mesh's material "
+                             f"(spacing {h:.4g}); widen it or refine the grid")
+        held |= inside
+    if not held.any():
+        return np.zeros((0, 3)), np.zeros(0)
+    spans, local = np.unique(spans[held], axis=0, return_inverse=True)
+    local = local.ravel()
+    centres = grid.origin + spans * h
+    box_s = (middle[held] - centres[local]) / h
+    box_w = (hi[held] - lo[held]) / h
+    span_lo = np.full((len(spans), 3), np.inf)
+    span_hi = np.full((len(spans), 3), -np.inf)
+    np.minimum.at(span_lo, local, box_s - box_w / 2.0)
+    np.maximum.at(span_hi, local, box_s + box_w / 2.0)
+    points, weights = fit_boxes(local, box_s, np.prod(box_w, axis=1), np.maximum(span_lo, -0.5),
+                                 np.minimum(span_hi, 0.5), box_w)
+    world = centres[:, None, :] + points * h
+    keep = weights.ravel() > 0
+    return world.reshape(-1, 3)[keep], weights.ravel()[keep] * h ** 3

@@ -27,7 +27,7 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box
 from deformgl.sim.terms.spline.body import KNOT_TOLERANCE, SplineBody
 
-__all__ = ["fitted_body", "inside_body", "sample_body", "span_samples"]
+__all__ = ["fit_boxes", "fitted_body", "inside_body", "sample_body", "span_samples"]
 
 _GAUSS = np.polynomial.legendre.leggauss(3)[0]
 #: [point, degree]^-1 of the Legendre polynomials 1, t, (3 t^2 - 1)/2 at the 3 Gauss points
@@ -46,7 +46,7 @@ def _control_grid(origin: np.ndarray, spacing: float, centres: np.ndarray) -> tu
     return NodeGrid(origin + low * spacing, spacing, occupied), centres - low
 
 
-def _fit(local: np.ndarray, s: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+def fit_boxes(local: np.ndarray, s: np.ndarray, w: np.ndarray, lo: np.ndarray, hi: np.ndarray,
          widths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One fitted grid per span: points (C, 27, 3) at the Gauss points of [lo, hi] (C, 3) and
     weights (C, 27) reproducing the 27 Legendre moments of the points ``s`` (P, 3) with weights
@@ -109,7 +109,7 @@ def fitted_body(body: SplineBody) -> SplineBody:
     hi = np.full((len(spans), 3), -np.inf)
     np.minimum.at(lo, local, s)
     np.maximum.at(hi, local, s)
-    points, weights = _fit(local, s, w, lo, hi)
+    points, weights = fit_boxes(local, s, w, lo, hi)
     keep = ~selector
     point_s = np.concatenate([body.point_s[keep], points.reshape(-1, 3)])
     point_weight = np.concatenate([body.point_weight[keep], weights.ravel()])
@@ -240,7 +240,7 @@ def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, you
     hi = np.full((len(cut), 3), -np.inf)
     np.minimum.at(lo, local, cs - cw / 2.0)
     np.maximum.at(hi, local, cs + cw / 2.0)
-    points_cut, weights_cut = _fit(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    points_cut, weights_cut = fit_boxes(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
     grid, local_centres = _control_grid(origin, spacing, centres)
     ijk = local_centres[:, None, :] + SPAN_OFFSETS[None]
     span_nodes = grid.index[ijk[..., 0], ijk[..., 1], ijk[..., 2]]
