@@ -24,8 +24,8 @@ from deformgl.sim.terms.spline.cut import span_samples
 LENGTH, SIDE = 0.2, 0.04  # m: the box cantilever of issue 44
 
 
-def _scene(tmp_path: Path, nodes: int, fixed: str) -> Path:
-    mesh = trimesh.creation.box(extents=(LENGTH, SIDE, SIDE))
+def _scene(tmp_path: Path, nodes: int, fixed: str, mesh: trimesh.Trimesh | None = None) -> Path:
+    mesh = trimesh.creation.box(extents=(LENGTH, SIDE, SIDE)) if mesh is None else mesh
     mesh.export(tmp_path / "bar.ply")
     path = tmp_path / "bar.toml"
     path.write_text(f'[mesh]\npath = "bar.ply"\n[grid]\nnodes_along_longest = {nodes}\n'
@@ -123,3 +123,14 @@ def test_a_grid_offset_moves_the_nodes_and_is_checked():
     assert shifted_shape == (shape[0] + 1, shape[1], shape[2] + 1)
     with pytest.raises(ValueError, match=r"grid offset must be 3 fractions of a cell in \[0, 1\)"):
         grid_frame(mesh, nodes_along_longest=5, spacing=None, source="box", offset=(1.0, 0.0, 0.0))
+
+
+def test_the_scene_measures_its_body_against_the_mesh(tmp_path):
+    """The scene path passes the mesh to the body: a box off the sample lattice (0.1 x 0.0313 x
+    0.0437 m, moved) weighs rho V within 1e-4, where the inside test alone is 4.6e-4 off."""
+    mesh = trimesh.creation.box(extents=(0.1, 0.0313, 0.0437))
+    mesh.apply_translation((0.0012, -0.0007, 0.0031))
+    path = _scene(tmp_path, 9, HELD_END, mesh)
+    body = build_scene_model(load_scene(path)).spline
+    assert body is not None
+    assert float(body.lumped_mass.sum()) == pytest.approx(1000.0 * mesh.volume, rel=1e-4)

@@ -99,12 +99,6 @@ def test_what_a_spline_scene_does_not_run_is_refused_in_one_line(ctx, tmp_path, 
     assert not (tmp_path / "x.png").exists()
 
 
-def test_lattice_outputs_are_refused_for_a_spline_scene(ctx, tmp_path, capsys):
-    code, _, err = cli(capsys, "render", dragon(tmp_path), "-o", tmp_path / "x.png", "--export-grid", tmp_path / "g.vtu")
-    assert code != 0 and '--export-grid is not written for material.model = "spline" yet' in err
-    assert not (tmp_path / "x.png").exists()
-
-
 @pytest.mark.slow
 def test_the_api_renders_a_spline_scene_and_body_refuses_the_model_in_one_line(ctx, tmp_path):
     import deformgl as dg

@@ -5,12 +5,15 @@ The fill (:mod:`deformgl.grid.fill`) keeps or drops each sample box whole, by th
 its centre: within half a sample of every surface, so a feature a few samples thick carries its
 volume to within a sample's width (the finned bar's 2 mm fin: -11 % to +8 % between 12 and 48
 nodes along, issue 44). Here the boxes on the surface (inside ones with an outside face
-neighbour, and outside ones with an inside face neighbour) are measured along lines: the mesh's
-crossings of the line through the box's centre along each axis (its triangles' signed crossings:
-entering where the outward normal points against the line), so the solid's length inside the box
-along that line, and its centroid there, are exact. Each box takes the axis whose length differs
-most from its centre's in/out (the axis most nearly along the surface's normal): exact for a
-surface normal to an axis, and within the midpoint rule across the two others.
+neighbour, and outside ones with an inside face neighbour) are measured along lines: for each
+axis, a 3 x 3 bundle of lines through the box along it (at -1/3, 0 and 1/3 of a sample across),
+where the mesh's triangles cross each line. The solid is where the winding number of the
+crossings so far is not zero, so the result is the same for either orientation of the normals,
+and overlapping shells count once. So the solid's length inside the box along each line, and its
+centroid there, are exact, and the box's share is their mean. Each box takes, among the axes
+whose lines the surface crosses inside it, the one whose lines' lengths spread least (the axis
+most nearly along the surface's normal): exact for a surface normal to an axis, and within the
+midpoint rule of the bundle across the two others.
 
 A box is measured only where the crossings agree with the fill's inside test at its centre (a
 leaky mesh's crossings do not count; the vote stands there).
@@ -79,37 +82,85 @@ def _crossings(triangles: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray
     return q, depth, np.where(area[tri] > 0, -1.0, 1.0)
 
 
-def _along(triangles: np.ndarray, axis: int, index: np.ndarray, shape: tuple[int, ...], low: np.ndarray,
-           high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For sample boxes ``index`` (K, 3), each from ``low`` to ``high`` (K,) along ``axis``
-    (sample units from its centre): the solid's length in it along ``axis`` (sample units), the
-    centroid of it from the box's centre, and the winding at the box's centre."""
+#: lines per box along each of the two other axes (SUB^2 lines a box, at offsets -1/3, 0, 1/3 of a
+#: sample: the midpoint rule across the line, exact along it)
+SUB = 3
+
+
+def _indicator_crossings(triangles: np.ndarray, axis: int, shape: tuple[int, ...], margin: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The sub-lines along ``axis`` (:data:`SUB` per sample along each other axis) and where the
+    solid begins and ends on them: the sorted keys (line * span + depth - base), the depths (sample
+    units), +1 where the solid begins / -1 where it ends, and (span, base). The solid is where the
+    winding number of the crossings so far is not zero: the same for either orientation of the
+    mesh's normals, and overlapping shells count once. ``margin``: how far (samples) beyond the
+    array's ends a query along a line may reach."""
     b, c = (axis + 1) % 3, (axis + 2) % 3
-    q, depth, sign = _crossings(triangles, axis)
-    ours = np.all((q >= 0) & (q < np.array([shape[b], shape[c]])), axis=1)  # lines through the samples
+    scaled = np.array(triangles, np.float64)
+    scaled[:, :, [b, c]] = scaled[:, :, [b, c]] * SUB + 1.0  # sub-line (q b, q c) at sample (q - 1) / SUB
+    q, depth, sign = _crossings(scaled, axis)
+    width = SUB * np.array([shape[b], shape[c]]) + 2
+    ours = np.all((q >= 0) & (q < width), axis=1)
     q, depth, sign = q[ours], depth[ours], sign[ours]
+    base = float(min(depth.min(initial=0.0), 0.0)) - margin - 2.0
+    span = float(max(depth.max(initial=0.0), shape[axis]) + margin - base + 2.0)  # each line's keys and queries
+    line = q[:, 0] * int(width[1]) + q[:, 1]
+    order = np.lexsort((depth, line))
+    line, depth, sign = line[order], depth[order], sign[order]
+    starts = np.searchsorted(line, line)  # each crossing's line's first crossing
+    running = np.cumsum(sign)
+    winding = running - (running[starts] - sign[starts])
+    inside = winding != 0
+    before = np.concatenate([[False], inside[:-1]])
+    before[starts == np.arange(len(starts))] = False
+    change = inside.astype(np.int64) - before.astype(np.int64)
+    keep = change != 0
+    return line[keep] * span + (depth[keep] - base), depth[keep], change[keep].astype(np.float64), span, base
+
+
+def _along(triangles: np.ndarray, axis: int, index: np.ndarray, shape: tuple[int, ...], low: np.ndarray,
+           high: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For sample boxes ``index`` (K, 3), each from ``low`` to ``high`` (K,) along ``axis``
+    (sample units from its centre): the solid's share of it (the mean length inside along its
+    :data:`SUB`^2 lines, sample units), its centroid along ``axis`` from the box's centre, whether
+    the solid holds the box's centre on its central line (K, 2: just below and just above it, for
+    a surface through the centre), and the spread (standard deviation) of the lines' lengths
+    where the surface crosses a line in the box (inf where it crosses none): least along the
+    surface's normal."""
+    b, c = (axis + 1) % 3, (axis + 2) % 3
+    margin = float(max(-np.min(low, initial=0.0), np.max(high, initial=0.0))) + 1.0
+    key, depth, change, span, base = _indicator_crossings(triangles, axis, shape, margin)
+    width = SUB * shape[c] + 2
+    level = np.concatenate([[0.0], np.cumsum(change)])  # (integers: exact)
     t = index[:, axis].astype(np.float64)
     lo, hi = t + low, t + high
-    base = float(min(depth.min(initial=0.0), lo.min(initial=0.0))) - 2.0
-    span = float(max(depth.max(initial=0.0), hi.max(initial=0.0)) - base + 4.0)  # each line's keys within one span
-    line = q[:, 0] * int(shape[c]) + q[:, 1]
-    key = line * span + (depth - base)
-    order = np.argsort(key)
-    key, depth, sign = key[order], depth[order], sign[order]
-    w = np.concatenate([[0.0], np.cumsum(sign)])
-    wt = np.concatenate([[0.0], np.cumsum(sign * depth)])
-    wtt = np.concatenate([[0.0], np.cumsum(sign * depth * depth)])
-    own = (index[:, b] * int(shape[c]) + index[:, c]) * span
-    start = np.searchsorted(key, own)
-    at_lo = np.searchsorted(key, own + (lo - base))
-    at_mid = np.searchsorted(key, own + (t - base))
-    at_hi = np.searchsorted(key, own + (hi - base))
-    before = w[at_lo] - w[start]  # the winding entering the box
-    inner = w[at_hi] - w[at_lo]
-    length = before * (hi - lo) + hi * inner - (wt[at_hi] - wt[at_lo])
-    moment = (before * (hi * hi - lo * lo) + hi * hi * inner - (wtt[at_hi] - wtt[at_lo])) / 2.0
-    centre = np.where(length > 1e-12, moment / np.maximum(length, 1e-12) - t, 0.0)
-    return length, centre, w[at_mid] - w[start]
+    lengths = np.zeros((len(index), SUB * SUB))
+    moment = np.zeros(len(index))
+    cut = np.zeros(len(index), bool)
+    centre = np.zeros((len(index), 2))
+    offsets = range(-(SUB // 2), SUB // 2 + 1)
+    for n, (jb, jc) in enumerate((jb, jc) for jb in offsets for jc in offsets):
+        own = ((SUB * index[:, b] + 1 + jb) * width + SUB * index[:, c] + 1 + jc) * span
+        first = np.searchsorted(key, own)
+        at_lo = np.searchsorted(key, own + (lo - base))
+        at_hi = np.searchsorted(key, own + (hi - base))
+        state = level[at_lo] - level[first]  # the solid at the box's low end: 0 or 1
+        length = state * (hi - lo)
+        moment += state * ((hi - t) ** 2 - (lo - t) ** 2) / 2.0
+        cut |= at_hi > at_lo
+        for k in range(int((at_hi - at_lo).max(initial=0))):  # the few crossings inside each box
+            i = at_lo + k
+            j = np.minimum(i, len(depth) - 1)
+            d = np.where(i < at_hi, change[j], 0.0)
+            length += d * (hi - depth[j])
+            moment += d * ((hi - t) ** 2 - (depth[j] - t) ** 2) / 2.0
+        lengths[:, n] = length
+        if jb == 0 and jc == 0:
+            for side, shift in enumerate((-1e-6, 1e-6)):
+                centre[:, side] = level[np.searchsorted(key, own + (t + shift - base))] - level[first]
+    mean = lengths.mean(axis=1)
+    middle = np.where(mean > 1e-12, moment / (SUB * SUB) / np.maximum(mean, 1e-12), 0.0)
+    return mean, middle, centre, np.where(cut, lengths.std(axis=1), np.inf)
 
 
 def surface_samples(triangles: np.ndarray, inside: np.ndarray, reach: float = 0.0) -> SurfaceSamples:
@@ -131,18 +182,17 @@ def surface_samples(triangles: np.ndarray, inside: np.ndarray, reach: float = 0.
             | (inside & edge))
     index = np.argwhere(near)
     midpoint = inside[tuple(index.T)].astype(np.float64)
-    best = np.full(len(index), -1.0)
+    best = np.full(len(index), np.inf)
     fraction, axis, centre = midpoint.copy(), np.zeros(len(index), np.int64), np.zeros(len(index))
     tri = np.asarray(triangles, np.float64)
     for a in range(3):
         low = np.where(index[:, a] == 0, -0.5 - reach, -0.5)
         high = np.where(index[:, a] == inside.shape[a] - 1, 0.5 + reach, 0.5)
-        length, middle, winding = _along(tri, a, index, inside.shape, low, high)
-        agree = np.abs(np.clip(winding, 0.0, 1.0) - midpoint) < 0.5
+        length, middle, centre_state, spread = _along(tri, a, index, inside.shape, low, high)
+        agree = np.any(np.abs(centre_state - midpoint[:, None]) < 0.5, axis=1)
         f = np.clip(length, 0.0, high - low)
-        change = np.abs(f - midpoint)
-        better = agree & (change > best)
-        best[better] = change[better]
+        better = agree & (spread < best)
+        best[better] = spread[better]
         fraction[better], axis[better] = f[better], a
-        centre[better] = np.clip(middle[better], low[better], high[better])
+        centre[better] = np.clip(middle[better], low[better] + f[better] / 2.0, high[better] - f[better] / 2.0)
     return SurfaceSamples(index, fraction, axis, centre)

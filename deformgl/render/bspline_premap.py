@@ -138,6 +138,9 @@ class FieldMeshPass(GLOwner):
         super().__init__(ctx)
         self.front_face = front_face
         self.count = len(vertices)
+        #: the mapping's per-vertex data :class:`~deformgl.render.mapped.MappedMeshPass` keeps for the
+        #: exports: none here (the field is the body's: :mod:`deformgl.scene.spline_fields`)
+        self.data = None
         with self.building():
             self.premap = self.own(BSplinePremap(ctx, body, layout, vertices, normals))
             self.program = self.own(Program(ctx, "render/mapped_premapped.vert", "render/mapped_mesh.frag",

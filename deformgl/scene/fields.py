@@ -212,6 +212,8 @@ def _quad_areas(x: np.ndarray, quads: np.ndarray) -> np.ndarray:
 def check_grid_export(scene, built) -> None:
     """Refuse ``--export-grid`` of a grid with neither a full cell nor the quads of a sheet (a
     rod one node across), before the run."""
+    if getattr(built, "spline", None) is not None:  # (its knot spans are written: the body itself)
+        return
     if not len(grid_cells(built.grid.occupied, built.grid.index)) and not len(sheet_quads(built.grid)):
         raise InputError(f"{scene.source}: --export-grid: the node grid of {built.grid.shape} positions has "
                          f"neither a full cell nor the quads of a sheet to write")

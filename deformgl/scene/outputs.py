@@ -25,6 +25,7 @@ from deformgl.render.mapped_setup import export_mesh
 from deformgl.render.video import AnimationWriter, animation_kind, check_encoder, frame_paths
 from deformgl.scene.animation import FramePlan, View3, frame_plan, render_frames
 from deformgl.scene.fields import check_grid_export, grid_series, mesh_series
+from deformgl.scene.spline_fields import body_series, spline_mesh_series
 from deformgl.scene.interchange import MESH_FORMATS, check_format, is_interchange, series_paths, write_series
 from deformgl.scene.pipeline import render_still
 from deformgl.scene.record import write_record
@@ -96,11 +97,10 @@ def check_job(scene: Scene, job: Job) -> FramePlan:
         raise InputError(f"{job.output}: {plan.frames} frames need an animation output (.mp4, .gif, .webp or "
                          f"frames/%04d.png), not a single .png")
     check_encoder(job.output)
-    if getattr(scene.physics.material, "model", None) == "spline":  # (what reads the lattice's mapping or cells)
-        for flag, path in (("--export-mesh", job.export), ("--export-grid", job.grid), ("--pack-inputs", job.pack)):
-            if path is not None:
-                raise InputError(f'{path}: {flag} is not written for material.model = "spline" yet (the mesh is '
-                                 f"drawn through the body's field)")
+    if getattr(scene.physics.material, "model", None) == "spline":  # (what reads the lattice's mapping)
+        if job.pack is not None:
+            raise InputError(f'{job.pack}: --pack-inputs is not written for material.model = "spline" yet (the '
+                             f"shader pack's mappings are the lattice's; the mesh is drawn through the body's field)")
         if job.modes:
             raise InputError(f'{scene.source}: --compare draws the lattice\'s mappings; material.model = "spline" '
                              f"draws the mesh through its field")
@@ -168,7 +168,7 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
                     writer.write_frame(image)
         if is_interchange(job.export):
             assert job.export is not None
-            write_series(job.export, mesh_series(frames, plan.fps))
+            write_series(job.export, (mesh_series if getattr(frames.model, "spline", None) is None else spline_mesh_series)(frames, plan.fps))
         elif job.export is not None:
             if not meshes:
                 raise RuntimeError("the render returned no mesh for --export-mesh")  # it always does
@@ -180,7 +180,7 @@ def render_job(ctx: moderngl.Context, scene: Scene, job: Job, *, progress: bool 
             else:
                 export_mesh(job.export, *meshes[0])
         if job.grid is not None:
-            write_series(job.grid, grid_series(frames, plan.fps))
+            write_series(job.grid, (grid_series if getattr(frames.model, "spline", None) is None else body_series)(frames, plan.fps))
         if job.record is not None:
             write_record(job.record, record)
     return record

@@ -166,6 +166,8 @@ def span_samples(samples: int, inside: np.ndarray, surface: SurfaceSamples | Non
     measured hold their measured share instead, narrowed along its axis about its centroid
     (:mod:`deformgl.grid.line_fill`). A box across a knot plane (odd ``samples``) is split there."""
     s = int(samples)
+    if surface is not None and s < 2:  # (a box measured out to half a cell beyond would cross two knot planes)
+        raise ValueError(f"spline body: measured surface boxes need at least 2 samples per cell edge, got {s}")
     where = np.argwhere(inside)
     t = (where + 0.5) / s  # node units from origin
     widths = np.full(t.shape, 1.0 / s)
