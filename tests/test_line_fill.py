@@ -110,13 +110,17 @@ def test_the_normals_orientation_does_not_matter():
 
 
 def test_a_rotated_box_is_measured_to_within_a_few_parts_in_ten_thousand():
+    """An oblique box: the lines are exact along one axis and a 3 x 3 bundle across it, and its
+    corners' sliver spans keep the inside test (measured: -3.3e-4 and -1.9e-4 at 8 and 13 along;
+    the inside test alone is closer here, 1.7e-5 and 1.1e-5, its sample-wide errors cancelling on
+    the oblique faces: it is the thin features, above, where it is not)."""
     from trimesh.transformations import rotation_matrix
 
     mesh = trimesh.creation.box(extents=(0.1, 0.0313, 0.0437))
     mesh.apply_transform(rotation_matrix(0.3, [1.0, 2.0, 3.0]))
     for nodes in (8, 13):
         vox, fill, surface = _measured(mesh, nodes)
-        assert abs(_volume(fill, surface, vox.spacing) / mesh.volume - 1.0) < 2e-4  # (measured: 4.0e-5, 1.5e-5)
+        assert abs(_volume(fill, surface, vox.spacing) / mesh.volume - 1.0) < 5e-4
 
 
 def test_a_sphere_is_measured_closer_than_the_inside_test():

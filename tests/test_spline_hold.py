@@ -63,8 +63,8 @@ def _tip_sag(system, body) -> float:
 def test_the_held_quadrature_holds_the_material_in_the_region_exactly(tmp_path, shift):
     """The anchor's weights add up to the volume of the body's material in the region (the bar's
     first tenth) wherever the grid lies: the material's boxes are cut on the region's face, not
-    kept or dropped by their quadrature points. (The boxes themselves hold the bar to 0.1 %: a box
-    on two of its faces is measured along one axis.)"""
+    kept or dropped by their quadrature points. (The boxes themselves hold the bar's end to 0.7 %:
+    its corner spans hold under 5 % of h^3 and keep the inside test, cut.MEASURED_SHARE.)"""
     scene = load_scene(_scene(tmp_path, 9, HELD_END))
     model = build_scene_model(scene)
     vox, fill = fill_cells(model.mesh, nodes_along_longest=9, offset=shift)
@@ -79,7 +79,7 @@ def test_the_held_quadrature_holds_the_material_in_the_region_exactly(tmp_path, 
     system, _ = _shifted(tmp_path, 9, HELD_END, shift)
     anchor = next(t for t in system.terms if t.name == "spline anchor")
     assert float(anchor.weights.sum()) == pytest.approx(expected, rel=1e-9)
-    assert expected == pytest.approx(0.1 * LENGTH * SIDE * SIDE, rel=2e-3)
+    assert expected == pytest.approx(0.1 * LENGTH * SIDE * SIDE, rel=1e-2)
     assert np.all(anchor.points[:, 0] <= plane + 1e-12)  # every point in the region
     assert np.all(anchor.weights > 0)
 
@@ -98,7 +98,7 @@ def test_half_a_cell_moves_the_box_cantilever_at_9_across_less_than_one_percent(
     along all three axes within 1 % of the unshifted grid's (measured: +0.51 %, +0.50 %; the tip
     9.659 mm, Euler-Bernoulli's q L^4 / 8 E I over the free 0.18 m 9.66 mm). The held band's
     edge inside a knot span is what moves: at 3 and 5 across the shift along the bar moves the
-    tip by -9.6 % and -5.2 % (across it: <= 0.1 %), as a C1 field cannot bend sharply at a
+    tip by about -10 % and -5 % (across it: 0.3 %), as a C1 field cannot bend sharply at a
     clamp inside a span."""
     base = _tip_sag(*_shifted(tmp_path, 41, HELD_END, (0.0, 0.0, 0.0)))
     assert base == pytest.approx(9.66e-3, rel=0.03)
@@ -107,11 +107,12 @@ def test_half_a_cell_moves_the_box_cantilever_at_9_across_less_than_one_percent(
 
 
 def test_half_a_cell_across_the_bar_moves_the_coarse_cantilever_little(tmp_path):
-    """At 3 nodes across, a shift across the bar (not along it) moves the tip by under 0.2 %
-    (measured: 0.10 %, 0.04 %): the body and its held band are the same body on any grid."""
+    """At 3 nodes across, a shift across the bar (not along it) moves the tip by under 0.5 %
+    (measured: -0.32 %, -0.26 %; the corner spans that hold under 5 % of h^3 keep the inside test,
+    cut.MEASURED_SHARE, and which ones do moves with the grid)."""
     base = _tip_sag(*_shifted(tmp_path, 9, HELD_END, (0.0, 0.0, 0.0)))
     for shift in ((0.0, 0.5, 0.0), (0.0, 0.0, 0.5)):
-        assert _tip_sag(*_shifted(tmp_path, 9, HELD_END, shift)) == pytest.approx(base, rel=2e-3), shift
+        assert _tip_sag(*_shifted(tmp_path, 9, HELD_END, shift)) == pytest.approx(base, rel=5e-3), shift
 
 
 def test_a_grid_offset_moves_the_nodes_and_is_checked():

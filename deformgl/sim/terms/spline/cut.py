@@ -70,6 +70,9 @@ def fit_boxes(local: np.ndarray, s: np.ndarray, w: np.ndarray, lo: np.ndarray, h
 
 #: The Legendre moments' matrix on the Gauss grid, [moment (a, b, c), point (l, m, n)]
 _MOMENTS = np.einsum("al,bm,cn->abclmn", *(np.stack([np.ones(3), _GAUSS, 1.5 * _GAUSS * _GAUSS - 0.5]),) * 3).reshape(27, 27)
+#: The share of h^3 the inside test must give a knot span for its measured surface boxes to count
+#: (:func:`span_samples`)
+MEASURED_SHARE = 0.05
 #: Each moment's row weight in the non-negative fit: the volume first, then the first moments
 #: (the centroid), then the rest (the degree of a moment: the sum of its three degrees)
 _ROW_WEIGHT = np.array([100.0 if d == 0 else 10.0 if d == 1 else 1.0
@@ -164,7 +167,9 @@ def span_samples(samples: int, inside: np.ndarray, surface: SurfaceSamples | Non
     centre is outside). Sample ``p`` is the box of side ``1 / samples`` centred on
     ``(p + 1/2) / samples`` node units from the fill's origin; with ``surface`` the boxes it
     measured hold their measured share instead, narrowed along its axis about its centroid
-    (:mod:`deformgl.grid.line_fill`). A box across a knot plane (odd ``samples``) is split there."""
+    (:mod:`deformgl.grid.line_fill`), in the knot spans the inside test gives at least
+    :data:`MEASURED_SHARE` of h^3 (a sliver span keeps the inside test; a measured box alone in a
+    span is left out). A box across a knot plane (odd ``samples``) is split there."""
     s = int(samples)
     if surface is not None and s < 2:  # (a box measured out to half a cell beyond would cross two knot planes)
         raise ValueError(f"spline body: measured surface boxes need at least 2 samples per cell edge, got {s}")
@@ -176,10 +181,21 @@ def span_samples(samples: int, inside: np.ndarray, surface: SurfaceSamples | Non
         row = np.full(inside.shape, -1, np.int64)
         row[tuple(where.T)] = index
         rows = row[tuple(surface.index.T)]
-        measured = rows >= 0
+        # the spans the inside test gives at least MEASURED_SHARE of h^3 take the measured boxes;
+        # a sliver span keeps the inside test (a sliver measured thinner than its samples can leave
+        # its control points next to no stiffness: the dragon at 24 along, its topmost vertex
+        # read through one sagged 56 times its FEM's)
+        keys = _span_keys(where, s)
+        spans, counts = np.unique(keys, return_counts=True)
+        at = np.searchsorted(spans, _span_keys(surface.index, s))
+        found = spans[np.minimum(at, len(spans) - 1)] == _span_keys(surface.index, s)
+        share = np.where(found, counts[np.minimum(at, len(spans) - 1)], 0) / float(s) ** 3
+        use = share >= MEASURED_SHARE
+        measured = (rows >= 0) & use
+        rows = np.where(measured, rows, -1)
         t[rows[measured], surface.axis[measured]] += surface.centre[measured] / s
         widths[rows[measured], surface.axis[measured]] = surface.fraction[measured] / s
-        extra = ~measured & (surface.fraction > 0)
+        extra = (row[tuple(surface.index.T)] < 0) & use & (surface.fraction > 0)
         t_extra = (surface.index[extra] + 0.5) / s
         w_extra = np.full(t_extra.shape, 1.0 / s)
         added = np.arange(len(t_extra))
@@ -203,7 +219,18 @@ def span_samples(samples: int, inside: np.ndarray, surface: SurfaceSamples | Non
             widths = np.concatenate([widths, lower_w])
             index = np.concatenate([index, index[on]])
     centre = np.floor(t + 0.5).astype(np.int64)  # the span holding the box
+    extra = index < 0
+    if extra.any():  # a measured box adds to the spans the inside test gave material, never one of its own
+        keys = centre[:, 0] * (1 << 42) + centre[:, 1] * (1 << 21) + centre[:, 2]  # (|index| < 2^20)
+        keep = ~extra | np.isin(keys, keys[~extra])
+        centre, t, widths, index = centre[keep], t[keep], widths[keep], index[keep]
     return centre, t - centre, widths, index
+
+
+def _span_keys(samples_ijk: np.ndarray, s: int) -> np.ndarray:
+    """(M,) an integer key of the knot span holding each sample's centre."""
+    c = np.floor((samples_ijk + 0.5) / s + 0.5).astype(np.int64) + (1 << 19)
+    return c[:, 0] * (1 << 42) + c[:, 1] * (1 << 21) + c[:, 2]
 
 
 def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, youngs_modulus: float,
