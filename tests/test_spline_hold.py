@@ -135,3 +135,12 @@ def test_the_scene_measures_its_body_against_the_mesh(tmp_path):
     body = build_scene_model(load_scene(path)).spline
     assert body is not None
     assert float(body.lumped_mass.sum()) == pytest.approx(1000.0 * mesh.volume, rel=1e-4)
+
+
+def test_a_grid_offset_keeps_the_fills_samples_per_cell():
+    """The shifted grid's extra plane of padding does not change how finely the fill samples."""
+    mesh = trimesh.creation.box(extents=(LENGTH, SIDE, SIDE))
+    for nodes in (9, 24):
+        _, fill = fill_cells(mesh, nodes_along_longest=nodes)
+        _, shifted = fill_cells(mesh, nodes_along_longest=nodes, offset=(0.5, 0.5, 0.5))
+        assert shifted.samples == fill.samples

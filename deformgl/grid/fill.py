@@ -156,7 +156,8 @@ def fill_cells(mesh: trimesh.Trimesh, *, nodes_along_longest: int | None = None,
     triangles, shape, origin, h = grid_frame(mesh, nodes_along_longest=nodes_along_longest, spacing=spacing,
                                              source=source, offset=offset)
     cells = np.array(shape) - 1
-    along = max(int(max(shape)) - 3, 1)  # cells along the longest side of the mesh's box
+    unshifted = shape if offset is None else tuple(n - int(d > 0) for n, d in zip(shape, offset))
+    along = max(int(max(unshifted)) - 3, 1)  # cells along the longest side of the mesh's box (any offset)
     s = max(MIN_SAMPLES, min(MAX_PER_CELL, math.ceil(SAMPLES_ALONG_LONGEST / along)))
     while s > MIN_SAMPLES and float(np.prod(cells * s, dtype=np.float64)) > MAX_SAMPLES:
         s -= 1
