@@ -33,9 +33,9 @@ import scipy.sparse.linalg as spl
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box, span_basis
+from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, span_basis
 from deformgl.sim.terms.spline.body import SplineBody
-from deformgl.sim.terms.spline.cut import _control_grid, fit_boxes, span_samples
+from deformgl.sim.terms.spline.cut import _control_grid, span_quadrature, span_samples
 from studies.mesh_accuracy import (DENSITY, FEM_REFERENCE, G, HOLD, MESHES, POISSON, YOUNGS_MODULUS, fem_sag,
                                    repaired_mesh)
 
@@ -91,18 +91,7 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
     keys, sp_of = np.unique(np.stack([span_of, piece], axis=1), axis=0, return_inverse=True)
     sp_of = sp_of.ravel()
     sp_span = keys[:, 0]
-    sp_volume = np.bincount(sp_of, volume, minlength=len(keys))
-    full = np.abs(sp_volume - 1.0) < 1e-9
-    cut = np.nonzero(~full)[0]
-    points_full, weights_full = gauss_box(np.full((int(full.sum()), 3), -0.5), np.full((int(full.sum()), 3), 0.5))
-    is_cut = ~full[sp_of]
-    local = np.searchsorted(cut, sp_of[is_cut])
-    cs, cw = local_s[is_cut], widths[is_cut]
-    lo = np.full((len(cut), 3), np.inf)
-    hi = np.full((len(cut), 3), -np.inf)
-    np.minimum.at(lo, local, cs - cw / 2.0)
-    np.maximum.at(hi, local, cs + cw / 2.0)
-    points_cut, weights_cut = fit_boxes(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    point_span, point_s, point_w = span_quadrature(sp_of, len(keys), local_s, widths)
     grid, local_centres = _control_grid(np.asarray(origin, np.float64), spacing, centres)
     low = centres[0] - local_centres[0]  # the control grid's first node, global node index
     ijk = local_centres[sp_span][:, None, :] + SPAN_OFFSETS[None]
@@ -149,11 +138,8 @@ def piece_body(origin, spacing: float, samples: int, inside: np.ndarray, *, spli
         copy_node = copy_keys[kept, 0]
     else:
         span_nodes, copy_node = grid_nodes, np.arange(grid.count)
-    point_s = np.concatenate([points_full.reshape(-1, 3), points_cut.reshape(-1, 3)])
-    point_w = np.concatenate([weights_full.ravel(), weights_cut.ravel()]) * spacing ** 3
-    point_span = np.repeat(np.concatenate([np.nonzero(full)[0], cut]), 27)
-    order = np.argsort(point_span, kind="stable")
-    body = CopiedBody(grid, span_nodes, point_span[order], point_s[order], point_w[order], YOUNGS_MODULUS, POISSON,
+    point_w = point_w * spacing ** 3
+    body = CopiedBody(grid, span_nodes, point_span, point_s, point_w, YOUNGS_MODULUS, POISSON,
                       DENSITY, "p1", copy_node)
     sample_world = np.asarray(origin) + (centre + local_s) * spacing
     return body, sp_of, sample_world, local_centres[sp_span]

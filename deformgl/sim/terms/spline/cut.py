@@ -27,7 +27,7 @@ from deformgl.grid.nodes import NodeGrid
 from deformgl.sim.terms.spline.basis import SPAN_OFFSETS, gauss_box
 from deformgl.sim.terms.spline.body import KNOT_TOLERANCE, SplineBody
 
-__all__ = ["fit_boxes", "fitted_body", "inside_body", "sample_body", "span_samples"]
+__all__ = ["fit_boxes", "fitted_body", "inside_body", "sample_body", "span_quadrature", "span_samples"]
 
 _GAUSS = np.polynomial.legendre.leggauss(3)[0]
 #: [point, degree]^-1 of the Legendre polynomials 1, t, (3 t^2 - 1)/2 at the 3 Gauss points
@@ -233,6 +233,32 @@ def _span_keys(samples_ijk: np.ndarray, s: int) -> np.ndarray:
     return c[:, 0] * (1 << 42) + c[:, 1] * (1 << 21) + c[:, 2]
 
 
+def span_quadrature(span_of: np.ndarray, count: int, local_s: np.ndarray, widths: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gauss points of ``count`` spans holding the boxes centred on ``local_s`` (M, 3) with
+    sides ``widths`` (M, 3), span units, box m in span ``span_of[m]``: a span its boxes fill (volume
+    1) one exact 3 x 3 x 3 grid, a cut one a grid moment-fitted to its boxes' exact moments on their
+    extent (:func:`fit_boxes`). Returns each point's span, sorted (Q,), its span coordinates
+    (Q, 3) and weight (Q,), span units (times h^3 for m^3)."""
+    volume = np.prod(widths, axis=1)
+    full = np.abs(np.bincount(span_of, volume, minlength=count) - 1.0) < 1e-9
+    cut = np.nonzero(~full)[0]
+    points_full, weights_full = gauss_box(np.full((int(full.sum()), 3), -0.5), np.full((int(full.sum()), 3), 0.5))
+    is_cut = ~full[span_of]
+    local = np.searchsorted(cut, span_of[is_cut])
+    cs, cw = local_s[is_cut], widths[is_cut]
+    lo = np.full((len(cut), 3), np.inf)
+    hi = np.full((len(cut), 3), -np.inf)
+    np.minimum.at(lo, local, cs - cw / 2.0)
+    np.maximum.at(hi, local, cs + cw / 2.0)
+    points_cut, weights_cut = fit_boxes(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    point_span = np.repeat(np.concatenate([np.nonzero(full)[0], cut]), 27)
+    point_s = np.concatenate([points_full.reshape(-1, 3), points_cut.reshape(-1, 3)])
+    point_w = np.concatenate([weights_full.ravel(), weights_cut.ravel()])
+    order = np.argsort(point_span, kind="stable")
+    return point_span[order], point_s[order], point_w[order]
+
+
 def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, youngs_modulus: float,
                 poissons_ratio: float, density: float, dilatation: str = "p1",
                 surface: SurfaceSamples | None = None) -> SplineBody:
@@ -253,30 +279,11 @@ def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, you
     if not inside.any():
         raise ValueError("spline body: no sample inside the mesh")
     centre, local_s, widths, _ = span_samples(s, inside, surface)
-    volume = np.prod(widths, axis=1)
     centres, span_of = np.unique(centre, axis=0, return_inverse=True)
-    span_of = span_of.ravel()
-    # a span all of whose material is inside is full: its pieces tile it (volume 1 in span units)
-    full = np.abs(np.bincount(span_of, volume, minlength=len(centres)) - 1.0) < 1e-9
-    cut = np.nonzero(~full)[0]
-    # full spans: one exact Gauss box each
-    points_full, weights_full = gauss_box(np.full((int(full.sum()), 3), -0.5), np.full((int(full.sum()), 3), 0.5))
-    # cut spans: moment-fitted to their sample boxes' exact moments, on the boxes' extent
-    is_cut = ~full[span_of]
-    local = np.searchsorted(cut, span_of[is_cut])
-    cs, cw = local_s[is_cut], widths[is_cut]
-    lo = np.full((len(cut), 3), np.inf)
-    hi = np.full((len(cut), 3), -np.inf)
-    np.minimum.at(lo, local, cs - cw / 2.0)
-    np.maximum.at(hi, local, cs + cw / 2.0)
-    points_cut, weights_cut = fit_boxes(local, cs, volume[is_cut], np.maximum(lo, -0.5), np.minimum(hi, 0.5), cw)
+    point_span, point_s, point_w = span_quadrature(span_of.ravel(), len(centres), local_s, widths)
     grid, local_centres = _control_grid(origin, spacing, centres)
     ijk = local_centres[:, None, :] + SPAN_OFFSETS[None]
     span_nodes = grid.index[ijk[..., 0], ijk[..., 1], ijk[..., 2]]
-    spans = np.concatenate([np.nonzero(full)[0], cut])
-    point_s = np.concatenate([points_full.reshape(-1, 3), points_cut.reshape(-1, 3)])
-    point_w = np.concatenate([weights_full.ravel(), weights_cut.ravel()]) * spacing ** 3
-    point_span = np.repeat(spans, 27)
-    order = np.argsort(point_span, kind="stable")
-    return SplineBody(grid, span_nodes, point_span[order], point_s[order], point_w[order], float(youngs_modulus),
+    point_w = point_w * spacing ** 3
+    return SplineBody(grid, span_nodes, point_span, point_s, point_w, float(youngs_modulus),
                       float(poissons_ratio), float(density), dilatation)
