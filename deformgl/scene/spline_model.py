@@ -81,8 +81,7 @@ def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, mesh: trimes
     body = sample_body(grid.origin, grid.spacing, fill.samples, fill.inside, youngs_modulus=material.youngs_modulus,
                        poissons_ratio=material.poissons_ratio, density=material.density, surface=surface)
     h = body.spacing
-    points, weights = _held(grid, fill.samples, span_samples(fill.samples, fill.inside, surface), physics.fixed, bbox,
-                            source)
+    points, weights = _held(grid, span_samples(fill.samples, fill.inside, surface), physics.fixed, bbox, source)
     anchors = (SplineAnchor(body, points, weights, HOLD_PENALTY * material.youngs_modulus / h ** 2),
                ) if len(points) else ()
     system = spline_system(body, anchors=anchors, gravity=tuple(physics.gravity), mass_damping=material.mass_damping)
@@ -104,8 +103,7 @@ def _region_box(region: Any, bbox: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-def _held(grid: NodeGrid, samples: int, boxes: tuple, regions: tuple, bbox: np.ndarray,
-          source: str) -> tuple[np.ndarray, np.ndarray]:
+def _held(grid: NodeGrid, boxes: tuple, regions: tuple, bbox: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray]:
     """The quadrature of the material in the fixed ``regions``: the fill's material boxes
     (:func:`~deformgl.sim.terms.spline.cut.span_samples`) cut on every region's faces, the pieces
     inside a region kept, and each knot span's pieces integrated by one moment-fitted grid of 27
