@@ -78,10 +78,11 @@ def spline_scene(grid: NodeGrid, physics: Any, bbox: np.ndarray, *, mesh: trimes
     if mesh is not None:
         triangles = (np.asarray(mesh.triangles, np.float64) - grid.origin) / grid.spacing * fill.samples - 0.5
         surface = surface_samples(triangles, fill.inside, fill.samples / 2.0)
+    boxes = span_samples(fill.samples, fill.inside, surface)  # (the body's and the held regions')
     body = sample_body(grid.origin, grid.spacing, fill.samples, fill.inside, youngs_modulus=material.youngs_modulus,
-                       poissons_ratio=material.poissons_ratio, density=material.density, surface=surface)
+                       poissons_ratio=material.poissons_ratio, density=material.density, boxes=boxes)
     h = body.spacing
-    points, weights = _held(grid, span_samples(fill.samples, fill.inside, surface), physics.fixed, bbox, source)
+    points, weights = _held(grid, boxes, physics.fixed, bbox, source)
     anchors = (SplineAnchor(body, points, weights, HOLD_PENALTY * material.youngs_modulus / h ** 2),
                ) if len(points) else ()
     system = spline_system(body, anchors=anchors, gravity=tuple(physics.gravity), mass_damping=material.mass_damping)

@@ -261,12 +261,13 @@ def span_quadrature(span_of: np.ndarray, count: int, local_s: np.ndarray, widths
 
 def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, youngs_modulus: float,
                 poissons_ratio: float, density: float, dilatation: str = "p1",
-                surface: SurfaceSamples | None = None) -> SplineBody:
+                surface: SurfaceSamples | None = None, boxes: tuple | None = None) -> SplineBody:
     """The body of a fill's samples: ``inside`` (bool, ``samples`` per cell edge along each axis)
     the inside test of the sample points ``origin + h (i + 1/2) / samples``, each the centre of a
     sample box of side ``h / samples`` (the fill's volume). A knot span all of whose sample centres
     are inside is one exact grid of Gauss points; a cut one is one grid moment-fitted to its inside
     samples (each its box's volume at its centre) on their bounding box within the span.
+    ``boxes``: :func:`span_samples` of these samples and ``surface`` where the caller has them.
 
     Raises:
         ValueError: no sample inside, h <= 0 or samples < 1.
@@ -278,7 +279,7 @@ def sample_body(origin, spacing: float, samples: int, inside: np.ndarray, *, you
     origin = np.asarray(origin, np.float64)
     if not inside.any():
         raise ValueError("spline body: no sample inside the mesh")
-    centre, local_s, widths, _ = span_samples(s, inside, surface)
+    centre, local_s, widths, _ = span_samples(s, inside, surface) if boxes is None else boxes
     centres, span_of = np.unique(centre, axis=0, return_inverse=True)
     point_span, point_s, point_w = span_quadrature(span_of.ravel(), len(centres), local_s, widths)
     grid, local_centres = _control_grid(origin, spacing, centres)
